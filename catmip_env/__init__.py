@@ -1,0 +1,30 @@
+"""catmip_env: the CATMiP search-and-rescue world for heterogeneous robot teams (numpy + numba).
+
+* :class:`EnvConfig`, :class:`RobotClass`, :data:`PRESETS` — task definitions (``task1`` ... ``train``);
+* :class:`BatchedEngine` — B worlds stepped in one call (struct of arrays, numba kernels);
+* :mod:`catmip_env.search_rescue_v0` — the PettingZoo Parallel env (``parallel_env()``, ``env()``).
+
+This package never imports torch.
+"""
+
+from __future__ import annotations
+
+from catmip_env.config import EXPLORER, PRESETS, RESCUER, EnvConfig, RobotClass, make_config
+from catmip_env.engine import BatchedEngine, StepResult, WorldState
+from catmip_env.layout import Layout, parse_layout
+
+__version__ = "0.1.0"
+
+__all__ = [
+    "EXPLORER",
+    "PRESETS",
+    "RESCUER",
+    "BatchedEngine",
+    "EnvConfig",
+    "Layout",
+    "RobotClass",
+    "StepResult",
+    "WorldState",
+    "make_config",
+    "parse_layout",
+]

@@ -1,0 +1,228 @@
+"""Configuration of the search-and-rescue world: robot classes, the env config, and presets.
+
+Everything that defines a task lives in one frozen :class:`EnvConfig`; presets are plain instances in
+:data:`PRESETS`. ``EnvConfig.replace(**overrides)`` (or :func:`make_config`) applies validated overrides by
+field name, which is how the PettingZoo factory and the CLIs take their flags.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from dataclasses import dataclass
+from typing import Any
+
+__all__ = ["EnvConfig", "RobotClass", "PRESETS", "EXPLORER", "RESCUER", "make_config"]
+
+#: Spawn box side: robots start on free cells of the 4x4 box just inside a map corner.
+SPAWN_BOX = 4
+#: The target is never placed inside this box at the robots' corner.
+TARGET_EXCLUSION_BOX = 8
+#: Side of the square sensor window (own row plus ``VIEW_SIZE - 1`` rows ahead).
+VIEW_SIZE = 7
+
+
+@dataclass(frozen=True)
+class RobotClass:
+    """A kind of robot. Classes are data: any number of them may be defined."""
+
+    name: str
+    """Unique class name (used in configs, logs and rendering)."""
+    ticks_per_action: int = 1
+    """Speed: the robot executes one primitive action every this many ticks."""
+    can_rescue: bool = False
+    """Whether this class completes the mission by standing next to the known target."""
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.name, str) or not self.name:
+            raise ValueError(f"RobotClass.name must be a non-empty string, got {self.name!r}")
+        if not isinstance(self.ticks_per_action, int) or self.ticks_per_action < 1:
+            raise ValueError(
+                f"RobotClass {self.name!r}: ticks_per_action must be an int >= 1, "
+                f"got {self.ticks_per_action!r}"
+            )
+
+
+EXPLORER = RobotClass("explorer", ticks_per_action=1, can_rescue=False)
+RESCUER = RobotClass("rescuer", ticks_per_action=2, can_rescue=True)
+
+
+@dataclass(frozen=True)
+class EnvConfig:
+    """One task of the search-and-rescue world (SPEC §1-§4). Frozen and validated on creation."""
+
+    map_size: int = 20
+    """Side S of the square generated map, outer wall ring included (S >= 10)."""
+    team: tuple[str, ...] = ("rescuer", "explorer", "explorer")
+    """Class name of each robot ``robot_i``; the entry ``"random"`` draws a class per episode."""
+    random_classes: tuple[str, ...] = ("rescuer", "explorer")
+    """Classes a ``"random"`` team slot is drawn from (uniformly, from the episode's map stream)."""
+    classes: tuple[RobotClass, ...] = (RESCUER, EXPLORER)
+    """All robot classes; their order fixes the class one-hot and the per-class observation channels."""
+    horizon_ticks: int = 200
+    """Episode length h in ticks; the episode is truncated for everyone after tick h."""
+    num_obstacles: int | None = None
+    """Single-cell obstacles per map; ``None`` means floor(S^2 / 40)."""
+    wall_prob: float = 0.9
+    """Probability that a wall segment (with one doorway) separates two adjacent rooms."""
+    comm_sigma: float | None = None
+    """Communication range sigma in cells; ``None`` is full communication. Link prob exp(-d^2/sigma^2)."""
+    slam_noise: float = 0.0
+    """Per-tick probability that each explored cell of a robot's used occupancy map is flipped."""
+    local_size: int = 7
+    """Side L of the robot-centred local map (odd)."""
+    window: int = 7
+    """Side D of the goal window of the macro level (odd); D^2 window actions."""
+    step_reward: float = -0.05
+    """Reward for every successful forward move (energy)."""
+    collision_penalty: float = 0.0
+    """Reward added when a forward move hits a wall, an obstacle or the target."""
+    find_reward: float = 100.0
+    """Team reward scale when the target first becomes known: find_reward * (1 - 0.9 t/h)."""
+    rescue_reward: float = 300.0
+    """Team reward scale on success: rescue_reward * (1 - 0.9 t/h)."""
+    layout: str | None = None
+    """Optional fixed ASCII map (see :mod:`catmip_env.layout`); replaces map generation."""
+
+    # -- derived -------------------------------------------------------------------------------
+    def __post_init__(self) -> None:
+        _validate(self)
+
+    @property
+    def num_robots(self) -> int:
+        return len(self.team)
+
+    @property
+    def num_classes(self) -> int:
+        return len(self.classes)
+
+    @property
+    def obstacles(self) -> int:
+        """Number of obstacles actually placed on a generated map."""
+        if self.num_obstacles is not None:
+            return self.num_obstacles
+        return self.map_size**2 // 40
+
+    @property
+    def map_shape(self) -> tuple[int, int]:
+        """(rows, cols) of the world grid: the layout's shape, or (S, S)."""
+        if self.layout is not None:
+            from catmip_env.layout import parse_layout
+
+            return parse_layout(self.layout).grid.shape
+        return (self.map_size, self.map_size)
+
+    def class_index(self, name: str) -> int:
+        for i, c in enumerate(self.classes):
+            if c.name == name:
+                return i
+        raise ValueError(f"unknown robot class {name!r}; known: {[c.name for c in self.classes]}")
+
+    def replace(self, **overrides: Any) -> EnvConfig:
+        """A copy with fields replaced by name (unknown names raise ``ValueError``)."""
+        names = {f.name for f in dataclasses.fields(self)}
+        unknown = sorted(set(overrides) - names)
+        if unknown:
+            raise ValueError(f"unknown EnvConfig field(s) {unknown}; valid fields: {sorted(names)}")
+        if "team" in overrides:
+            overrides["team"] = tuple(overrides["team"])
+        if "random_classes" in overrides:
+            overrides["random_classes"] = tuple(overrides["random_classes"])
+        if "classes" in overrides:
+            overrides["classes"] = tuple(
+                c if isinstance(c, RobotClass) else RobotClass(**c) for c in overrides["classes"]
+            )
+        return dataclasses.replace(self, **overrides)
+
+    def to_dict(self) -> dict[str, Any]:
+        return dataclasses.asdict(self)
+
+    def to_json(self) -> str:
+        return json.dumps(self.to_dict(), indent=2, sort_keys=True)
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> EnvConfig:
+        return cls().replace(**data)
+
+
+def _validate(cfg: EnvConfig) -> None:
+    def fail(msg: str) -> None:
+        raise ValueError(f"EnvConfig: {msg}")
+
+    if not isinstance(cfg.map_size, int) or cfg.map_size < 10:
+        fail(f"map_size must be an int >= 10, got {cfg.map_size!r}")
+    if not cfg.classes:
+        fail("classes must name at least one RobotClass")
+    names = [c.name for c in cfg.classes]
+    if len(set(names)) != len(names):
+        fail(f"class names must be unique, got {names}")
+    if "random" in names:
+        fail("'random' is reserved for team slots and cannot be a class name")
+    if not cfg.team:
+        fail("team must contain at least one robot")
+    for slot in cfg.team:
+        if slot != "random" and slot not in names:
+            fail(f"unknown class name {slot!r} in team; known classes: {names} (or 'random')")
+    if "random" in cfg.team:
+        if not cfg.random_classes:
+            fail("random_classes must not be empty when the team has a 'random' slot")
+        for name in cfg.random_classes:
+            if name not in names:
+                fail(f"unknown class name {name!r} in random_classes; known classes: {names}")
+    if cfg.layout is None and cfg.num_robots > SPAWN_BOX * SPAWN_BOX:
+        fail(
+            f"{cfg.num_robots} robots do not fit the {SPAWN_BOX}x{SPAWN_BOX} spawn box "
+            f"({SPAWN_BOX * SPAWN_BOX} cells)"
+        )
+    if not isinstance(cfg.horizon_ticks, int) or cfg.horizon_ticks < 1:
+        fail(f"horizon_ticks must be an int >= 1, got {cfg.horizon_ticks!r}")
+    if cfg.num_obstacles is not None and (
+        not isinstance(cfg.num_obstacles, int) or cfg.num_obstacles < 0
+    ):
+        fail(f"num_obstacles must be None or an int >= 0, got {cfg.num_obstacles!r}")
+    if cfg.layout is None and cfg.obstacles > (cfg.map_size - 2) ** 2 // 4:
+        fail(f"num_obstacles={cfg.obstacles} is too many for a {cfg.map_size}x{cfg.map_size} map")
+    if not 0.0 <= cfg.wall_prob <= 1.0:
+        fail(f"wall_prob must be a probability in [0, 1], got {cfg.wall_prob!r}")
+    if cfg.comm_sigma is not None and not cfg.comm_sigma > 0:
+        fail(f"comm_sigma must be None (full communication) or > 0, got {cfg.comm_sigma!r}")
+    if not 0.0 <= cfg.slam_noise <= 1.0:
+        fail(f"slam_noise must be a probability in [0, 1], got {cfg.slam_noise!r}")
+    for name in ("local_size", "window"):
+        v = getattr(cfg, name)
+        if not isinstance(v, int) or v < 1 or v % 2 == 0:
+            fail(f"{name} must be an odd int >= 1, got {v!r}")
+    for name in ("find_reward", "rescue_reward"):
+        if getattr(cfg, name) < 0:
+            fail(f"{name} must be >= 0, got {getattr(cfg, name)!r}")
+    if cfg.layout is not None:
+        from catmip_env.layout import parse_layout
+
+        lay = parse_layout(cfg.layout)
+        if lay.num_robots != cfg.num_robots:
+            fail(f"layout places {lay.num_robots} robots but team has {cfg.num_robots}")
+
+
+def make_config(preset: str | EnvConfig = "task2", **overrides: Any) -> EnvConfig:
+    """Resolve a preset name (or config) and apply overrides by ``EnvConfig`` field name."""
+    if isinstance(preset, EnvConfig):
+        base = preset
+    else:
+        if preset not in PRESETS:
+            raise ValueError(f"unknown preset {preset!r}; known presets: {sorted(PRESETS)}")
+        base = PRESETS[preset]
+    return base.replace(**overrides) if overrides else base
+
+
+PRESETS: dict[str, EnvConfig] = {
+    # Evaluation tasks (paper Section 7): horizons 300 / 400 / 500 ticks.
+    "task1": EnvConfig(map_size=15, team=("rescuer", "explorer"), horizon_ticks=300),
+    "task2": EnvConfig(map_size=20, team=("rescuer", "explorer", "explorer"), horizon_ticks=400),
+    "task3": EnvConfig(
+        map_size=32,
+        team=("rescuer", "rescuer", "explorer", "explorer", "explorer", "explorer"),
+        horizon_ticks=500,
+    ),
+    # Training (paper Section 6): rescuer + explorer + one robot of random class, horizon 200.
+    "train": EnvConfig(map_size=20, team=("rescuer", "explorer", "random"), horizon_ticks=200),
+}

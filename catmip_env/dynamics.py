@@ -1,0 +1,316 @@
+"""Per-tick world dynamics as numba kernels over a batch of worlds (SPEC §1.2-§1.5).
+
+One call of :func:`tick` advances every live world by one tick:
+
+1. move      robots in id order execute their primitive action (every ``ticks_per_action`` ticks);
+2. sense     each robot marks its line-of-sight view explored in its own belief;
+3. comms     links are drawn (or full communication), neighbourhoods = connected components;
+4. merge     beliefs are OR-merged inside every neighbourhood;
+5. mission   first target knowledge and success (a target-aware rescuer next to the target), rewards;
+6. noise     the occupancy map each robot *uses* this tick is redrawn (if ``slam_noise > 0``).
+
+All arrays are the struct-of-arrays state of :class:`catmip_env.engine.WorldState`.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from catmip_env.rng import uniform
+from catmip_env.sensing import sense_robot
+from catmip_env.types import (
+    EXPLORED,
+    FORWARD,
+    FREE,
+    OCCUPIED,
+    CLUE,
+    TARGET_BIT,
+    TURN_LEFT,
+    TURN_RIGHT,
+)
+
+_DR = np.array([0, 1, 0, -1], dtype=np.int64)
+_DC = np.array([1, 0, -1, 0], dtype=np.int64)
+
+
+@njit(cache=True)
+def move_robots(
+    b: int,
+    t0: int,  # 0-based index of the tick being executed
+    grid: np.ndarray,  # (B, H, W) uint8
+    pos: np.ndarray,  # (B, N, 2) int64
+    heading: np.ndarray,  # (B, N) int64
+    speed: np.ndarray,  # (B, N) int64 ticks per action of each robot
+    actions: np.ndarray,  # (B, N) int64 primitive actions
+    step_reward: float,
+    collision_penalty: float,
+    rewards: np.ndarray,  # (B, N) float64, accumulated into
+) -> None:
+    n = pos.shape[1]
+    for i in range(n):
+        if t0 % speed[b, i] != 0:
+            continue  # a slow robot holds its previous command on this tick
+        a = actions[b, i]
+        if a == TURN_LEFT:
+            heading[b, i] = (heading[b, i] + 3) % 4
+        elif a == TURN_RIGHT:
+            heading[b, i] = (heading[b, i] + 1) % 4
+        elif a == FORWARD:
+            h = heading[b, i]
+            r = pos[b, i, 0] + _DR[h]
+            c = pos[b, i, 1] + _DC[h]
+            g = grid[b, r, c]
+            if g != FREE and g != CLUE:
+                rewards[b, i] += collision_penalty
+                continue
+            blocked = False
+            for j in range(n):
+                if j != i and pos[b, j, 0] == r and pos[b, j, 1] == c:
+                    blocked = True
+                    break
+            if not blocked:
+                pos[b, i, 0] = r
+                pos[b, i, 1] = c
+                rewards[b, i] += step_reward
+
+
+@njit(cache=True)
+def _find(parent: np.ndarray, i: int) -> int:
+    while parent[i] != i:
+        parent[i] = parent[parent[i]]
+        i = parent[i]
+    return i
+
+
+@njit(cache=True)
+def draw_neighbourhoods(
+    b: int, pos: np.ndarray, comm_sigma: float, rng: np.ndarray, comp: np.ndarray
+) -> None:
+    """Label each robot with its neighbourhood (the lowest robot id of its component).
+
+    ``comm_sigma <= 0`` means full communication. Otherwise pair (i, j) is linked with probability
+    exp(-d^2 / sigma^2); one uniform draw per pair, pairs in (i, j) lexicographic order.
+    """
+    n = pos.shape[1]
+    if comm_sigma <= 0.0:
+        for i in range(n):
+            comp[b, i] = 0
+        return
+    parent = np.arange(n)
+    inv_s2 = 1.0 / (comm_sigma * comm_sigma)
+    for i in range(n):
+        for j in range(i + 1, n):
+            dr = pos[b, i, 0] - pos[b, j, 0]
+            dc = pos[b, i, 1] - pos[b, j, 1]
+            p = math.exp(-(dr * dr + dc * dc) * inv_s2)
+            if uniform(rng, b) < p:
+                ri, rj = _find(parent, i), _find(parent, j)
+                if ri != rj:
+                    parent[max(ri, rj)] = min(ri, rj)
+    for i in range(n):
+        comp[b, i] = _find(parent, i)
+
+
+@njit(cache=True)
+def merge_beliefs(b: int, comp: np.ndarray, belief: np.ndarray) -> None:
+    """OR-merge the beliefs of every neighbourhood and write the result back to each member."""
+    n = belief.shape[1]
+    h, w = belief.shape[2], belief.shape[3]
+    for root in range(n):
+        members = 0
+        for i in range(n):
+            if comp[b, i] == root:
+                members += 1
+        if members < 2:
+            continue
+        for r in range(h):
+            for c in range(w):
+                v = np.uint8(0)
+                for i in range(n):
+                    if comp[b, i] == root:
+                        v |= belief[b, i, r, c]
+                for i in range(n):
+                    if comp[b, i] == root:
+                        belief[b, i, r, c] = v
+
+
+@njit(cache=True)
+def draw_used_occupancy(
+    b: int, belief: np.ndarray, pos: np.ndarray, noise: float, rng: np.ndarray, used: np.ndarray
+) -> None:
+    """Occupancy each robot uses this tick: its belief's OCCUPIED bit, each explored cell flipped
+    with probability ``noise`` (geometric skipping: one draw per flip), its own cell always free.
+
+    Only written when ``noise > 0``; without noise the used map is the belief itself.
+    """
+    if noise <= 0.0:
+        return  # consumers read the belief's OCCUPIED bit directly
+    n, h, w = belief.shape[1], belief.shape[2], belief.shape[3]
+    hw = h * w
+    log_q = math.log(1.0 - noise) if noise < 1.0 else -1e300
+    for i in range(n):
+        for r in range(h):
+            for c in range(w):
+                used[b, i, r, c] = 1 if belief[b, i, r, c] & OCCUPIED else 0
+        k = -1
+        while True:
+            u = uniform(rng, b)
+            k += 1 + int(math.log(1.0 - u) / log_q) if noise < 1.0 else 1
+            if k >= hw:
+                break
+            r, c = k // w, k % w
+            if belief[b, i, r, c] & EXPLORED:
+                used[b, i, r, c] ^= 1
+        used[b, i, pos[b, i, 0], pos[b, i, 1]] = 0
+
+
+@njit(cache=True)
+def sense_all(
+    b: int,
+    grid: np.ndarray,
+    pos: np.ndarray,
+    heading: np.ndarray,
+    belief: np.ndarray,
+    ray_cells: np.ndarray,
+    ray_blockers: np.ndarray,
+    ray_nblock: np.ndarray,
+) -> None:
+    for i in range(pos.shape[1]):
+        sense_robot(
+            grid,
+            belief,
+            b,
+            i,
+            pos[b, i, 0],
+            pos[b, i, 1],
+            heading[b, i],
+            ray_cells,
+            ray_blockers,
+            ray_nblock,
+        )
+
+
+@njit(cache=True)
+def mission_update(
+    b: int,
+    tick_1b: int,  # 1-based tick index t (0 at reset)
+    horizon: int,
+    target: np.ndarray,  # (B, 2)
+    pos: np.ndarray,
+    can_rescue: np.ndarray,  # (B, N) bool
+    belief: np.ndarray,
+    found_tick: np.ndarray,  # (B,) int64, -1 until the target is known to anyone
+    rescue_tick: np.ndarray,  # (B,) int64, -1 until success
+    find_reward: float,
+    rescue_reward: float,
+    rewards: np.ndarray,
+) -> bool:
+    """Team rewards for first target knowledge and success; returns whether the mission succeeded."""
+    n = pos.shape[1]
+    tr, tc = target[b, 0], target[b, 1]
+    scale = 1.0 - 0.9 * tick_1b / horizon
+    if found_tick[b] < 0:
+        for i in range(n):
+            if belief[b, i, tr, tc] & TARGET_BIT:
+                found_tick[b] = tick_1b
+                for j in range(n):
+                    rewards[b, j] += find_reward * scale
+                break
+    if found_tick[b] < 0:
+        return False
+    for i in range(n):
+        if can_rescue[b, i] and belief[b, i, tr, tc] & TARGET_BIT:
+            if abs(pos[b, i, 0] - tr) + abs(pos[b, i, 1] - tc) == 1:
+                rescue_tick[b] = tick_1b
+                for j in range(n):
+                    rewards[b, j] += rescue_reward * scale
+                return True
+    return False
+
+
+@njit(cache=True)
+def perceive(
+    b: int,
+    tick_1b: int,
+    grid: np.ndarray,
+    target: np.ndarray,
+    pos: np.ndarray,
+    heading: np.ndarray,
+    can_rescue: np.ndarray,
+    belief: np.ndarray,
+    comp: np.ndarray,
+    rng: np.ndarray,
+    used_occ: np.ndarray,
+    found_tick: np.ndarray,
+    rescue_tick: np.ndarray,
+    rewards: np.ndarray,
+    horizon: int,
+    comm_sigma: float,
+    noise: float,
+    find_reward: float,
+    rescue_reward: float,
+    ray_cells: np.ndarray,
+    ray_blockers: np.ndarray,
+    ray_nblock: np.ndarray,
+) -> bool:
+    """Steps 2-6 of a tick for world b (also run at reset, with t = 0). Returns success."""
+    sense_all(b, grid, pos, heading, belief, ray_cells, ray_blockers, ray_nblock)
+    draw_neighbourhoods(b, pos, comm_sigma, rng, comp)
+    merge_beliefs(b, comp, belief)
+    success = mission_update(
+        b, tick_1b, horizon, target, pos, can_rescue, belief, found_tick, rescue_tick,
+        find_reward, rescue_reward, rewards,
+    )  # fmt: skip
+    draw_used_occupancy(b, belief, pos, noise, rng, used_occ)
+    return success
+
+
+@njit(cache=True)
+def tick(
+    live: np.ndarray,  # (B,) bool: worlds to advance
+    actions: np.ndarray,  # (B, N) int64 primitive actions
+    grid: np.ndarray,
+    target: np.ndarray,
+    pos: np.ndarray,
+    heading: np.ndarray,
+    speed: np.ndarray,
+    can_rescue: np.ndarray,
+    belief: np.ndarray,
+    comp: np.ndarray,
+    rng: np.ndarray,
+    used_occ: np.ndarray,
+    ticks: np.ndarray,  # (B,) int64 ticks done so far
+    found_tick: np.ndarray,
+    rescue_tick: np.ndarray,
+    rewards: np.ndarray,  # (B, N) float64, overwritten (plus any pending reset reward)
+    terminated: np.ndarray,  # (B,) bool out
+    truncated: np.ndarray,  # (B,) bool out
+    horizon: int,
+    comm_sigma: float,
+    noise: float,
+    step_reward: float,
+    collision_penalty: float,
+    find_reward: float,
+    rescue_reward: float,
+    ray_cells: np.ndarray,
+    ray_blockers: np.ndarray,
+    ray_nblock: np.ndarray,
+) -> None:
+    """Advance every world with ``live[b]`` by one tick; ``rewards`` must be zeroed (or hold pending
+    reset rewards) by the caller. Worlds that are not live are left untouched."""
+    for b in range(live.shape[0]):
+        if not live[b]:
+            continue
+        t0 = ticks[b]
+        move_robots(b, t0, grid, pos, heading, speed, actions, step_reward, collision_penalty, rewards)
+        success = perceive(
+            b, t0 + 1, grid, target, pos, heading, can_rescue, belief, comp, rng, used_occ,
+            found_tick, rescue_tick, rewards, horizon, comm_sigma, noise, find_reward,
+            rescue_reward, ray_cells, ray_blockers, ray_nblock,
+        )  # fmt: skip
+        ticks[b] = t0 + 1
+        terminated[b] = success
+        truncated[b] = (not success) and t0 + 1 >= horizon

@@ -1,0 +1,328 @@
+"""The batched world engine: B independent worlds as one struct of arrays, stepped in one call.
+
+>>> eng = BatchedEngine(PRESETS["task2"], num_worlds=64, seed=0)
+>>> eng.reset()                                   # every world draws its episode's map
+>>> res = eng.step(actions)                       # actions: (B, N) ints in [0, 4)
+>>> res.rewards, res.terminated, res.truncated    # (B, N), (B,), (B,)
+>>> eng.obs_global, eng.obs_local                 # uint8 macro-observations, float = x * OBS_SCALE
+>>> eng.reset(worlds=eng.done)                    # start the next episodes of finished worlds
+
+Episodes are numbered: world resets take consecutive episode indices (or explicit ones), and
+episode ``k`` of seed ``s`` always has the same map, team and spawn poses, drawn from
+``SeedSequence(s, spawn_key=(k,))``; its dynamics (communication links, SLAM noise) draw from a sibling
+stream, so a world's trajectory depends only on ``(s, k)`` and its actions — not on B or on other worlds.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, fields
+from typing import NamedTuple
+
+import numpy as np
+from numba import njit
+
+from catmip_env.config import EnvConfig
+from catmip_env.dynamics import perceive, tick
+from catmip_env.layout import parse_layout
+from catmip_env.mapgen import Episode, generate
+from catmip_env.observe import observe
+from catmip_env.rng import seed_state
+from catmip_env.sensing import RAY_BLOCKERS, RAY_CELLS, RAY_NBLOCK
+from catmip_env.types import CLUE, EXPLORED, OBSTACLE, TARGET, WALL, global_channels, local_channels
+
+__all__ = ["WorldState", "BatchedEngine", "StepResult"]
+
+
+@dataclass
+class WorldState:
+    """Struct-of-arrays state of B worlds with N robots on H x W maps (C classes)."""
+
+    grid: np.ndarray  # (B, H, W) uint8 ground-truth cell codes (types.FREE ... types.CLUE)
+    target: np.ndarray  # (B, 2) int64 target cell
+    pos: np.ndarray  # (B, N, 2) int64 robot cells
+    heading: np.ndarray  # (B, N) int64 0=E 1=S 2=W 3=N
+    cls: np.ndarray  # (B, N) int64 class index
+    speed: np.ndarray  # (B, N) int64 ticks per primitive action
+    can_rescue: np.ndarray  # (B, N) bool
+    belief: np.ndarray  # (B, N, H, W) uint8 belief bits (types.EXPLORED | OCCUPIED | ...)
+    used_occ: np.ndarray  # (B, N, H, W) uint8 noisy occupancy used this tick (noise only)
+    comp: np.ndarray  # (B, N) int64 neighbourhood label = lowest robot id of the component
+    goal: np.ndarray  # (B, N, 2) int64 current goal cell, -1 = none (macro level)
+    rng: np.ndarray  # (B,) uint64 per-world dynamics stream
+    ticks: np.ndarray  # (B,) int64 ticks elapsed in the episode
+    found_tick: np.ndarray  # (B,) int64 tick the target first became known, -1 = not yet
+    rescue_tick: np.ndarray  # (B,) int64 tick of success, -1 = not yet
+    done: np.ndarray  # (B,) bool episode over (terminated or truncated)
+    episode: np.ndarray  # (B,) int64 episode index of each world's current episode
+    pending_reward: np.ndarray  # (B, N) float64 rewards earned at reset, paid with the next step
+
+    @classmethod
+    def allocate(cls, num_worlds: int, num_robots: int, shape: tuple[int, int], noisy: bool):
+        b, n, (h, w) = num_worlds, num_robots, shape
+        occ_shape = (b, n, h, w) if noisy else (1, 1, 1, 1)
+        return cls(
+            grid=np.zeros((b, h, w), np.uint8),
+            target=np.zeros((b, 2), np.int64),
+            pos=np.zeros((b, n, 2), np.int64),
+            heading=np.zeros((b, n), np.int64),
+            cls=np.zeros((b, n), np.int64),
+            speed=np.ones((b, n), np.int64),
+            can_rescue=np.zeros((b, n), np.bool_),
+            belief=np.zeros((b, n, h, w), np.uint8),
+            used_occ=np.zeros(occ_shape, np.uint8),
+            comp=np.zeros((b, n), np.int64),
+            goal=np.full((b, n, 2), -1, np.int64),
+            rng=np.zeros(b, np.uint64),
+            ticks=np.zeros(b, np.int64),
+            found_tick=np.full(b, -1, np.int64),
+            rescue_tick=np.full(b, -1, np.int64),
+            done=np.ones(b, np.bool_),
+            episode=np.full(b, -1, np.int64),
+            pending_reward=np.zeros((b, n), np.float64),
+        )
+
+    def copy(self) -> WorldState:
+        return WorldState(**{f.name: getattr(self, f.name).copy() for f in fields(self)})
+
+
+class StepResult(NamedTuple):
+    """What one batched tick returns. Arrays are the engine's buffers: copy them to keep them."""
+
+    rewards: np.ndarray  # (B, N) float64 reward of each robot on this tick
+    terminated: np.ndarray  # (B,) bool mission succeeded on this tick
+    truncated: np.ndarray  # (B,) bool horizon reached without success on this tick
+
+
+@njit(cache=True)
+def _perceive_worlds(
+    worlds, grid, target, pos, heading, can_rescue, belief, comp, rng, used_occ, found_tick,
+    rescue_tick, rewards, horizon, comm_sigma, noise, find_reward, rescue_reward, ray_cells,
+    ray_blockers, ray_nblock,
+):  # fmt: skip
+    for b in range(worlds.shape[0]):
+        if worlds[b]:
+            perceive(
+                b, 0, grid, target, pos, heading, can_rescue, belief, comp, rng, used_occ,
+                found_tick, rescue_tick, rewards, horizon, comm_sigma, noise, find_reward,
+                rescue_reward, ray_cells, ray_blockers, ray_nblock,
+            )  # fmt: skip
+
+
+class BatchedEngine:
+    """B independent worlds of one :class:`EnvConfig`, advanced one primitive tick per call.
+
+    Worlds whose episode is over (``done``) are frozen by :meth:`step` until :meth:`reset` starts
+    their next episode. Observations are rebuilt for every stepped or reset world.
+    """
+
+    def __init__(self, cfg: EnvConfig, num_worlds: int = 1, seed: int | None = None) -> None:
+        if not isinstance(cfg, EnvConfig):
+            raise TypeError(f"cfg must be an EnvConfig, got {type(cfg).__name__}")
+        if not isinstance(num_worlds, (int, np.integer)) or num_worlds < 1:
+            raise ValueError(f"num_worlds must be an int >= 1, got {num_worlds!r}")
+        self.cfg = cfg
+        self.num_worlds = int(num_worlds)
+        self.num_robots = cfg.num_robots
+        self.shape = cfg.map_shape
+        self.noisy = cfg.slam_noise > 0.0
+        self._layout = parse_layout(cfg.layout) if cfg.layout is not None else None
+        self.state = WorldState.allocate(self.num_worlds, self.num_robots, self.shape, self.noisy)
+        b, n, (h, w), c = self.num_worlds, self.num_robots, self.shape, cfg.num_classes
+        self.obs_global = np.zeros((b, n, global_channels(c), h, w), np.uint8)
+        self.obs_local = np.zeros((b, n, local_channels(c), cfg.local_size, cfg.local_size), np.uint8)
+        self._rewards = np.zeros((b, n), np.float64)
+        self._terminated = np.zeros(b, np.bool_)
+        self._truncated = np.zeros(b, np.bool_)
+        self._speed_of = np.array([k.ticks_per_action for k in cfg.classes], np.int64)
+        self._rescue_of = np.array([k.can_rescue for k in cfg.classes], np.bool_)
+        self._comm = float(cfg.comm_sigma) if cfg.comm_sigma is not None else 0.0
+        self.seed(seed)
+
+    # -- seeding and reset ---------------------------------------------------------------------
+    def seed(self, seed: int | None) -> None:
+        """Set the base seed and restart episode numbering at 0 (``None`` draws OS entropy)."""
+        if seed is None:
+            seed = int(np.random.SeedSequence().entropy % (2**63))
+        if not isinstance(seed, (int, np.integer)) or seed < 0:
+            raise ValueError(f"seed must be a non-negative int or None, got {seed!r}")
+        self.base_seed = int(seed)
+        self.next_episode = 0
+
+    def reset(
+        self,
+        worlds: np.ndarray | None = None,
+        episode_indices: np.ndarray | None = None,
+        seed: int | None = None,
+    ) -> np.ndarray:
+        """Start new episodes in ``worlds`` (bool mask (B,) or indices; default all).
+
+        ``seed`` (optional) re-seeds first (episode numbering restarts at 0). Episode indices default
+        to the next unused ones, in world order. Returns the indices of the reset worlds.
+        """
+        if seed is not None:
+            self.seed(seed)
+        idx = self._world_indices(worlds)
+        if episode_indices is None:
+            episode_indices = np.arange(self.next_episode, self.next_episode + len(idx))
+        episode_indices = np.asarray(episode_indices, dtype=np.int64).reshape(-1)
+        if len(episode_indices) != len(idx):
+            raise ValueError(
+                f"got {len(episode_indices)} episode indices for {len(idx)} worlds being reset"
+            )
+        if len(episode_indices) and episode_indices.min() < 0:
+            raise ValueError("episode indices must be >= 0")
+        if len(episode_indices):
+            self.next_episode = max(self.next_episode, int(episode_indices.max()) + 1)
+        st = self.state
+        for b, k in zip(idx, episode_indices):
+            self._load_episode(int(b), int(k))
+        mask = np.zeros(self.num_worlds, np.bool_)
+        mask[idx] = True
+        st.pending_reward[idx] = 0.0
+        cfg = self.cfg
+        _perceive_worlds(
+            mask, st.grid, st.target, st.pos, st.heading, st.can_rescue, st.belief, st.comp,
+            st.rng, st.used_occ, st.found_tick, st.rescue_tick, st.pending_reward,
+            cfg.horizon_ticks, self._comm, cfg.slam_noise, cfg.find_reward, cfg.rescue_reward,
+            RAY_CELLS, RAY_BLOCKERS, RAY_NBLOCK,
+        )  # fmt: skip
+        self._observe(mask)
+        return idx
+
+    def episode_streams(self, episode: int) -> tuple[np.random.Generator, np.uint64]:
+        """(map generator, dynamics kernel state) of episode ``episode`` under the base seed."""
+        seq = np.random.SeedSequence(self.base_seed, spawn_key=(episode,))
+        map_seq, dyn_seq = seq.spawn(2)
+        return np.random.default_rng(map_seq), seed_state(dyn_seq)
+
+    def _load_episode(self, b: int, episode: int) -> None:
+        cfg, st = self.cfg, self.state
+        map_rng, dyn_state = self.episode_streams(episode)
+        if self._layout is None:
+            ep = generate(cfg, map_rng)
+        else:
+            ep = self._layout_episode(map_rng)
+        st.grid[b] = ep.grid
+        st.target[b] = ep.target
+        st.pos[b] = ep.robots
+        st.heading[b] = ep.headings
+        st.cls[b] = ep.classes
+        st.speed[b] = self._speed_of[ep.classes]
+        st.can_rescue[b] = self._rescue_of[ep.classes]
+        st.belief[b] = 0
+        st.comp[b] = 0
+        st.goal[b] = -1
+        st.rng[b] = dyn_state
+        st.ticks[b] = 0
+        st.found_tick[b] = -1
+        st.rescue_tick[b] = -1
+        st.done[b] = False
+        st.episode[b] = episode
+
+    def _layout_episode(self, rng: np.random.Generator) -> Episode:
+        lay, cfg = self._layout, self.cfg
+        classes = np.empty(cfg.num_robots, np.int64)
+        for i, slot in enumerate(cfg.team):
+            if slot == "random":
+                slot = cfg.random_classes[int(rng.integers(len(cfg.random_classes)))]
+            classes[i] = cfg.class_index(slot)
+        return Episode(
+            grid=lay.grid,
+            robots=lay.robots,
+            headings=np.array(lay.headings, np.int64),
+            classes=classes,
+            target=lay.target,
+            corner=-1,
+            doors=np.zeros((0, 2), np.int64),
+        )
+
+    def _world_indices(self, worlds: np.ndarray | None) -> np.ndarray:
+        if worlds is None:
+            return np.arange(self.num_worlds)
+        w = np.asarray(worlds)
+        if w.dtype == np.bool_:
+            if w.shape != (self.num_worlds,):
+                raise ValueError(f"world mask must have shape ({self.num_worlds},), got {w.shape}")
+            return np.flatnonzero(w)
+        w = w.astype(np.int64).reshape(-1)
+        if len(w) and (w.min() < 0 or w.max() >= self.num_worlds):
+            raise ValueError(f"world indices must be in [0, {self.num_worlds}), got {w.tolist()}")
+        return w
+
+    # -- stepping ------------------------------------------------------------------------------
+    def step(self, actions: np.ndarray) -> StepResult:
+        """Advance every world that is not done by one tick with primitive ``actions`` (B, N).
+
+        Done worlds are left as they are (zero reward, flags false) until reset.
+        """
+        actions = self._check_actions(actions)
+        st, cfg = self.state, self.cfg
+        live = ~st.done
+        rewards = self._rewards
+        np.copyto(rewards, st.pending_reward)
+        st.pending_reward[live] = 0.0
+        rewards[st.done] = 0.0
+        self._terminated[:] = False
+        self._truncated[:] = False
+        tick(
+            live, actions, st.grid, st.target, st.pos, st.heading, st.speed, st.can_rescue,
+            st.belief, st.comp, st.rng, st.used_occ, st.ticks, st.found_tick, st.rescue_tick,
+            rewards, self._terminated, self._truncated, cfg.horizon_ticks, self._comm,
+            cfg.slam_noise, cfg.step_reward, cfg.collision_penalty, cfg.find_reward,
+            cfg.rescue_reward, RAY_CELLS, RAY_BLOCKERS, RAY_NBLOCK,
+        )  # fmt: skip
+        st.done |= self._terminated | self._truncated
+        self._observe(live)
+        return StepResult(rewards, self._terminated, self._truncated)
+
+    def _check_actions(self, actions: np.ndarray) -> np.ndarray:
+        a = np.asarray(actions)
+        if a.shape != (self.num_worlds, self.num_robots):
+            raise ValueError(
+                f"actions must have shape (num_worlds, num_robots) = "
+                f"({self.num_worlds}, {self.num_robots}), got {a.shape}"
+            )
+        if a.dtype != np.int64:
+            if not np.issubdtype(a.dtype, np.integer):
+                raise ValueError(f"actions must be integers, got dtype {a.dtype}")
+            a = a.astype(np.int64)
+        if a.size and (a.min() < 0 or a.max() > 3):
+            bad = np.argwhere((a < 0) | (a > 3))[0]
+            raise ValueError(
+                f"primitive action {int(a[tuple(bad)])} of robot_{bad[1]} in world {bad[0]} is "
+                f"out of range [0, 4)"
+            )
+        return a
+
+    def _observe(self, worlds: np.ndarray) -> None:
+        st = self.state
+        observe(
+            worlds, st.belief, st.used_occ, self.noisy, st.pos, st.cls, st.comp, st.goal,
+            st.target, self.obs_global, self.obs_local,
+        )  # fmt: skip
+
+    # -- read-outs -----------------------------------------------------------------------------
+    def knows_target(self) -> np.ndarray:
+        """(B, N) bool: which robots' beliefs contain the target cell."""
+        st = self.state
+        b = np.arange(self.num_worlds)
+        return (st.belief[b, :, st.target[:, 0], st.target[:, 1]] & 8) != 0
+
+    def explored_fraction(self) -> np.ndarray:
+        """(B,) fraction of the interior cells (outer wall ring excluded) the team has explored."""
+        inner = self.state.belief[:, :, 1:-1, 1:-1] & EXPLORED
+        return inner.any(axis=1).mean(axis=(1, 2))
+
+    def ground_truth(self, b: int = 0) -> np.ndarray:
+        """(4 + C, H, W) float32 ground truth of world b: occupied (walls, obstacles), target, clues,
+        explored by any robot, then one channel per class with that class's robot cells."""
+        st = self.state
+        c = self.cfg.num_classes
+        out = np.zeros((4 + c,) + self.shape, np.float32)
+        g = st.grid[b]
+        out[0] = (g == WALL) | (g == OBSTACLE)
+        out[1] = g == TARGET
+        out[2] = g == CLUE
+        out[3] = (st.belief[b] & EXPLORED).any(axis=0)
+        out[4 + st.cls[b], st.pos[b, :, 0], st.pos[b, :, 1]] = 1.0
+        return out

@@ -1,0 +1,103 @@
+"""Macro-observation builder (SPEC §3), shared by the primitive and the macro level.
+
+Per robot, from its own merged belief, as uint8 with ``float = uint8 * OBS_SCALE`` (1.0 -> 4,
+clue 0.25 -> 1):
+
+* ``global_map (5 + C, H, W)``: explored, occupied, target (3x3 block) / clues (0.25), own goal,
+  other robots of each class in the robot's neighbourhood (3x3 blocks), own position (3x3 block).
+* ``local_map (4 + C, L, L)`` centred on the robot, single cells, outside the map explored + occupied.
+
+``occupied`` is the occupancy the robot uses this tick (noisy under SLAM noise).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from catmip_env.types import CLUE_BIT, EXPLORED, OBS_CLUE, OBS_ONE, OCCUPIED, TARGET_BIT
+
+
+@njit(cache=True, inline="always")
+def _stamp3(obs: np.ndarray, b: int, i: int, ch: int, r: int, c: int) -> None:
+    h, w = obs.shape[3], obs.shape[4]
+    for rr in range(max(r - 1, 0), min(r + 2, h)):
+        for cc in range(max(c - 1, 0), min(c + 2, w)):
+            obs[b, i, ch, rr, cc] = OBS_ONE
+
+
+@njit(cache=True)
+def observe(
+    worlds: np.ndarray,  # (B,) bool: build observations for these worlds
+    belief: np.ndarray,  # (B, N, H, W) uint8
+    used_occ: np.ndarray,  # (B, N, H, W) uint8, read when noisy
+    noisy: bool,
+    pos: np.ndarray,  # (B, N, 2)
+    cls: np.ndarray,  # (B, N) class index
+    comp: np.ndarray,  # (B, N) neighbourhood label
+    goal: np.ndarray,  # (B, N, 2), row -1 = no goal
+    target: np.ndarray,  # (B, 2)
+    obs_global: np.ndarray,  # (B, N, 5 + C, H, W) uint8 out
+    obs_local: np.ndarray,  # (B, N, 4 + C, L, L) uint8 out
+) -> None:
+    n, h, w = belief.shape[1], belief.shape[2], belief.shape[3]
+    n_cls = obs_local.shape[2] - 4
+    half = obs_local.shape[3] // 2
+    for b in range(worlds.shape[0]):
+        if not worlds[b]:
+            continue
+        tr, tc = target[b, 0], target[b, 1]
+        for i in range(n):
+            # -- global map: belief channels ------------------------------------------------
+            for r in range(h):
+                for c in range(w):
+                    v = belief[b, i, r, c]
+                    obs_global[b, i, 0, r, c] = OBS_ONE if v & EXPLORED else 0
+                    if noisy:
+                        occ = used_occ[b, i, r, c] != 0
+                    else:
+                        occ = (v & OCCUPIED) != 0
+                    obs_global[b, i, 1, r, c] = OBS_ONE if occ else 0
+                    obs_global[b, i, 2, r, c] = OBS_CLUE if v & CLUE_BIT else 0
+            for ch in range(3, 5 + n_cls):
+                for r in range(h):
+                    for c in range(w):
+                        obs_global[b, i, ch, r, c] = 0
+            knows = (belief[b, i, tr, tc] & TARGET_BIT) != 0
+            if knows:
+                _stamp3(obs_global, b, i, 2, tr, tc)
+            gr, gc = goal[b, i, 0], goal[b, i, 1]
+            if gr >= 0:
+                obs_global[b, i, 3, gr, gc] = OBS_ONE
+            for j in range(n):
+                if j != i and comp[b, j] == comp[b, i]:
+                    _stamp3(obs_global, b, i, 4 + cls[b, j], pos[b, j, 0], pos[b, j, 1])
+            _stamp3(obs_global, b, i, 4 + n_cls, pos[b, i, 0], pos[b, i, 1])
+
+            # -- local map ------------------------------------------------------------------
+            r0, c0 = pos[b, i, 0] - half, pos[b, i, 1] - half
+            size = 2 * half + 1
+            for lr in range(size):
+                r = r0 + lr
+                for lc in range(size):
+                    c = c0 + lc
+                    for ch in range(4 + n_cls):
+                        obs_local[b, i, ch, lr, lc] = 0
+                    if r < 0 or c < 0 or r >= h or c >= w:
+                        obs_local[b, i, 0, lr, lc] = OBS_ONE
+                        obs_local[b, i, 1, lr, lc] = OBS_ONE
+                        continue
+                    obs_local[b, i, 0, lr, lc] = obs_global[b, i, 0, r, c]
+                    obs_local[b, i, 1, lr, lc] = obs_global[b, i, 1, r, c]
+                    v = belief[b, i, r, c]
+                    if v & TARGET_BIT:
+                        obs_local[b, i, 2, lr, lc] = OBS_ONE
+                    elif v & CLUE_BIT:
+                        obs_local[b, i, 2, lr, lc] = OBS_CLUE
+                    if r == gr and c == gc:
+                        obs_local[b, i, 3, lr, lc] = OBS_ONE
+            for j in range(n):
+                if j != i and comp[b, j] == comp[b, i]:
+                    lr, lc = pos[b, j, 0] - r0, pos[b, j, 1] - c0
+                    if 0 <= lr < size and 0 <= lc < size:
+                        obs_local[b, i, 4 + cls[b, j], lr, lc] = OBS_ONE
