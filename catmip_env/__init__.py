@@ -28,3 +28,16 @@ __all__ = [
     "make_config",
     "parse_layout",
 ]
+
+
+def _register() -> None:
+    """Make ``pettingzoo.make("parallel", "catmip/SearchRescue-v0")`` (and ``"aec"``) work."""
+    from pettingzoo import aec_registry, parallel_registry, register
+
+    if "catmip/SearchRescue-v0" not in parallel_registry:
+        register("parallel", "catmip/SearchRescue-v0", "catmip_env.search_rescue_v0:parallel_env")
+    if "catmip/SearchRescue-v0" not in aec_registry:
+        register("aec", "catmip/SearchRescue-v0", "catmip_env.search_rescue_v0:env")
+
+
+_register()

@@ -1,0 +1,126 @@
+"""Rendering in the paper's Fig. 4 style, and episode-to-GIF export.
+
+:func:`render_world` draws one world of an engine as an (H*cell, W*cell, 3) uint8 picture with numpy
+only: free cells white, walls dark grey, obstacles black, target green, clues pink, cells no robot has
+explored dimmed, robots as class-coloured triangles pointing along their heading, each robot's goal as
+a ring of its colour, and (optionally) communication links between neighbourhood members.
+:func:`save_gif` writes a list of frames (needs the ``render`` extra: ``imageio``).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from functools import lru_cache
+from pathlib import Path
+
+import numpy as np
+
+from catmip_env.types import CLUE, EXPLORED, OBSTACLE, TARGET, WALL
+
+__all__ = ["render_world", "render_ansi", "save_gif", "CLASS_COLOURS"]
+
+_FREE = np.array([255, 255, 255], np.uint8)
+_COLOURS = {
+    WALL: np.array([70, 70, 70], np.uint8),
+    OBSTACLE: np.array([20, 20, 20], np.uint8),
+    TARGET: np.array([40, 170, 60], np.uint8),
+    CLUE: np.array([245, 160, 200], np.uint8),
+}
+#: Robot colours by class index (rescuers red, explorers blue in the default class order).
+CLASS_COLOURS = np.array(
+    [[220, 40, 40], [40, 90, 220], [230, 150, 20], [140, 60, 180], [20, 160, 160], [120, 120, 0]],
+    np.uint8,
+)
+_UNEXPLORED_DIM = 0.55  # brightness of cells nobody has explored
+
+
+@lru_cache(maxsize=8)
+def _triangle_masks(cell: int) -> np.ndarray:
+    """(4, cell, cell) bool triangles pointing E, S, W, N."""
+    y, x = np.mgrid[0:cell, 0:cell] + 0.5
+    u, v = x / cell, y / cell  # u: rightward, v: downward, in [0, 1]
+    east = (u >= 0.15) & (u <= 0.88) & (np.abs(v - 0.5) <= 0.42 * (0.88 - u) / 0.73)
+    return np.stack([east, np.rot90(east, -1), np.rot90(east, 2), np.rot90(east, 1)])
+
+
+@lru_cache(maxsize=8)
+def _ring_mask(cell: int) -> np.ndarray:
+    y, x = np.mgrid[0:cell, 0:cell] + 0.5
+    d = np.hypot(x - cell / 2, y - cell / 2) / cell
+    return (d <= 0.45) & (d >= 0.30)
+
+
+def _line(img: np.ndarray, p0: tuple[float, float], p1: tuple[float, float], colour) -> None:
+    n = int(max(abs(p1[0] - p0[0]), abs(p1[1] - p0[1]))) + 1
+    rr = np.linspace(p0[0], p1[0], n).round().astype(int)
+    cc = np.linspace(p0[1], p1[1], n).round().astype(int)
+    ok = (rr >= 0) & (rr < img.shape[0]) & (cc >= 0) & (cc < img.shape[1])
+    img[rr[ok], cc[ok]] = colour
+
+
+def render_world(engine, b: int = 0, cell: int = 16, links: bool = True) -> np.ndarray:
+    """Picture of world ``b`` of a :class:`~catmip_env.engine.BatchedEngine` (uint8, H x W x 3)."""
+    st = engine.state
+    grid = st.grid[b]
+    h, w = grid.shape
+    base = np.empty((h, w, 3), np.uint8)
+    base[:] = _FREE
+    for code, colour in _COLOURS.items():
+        base[grid == code] = colour
+    explored = (st.belief[b] & EXPLORED).any(axis=0)
+    base[~explored] = (base[~explored] * _UNEXPLORED_DIM).astype(np.uint8)
+    img = np.repeat(np.repeat(base, cell, axis=0), cell, axis=1)
+    # faint grid lines
+    img[::cell, :] = (img[::cell, :] * 0.85).astype(np.uint8)
+    img[:, ::cell] = (img[:, ::cell] * 0.85).astype(np.uint8)
+    n = st.pos.shape[1]
+    colours = CLASS_COLOURS[st.cls[b] % len(CLASS_COLOURS)]
+    if links:
+        for i in range(n):
+            for j in range(i + 1, n):
+                if st.comp[b, i] == st.comp[b, j]:
+                    p0 = (st.pos[b, i] + 0.5) * cell
+                    p1 = (st.pos[b, j] + 0.5) * cell
+                    _line(img, tuple(p0), tuple(p1), np.array([150, 150, 150], np.uint8))
+    ring = _ring_mask(cell)
+    for i in range(n):
+        gr, gc = st.goal[b, i]
+        if gr >= 0:
+            tile = img[gr * cell : (gr + 1) * cell, gc * cell : (gc + 1) * cell]
+            tile[ring] = colours[i]
+    tri = _triangle_masks(cell)
+    for i in range(n):
+        r, c = st.pos[b, i]
+        tile = img[r * cell : (r + 1) * cell, c * cell : (c + 1) * cell]
+        tile[tri[st.heading[b, i]]] = colours[i]
+    return img
+
+
+def render_ansi(engine, b: int = 0) -> str:
+    """Text picture: ``#`` wall, ``o`` obstacle, ``T`` target, ``+`` clue, ``?`` unexplored,
+    robots as ``>v<^`` (their heading)."""
+    st = engine.state
+    grid = st.grid[b]
+    explored = (st.belief[b] & EXPLORED).any(axis=0)
+    chars = {0: ".", WALL: "#", OBSTACLE: "o", TARGET: "T", CLUE: "+"}
+    rows = [[chars[int(v)] if explored[r, c] else "?" for c, v in enumerate(row)] for r, row in enumerate(grid)]
+    for i in range(st.pos.shape[1]):
+        r, c = st.pos[b, i]
+        rows[r][c] = ">v<^"[st.heading[b, i]]
+    return "\n".join("".join(row) for row in rows)
+
+
+def save_gif(frames: Sequence[np.ndarray], path: str | Path, fps: int = 8) -> Path:
+    """Write frames to an animated GIF (atomically: a temporary file is renamed into place)."""
+    try:
+        import imageio.v3 as iio
+    except ImportError as err:  # pragma: no cover - depends on the extra
+        raise ImportError("save_gif needs imageio: pip install 'catmip[render]'") from err
+    if not frames:
+        raise ValueError("save_gif needs at least one frame")
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.name + ".tmp.gif")
+    iio.imwrite(tmp, np.stack(frames), duration=1000 / fps, loop=0)
+    tmp.replace(path)
+    return path
