@@ -15,7 +15,7 @@ from numba import njit
 from catmip_env.config import SPAWN_BOX, TARGET_EXCLUSION_BOX, EnvConfig
 from catmip_env.types import CLUE, FREE, OBSTACLE, TARGET, WALL
 
-__all__ = ["Episode", "generate", "room_bounds", "reachable_from"]
+__all__ = ["Episode", "generate", "room_bounds", "reachable_from", "target_exclusion_side"]
 
 _MAX_OBSTACLE_TRIES = 100
 _MAX_TARGET_TRIES = 50
@@ -98,6 +98,12 @@ def _rooms(s: int, wall_prob: float, rng: np.random.Generator) -> tuple[np.ndarr
     return grid, doors
 
 
+def target_exclusion_side(s: int) -> int:
+    """Side of the box at the spawn corner that the target avoids: 8, shrunk on maps below 12x12
+    so that some interior remains outside it."""
+    return min(TARGET_EXCLUSION_BOX, s - 4)
+
+
 def _box(s: int, corner: int, side: int) -> tuple[slice, slice]:
     """Rows/cols of the ``side`` x ``side`` box just inside a corner."""
     rows = slice(1, 1 + side) if corner in (0, 1) else slice(s - 1 - side, s - 1)
@@ -132,7 +138,7 @@ def generate(cfg: EnvConfig, rng: np.random.Generator) -> Episode:
     robot_mask = np.zeros((s, s), dtype=bool)
     robot_mask[robots[:, 0], robots[:, 1]] = True
     excl = np.zeros((s, s), dtype=bool)
-    excl[_box(s, corner, TARGET_EXCLUSION_BOX)] = True
+    excl[_box(s, corner, target_exclusion_side(s))] = True
     obstacle_cells = np.flatnonzero((grid == FREE) & ~door_zone & ~robot_mask)
     n_obs = min(cfg.obstacles, len(obstacle_cells))
     for _ in range(_MAX_OBSTACLE_TRIES):

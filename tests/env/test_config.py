@@ -1,0 +1,75 @@
+import json
+
+import pytest
+
+from catmip_env import PRESETS, EnvConfig, RobotClass, make_config
+
+
+def test_presets_match_the_paper():
+    t1, t2, t3, tr = (PRESETS[k] for k in ("task1", "task2", "task3", "train"))
+    assert (t1.map_size, t1.num_robots, t1.horizon_ticks) == (15, 2, 300)
+    assert (t2.map_size, t2.num_robots, t2.horizon_ticks) == (20, 3, 400)
+    assert (t3.map_size, t3.num_robots, t3.horizon_ticks) == (32, 6, 500)
+    assert t3.team.count("rescuer") == 2 and t3.team.count("explorer") == 4
+    assert (tr.map_size, tr.horizon_ticks, tr.team) == (20, 200, ("rescuer", "explorer", "random"))
+    assert [PRESETS[k].obstacles for k in ("task1", "task2", "task3")] == [5, 10, 25]
+
+
+def test_default_classes():
+    cfg = EnvConfig()
+    rescuer = cfg.classes[cfg.class_index("rescuer")]
+    explorer = cfg.classes[cfg.class_index("explorer")]
+    assert rescuer.ticks_per_action == 2 and rescuer.can_rescue
+    assert explorer.ticks_per_action == 1 and not explorer.can_rescue
+
+
+@pytest.mark.parametrize(
+    "overrides, needle",
+    [
+        ({"map_size": 8}, "map_size"),
+        ({"team": ("rescuer",) * 17}, "spawn box"),
+        ({"team": ("rescuer", "medic")}, "unknown class name 'medic'"),
+        ({"slam_noise": -0.1}, "slam_noise"),
+        ({"slam_noise": 1.5}, "slam_noise"),
+        ({"wall_prob": -0.5}, "wall_prob"),
+        ({"comm_sigma": 0.0}, "comm_sigma"),
+        ({"comm_sigma": -2.0}, "comm_sigma"),
+        ({"horizon_ticks": 0}, "horizon_ticks"),
+        ({"num_obstacles": -1}, "num_obstacles"),
+        ({"num_obstacles": 10_000}, "too many"),
+        ({"local_size": 6}, "local_size"),
+        ({"window": 4}, "window"),
+        ({"team": ()}, "at least one robot"),
+        ({"team": ("random",), "random_classes": ("ghost",)}, "random_classes"),
+    ],
+)
+def test_bad_config_values_raise_clear_errors(overrides, needle):
+    with pytest.raises(ValueError, match=needle):
+        EnvConfig().replace(**overrides)
+
+
+def test_bad_robot_class_and_unknown_fields():
+    with pytest.raises(ValueError, match="ticks_per_action"):
+        RobotClass("slow", ticks_per_action=0)
+    with pytest.raises(ValueError, match="unknown EnvConfig field"):
+        make_config("task1", comm_range=3)
+    with pytest.raises(ValueError, match="unknown preset"):
+        make_config("task9")
+    with pytest.raises(ValueError, match="unique"):
+        EnvConfig(classes=(RobotClass("a"), RobotClass("a")), team=("a",))
+
+
+def test_overrides_and_json_roundtrip():
+    cfg = make_config("task2", comm_sigma=4.0, slam_noise=0.05, horizon_ticks=123)
+    assert cfg.comm_sigma == 4.0 and cfg.slam_noise == 0.05 and cfg.horizon_ticks == 123
+    assert PRESETS["task2"].comm_sigma is None  # presets are not mutated
+    back = EnvConfig.from_dict(json.loads(cfg.to_json()))
+    assert back == cfg
+
+
+def test_custom_classes_are_data():
+    drone = RobotClass("drone", ticks_per_action=1)
+    medic = RobotClass("medic", ticks_per_action=3, can_rescue=True)
+    tank = RobotClass("tank", ticks_per_action=4)
+    cfg = EnvConfig(classes=(drone, medic, tank), team=("medic", "drone", "tank"))
+    assert cfg.num_classes == 3 and cfg.class_index("tank") == 2
