@@ -1,0 +1,175 @@
+"""PettingZoo conformance (the library's own battery, unmodified) and the adapter's contract."""
+
+import subprocess
+import sys
+
+import numpy as np
+import pettingzoo
+import pytest
+from pettingzoo.test import (
+    api_test,
+    max_cycles_test,
+    parallel_api_test,
+    parallel_seed_test,
+    render_test,
+    seed_test,
+)
+
+import catmip_env
+from catmip_env import search_rescue_v0
+
+PRESETS = ["task1", "task2", "task3", "train"]
+VARIANTS = [{}, {"comm_sigma": 2.0, "slam_noise": 0.05}]
+
+
+@pytest.mark.parametrize("preset", PRESETS)
+@pytest.mark.parametrize("kw", VARIANTS, ids=["full", "partial+noise"])
+def test_parallel_api_and_seed(preset, kw):
+    parallel_api_test(search_rescue_v0.parallel_env(preset=preset, **kw), num_cycles=500)
+    parallel_seed_test(lambda: search_rescue_v0.parallel_env(preset=preset, **kw), num_cycles=300)
+
+
+@pytest.mark.parametrize("preset", PRESETS)
+def test_aec_api_and_seed(preset):
+    api_test(search_rescue_v0.env(preset=preset), num_cycles=200)
+    seed_test(lambda: search_rescue_v0.env(preset=preset, comm_sigma=4.0), num_cycles=200)
+
+
+def test_max_cycles_and_render():
+    max_cycles_test(search_rescue_v0)
+    render_test(lambda render_mode=None: search_rescue_v0.env(preset="task1", render_mode=render_mode))
+
+
+def test_full_episode_determinism():
+    """Two envs, same seed, same random actions: identical everything until the episode ends."""
+    for kw in ({}, {"comm_sigma": 2.0, "slam_noise": 0.05}):
+        e1 = search_rescue_v0.parallel_env(preset="task2", **kw)
+        e2 = search_rescue_v0.parallel_env(preset="task2", **kw)
+        for episode in range(2):
+            seed = 11 if episode == 0 else None
+            o1, i1 = e1.reset(seed=seed)
+            o2, i2 = e2.reset(seed=seed)
+            rng = np.random.default_rng(episode)
+            steps = 0
+            while e1.agents:
+                assert e1.agents == e2.agents
+                _assert_same(o1, o2)
+                assert i1 == i2
+                assert np.array_equal(e1.state(), e2.state())
+                acts = {a: int(rng.integers(4)) for a in e1.agents}
+                o1, r1, t1, u1, i1 = e1.step(acts)
+                o2, r2, t2, u2, i2 = e2.step(acts)
+                assert r1 == r2 and t1 == t2 and u1 == u2
+                steps += 1
+            assert not e2.agents and steps == e1.engine.state.ticks[0]
+
+
+def test_reset_seed_replays_and_episodes_differ():
+    env = search_rescue_v0.parallel_env(preset="task1")
+    env.reset(seed=3)
+    first = env.state().copy()
+    env.reset()
+    second = env.state().copy()
+    env.reset(seed=3)
+    assert np.array_equal(env.state(), first)
+    assert not np.array_equal(first, second)
+    env.reset(options={"episode_index": 1})
+    assert np.array_equal(env.state(), second)
+
+
+def _assert_same(a, b):
+    if isinstance(a, dict):
+        assert a.keys() == b.keys()
+        for k in a:
+            _assert_same(a[k], b[k])
+    else:
+        assert np.array_equal(a, b)
+
+
+def test_observation_contract():
+    env = search_rescue_v0.parallel_env(preset="task3")
+    obs, infos = env.reset(seed=0)
+    c, s = env.config.num_classes, env.config.map_size
+    for agent in env.possible_agents:
+        o = obs[agent]
+        assert env.observation_space(agent).contains(o)
+        assert o["observation"]["global_map"].shape == (5 + c, s, s)
+        assert o["observation"]["local_map"].shape == (4 + c, 7, 7)
+        assert o["observation"]["global_map"].dtype == np.float32
+        assert set(np.unique(o["observation"]["global_map"])) <= {0.0, 0.25, 1.0}
+        assert o["action_mask"].dtype == np.int8 and o["action_mask"].tolist() == [1, 1, 1, 1]
+        cls = infos[agent]["agent_class"]
+        assert o["observation"]["agent_class"].tolist() == np.eye(c)[cls].tolist()
+        assert set(infos[agent]) == {"agent_class", "tick", "neighbourhood", "can_act", "knows_target"}
+    assert env.state().shape == env.state_space.shape
+    compact = search_rescue_v0.parallel_env(preset="task3", compact_obs=True)
+    co, _ = compact.reset(seed=0)
+    g = co["robot_0"]["observation"]["global_map"]
+    assert g.dtype == np.uint8
+    assert np.array_equal(g * 0.25, obs["robot_0"]["observation"]["global_map"])
+
+
+def test_rescuer_can_act_flag():
+    env = search_rescue_v0.parallel_env(preset="task1")
+    _, infos = env.reset(seed=0)
+    flags = []
+    for _ in range(4):
+        flags.append(infos["robot_0"]["can_act"])
+        _, _, _, _, infos = env.step({a: 3 for a in env.agents})
+    assert flags == [1, 0, 1, 0]  # robot_0 is the rescuer of task1
+    assert infos["robot_1"]["can_act"] == 1
+
+
+def test_bad_input_raises_clear_errors():
+    env = search_rescue_v0.parallel_env(preset="task1", horizon_ticks=3)
+    env.reset(seed=0)
+    with pytest.raises(ValueError, match="unknown robot id 'robot_7'"):
+        env.step({"robot_0": 0, "robot_1": 0, "robot_7": 0})
+    with pytest.raises(ValueError, match="action 9 of robot_1 is out of range"):
+        env.step({"robot_0": 0, "robot_1": 9})
+    with pytest.raises(ValueError, match=r"missing actions for robots \['robot_1'\]"):
+        env.step({"robot_0": 0})
+    with pytest.raises(ValueError, match="unknown robot id"):
+        env.action_space("robot_9")
+    with pytest.raises(ValueError, match="unknown level"):
+        search_rescue_v0.parallel_env(level="nano")
+    with pytest.raises(ValueError, match="render_mode"):
+        search_rescue_v0.parallel_env(render_mode="svg")
+    for _ in range(3):
+        env.step({"robot_0": 3, "robot_1": 3})
+    assert env.agents == []
+    with pytest.raises(RuntimeError, match="episode ended"):
+        env.step({"robot_0": 3, "robot_1": 3})
+
+
+def test_registry():
+    par = pettingzoo.make("parallel", "catmip/SearchRescue-v0", preset="task1", comm_sigma=4.0)
+    assert par.config.comm_sigma == 4.0
+    aec = pettingzoo.make("aec", "catmip/SearchRescue-v0", preset="task1", max_cycles=7)
+    aec.reset(seed=0)
+    assert aec.unwrapped.config.horizon_ticks == 7  # PettingZoo's max_cycles -> horizon_ticks
+
+
+def test_render_modes(tmp_path):
+    env = search_rescue_v0.parallel_env(preset="task1", render_mode="rgb_array")
+    env.reset(seed=0)
+    frames = [env.render()]
+    for _ in range(5):
+        env.step({a: 2 for a in env.agents})
+        frames.append(env.render())
+    f = frames[-1]
+    assert f.dtype == np.uint8 and f.shape == (15 * 16, 15 * 16, 3)
+    from catmip_env.render import save_gif
+
+    path = save_gif(frames, tmp_path / "ep.gif")
+    assert path.stat().st_size > 1000
+    text = search_rescue_v0.parallel_env(preset="task1", render_mode="ansi")
+    text.reset(seed=0)
+    assert len(text.render().splitlines()) == 15
+
+
+def test_import_does_not_pull_torch():
+    code = "import sys, catmip_env, catmip_env.search_rescue_v0; print('torch' in sys.modules)"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "False"
+    assert catmip_env.__version__
