@@ -116,25 +116,30 @@ def draw_neighbourhoods(
 
 @njit(cache=True)
 def merge_beliefs(b: int, comp: np.ndarray, belief: np.ndarray) -> None:
-    """OR-merge the beliefs of every neighbourhood and write the result back to each member."""
+    """OR-merge the beliefs of every neighbourhood and write the result back to each member.
+
+    The first member's map accumulates the OR (flat, vectorisable loops), then is copied to the rest.
+    """
     n = belief.shape[1]
-    h, w = belief.shape[2], belief.shape[3]
+    hw = belief.shape[2] * belief.shape[3]
     for root in range(n):
-        members = 0
-        for i in range(n):
+        if comp[b, root] != root:
+            continue  # labels are the lowest member id, so every component is visited once
+        acc = belief[b, root].reshape(hw)
+        members = 1
+        for i in range(root + 1, n):
             if comp[b, i] == root:
+                src = belief[b, i].reshape(hw)
+                for k in range(hw):
+                    acc[k] |= src[k]
                 members += 1
         if members < 2:
             continue
-        for r in range(h):
-            for c in range(w):
-                v = np.uint8(0)
-                for i in range(n):
-                    if comp[b, i] == root:
-                        v |= belief[b, i, r, c]
-                for i in range(n):
-                    if comp[b, i] == root:
-                        belief[b, i, r, c] = v
+        for i in range(root + 1, n):
+            if comp[b, i] == root:
+                dst = belief[b, i].reshape(hw)
+                for k in range(hw):
+                    dst[k] = acc[k]
 
 
 @njit(cache=True)
@@ -174,8 +179,8 @@ def sense_all(
     pos: np.ndarray,
     heading: np.ndarray,
     belief: np.ndarray,
-    ray_cells: np.ndarray,
-    ray_blockers: np.ndarray,
+    view_offsets: np.ndarray,
+    view_blockers: np.ndarray,
     ray_nblock: np.ndarray,
 ) -> None:
     for i in range(pos.shape[1]):
@@ -187,8 +192,8 @@ def sense_all(
             pos[b, i, 0],
             pos[b, i, 1],
             heading[b, i],
-            ray_cells,
-            ray_blockers,
+            view_offsets,
+            view_blockers,
             ray_nblock,
         )
 
@@ -252,12 +257,12 @@ def perceive(
     noise: float,
     find_reward: float,
     rescue_reward: float,
-    ray_cells: np.ndarray,
-    ray_blockers: np.ndarray,
+    view_offsets: np.ndarray,
+    view_blockers: np.ndarray,
     ray_nblock: np.ndarray,
 ) -> bool:
     """Steps 2-6 of a tick for world b (also run at reset, with t = 0). Returns success."""
-    sense_all(b, grid, pos, heading, belief, ray_cells, ray_blockers, ray_nblock)
+    sense_all(b, grid, pos, heading, belief, view_offsets, view_blockers, ray_nblock)
     draw_neighbourhoods(b, pos, comm_sigma, rng, comp)
     merge_beliefs(b, comp, belief)
     success = mission_update(
@@ -295,8 +300,8 @@ def tick(
     collision_penalty: float,
     find_reward: float,
     rescue_reward: float,
-    ray_cells: np.ndarray,
-    ray_blockers: np.ndarray,
+    view_offsets: np.ndarray,
+    view_blockers: np.ndarray,
     ray_nblock: np.ndarray,
 ) -> None:
     """Advance every world with ``live[b]`` by one tick; ``rewards`` must be zeroed (or hold pending
@@ -309,7 +314,7 @@ def tick(
         success = perceive(
             b, t0 + 1, grid, target, pos, heading, can_rescue, belief, comp, rng, used_occ,
             found_tick, rescue_tick, rewards, horizon, comm_sigma, noise, find_reward,
-            rescue_reward, ray_cells, ray_blockers, ray_nblock,
+            rescue_reward, view_offsets, view_blockers, ray_nblock,
         )  # fmt: skip
         ticks[b] = t0 + 1
         terminated[b] = success

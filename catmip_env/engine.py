@@ -27,7 +27,7 @@ from catmip_env.layout import parse_layout
 from catmip_env.mapgen import Episode, generate
 from catmip_env.observe import observe
 from catmip_env.rng import seed_state
-from catmip_env.sensing import RAY_BLOCKERS, RAY_CELLS, RAY_NBLOCK
+from catmip_env.sensing import RAY_NBLOCK, VIEW_BLOCKERS, VIEW_OFFSETS
 from catmip_env.types import CLUE, EXPLORED, OBSTACLE, TARGET, WALL, global_channels, local_channels
 
 __all__ = ["WorldState", "BatchedEngine", "StepResult"]
@@ -96,15 +96,15 @@ class StepResult(NamedTuple):
 @njit(cache=True)
 def _perceive_worlds(
     worlds, grid, target, pos, heading, can_rescue, belief, comp, rng, used_occ, found_tick,
-    rescue_tick, rewards, horizon, comm_sigma, noise, find_reward, rescue_reward, ray_cells,
-    ray_blockers, ray_nblock,
+    rescue_tick, rewards, horizon, comm_sigma, noise, find_reward, rescue_reward, view_offsets,
+    view_blockers, ray_nblock,
 ):  # fmt: skip
     for b in range(worlds.shape[0]):
         if worlds[b]:
             perceive(
                 b, 0, grid, target, pos, heading, can_rescue, belief, comp, rng, used_occ,
                 found_tick, rescue_tick, rewards, horizon, comm_sigma, noise, find_reward,
-                rescue_reward, ray_cells, ray_blockers, ray_nblock,
+                rescue_reward, view_offsets, view_blockers, ray_nblock,
             )  # fmt: skip
 
 
@@ -184,7 +184,7 @@ class BatchedEngine:
             mask, st.grid, st.target, st.pos, st.heading, st.can_rescue, st.belief, st.comp,
             st.rng, st.used_occ, st.found_tick, st.rescue_tick, st.pending_reward,
             cfg.horizon_ticks, self._comm, cfg.slam_noise, cfg.find_reward, cfg.rescue_reward,
-            RAY_CELLS, RAY_BLOCKERS, RAY_NBLOCK,
+            VIEW_OFFSETS, VIEW_BLOCKERS, RAY_NBLOCK,
         )  # fmt: skip
         self._observe(mask)
         return idx
@@ -269,7 +269,7 @@ class BatchedEngine:
             st.belief, st.comp, st.rng, st.used_occ, st.ticks, st.found_tick, st.rescue_tick,
             rewards, self._terminated, self._truncated, cfg.horizon_ticks, self._comm,
             cfg.slam_noise, cfg.step_reward, cfg.collision_penalty, cfg.find_reward,
-            cfg.rescue_reward, RAY_CELLS, RAY_BLOCKERS, RAY_NBLOCK,
+            cfg.rescue_reward, VIEW_OFFSETS, VIEW_BLOCKERS, RAY_NBLOCK,
         )  # fmt: skip
         st.done |= self._terminated | self._truncated
         self._observe(live)

@@ -2,7 +2,16 @@
 
 ``generate(cfg, rng)`` draws everything of one episode from the episode's own map stream (a
 ``numpy.random.Generator`` seeded by ``(seed, episode_index)``), so every method evaluated with the same
-seed sees exactly the same maps, teams and spawn poses.
+seed sees exactly the same maps, teams and spawn poses. The Generator supplies one block of uniforms
+per attempt; a numba kernel consumes them (a map costs tens of microseconds, not milliseconds).
+
+Rules: room counts per axis ``w, h ~ U{max(1, S//8) .. max(1, S//5)}``; inner wall lines every
+``S // w`` cells (the last room takes the remainder); each wall segment between adjacent rooms exists
+with probability ``wall_prob`` and has one doorway at a uniform position; lattice junctions are walls
+when a segment meets them. Robots take distinct free cells of the 4x4 box inside a uniform corner, with
+uniform headings. Obstacles avoid doorway zones (doorways and their 4-neighbours) and robots. The
+target avoids doorway zones and the 8x8 box at the robots' corner, and every robot must reach a cell
+next to it (obstacles are redrawn if they cut the team off). Free cells around the target are clues.
 """
 
 from __future__ import annotations
@@ -19,6 +28,9 @@ __all__ = ["Episode", "generate", "room_bounds", "reachable_from", "target_exclu
 
 _MAX_OBSTACLE_TRIES = 100
 _MAX_TARGET_TRIES = 50
+_OUT_OF_UNIFORMS = -1
+_NO_SPAWN_ROOM = -2
+_NO_TARGET = -3
 
 
 @dataclass
@@ -38,6 +50,12 @@ def room_bounds(size: int, rooms: int) -> list[int]:
     """Wall lines along one axis: outer walls 0 and size-1, inner walls every ``size // rooms``."""
     step = size // rooms
     return [0] + [k * step for k in range(1, rooms)] + [size - 1]
+
+
+def target_exclusion_side(s: int) -> int:
+    """Side of the box at the spawn corner that the target avoids: 8, shrunk on maps below 12x12
+    so that some interior remains outside it."""
+    return min(TARGET_EXCLUSION_BOX, s - 4)
 
 
 @njit(cache=True)
@@ -62,136 +80,221 @@ def reachable_from(passable: np.ndarray, r0: int, c0: int) -> np.ndarray:
     return seen
 
 
-def _rooms(s: int, wall_prob: float, rng: np.random.Generator) -> tuple[np.ndarray, list[tuple[int, int]]]:
-    grid = np.zeros((s, s), dtype=np.uint8)
-    grid[0, :] = grid[-1, :] = grid[:, 0] = grid[:, -1] = WALL
+@njit(cache=True, inline="always")
+def _take(u: np.ndarray, p: np.ndarray) -> float:
+    """Next uniform of the block (0.5 once exhausted; the caller then retries with a new block)."""
+    k = p[0]
+    p[0] = k + 1
+    return u[k] if k < u.shape[0] else 0.5
+
+
+@njit(cache=True, inline="always")
+def _below(u: np.ndarray, p: np.ndarray, n: int) -> int:
+    """Uniform int in [0, n)."""
+    return min(int(_take(u, p) * n), n - 1)
+
+
+@njit(cache=True)
+def _bounds(s: int, rooms: int) -> np.ndarray:
+    out = np.empty(rooms + 1, np.int64)
+    step = s // rooms
+    for k in range(rooms):
+        out[k] = k * step
+    out[rooms] = s - 1
+    return out
+
+
+@njit(cache=True)
+def _choose(cells: np.ndarray, count: int, k: int, u: np.ndarray, p: np.ndarray) -> None:
+    """Move a uniform k-subset of cells[:count] to the front (partial Fisher-Yates)."""
+    for j in range(k):
+        m = j + _below(u, p, count - j)
+        cells[j], cells[m] = cells[m], cells[j]
+
+
+@njit(cache=True)
+def _generate(
+    s: int,
+    n: int,
+    n_obs: int,
+    wall_prob: float,
+    excl_side: int,
+    u: np.ndarray,  # block of uniforms in [0, 1)
+    grid: np.ndarray,  # (s, s) uint8 out
+    robots: np.ndarray,  # (n, 2) int64 out
+    headings: np.ndarray,  # (n,) int64 out
+    doors: np.ndarray,  # (max_doors, 2) int64 out
+    info: np.ndarray,  # (4,) int64 out: corner, target row, target col, number of doors
+) -> int:
+    """Draw one map; returns 0, or a negative code (_OUT_OF_UNIFORMS, _NO_SPAWN_ROOM, _NO_TARGET)."""
+    p = np.zeros(1, np.int64)
+    grid[:, :] = FREE
+    grid[0, :] = WALL
+    grid[s - 1, :] = WALL
+    grid[:, 0] = WALL
+    grid[:, s - 1] = WALL
     lo = max(1, s // 8)
     hi = max(lo, s // 5)
-    n_cols, n_rows = (int(x) for x in rng.integers(lo, hi + 1, size=2))
-    cb, rb = room_bounds(s, n_cols), room_bounds(s, n_rows)
-    doors: list[tuple[int, int]] = []
-    junction_wall = np.zeros((len(rb), len(cb)), dtype=bool)
-    # Vertical segments between horizontally adjacent rooms (room row i, wall column cb[j]).
-    for i in range(n_rows):
+    n_cols = lo + _below(u, p, hi - lo + 1)
+    n_rows = lo + _below(u, p, hi - lo + 1)
+    cb, rb = _bounds(s, n_cols), _bounds(s, n_rows)
+    junction = np.zeros((n_rows + 1, n_cols + 1), np.bool_)
+    nd = 0
+    for i in range(n_rows):  # vertical segments between horizontally adjacent rooms
         for j in range(1, n_cols):
-            if rng.random() < wall_prob:
-                r_lo, r_hi = rb[i] + 1, rb[i + 1]  # interior rows of the segment
+            if _take(u, p) < wall_prob:
+                r_lo, r_hi = rb[i] + 1, rb[i + 1]
                 grid[r_lo:r_hi, cb[j]] = WALL
-                door = int(rng.integers(r_lo, r_hi))
+                door = r_lo + _below(u, p, r_hi - r_lo)
                 grid[door, cb[j]] = FREE
-                doors.append((door, cb[j]))
-                junction_wall[i, j] = junction_wall[i + 1, j] = True
-    # Horizontal segments between vertically adjacent rooms (wall row rb[i], room column j).
-    for i in range(1, n_rows):
+                doors[nd, 0], doors[nd, 1] = door, cb[j]
+                nd += 1
+                junction[i, j] = True
+                junction[i + 1, j] = True
+    for i in range(1, n_rows):  # horizontal segments between vertically adjacent rooms
         for j in range(n_cols):
-            if rng.random() < wall_prob:
+            if _take(u, p) < wall_prob:
                 c_lo, c_hi = cb[j] + 1, cb[j + 1]
                 grid[rb[i], c_lo:c_hi] = WALL
-                door = int(rng.integers(c_lo, c_hi))
+                door = c_lo + _below(u, p, c_hi - c_lo)
                 grid[rb[i], door] = FREE
-                doors.append((rb[i], door))
-                junction_wall[i, j] = junction_wall[i, j + 1] = True
-    for i, r in enumerate(rb):
-        for j, c in enumerate(cb):
-            if junction_wall[i, j]:
-                grid[r, c] = WALL
-    return grid, doors
+                doors[nd, 0], doors[nd, 1] = rb[i], door
+                nd += 1
+                junction[i, j] = True
+                junction[i, j + 1] = True
+    for i in range(n_rows + 1):
+        for j in range(n_cols + 1):
+            if junction[i, j]:
+                grid[rb[i], cb[j]] = WALL
+    zone = np.zeros((s, s), np.bool_)
+    for k in range(nd):
+        r, c = doors[k, 0], doors[k, 1]
+        zone[r, c] = True
+        zone[r + 1, c] = True
+        zone[r - 1, c] = True
+        zone[r, c + 1] = True
+        zone[r, c - 1] = True
+    info[3] = nd
 
+    # Robots: distinct free cells of the 4x4 box at a uniform corner, uniform headings.
+    corner = _below(u, p, 4)
+    info[0] = corner
+    r0 = 1 if corner < 2 else s - 1 - SPAWN_BOX
+    c0 = 1 if corner % 2 == 0 else s - 1 - SPAWN_BOX
+    cells = np.empty(s * s, np.int64)
+    count = 0
+    for r in range(r0, r0 + SPAWN_BOX):
+        for c in range(c0, c0 + SPAWN_BOX):
+            if grid[r, c] == FREE:
+                cells[count] = r * s + c
+                count += 1
+    if p[0] > u.shape[0]:
+        return _OUT_OF_UNIFORMS
+    if count < n:
+        return _NO_SPAWN_ROOM
+    _choose(cells, count, n, u, p)
+    occupied_by_robot = np.zeros((s, s), np.bool_)
+    for i in range(n):
+        robots[i, 0], robots[i, 1] = cells[i] // s, cells[i] % s
+        occupied_by_robot[robots[i, 0], robots[i, 1]] = True
+    for i in range(n):
+        headings[i] = _below(u, p, 4)
+    er0 = 1 if corner < 2 else s - 1 - excl_side
+    ec0 = 1 if corner % 2 == 0 else s - 1 - excl_side
 
-def target_exclusion_side(s: int) -> int:
-    """Side of the box at the spawn corner that the target avoids: 8, shrunk on maps below 12x12
-    so that some interior remains outside it."""
-    return min(TARGET_EXCLUSION_BOX, s - 4)
-
-
-def _box(s: int, corner: int, side: int) -> tuple[slice, slice]:
-    """Rows/cols of the ``side`` x ``side`` box just inside a corner."""
-    rows = slice(1, 1 + side) if corner in (0, 1) else slice(s - 1 - side, s - 1)
-    cols = slice(1, 1 + side) if corner in (0, 2) else slice(s - 1 - side, s - 1)
-    return rows, cols
+    base = grid.copy()
+    for _ in range(_MAX_OBSTACLE_TRIES):
+        grid[:, :] = base
+        count = 0
+        for r in range(s):
+            for c in range(s):
+                if base[r, c] == FREE and not zone[r, c] and not occupied_by_robot[r, c]:
+                    cells[count] = r * s + c
+                    count += 1
+        k = min(n_obs, count)
+        _choose(cells, count, k, u, p)
+        for j in range(k):
+            grid[cells[j] // s, cells[j] % s] = OBSTACLE
+        if p[0] > u.shape[0]:
+            return _OUT_OF_UNIFORMS
+        passable = grid == FREE
+        reach = reachable_from(passable, robots[0, 0], robots[0, 1])
+        team_ok = True
+        for i in range(n):
+            team_ok &= reach[robots[i, 0], robots[i, 1]]
+        if not team_ok:
+            continue  # the obstacles cut the team apart: redraw them
+        # Target candidates: free, allowed, next to a reachable cell.
+        count = 0
+        for r in range(1, s - 1):
+            for c in range(1, s - 1):
+                if not passable[r, c] or zone[r, c] or occupied_by_robot[r, c]:
+                    continue
+                if er0 <= r < er0 + excl_side and ec0 <= c < ec0 + excl_side:
+                    continue
+                if reach[r - 1, c] or reach[r + 1, c] or reach[r, c - 1] or reach[r, c + 1]:
+                    cells[count] = r * s + c
+                    count += 1
+        for _ in range(_MAX_TARGET_TRIES):
+            if count == 0:
+                break
+            m = _below(u, p, count)
+            tr, tc = cells[m] // s, cells[m] % s
+            passable[tr, tc] = False  # the target is impassable: it must not cut anyone off
+            reach2 = reachable_from(passable, robots[0, 0], robots[0, 1])
+            passable[tr, tc] = True
+            ok = reach2[tr - 1, tc] or reach2[tr + 1, tc] or reach2[tr, tc - 1] or reach2[tr, tc + 1]
+            for i in range(n):
+                ok &= reach2[robots[i, 0], robots[i, 1]]
+            if ok:
+                if p[0] > u.shape[0]:
+                    return _OUT_OF_UNIFORMS
+                grid[tr, tc] = TARGET
+                for dr in range(-1, 2):
+                    for dc in range(-1, 2):
+                        if grid[tr + dr, tc + dc] == FREE:
+                            grid[tr + dr, tc + dc] = CLUE
+                info[1], info[2] = tr, tc
+                return 0
+            count -= 1
+            cells[m] = cells[count]
+        if p[0] > u.shape[0]:
+            return _OUT_OF_UNIFORMS
+    return _NO_TARGET
 
 
 def generate(cfg: EnvConfig, rng: np.random.Generator) -> Episode:
     """Draw one episode's map, team and spawn poses from ``rng`` (see module docstring)."""
     s, n = cfg.map_size, cfg.num_robots
-    grid, doors = _rooms(s, cfg.wall_prob, rng)
-    door_zone = np.zeros((s, s), dtype=bool)
-    for r, c in doors:
-        door_zone[r, c] = True
-        for dr, dc in ((0, 1), (1, 0), (0, -1), (-1, 0)):
-            door_zone[r + dr, c + dc] = True
-
-    # Robots: a uniformly drawn corner, distinct free cells of its 4x4 box, random headings.
-    corner = int(rng.integers(4))
-    rows, cols = _box(s, corner, SPAWN_BOX)
-    box = np.zeros((s, s), dtype=bool)
-    box[rows, cols] = True
-    spawn_cells = np.flatnonzero(box & (grid == FREE))
-    picks = rng.choice(spawn_cells, size=n, replace=False)
-    robots = np.stack([picks // s, picks % s], axis=1).astype(np.int64)
-    headings = rng.integers(4, size=n).astype(np.int64)
     classes = np.empty(n, dtype=np.int64)
     for i, slot in enumerate(cfg.team):
-        name = slot if slot != "random" else cfg.random_classes[int(rng.integers(len(cfg.random_classes)))]
-        classes[i] = cfg.class_index(name)
-
-    robot_mask = np.zeros((s, s), dtype=bool)
-    robot_mask[robots[:, 0], robots[:, 1]] = True
-    excl = np.zeros((s, s), dtype=bool)
-    excl[_box(s, corner, target_exclusion_side(s))] = True
-    obstacle_cells = np.flatnonzero((grid == FREE) & ~door_zone & ~robot_mask)
-    n_obs = min(cfg.obstacles, len(obstacle_cells))
-    for _ in range(_MAX_OBSTACLE_TRIES):
-        world = grid.copy()
-        world.flat[rng.choice(obstacle_cells, size=n_obs, replace=False)] = OBSTACLE
-        target = _place_target(world, robots, door_zone | excl | robot_mask, rng)
-        if target is not None:
+        if slot == "random":
+            slot = cfg.random_classes[int(rng.integers(len(cfg.random_classes)))]
+        classes[i] = cfg.class_index(slot)
+    grid = np.empty((s, s), np.uint8)
+    robots = np.empty((n, 2), np.int64)
+    headings = np.empty(n, np.int64)
+    doors = np.empty((2 * (s // 5 + 1) ** 2, 2), np.int64)
+    info = np.zeros(4, np.int64)
+    block = 4 * (s // 5 + 1) ** 2 + 4 * n + 2 * cfg.obstacles + 64
+    while True:
+        code = _generate(
+            s, n, cfg.obstacles, cfg.wall_prob, target_exclusion_side(s), rng.random(block),
+            grid, robots, headings, doors, info,
+        )  # fmt: skip
+        if code != _OUT_OF_UNIFORMS:
             break
-    else:  # pragma: no cover - needs an adversarial config
+        block *= 4  # rare: many redraws; continue the same stream with a bigger block
+    if code == _NO_SPAWN_ROOM:
+        raise ValueError(f"the spawn box of a {s}x{s} map has fewer free cells than {n} robots")
+    if code == _NO_TARGET:  # pragma: no cover - needs an adversarial config
         raise RuntimeError("map generation found no reachable target; lower num_obstacles")
-    tr, tc = target
-    world[tr, tc] = TARGET
-    nb = world[tr - 1 : tr + 2, tc - 1 : tc + 2]
-    nb[nb == FREE] = CLUE
     return Episode(
-        grid=world,
+        grid=grid,
         robots=robots,
         headings=headings,
         classes=classes,
-        target=(tr, tc),
-        corner=corner,
-        doors=np.array(doors, dtype=np.int64).reshape(-1, 2),
+        target=(int(info[1]), int(info[2])),
+        corner=int(info[0]),
+        doors=doors[: info[3]].copy(),
     )
-
-
-def _place_target(
-    world: np.ndarray, robots: np.ndarray, forbidden: np.ndarray, rng: np.random.Generator
-) -> tuple[int, int] | None:
-    """A target cell reachable by every robot (None if the obstacles cut the team off)."""
-    s = world.shape[1]
-    passable = world == FREE
-    reach = reachable_from(passable, int(robots[0, 0]), int(robots[0, 1]))
-    if not reach[robots[:, 0], robots[:, 1]].all():
-        return None
-    # Candidates: free, allowed, with a reachable 4-neighbour.
-    nb_reach = np.zeros_like(reach)
-    nb_reach[1:, :] |= reach[:-1, :]
-    nb_reach[:-1, :] |= reach[1:, :]
-    nb_reach[:, 1:] |= reach[:, :-1]
-    nb_reach[:, :-1] |= reach[:, 1:]
-    candidates = np.flatnonzero(passable & ~forbidden & nb_reach)
-    for _ in range(_MAX_TARGET_TRIES):
-        if len(candidates) == 0:
-            return None
-        k = int(rng.integers(len(candidates)))
-        tr, tc = divmod(int(candidates[k]), s)
-        # The target is impassable: check it does not cut robots off from each other or itself.
-        passable[tr, tc] = False
-        reach2 = reachable_from(passable, int(robots[0, 0]), int(robots[0, 1]))
-        passable[tr, tc] = True
-        if reach2[robots[:, 0], robots[:, 1]].all() and (
-            reach2[tr - 1, tc] or reach2[tr + 1, tc] or reach2[tr, tc - 1] or reach2[tr, tc + 1]
-        ):
-            return tr, tc
-        candidates = np.delete(candidates, k)
-    return None

@@ -17,6 +17,9 @@ from numba import njit
 
 from catmip_env.types import CLUE_BIT, EXPLORED, OBS_CLUE, OBS_ONE, OCCUPIED, TARGET_BIT
 
+# The branch-free channel loops below turn belief bits into observation values by shifting.
+assert EXPLORED << 2 == OBS_ONE and OCCUPIED << 1 == OBS_ONE and CLUE_BIT >> 2 == OBS_CLUE
+
 
 @njit(cache=True, inline="always")
 def _stamp3(obs: np.ndarray, b: int, i: int, ch: int, r: int, c: int) -> None:
@@ -41,6 +44,7 @@ def observe(
     obs_local: np.ndarray,  # (B, N, 4 + C, L, L) uint8 out
 ) -> None:
     n, h, w = belief.shape[1], belief.shape[2], belief.shape[3]
+    hw = h * w
     n_cls = obs_local.shape[2] - 4
     half = obs_local.shape[3] // 2
     for b in range(worlds.shape[0]):
@@ -48,21 +52,23 @@ def observe(
             continue
         tr, tc = target[b, 0], target[b, 1]
         for i in range(n):
-            # -- global map: belief channels ------------------------------------------------
-            for r in range(h):
-                for c in range(w):
-                    v = belief[b, i, r, c]
-                    obs_global[b, i, 0, r, c] = OBS_ONE if v & EXPLORED else 0
-                    if noisy:
-                        occ = used_occ[b, i, r, c] != 0
-                    else:
-                        occ = (v & OCCUPIED) != 0
-                    obs_global[b, i, 1, r, c] = OBS_ONE if occ else 0
-                    obs_global[b, i, 2, r, c] = OBS_CLUE if v & CLUE_BIT else 0
-            for ch in range(3, 5 + n_cls):
-                for r in range(h):
-                    for c in range(w):
-                        obs_global[b, i, ch, r, c] = 0
+            # -- global map: belief channels (branch-free flat loops) -------------------------
+            bel = belief[b, i].reshape(hw)
+            g_exp = obs_global[b, i, 0].reshape(hw)
+            g_occ = obs_global[b, i, 1].reshape(hw)
+            g_tgt = obs_global[b, i, 2].reshape(hw)
+            for k in range(hw):
+                v = bel[k]
+                g_exp[k] = (v & EXPLORED) << 2  # 1.0 -> 4
+                g_tgt[k] = (v & CLUE_BIT) >> 2  # 0.25 -> 1
+            if noisy:
+                occ = used_occ[b, i].reshape(hw)
+                for k in range(hw):
+                    g_occ[k] = occ[k] << 2
+            else:
+                for k in range(hw):
+                    g_occ[k] = (bel[k] & OCCUPIED) << 1
+            obs_global[b, i, 3:] = 0
             knows = (belief[b, i, tr, tc] & TARGET_BIT) != 0
             if knows:
                 _stamp3(obs_global, b, i, 2, tr, tc)

@@ -26,7 +26,10 @@ from catmip_env.types import (
     WALL,
 )
 
-__all__ = ["view_cells", "RAY_CELLS", "RAY_BLOCKERS", "RAY_NBLOCK", "to_world", "sense_robot"]
+__all__ = [
+    "view_cells", "RAY_CELLS", "RAY_BLOCKERS", "RAY_NBLOCK", "VIEW_OFFSETS", "VIEW_BLOCKERS",
+    "to_world", "sense_robot",
+]
 
 
 def _open_square_hit(f: int, l: int, a: int, b: int) -> bool:
@@ -97,6 +100,27 @@ def _build_table(view: int = VIEW_SIZE) -> tuple[np.ndarray, np.ndarray, np.ndar
 RAY_CELLS, RAY_BLOCKERS, RAY_NBLOCK = _build_table()
 
 
+def _rotate(f: np.ndarray, l: np.ndarray, heading: int) -> tuple[np.ndarray, np.ndarray]:
+    """Robot-frame (forward, rightward) -> world (drow, dcol) for a heading (E, S, W, N)."""
+    return {0: (l, f), 1: (f, -l), 2: (-l, -f), 3: (-f, l)}[heading]
+
+
+def _world_tables() -> tuple[np.ndarray, np.ndarray]:
+    """The ray table rotated to every heading: cell offsets (4, K, 2) and blocker offsets
+    (4, K, M, 4) as (drow1, dcol1, drow2, dcol2); a single blocker repeats its cell."""
+    cells = np.zeros((4,) + RAY_CELLS.shape, np.int64)
+    blockers = np.zeros((4,) + RAY_BLOCKERS.shape, np.int64)
+    for h in range(4):
+        cells[h, :, 0], cells[h, :, 1] = _rotate(RAY_CELLS[:, 0], RAY_CELLS[:, 1], h)
+        for j in (0, 2):
+            dr, dc = _rotate(RAY_BLOCKERS[..., j], RAY_BLOCKERS[..., j + 1], h)
+            blockers[h, ..., j], blockers[h, ..., j + 1] = dr, dc
+    return cells, blockers
+
+
+VIEW_OFFSETS, VIEW_BLOCKERS = _world_tables()
+
+
 @njit(cache=True, inline="always")
 def to_world(r: int, c: int, heading: int, f: int, l: int) -> tuple[int, int]:
     """Robot-frame offset (forward f, rightward l) -> world cell, for headings E, S, W, N."""
@@ -126,29 +150,25 @@ def sense_robot(
     r: int,
     c: int,
     heading: int,
-    ray_cells: np.ndarray,
-    ray_blockers: np.ndarray,
-    ray_nblock: np.ndarray,
+    view_offsets: np.ndarray,  # (4, K, 2) VIEW_OFFSETS
+    view_blockers: np.ndarray,  # (4, K, M, 4) VIEW_BLOCKERS
+    ray_nblock: np.ndarray,  # (K,) RAY_NBLOCK
 ) -> None:
     """Mark every cell visible from (r, c, heading) as explored in robot i's belief."""
     h, w = grid.shape[1], grid.shape[2]
-    for k in range(ray_cells.shape[0]):
-        rr, cc = to_world(r, c, heading, ray_cells[k, 0], ray_cells[k, 1])
+    offs = view_offsets[heading]
+    blk = view_blockers[heading]
+    for k in range(offs.shape[0]):
+        rr, cc = r + offs[k, 0], c + offs[k, 1]
         if rr < 0 or cc < 0 or rr >= h or cc >= w:
             continue
         visible = True
         for j in range(ray_nblock[k]):
-            r1, c1 = to_world(r, c, heading, ray_blockers[k, j, 0], ray_blockers[k, j, 1])
-            if _opaque(grid, b, r1, c1):
-                if ray_blockers[k, j, 0] == ray_blockers[k, j, 2] and (
-                    ray_blockers[k, j, 1] == ray_blockers[k, j, 3]
-                ):
-                    visible = False
-                    break
-                r2, c2 = to_world(r, c, heading, ray_blockers[k, j, 2], ray_blockers[k, j, 3])
-                if _opaque(grid, b, r2, c2):
-                    visible = False
-                    break
+            if _opaque(grid, b, r + blk[k, j, 0], c + blk[k, j, 1]) and _opaque(
+                grid, b, r + blk[k, j, 2], c + blk[k, j, 3]
+            ):
+                visible = False
+                break
         if not visible:
             continue
         g = grid[b, rr, cc]

@@ -4,7 +4,14 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from catmip_env.sensing import RAY_BLOCKERS, RAY_CELLS, RAY_NBLOCK, sense_robot, to_world
+from catmip_env.sensing import (
+    RAY_CELLS,
+    RAY_NBLOCK,
+    VIEW_BLOCKERS,
+    VIEW_OFFSETS,
+    sense_robot,
+    to_world,
+)
 from catmip_env.types import EXPLORED, OBSTACLE, WALL
 
 from .helpers import layout_engine
@@ -14,7 +21,7 @@ H = W = 13
 
 def _sense(grid, r, c, heading):
     belief = np.zeros((1, 1) + grid.shape, np.uint8)
-    sense_robot(grid[None], belief, 0, 0, r, c, heading, RAY_CELLS, RAY_BLOCKERS, RAY_NBLOCK)
+    sense_robot(grid[None], belief, 0, 0, r, c, heading, VIEW_OFFSETS, VIEW_BLOCKERS, RAY_NBLOCK)
     return (belief[0, 0] & EXPLORED) != 0
 
 
