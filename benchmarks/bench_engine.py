@@ -64,7 +64,10 @@ def bench_pettingzoo(preset: str, seconds: float, **overrides) -> dict:
     env = search_rescue_v0.parallel_env(preset=preset, **overrides)
     env.reset(seed=0)
     rng = np.random.default_rng(0)
-    pool = [{a: int(x) for a, x in zip(env.possible_agents, row)} for row in rng.integers(0, 4, (256, len(env.possible_agents)))]
+    pool = [
+        {a: int(x) for a, x in zip(env.possible_agents, row)}
+        for row in rng.integers(0, 4, (256, len(env.possible_agents)))
+    ]
     ticks = 0
     t0 = time.perf_counter()
     while True:
@@ -98,8 +101,11 @@ def main() -> None:
 
     startup_seconds()  # make sure the numba cache is warm
     results: dict = {
-        "machine": {"python": platform.python_version(), "cpu": platform.processor() or platform.machine(),
-                    "threads": 1},
+        "machine": {
+            "python": platform.python_version(),
+            "cpu": platform.processor() or platform.machine(),
+            "threads": 1,
+        },
         "startup_s_cached": startup_seconds(),
         "engine": [],
         "pettingzoo": [],
@@ -110,7 +116,8 @@ def main() -> None:
             for b in args.batches:
                 r = bench_engine(preset, b, args.seconds, **kw)
                 results["engine"].append(r)
-                print(f"engine  {preset} B={b:5d} {kw or 'full comm'}: {r['world_ticks_per_s']:>12,.0f} world-ticks/s")
+                rate = r["world_ticks_per_s"]
+                print(f"engine  {preset} B={b:5d} {kw or 'full comm'}: {rate:>12,.0f} world-ticks/s")
             r = bench_pettingzoo(preset, args.seconds, **kw)
             results["pettingzoo"].append(r)
             print(f"pettingzoo {preset} B=1 {kw or 'full comm'}: {r['ticks_per_s']:>9,.0f} ticks/s")

@@ -176,9 +176,7 @@ def _validate(cfg: EnvConfig) -> None:
         )
     if not isinstance(cfg.horizon_ticks, int) or cfg.horizon_ticks < 1:
         fail(f"horizon_ticks must be an int >= 1, got {cfg.horizon_ticks!r}")
-    if cfg.num_obstacles is not None and (
-        not isinstance(cfg.num_obstacles, int) or cfg.num_obstacles < 0
-    ):
+    if cfg.num_obstacles is not None and (not isinstance(cfg.num_obstacles, int) or cfg.num_obstacles < 0):
         fail(f"num_obstacles must be None or an int >= 0, got {cfg.num_obstacles!r}")
     if cfg.layout is None and cfg.obstacles > (cfg.map_size - 2) ** 2 // 4:
         fail(f"num_obstacles={cfg.obstacles} is too many for a {cfg.map_size}x{cfg.map_size} map")

@@ -22,11 +22,11 @@ from numba import njit
 from catmip_env.rng import uniform
 from catmip_env.sensing import sense_robot
 from catmip_env.types import (
+    CLUE,
     EXPLORED,
     FORWARD,
     FREE,
     OCCUPIED,
-    CLUE,
     TARGET_BIT,
     TURN_LEFT,
     TURN_RIGHT,

@@ -166,9 +166,7 @@ class BatchedEngine:
             episode_indices = np.arange(self.next_episode, self.next_episode + len(idx))
         episode_indices = np.asarray(episode_indices, dtype=np.int64).reshape(-1)
         if len(episode_indices) != len(idx):
-            raise ValueError(
-                f"got {len(episode_indices)} episode indices for {len(idx)} worlds being reset"
-            )
+            raise ValueError(f"got {len(episode_indices)} episode indices for {len(idx)} worlds being reset")
         if len(episode_indices) and episode_indices.min() < 0:
             raise ValueError("episode indices must be >= 0")
         if len(episode_indices):

@@ -93,8 +93,7 @@ def parse_layout(text: str) -> Layout:
     else:
         if len(heading_letters) != n or any(x.upper() not in "ESWN" for x in heading_letters):
             raise ValueError(
-                f"layout 'headings:' line must give one of E/S/W/N per robot ({n}), "
-                f"got {heading_letters}"
+                f"layout 'headings:' line must give one of E/S/W/N per robot ({n}), got {heading_letters}"
             )
         headings = tuple("ESWN".index(x.upper()) for x in heading_letters)
     tr, tc = target

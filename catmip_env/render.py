@@ -103,7 +103,9 @@ def render_ansi(engine, b: int = 0) -> str:
     grid = st.grid[b]
     explored = (st.belief[b] & EXPLORED).any(axis=0)
     chars = {0: ".", WALL: "#", OBSTACLE: "o", TARGET: "T", CLUE: "+"}
-    rows = [[chars[int(v)] if explored[r, c] else "?" for c, v in enumerate(row)] for r, row in enumerate(grid)]
+    rows = [
+        [chars[int(v)] if explored[r, c] else "?" for c, v in enumerate(row)] for r, row in enumerate(grid)
+    ]
     for i in range(st.pos.shape[1]):
         r, c = st.pos[b, i]
         rows[r][c] = ">v<^"[st.heading[b, i]]

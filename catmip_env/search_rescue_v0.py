@@ -120,7 +120,7 @@ class SearchRescueEnv(ParallelEnv):
         self.state_space = spaces.Box(0.0, 1.0, (4 + self._n_cls, h, w), np.float32)
 
     # -- spaces --------------------------------------------------------------------------------
-    @functools.lru_cache(maxsize=None)  # noqa: B019 - one space object per agent, as PettingZoo asks
+    @functools.cache  # noqa: B019 - one space object per agent, as PettingZoo asks
     def observation_space(self, agent: str) -> spaces.Dict:
         self._index(agent)
         cfg, c = self.config, self._n_cls
@@ -145,7 +145,7 @@ class SearchRescueEnv(ParallelEnv):
             }
         )
 
-    @functools.lru_cache(maxsize=None)  # noqa: B019
+    @functools.cache  # noqa: B019
     def action_space(self, agent: str) -> spaces.Discrete:
         self._index(agent)
         return spaces.Discrete(len(PRIMITIVE_ACTIONS))
@@ -154,9 +154,7 @@ class SearchRescueEnv(ParallelEnv):
         try:
             return self.agent_name_mapping[agent]
         except KeyError:
-            raise ValueError(
-                f"unknown robot id {agent!r}; robots are {self.possible_agents}"
-            ) from None
+            raise ValueError(f"unknown robot id {agent!r}; robots are {self.possible_agents}") from None
 
     # -- API -----------------------------------------------------------------------------------
     def reset(self, seed: int | None = None, options: dict[str, Any] | None = None):

@@ -27,8 +27,14 @@ from catmip_env.types import (
 )
 
 __all__ = [
-    "view_cells", "RAY_CELLS", "RAY_BLOCKERS", "RAY_NBLOCK", "VIEW_OFFSETS", "VIEW_BLOCKERS",
-    "to_world", "sense_robot",
+    "view_cells",
+    "RAY_CELLS",
+    "RAY_BLOCKERS",
+    "RAY_NBLOCK",
+    "VIEW_OFFSETS",
+    "VIEW_BLOCKERS",
+    "to_world",
+    "sense_robot",
 ]
 
 

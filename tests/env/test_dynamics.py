@@ -188,8 +188,9 @@ def _place(eng, i, r, c, heading):
 
 
 def test_success_exactly_when_a_target_aware_rescuer_is_adjacent():
-    eng = layout_engine(RESCUE_MAP + "headings: W W\n", team=("explorer", "rescuer"),
-                        comm_sigma=0.01)  # (practically) no communication
+    eng = layout_engine(
+        RESCUE_MAP + "headings: W W\n", team=("explorer", "rescuer"), comm_sigma=0.01
+    )  # (practically) no communication
     st, h = eng.state, eng.cfg.horizon_ticks
     tr, tc = st.target[0]
     # rescuer adjacent to the target but facing away, not knowing it: no success

@@ -120,5 +120,5 @@ def test_exclusion_box_is_eight_on_paper_maps():
 
 @pytest.mark.parametrize("s", [10, 11, 13, 64])
 def test_any_map_size_from_ten_works(s):
-    for cfg, ep in _maps("task1", n=20, map_size=s):
+    for _, ep in _maps("task1", n=20, map_size=s):
         assert ep.grid.shape == (s, s) and (ep.grid == TARGET).sum() == 1

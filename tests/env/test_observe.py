@@ -68,7 +68,11 @@ def _check_world(eng, b):
 
 def test_observations_match_beliefs_along_rollouts():
     rng = np.random.default_rng(0)
-    for preset, kw in (("task1", {}), ("task3", {"comm_sigma": 2.0}), ("task2", {"slam_noise": 0.05})):
+    for preset, kw in (
+        ("task1", {}),
+        ("task3", {"comm_sigma": 2.0}),
+        ("task2", {"slam_noise": 0.05}),
+    ):
         eng = preset_engine(preset, num_worlds=3, seed=1, **kw)
         for t in range(80):
             eng.step(random_actions(rng, eng))

@@ -100,7 +100,13 @@ def test_observation_contract():
         assert o["action_mask"].dtype == np.int8 and o["action_mask"].tolist() == [1, 1, 1, 1]
         cls = infos[agent]["agent_class"]
         assert o["observation"]["agent_class"].tolist() == np.eye(c)[cls].tolist()
-        assert set(infos[agent]) == {"agent_class", "tick", "neighbourhood", "can_act", "knows_target"}
+        assert set(infos[agent]) == {
+            "agent_class",
+            "tick",
+            "neighbourhood",
+            "can_act",
+            "knows_target",
+        }
     assert env.state().shape == env.state_space.shape
     compact = search_rescue_v0.parallel_env(preset="task3", compact_obs=True)
     co, _ = compact.reset(seed=0)
