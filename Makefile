@@ -1,0 +1,32 @@
+# Quick start:  make demo   (set up .venv, run the demo)      make test   (set up .venv, run the tests)
+PYTHON ?= python3
+VENV   ?= .venv
+PY     := $(VENV)/bin/python
+STAMP  := $(VENV)/.installed
+
+.PHONY: demo test test-fast lint bench clean
+
+$(STAMP): pyproject.toml
+	test -x $(PY) || $(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install --quiet --disable-pip-version-check -e '.[dev,render]'
+	touch $(STAMP)
+
+demo: $(STAMP)
+	$(PY) -m catmip_env.demo --out out/demo
+
+test: $(STAMP)
+	$(PY) -m pytest -n 2 tests
+
+test-fast: $(STAMP)
+	$(PY) -m pytest -n 2 -m "not slow" tests
+
+lint: $(STAMP)
+	$(PY) -m ruff check .
+	$(PY) -m ruff format --check .
+
+bench: $(STAMP)
+	$(PY) benchmarks/bench_engine.py
+
+clean:
+	rm -rf $(VENV) out .pytest_cache .hypothesis
+	find . -name __pycache__ -prune -exec rm -rf {} +
