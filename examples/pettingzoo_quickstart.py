@@ -1,6 +1,6 @@
 """A random policy on the PettingZoo Parallel env: the loop every MARL library runs.
 
-    python examples/pettingzoo_quickstart.py [--preset task2] [--episodes 2]
+python examples/pettingzoo_quickstart.py [--preset task2] [--episodes 2]
 """
 
 from __future__ import annotations

@@ -15,7 +15,9 @@ def _load(path: Path):
 
 
 def test_pettingzoo_quickstart():
-    returns = _load(ROOT / "examples" / "pettingzoo_quickstart.py").main(["--preset", "task1", "--episodes", "1"])
+    returns = _load(ROOT / "examples" / "pettingzoo_quickstart.py").main(
+        ["--preset", "task1", "--episodes", "1"]
+    )
     assert len(returns) == 1
 
 
