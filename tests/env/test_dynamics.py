@@ -39,6 +39,25 @@ def test_robots_never_in_walls_or_on_each_other(comm):
             eng.reset(worlds=st.done)
 
 
+def test_invariants_on_a_hand_drawn_non_square_map():
+    """Random walks of three robots on a 7x13 ASCII map: never in walls, obstacles, the target or
+    on each other; explored never shrinks under full communication."""
+    layout = TWO_ROOMS.replace("#...o.......#", "#2..o.......#")
+    eng = layout_engine(layout, team=("rescuer", "explorer", "explorer"), horizon_ticks=10_000)
+    st, rng = eng.state, np.random.default_rng(4)
+    prev = st.belief.copy()
+    for _ in range(2000):
+        eng.step(random_actions(rng, eng))
+        cells = st.grid[0, st.pos[0, :, 0], st.pos[0, :, 1]]
+        assert not np.isin(cells, (WALL, OBSTACLE, TARGET)).any()
+        assert len({tuple(p) for p in st.pos[0].tolist()}) == 3
+        assert ((prev & ~st.belief) == 0).all()
+        prev = st.belief.copy()
+        if st.done[0]:
+            break
+    assert st.grid.shape == (1, 7, 13)
+
+
 def test_turning_and_forward():
     eng = layout_engine(TWO_ROOMS, team=("explorer", "explorer"))
     st = eng.state
