@@ -83,6 +83,12 @@ class EnvConfig:
     """Team reward scale on success: rescue_reward * (1 - 0.9 t/h)."""
     layout: str | None = None
     """Optional fixed ASCII map (see :mod:`catmip_env.layout`); replaces map generation."""
+    max_ma_ticks: int = 10
+    """Macro level: a macro-action ends after this many ticks (the paper studies 5 / 10 / 20)."""
+    activation: tuple[int, int] = (2, 5)
+    """Macro level: (t_min, t_max) waiting ticks of asynchronous activation; (0, 0) decides at once."""
+    synchronous: bool = False
+    """Macro level: every robot decides together every ``max_ma_ticks`` ticks (Synch-CATMiP)."""
 
     # -- derived -------------------------------------------------------------------------------
     def __post_init__(self) -> None:
@@ -128,6 +134,8 @@ class EnvConfig:
             overrides["team"] = tuple(overrides["team"])
         if "random_classes" in overrides:
             overrides["random_classes"] = tuple(overrides["random_classes"])
+        if "activation" in overrides:
+            overrides["activation"] = tuple(overrides["activation"])
         if "classes" in overrides:
             overrides["classes"] = tuple(
                 c if isinstance(c, RobotClass) else RobotClass(**c) for c in overrides["classes"]
@@ -193,6 +201,11 @@ def _validate(cfg: EnvConfig) -> None:
     for name in ("find_reward", "rescue_reward"):
         if getattr(cfg, name) < 0:
             fail(f"{name} must be >= 0, got {getattr(cfg, name)!r}")
+    if not isinstance(cfg.max_ma_ticks, int) or cfg.max_ma_ticks < 1:
+        fail(f"max_ma_ticks must be an int >= 1, got {cfg.max_ma_ticks!r}")
+    act = cfg.activation
+    if len(act) != 2 or not all(isinstance(x, int) for x in act) or act[0] < 0 or act[1] < act[0]:
+        fail(f"activation must be (t_min, t_max) ints with 0 <= t_min <= t_max, got {act!r}")
     if cfg.layout is not None:
         from catmip_env.layout import parse_layout
 
@@ -213,14 +226,18 @@ def make_config(preset: str | EnvConfig = "task2", **overrides: Any) -> EnvConfi
 
 
 PRESETS: dict[str, EnvConfig] = {
-    # Evaluation tasks (paper Section 7): horizons 300 / 400 / 500 ticks.
-    "task1": EnvConfig(map_size=15, team=("rescuer", "explorer"), horizon_ticks=300),
-    "task2": EnvConfig(map_size=20, team=("rescuer", "explorer", "explorer"), horizon_ticks=400),
+    # Evaluation tasks (paper Section 7): horizons 300 / 400 / 500 ticks, robots decide at once.
+    "task1": EnvConfig(map_size=15, team=("rescuer", "explorer"), horizon_ticks=300, activation=(0, 0)),
+    "task2": EnvConfig(
+        map_size=20, team=("rescuer", "explorer", "explorer"), horizon_ticks=400, activation=(0, 0)
+    ),
     "task3": EnvConfig(
         map_size=32,
         team=("rescuer", "rescuer", "explorer", "explorer", "explorer", "explorer"),
         horizon_ticks=500,
+        activation=(0, 0),
     ),
-    # Training (paper Section 6): rescuer + explorer + one robot of random class, horizon 200.
+    # Training (paper Section 6): rescuer + explorer + one robot of random class, horizon 200,
+    # asynchronous activation (2, 5), macro-actions of at most 10 ticks.
     "train": EnvConfig(map_size=20, team=("rescuer", "explorer", "random"), horizon_ticks=200),
 }

@@ -1,0 +1,247 @@
+"""The batched event engine: B worlds, each advancing to its own next decision event (SPEC §2-§3).
+
+>>> eng = EventEngine(PRESETS["train"], num_worlds=64, seed=0)     # goal_mode="window"
+>>> ev = eng.reset()                       # t = 0: every robot of every world is active
+>>> ev = eng.step(actions)                 # (B, N) goal actions; only active robots' are read
+>>> ev.active, ev.rewards, ev.event_ticks  # who decides now, rewards since the last event, ticks run
+>>> eng.obs_global, eng.obs_local, eng.masks   # rebuilt only for worlds that were advanced
+
+A decision event is a tick at which at least one robot activates; between events the world runs on
+its own (low-level controller, sensing, communication). Worlds whose episode ended are frozen until
+``reset(worlds=...)``. Observations are uint8 (``float = value * OBS_SCALE``).
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+
+from catmip_env.config import EnvConfig
+from catmip_env.engine import BatchedEngine
+from catmip_env.macro import (
+    M_ACTIVE,
+    M_ELAPSED,
+    M_FIELDS,
+    action_masks,
+    advance,
+    assign_goals,
+    start_activation,
+)
+from catmip_env.sensing import RAY_NBLOCK, VIEW_BLOCKERS, VIEW_OFFSETS
+
+__all__ = ["EventEngine", "EventResult", "GOAL_MODES"]
+
+GOAL_MODES = ("window", "cell")
+INVALID_ACTION_MODES = ("raise", "stay")
+
+
+class EventResult(NamedTuple):
+    """What a reset or an event step returns. Arrays are the engine's buffers: copy to keep them."""
+
+    active: np.ndarray  # (B, N) bool robots that must choose a goal now
+    rewards: np.ndarray  # (B, N) float64 primitive rewards collected since the previous event
+    event_ticks: np.ndarray  # (B,) int64 ticks since the previous event (0 at reset)
+    terminated: np.ndarray  # (B,) bool the mission succeeded during this step
+    truncated: np.ndarray  # (B,) bool the horizon was reached during this step
+    ma_rewards: np.ndarray  # (B, N) float64 gamma-discounted reward since each robot's last activation
+    ma_ticks: np.ndarray  # (B, N) int64 ticks since each robot's last activation
+
+
+class EventEngine:
+    """Macro-action layer over a :class:`BatchedEngine`: goals, controller, activation, masks.
+
+    ``goal_mode="window"``: action ``a`` in ``[0, D*D)`` is the goal offset
+    ``(a // D - D//2, a % D - D//2)`` from the robot (row-major; the centre means stay here).
+    ``goal_mode="cell"``: action ``r * W + c`` is the goal cell ``(r, c)`` (for planners).
+    ``invalid_action="raise"`` rejects masked or out-of-range actions of active robots with a
+    ``ValueError``; ``"stay"`` replaces them with the robot's own cell. ``gamma`` discounts
+    ``ma_rewards`` per elapsed tick.
+    """
+
+    def __init__(
+        self,
+        cfg: EnvConfig,
+        num_worlds: int = 1,
+        seed: int | None = None,
+        goal_mode: str = "window",
+        invalid_action: str = "raise",
+        gamma: float = 1.0,
+    ) -> None:
+        if goal_mode not in GOAL_MODES:
+            raise ValueError(f"unknown goal_mode {goal_mode!r}; choose one of {list(GOAL_MODES)}")
+        if invalid_action not in INVALID_ACTION_MODES:
+            raise ValueError(
+                f"unknown invalid_action {invalid_action!r}; choose one of {list(INVALID_ACTION_MODES)}"
+            )
+        if not 0.0 < gamma <= 1.0:
+            raise ValueError(f"gamma must be in (0, 1], got {gamma!r}")
+        self.world = BatchedEngine(cfg, num_worlds, seed)
+        self.cfg = cfg
+        self.goal_mode = goal_mode
+        self.invalid_action = invalid_action
+        self.gamma = float(gamma)
+        b, n, (h, w) = self.world.num_worlds, cfg.num_robots, self.world.shape
+        self.num_worlds, self.num_robots, self.shape = b, n, (h, w)
+        self.num_actions = cfg.window**2 if goal_mode == "window" else h * w
+        self.stay_action = (cfg.window**2) // 2 if goal_mode == "window" else -1
+        self.mstate = np.zeros((b, n, M_FIELDS), np.int64)
+        self.masks = np.zeros((b, n, self.num_actions), np.int8)
+        self._prim = np.zeros((b, n), np.int64)
+        self._tick_rewards = np.zeros((b, n), np.float64)
+        self._event_rewards = np.zeros((b, n), np.float64)
+        self._ma_rewards = np.zeros((b, n), np.float64)
+        self._event_ticks = np.zeros(b, np.int64)
+        self._terminated = np.zeros(b, np.bool_)
+        self._truncated = np.zeros(b, np.bool_)
+        self._goal_cells = np.zeros((b, n, 2), np.int64)
+        t_min, t_max = cfg.activation
+        noisy = cfg.slam_noise > 0
+        self._int_params = np.array(
+            [cfg.horizon_ticks, cfg.max_ma_ticks, t_min, t_max, int(cfg.synchronous), int(noisy)], np.int64
+        )
+        comm = float(cfg.comm_sigma) if cfg.comm_sigma is not None else 0.0
+        self._float_params = np.array(
+            [
+                comm,
+                cfg.slam_noise,
+                cfg.step_reward,
+                cfg.collision_penalty,
+                cfg.find_reward,
+                cfg.rescue_reward,
+                self.gamma,
+            ],
+            np.float64,
+        )
+
+    # -- views of the world --------------------------------------------------------------------
+    @property
+    def state(self):
+        return self.world.state
+
+    @property
+    def obs_global(self) -> np.ndarray:
+        return self.world.obs_global
+
+    @property
+    def obs_local(self) -> np.ndarray:
+        return self.world.obs_local
+
+    @property
+    def active(self) -> np.ndarray:
+        """(B, N) bool: robots that decide at the current event."""
+        return self.mstate[..., M_ACTIVE] != 0
+
+    def seed(self, seed: int | None) -> None:
+        self.world.seed(seed)
+
+    # -- API -----------------------------------------------------------------------------------
+    def reset(
+        self,
+        worlds: np.ndarray | None = None,
+        episode_indices: np.ndarray | None = None,
+        seed: int | None = None,
+    ) -> EventResult:
+        """New episodes in ``worlds`` (default all); each starts with a joint decision at t = 0.
+
+        Rewards earned at reset (the target in view at t = 0) are reported with the first step.
+        """
+        idx = self.world.reset(worlds, episode_indices, seed)
+        mask = np.zeros(self.num_worlds, np.bool_)
+        mask[idx] = True
+        st = self.state
+        start_activation(mask, st.target, st.belief, self.mstate)
+        st.goal[idx] = -1
+        self._event_rewards[idx] = 0.0
+        self._ma_rewards[idx] = 0.0
+        self._event_ticks[idx] = 0
+        self._terminated[idx] = False
+        self._truncated[idx] = False
+        self._masks(mask)
+        return self._result()
+
+    def step(self, actions: np.ndarray) -> EventResult:
+        """Apply the active robots' goal actions (B, N) and run every live world to its next event.
+
+        Entries of busy robots and of finished worlds are ignored.
+        """
+        st = self.state
+        live = ~st.done
+        self._set_goals(np.asarray(actions), live)
+        assign_goals(live, self._goal_cells, st.goal, self.mstate, self._ma_rewards)
+        self._event_rewards[live] = st.pending_reward[live]  # the reset reward rides on the first step
+        self._ma_rewards[live] += st.pending_reward[live]
+        st.pending_reward[live] = 0.0
+        self._event_rewards[st.done] = 0.0
+        advance(
+            live, st.grid, st.target, st.pos, st.heading, st.speed, st.can_rescue, st.belief, st.comp,
+            st.rng, st.used_occ, st.ticks, st.found_tick, st.rescue_tick, st.goal, self.mstate,
+            self._prim, self._tick_rewards, self._event_rewards, self._ma_rewards, self._event_ticks,
+            self._terminated, self._truncated, self._int_params, self._float_params,
+            VIEW_OFFSETS, VIEW_BLOCKERS, RAY_NBLOCK,
+        )  # fmt: skip
+        st.done |= self._terminated | self._truncated
+        self.world._observe(live)
+        self._masks(live)
+        return self._result()
+
+    # -- helpers -------------------------------------------------------------------------------
+    def _result(self) -> EventResult:
+        return EventResult(
+            self.active,
+            self._event_rewards,
+            self._event_ticks,
+            self._terminated,
+            self._truncated,
+            self._ma_rewards,
+            self.mstate[..., M_ELAPSED],
+        )
+
+    def _masks(self, worlds: np.ndarray) -> None:
+        st = self.state
+        action_masks(
+            worlds, self.goal_mode == "cell", self.cfg.window, st.belief, st.pos, st.comp, st.goal,
+            self.mstate, self.masks,
+        )  # fmt: skip
+
+    def action_to_cell(self, b: int, i: int, action: int) -> tuple[int, int]:
+        """Goal cell of robot i of world b for ``action`` (no validity check)."""
+        if self.goal_mode == "cell":
+            return divmod(int(action), self.shape[1])
+        d = self.cfg.window
+        r, c = self.state.pos[b, i]
+        return int(r + action // d - d // 2), int(c + action % d - d // 2)
+
+    def _set_goals(self, actions: np.ndarray, live: np.ndarray) -> None:
+        b_, n = self.num_worlds, self.num_robots
+        if actions.shape != (b_, n):
+            raise ValueError(
+                f"actions must have shape (num_worlds, num_robots) = ({b_}, {n}), got {actions.shape}"
+            )
+        if not np.issubdtype(actions.dtype, np.integer):
+            raise ValueError(f"goal actions must be integers, got dtype {actions.dtype}")
+        act = self.active & live[:, None]
+        a = np.where(act, actions, 0).astype(np.int64)
+        in_range = (a >= 0) & (a < self.num_actions)
+        ok = in_range.copy()
+        bb, ii = np.nonzero(in_range & act)
+        ok[bb, ii] = self.masks[bb, ii, a[bb, ii]] == 1
+        bad = act & ~ok
+        if bad.any():
+            if self.invalid_action == "raise":
+                b, i = (int(x) for x in np.argwhere(bad)[0])
+                what = "out of range" if not in_range[b, i] else "masked (invalid)"
+                raise ValueError(
+                    f"action {int(actions[b, i])} of robot_{i} (world {b}) is {what}: "
+                    f"{self.goal_mode} actions are 0..{self.num_actions - 1} and must be allowed by the mask"
+                )
+            pos = self.state.pos
+            stay = pos[..., 0] * self.shape[1] + pos[..., 1] if self.goal_mode == "cell" else self.stay_action
+            a = np.where(bad, stay, a)
+        st = self.state
+        if self.goal_mode == "cell":
+            self._goal_cells[..., 0], self._goal_cells[..., 1] = np.divmod(a, self.shape[1])
+        else:
+            d = self.cfg.window
+            self._goal_cells[..., 0] = st.pos[..., 0] + a // d - d // 2
+            self._goal_cells[..., 1] = st.pos[..., 1] + a % d - d // 2

@@ -1,0 +1,339 @@
+"""Macro-action layer as numba kernels (SPEC §2): the low-level controller, macro-action ends,
+asynchronous / synchronous activation, goal assignment and invalid-action masks.
+
+Per-robot macro state lives in one int64 array ``mstate (B, N, M_FIELDS)`` with the columns below.
+:func:`advance` runs each live world tick by tick (controller → move → perceive → bookkeeping) until
+its next decision event or the end of its episode, entirely inside numba.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from catmip_env.dynamics import move_robots, perceive
+from catmip_env.planner import next_step
+from catmip_env.rng import randint
+from catmip_env.types import FORWARD, OCCUPIED, STAY, TARGET_BIT, TURN_LEFT, TURN_RIGHT
+
+# Columns of mstate.
+M_MA_TICKS = 0  # ticks the current macro-action has run
+M_STANDBY = 1  # 1 once the macro-action ended (waiting to be activated)
+M_WAIT = 2  # waiting ticks w in standby
+M_DEADLINE = 3  # personal deadline d ~ U{t_min .. t_max}, drawn on entering standby
+M_ACTIVE = 4  # 1 if the robot decides at the current event
+M_KNEW = 5  # 1 if the robot knew the target at the end of the previous tick
+M_ELAPSED = 6  # ticks since the robot's last activation
+M_UNREACHABLE = 7  # 1 if the controller found the goal unreachable this tick
+M_FIELDS = 8
+
+
+@njit(cache=True)
+def controller(
+    b: int,
+    t0: int,
+    pos: np.ndarray,
+    heading: np.ndarray,
+    speed: np.ndarray,
+    belief: np.ndarray,
+    used_occ: np.ndarray,
+    noisy: bool,
+    goal: np.ndarray,
+    mstate: np.ndarray,
+    rng: np.ndarray,
+    actions: np.ndarray,  # (B, N) int64 out
+    blocked: np.ndarray,  # (H, W) bool scratch
+    dist: np.ndarray,
+    queue: np.ndarray,
+) -> None:
+    """Primitive action of every robot for this tick: follow a shortest path to the goal on the
+    robot's (noisy) belief with other robots as obstacles; stay on the goal and in standby."""
+    n, h, w = pos.shape[1], belief.shape[2], belief.shape[3]
+    for i in range(n):
+        actions[b, i] = STAY
+        mstate[b, i, M_UNREACHABLE] = 0
+        if mstate[b, i, M_STANDBY] or goal[b, i, 0] < 0 or t0 % speed[b, i] != 0:
+            continue
+        for r in range(h):
+            for c in range(w):
+                if noisy:
+                    blocked[r, c] = used_occ[b, i, r, c] != 0
+                else:
+                    blocked[r, c] = (belief[b, i, r, c] & OCCUPIED) != 0
+        for j in range(n):
+            if j != i:
+                blocked[pos[b, j, 0], pos[b, j, 1]] = True
+        r, c = pos[b, i, 0], pos[b, i, 1]
+        blocked[r, c] = False
+        d = next_step(blocked, r, c, heading[b, i], goal[b, i, 0], goal[b, i, 1], dist, queue)
+        if d == -1:
+            mstate[b, i, M_UNREACHABLE] = 1
+        elif d < 4:
+            hd = heading[b, i]
+            if d == hd:
+                actions[b, i] = FORWARD
+            elif d == (hd + 1) % 4:
+                actions[b, i] = TURN_RIGHT
+            elif d == (hd + 3) % 4:
+                actions[b, i] = TURN_LEFT
+            else:  # 180 degrees: a seeded coin picks the side
+                actions[b, i] = TURN_LEFT if randint(rng, b, 2) == 0 else TURN_RIGHT
+
+
+@njit(cache=True)
+def end_macro_actions(
+    b: int,
+    pos: np.ndarray,
+    goal: np.ndarray,
+    target: np.ndarray,
+    belief: np.ndarray,
+    mstate: np.ndarray,
+    rng: np.ndarray,
+    max_ma_ticks: int,
+    t_min: int,
+    t_max: int,
+) -> None:
+    """Bookkeeping at the end of a tick: macro-action ends (goal reached, goal unreachable or
+    occupied, target learned, time out) send robots to standby; standby robots count waiting ticks."""
+    tr, tc = target[b, 0], target[b, 1]
+    for i in range(pos.shape[1]):
+        knows = 1 if belief[b, i, tr, tc] & TARGET_BIT else 0
+        mstate[b, i, M_ELAPSED] += 1
+        if mstate[b, i, M_STANDBY]:
+            mstate[b, i, M_WAIT] += 1
+        else:
+            mstate[b, i, M_MA_TICKS] += 1
+            ended = (
+                (pos[b, i, 0] == goal[b, i, 0] and pos[b, i, 1] == goal[b, i, 1])
+                or mstate[b, i, M_UNREACHABLE] != 0
+                or (knows and not mstate[b, i, M_KNEW])
+                or mstate[b, i, M_MA_TICKS] >= max_ma_ticks
+            )
+            if ended:
+                mstate[b, i, M_STANDBY] = 1
+                mstate[b, i, M_WAIT] = 0
+                mstate[b, i, M_DEADLINE] = t_min + randint(rng, b, t_max - t_min + 1)
+        mstate[b, i, M_KNEW] = knows
+
+
+@njit(cache=True)
+def activate(
+    b: int, tick_1b: int, comp: np.ndarray, mstate: np.ndarray, t_min: int, sync: bool, max_ma_ticks: int
+) -> bool:
+    """Mark the robots that decide now (M_ACTIVE); returns whether this tick is a decision event.
+
+    Asynchronous: inside each neighbourhood, if two or more standby robots are ready (w >= t_min) they
+    all activate together; otherwise a standby robot activates alone once w reaches its deadline.
+    Synchronous: everyone activates every ``max_ma_ticks`` ticks.
+    """
+    n = comp.shape[1]
+    event = False
+    if sync:
+        if tick_1b % max_ma_ticks == 0:
+            for i in range(n):
+                mstate[b, i, M_ACTIVE] = 1
+            return True
+        return False
+    for root in range(n):
+        if comp[b, root] != root:
+            continue
+        ready = 0
+        for i in range(root, n):
+            if comp[b, i] == root and mstate[b, i, M_STANDBY] and mstate[b, i, M_WAIT] >= t_min:
+                ready += 1
+        for i in range(root, n):
+            if comp[b, i] != root or not mstate[b, i, M_STANDBY]:
+                continue
+            wait = mstate[b, i, M_WAIT]
+            if (ready >= 2 and wait >= t_min) or wait >= mstate[b, i, M_DEADLINE]:
+                mstate[b, i, M_ACTIVE] = 1
+                event = True
+    return event
+
+
+@njit(cache=True)
+def advance(
+    live: np.ndarray,  # (B,) bool worlds to run
+    grid: np.ndarray,
+    target: np.ndarray,
+    pos: np.ndarray,
+    heading: np.ndarray,
+    speed: np.ndarray,
+    can_rescue: np.ndarray,
+    belief: np.ndarray,
+    comp: np.ndarray,
+    rng: np.ndarray,
+    used_occ: np.ndarray,
+    ticks: np.ndarray,
+    found_tick: np.ndarray,
+    rescue_tick: np.ndarray,
+    goal: np.ndarray,
+    mstate: np.ndarray,
+    actions: np.ndarray,  # (B, N) int64 scratch for the controller's primitive actions
+    tick_rewards: np.ndarray,  # (B, N) float64 scratch
+    event_rewards: np.ndarray,  # (B, N) float64, accumulated (caller zeroes at the event)
+    ma_rewards: np.ndarray,  # (B, N) float64 discounted return since each robot's activation
+    event_ticks: np.ndarray,  # (B,) int64 out: ticks run in this call
+    terminated: np.ndarray,  # (B,) bool out
+    truncated: np.ndarray,  # (B,) bool out
+    int_params: np.ndarray,  # horizon, max_ma_ticks, t_min, t_max, sync, noisy
+    float_params: np.ndarray,  # comm_sigma, noise, step, collision, find, rescue rewards, gamma
+    view_offsets: np.ndarray,
+    view_blockers: np.ndarray,
+    ray_nblock: np.ndarray,
+) -> None:
+    """Run every live world until its next decision event (some robot activates) or episode end."""
+    horizon, max_ma, t_min, t_max = int_params[0], int_params[1], int_params[2], int_params[3]
+    sync, noisy = int_params[4] != 0, int_params[5] != 0
+    comm_sigma, noise = float_params[0], float_params[1]
+    step_r, coll_r, find_r, rescue_r, gamma = (
+        float_params[2],
+        float_params[3],
+        float_params[4],
+        float_params[5],
+        float_params[6],
+    )
+    n, h, w = pos.shape[1], belief.shape[2], belief.shape[3]
+    blocked = np.zeros((h, w), np.bool_)
+    dist = np.empty(h * w, np.int64)
+    queue = np.empty(h * w, np.int64)
+    for b in range(live.shape[0]):
+        terminated[b] = False
+        truncated[b] = False
+        event_ticks[b] = 0
+        if not live[b]:
+            continue
+        for i in range(n):
+            mstate[b, i, M_ACTIVE] = 0
+        while True:
+            t0 = ticks[b]
+            controller(b, t0, pos, heading, speed, belief, used_occ, noisy, goal, mstate, rng, actions,
+                       blocked, dist, queue)  # fmt: skip
+            for i in range(n):
+                tick_rewards[b, i] = 0.0
+            move_robots(b, t0, grid, pos, heading, speed, actions, step_r, coll_r, tick_rewards)
+            success = perceive(
+                b, t0 + 1, grid, target, pos, heading, can_rescue, belief, comp, rng, used_occ,
+                found_tick, rescue_tick, tick_rewards, horizon, comm_sigma, noise, find_r, rescue_r,
+                view_offsets, view_blockers, ray_nblock,
+            )  # fmt: skip
+            ticks[b] = t0 + 1
+            event_ticks[b] += 1
+            for i in range(n):
+                r = tick_rewards[b, i]
+                event_rewards[b, i] += r
+                ma_rewards[b, i] += r * gamma ** mstate[b, i, M_ELAPSED]
+            end_macro_actions(b, pos, goal, target, belief, mstate, rng, max_ma, t_min, t_max)
+            if success:
+                terminated[b] = True
+                break
+            if t0 + 1 >= horizon:
+                truncated[b] = True
+                break
+            if activate(b, t0 + 1, comp, mstate, t_min, sync, max_ma):
+                break
+
+
+@njit(cache=True)
+def start_activation(worlds: np.ndarray, target: np.ndarray, belief: np.ndarray, mstate: np.ndarray) -> None:
+    """Reset-time macro state: everyone in standby and active (the joint first decision at t = 0)."""
+    for b in range(worlds.shape[0]):
+        if not worlds[b]:
+            continue
+        tr, tc = target[b, 0], target[b, 1]
+        for i in range(mstate.shape[1]):
+            for f in range(M_FIELDS):
+                mstate[b, i, f] = 0
+            mstate[b, i, M_STANDBY] = 1
+            mstate[b, i, M_ACTIVE] = 1
+            mstate[b, i, M_KNEW] = 1 if belief[b, i, tr, tc] & TARGET_BIT else 0
+
+
+@njit(cache=True)
+def assign_goals(
+    worlds: np.ndarray,
+    goal_cells: np.ndarray,  # (B, N, 2) int64 new goals (read for active robots only)
+    goal: np.ndarray,
+    mstate: np.ndarray,
+    ma_rewards: np.ndarray,
+) -> None:
+    """Start the macro-actions of the active robots of the given worlds."""
+    for b in range(worlds.shape[0]):
+        if not worlds[b]:
+            continue
+        for i in range(goal.shape[1]):
+            if mstate[b, i, M_ACTIVE]:
+                goal[b, i, 0] = goal_cells[b, i, 0]
+                goal[b, i, 1] = goal_cells[b, i, 1]
+                mstate[b, i, M_ACTIVE] = 0
+                mstate[b, i, M_STANDBY] = 0
+                mstate[b, i, M_MA_TICKS] = 0
+                mstate[b, i, M_WAIT] = 0
+                mstate[b, i, M_ELAPSED] = 0
+                ma_rewards[b, i] = 0.0
+
+
+@njit(cache=True, inline="always")
+def _goal_valid(
+    b: int, i: int, r: int, c: int, belief: np.ndarray, pos: np.ndarray, comp: np.ndarray
+) -> bool:
+    h, w = belief.shape[2], belief.shape[3]
+    if r < 1 or c < 1 or r > h - 2 or c > w - 2:
+        return False
+    if belief[b, i, r, c] & OCCUPIED:
+        return False
+    for j in range(pos.shape[1]):
+        if j != i and comp[b, j] == comp[b, i] and pos[b, j, 0] == r and pos[b, j, 1] == c:
+            return False
+    # all in-bounds 4-neighbours known occupied: a pocket no path enters
+    if (
+        (belief[b, i, r - 1, c] & OCCUPIED)
+        and (belief[b, i, r + 1, c] & OCCUPIED)
+        and (belief[b, i, r, c - 1] & OCCUPIED)
+        and (belief[b, i, r, c + 1] & OCCUPIED)
+    ):
+        return False
+    return True
+
+
+@njit(cache=True)
+def action_masks(
+    worlds: np.ndarray,
+    cell_mode: bool,
+    window: int,
+    belief: np.ndarray,
+    pos: np.ndarray,
+    comp: np.ndarray,
+    goal: np.ndarray,
+    mstate: np.ndarray,
+    masks: np.ndarray,  # (B, N, A) int8 out
+) -> None:
+    """Invalid-action masks from the clean beliefs (SPEC §2.1) for active robots; a busy robot's mask
+    allows only its keep-goal action (window: the centre; cell: its current goal cell)."""
+    h, w = belief.shape[2], belief.shape[3]
+    half = window // 2
+    for b in range(worlds.shape[0]):
+        if not worlds[b]:
+            continue
+        for i in range(pos.shape[1]):
+            m = masks[b, i]
+            m[:] = 0
+            r0, c0 = pos[b, i, 0], pos[b, i, 1]
+            if not mstate[b, i, M_ACTIVE]:
+                if cell_mode:
+                    m[goal[b, i, 0] * w + goal[b, i, 1]] = 1
+                else:
+                    m[half * window + half] = 1
+                continue
+            if cell_mode:
+                for r in range(h):
+                    for c in range(w):
+                        if _goal_valid(b, i, r, c, belief, pos, comp):
+                            m[r * w + c] = 1
+                m[r0 * w + c0] = 1
+            else:
+                for a in range(window * window):
+                    r, c = r0 + a // window - half, c0 + a % window - half
+                    if _goal_valid(b, i, r, c, belief, pos, comp):
+                        m[a] = 1
+                m[half * window + half] = 1
