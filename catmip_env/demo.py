@@ -74,7 +74,7 @@ def run_batch(preset: str, episodes: int, seed: int) -> dict:
 
 
 def render_episode(preset: str, seed: int, path: Path, max_frames: int = 200) -> Path:
-    env = search_rescue_v0.parallel_env(preset=preset, render_mode="rgb_array")
+    env = search_rescue_v0.parallel_env(preset=preset, level="primitive", render_mode="rgb_array")
     env.reset(seed=seed, options={"episode_index": 0})
     rng = np.random.default_rng(seed)
     frames = [env.render()]

@@ -1,7 +1,9 @@
-"""PettingZoo conformance (the library's own battery, unmodified) and the adapter's contract."""
+"""Primitive level: PettingZoo conformance (the library's own battery, unmodified) and the contract."""
 
+import functools
 import subprocess
 import sys
+from types import SimpleNamespace
 
 import numpy as np
 import pettingzoo
@@ -19,32 +21,35 @@ import catmip_env
 from catmip_env import search_rescue_v0
 
 PRESETS = ["task1", "task2", "task3", "train"]
+prim_parallel_env = functools.partial(search_rescue_v0.parallel_env, level="primitive")
+prim_env = functools.partial(search_rescue_v0.env, level="primitive")
+PRIMITIVE = SimpleNamespace(parallel_env=prim_parallel_env, env=prim_env)
 VARIANTS = [{}, {"comm_sigma": 2.0, "slam_noise": 0.05}]
 
 
 @pytest.mark.parametrize("preset", PRESETS)
 @pytest.mark.parametrize("kw", VARIANTS, ids=["full", "partial+noise"])
 def test_parallel_api_and_seed(preset, kw):
-    parallel_api_test(search_rescue_v0.parallel_env(preset=preset, **kw), num_cycles=500)
-    parallel_seed_test(lambda: search_rescue_v0.parallel_env(preset=preset, **kw), num_cycles=300)
+    parallel_api_test(prim_parallel_env(preset=preset, **kw), num_cycles=500)
+    parallel_seed_test(lambda: prim_parallel_env(preset=preset, **kw), num_cycles=300)
 
 
 @pytest.mark.parametrize("preset", PRESETS)
 def test_aec_api_and_seed(preset):
-    api_test(search_rescue_v0.env(preset=preset), num_cycles=200)
-    seed_test(lambda: search_rescue_v0.env(preset=preset, comm_sigma=4.0), num_cycles=200)
+    api_test(prim_env(preset=preset), num_cycles=200)
+    seed_test(lambda: prim_env(preset=preset, comm_sigma=4.0), num_cycles=200)
 
 
 def test_max_cycles_and_render():
-    max_cycles_test(search_rescue_v0)
-    render_test(lambda render_mode=None: search_rescue_v0.env(preset="task1", render_mode=render_mode))
+    max_cycles_test(PRIMITIVE)
+    render_test(lambda render_mode=None: prim_env(preset="task1", render_mode=render_mode))
 
 
 def test_full_episode_determinism():
     """Two envs, same seed, same random actions: identical everything until the episode ends."""
     for kw in ({}, {"comm_sigma": 2.0, "slam_noise": 0.05}):
-        e1 = search_rescue_v0.parallel_env(preset="task2", **kw)
-        e2 = search_rescue_v0.parallel_env(preset="task2", **kw)
+        e1 = prim_parallel_env(preset="task2", **kw)
+        e2 = prim_parallel_env(preset="task2", **kw)
         for episode in range(2):
             seed = 11 if episode == 0 else None
             o1, i1 = e1.reset(seed=seed)
@@ -65,7 +70,7 @@ def test_full_episode_determinism():
 
 
 def test_reset_seed_replays_and_episodes_differ():
-    env = search_rescue_v0.parallel_env(preset="task1")
+    env = prim_parallel_env(preset="task1")
     env.reset(seed=3)
     first = env.state().copy()
     env.reset()
@@ -87,7 +92,7 @@ def _assert_same(a, b):
 
 
 def test_observation_contract():
-    env = search_rescue_v0.parallel_env(preset="task3")
+    env = prim_parallel_env(preset="task3")
     obs, infos = env.reset(seed=0)
     c, s = env.config.num_classes, env.config.map_size
     for agent in env.possible_agents:
@@ -108,7 +113,7 @@ def test_observation_contract():
             "knows_target",
         }
     assert env.state().shape == env.state_space.shape
-    compact = search_rescue_v0.parallel_env(preset="task3", compact_obs=True)
+    compact = prim_parallel_env(preset="task3", compact_obs=True)
     co, _ = compact.reset(seed=0)
     g = co["robot_0"]["observation"]["global_map"]
     assert g.dtype == np.uint8
@@ -116,7 +121,7 @@ def test_observation_contract():
 
 
 def test_rescuer_can_act_flag():
-    env = search_rescue_v0.parallel_env(preset="task1")
+    env = prim_parallel_env(preset="task1")
     _, infos = env.reset(seed=0)
     flags = []
     for _ in range(4):
@@ -127,7 +132,7 @@ def test_rescuer_can_act_flag():
 
 
 def test_bad_input_raises_clear_errors():
-    env = search_rescue_v0.parallel_env(preset="task1", horizon_ticks=3)
+    env = prim_parallel_env(preset="task1", horizon_ticks=3)
     env.reset(seed=0)
     with pytest.raises(ValueError, match="unknown robot id 'robot_7'"):
         env.step({"robot_0": 0, "robot_1": 0, "robot_7": 0})
@@ -140,7 +145,7 @@ def test_bad_input_raises_clear_errors():
     with pytest.raises(ValueError, match="unknown level"):
         search_rescue_v0.parallel_env(level="nano")
     with pytest.raises(ValueError, match="render_mode"):
-        search_rescue_v0.parallel_env(render_mode="svg")
+        prim_parallel_env(render_mode="svg")
     for _ in range(3):
         env.step({"robot_0": 3, "robot_1": 3})
     assert env.agents == []
@@ -150,14 +155,15 @@ def test_bad_input_raises_clear_errors():
 
 def test_registry():
     par = pettingzoo.make("parallel", "catmip/SearchRescue-v0", preset="task1", comm_sigma=4.0)
+    assert par.level == "macro"
     assert par.config.comm_sigma == 4.0
-    aec = pettingzoo.make("aec", "catmip/SearchRescue-v0", preset="task1", max_cycles=7)
+    aec = pettingzoo.make("aec", "catmip/SearchRescue-v0", preset="task1", level="primitive", max_cycles=7)
     aec.reset(seed=0)
     assert aec.unwrapped.config.horizon_ticks == 7  # PettingZoo's max_cycles -> horizon_ticks
 
 
 def test_render_modes(tmp_path):
-    env = search_rescue_v0.parallel_env(preset="task1", render_mode="rgb_array")
+    env = prim_parallel_env(preset="task1", render_mode="rgb_array")
     env.reset(seed=0)
     frames = [env.render()]
     for _ in range(5):
@@ -169,7 +175,7 @@ def test_render_modes(tmp_path):
 
     path = save_gif(frames, tmp_path / "ep.gif")
     assert path.stat().st_size > 1000
-    text = search_rescue_v0.parallel_env(preset="task1", render_mode="ansi")
+    text = prim_parallel_env(preset="task1", render_mode="ansi")
     text.reset(seed=0)
     assert len(text.render().splitlines()) == 15
 
