@@ -48,6 +48,8 @@ def move_robots(
     step_reward: float,
     collision_penalty: float,
     rewards: np.ndarray,  # (B, N) float64, accumulated into
+    moves: np.ndarray,  # (B, N) int64 successful forward moves this episode, incremented
+    collisions: np.ndarray,  # (B, N) int64 forward moves into walls/obstacles/target, incremented
 ) -> None:
     n = pos.shape[1]
     for i in range(n):
@@ -65,6 +67,7 @@ def move_robots(
             g = grid[b, r, c]
             if g != FREE and g != CLUE:
                 rewards[b, i] += collision_penalty
+                collisions[b, i] += 1
                 continue
             blocked = False
             for j in range(n):
@@ -75,6 +78,7 @@ def move_robots(
                 pos[b, i, 0] = r
                 pos[b, i, 1] = c
                 rewards[b, i] += step_reward
+                moves[b, i] += 1
 
 
 @njit(cache=True)
@@ -288,6 +292,8 @@ def tick(
     rng: np.ndarray,
     used_occ: np.ndarray,
     ticks: np.ndarray,  # (B,) int64 ticks done so far
+    moves: np.ndarray,
+    collisions: np.ndarray,
     found_tick: np.ndarray,
     rescue_tick: np.ndarray,
     rewards: np.ndarray,  # (B, N) float64, overwritten (plus any pending reset reward)
@@ -310,7 +316,10 @@ def tick(
         if not live[b]:
             continue
         t0 = ticks[b]
-        move_robots(b, t0, grid, pos, heading, speed, actions, step_reward, collision_penalty, rewards)
+        move_robots(
+            b, t0, grid, pos, heading, speed, actions, step_reward, collision_penalty, rewards, moves,
+            collisions,
+        )  # fmt: skip
         success = perceive(
             b, t0 + 1, grid, target, pos, heading, can_rescue, belief, comp, rng, used_occ,
             found_tick, rescue_tick, rewards, horizon, comm_sigma, noise, find_reward,

@@ -50,6 +50,8 @@ class WorldState:
     goal: np.ndarray  # (B, N, 2) int64 current goal cell, -1 = none (macro level)
     rng: np.ndarray  # (B,) uint64 per-world dynamics stream
     ticks: np.ndarray  # (B,) int64 ticks elapsed in the episode
+    moves: np.ndarray  # (B, N) int64 successful forward moves in the episode
+    collisions: np.ndarray  # (B, N) int64 forward moves that hit a wall, obstacle or the target
     found_tick: np.ndarray  # (B,) int64 tick the target first became known, -1 = not yet
     rescue_tick: np.ndarray  # (B,) int64 tick of success, -1 = not yet
     done: np.ndarray  # (B,) bool episode over (terminated or truncated)
@@ -74,6 +76,8 @@ class WorldState:
             goal=np.full((b, n, 2), -1, np.int64),
             rng=np.zeros(b, np.uint64),
             ticks=np.zeros(b, np.int64),
+            moves=np.zeros((b, n), np.int64),
+            collisions=np.zeros((b, n), np.int64),
             found_tick=np.full(b, -1, np.int64),
             rescue_tick=np.full(b, -1, np.int64),
             done=np.ones(b, np.bool_),
@@ -212,6 +216,8 @@ class BatchedEngine:
         st.goal[b] = -1
         st.rng[b] = dyn_state
         st.ticks[b] = 0
+        st.moves[b] = 0
+        st.collisions[b] = 0
         st.found_tick[b] = -1
         st.rescue_tick[b] = -1
         st.done[b] = False
@@ -264,7 +270,7 @@ class BatchedEngine:
         self._truncated[:] = False
         tick(
             live, actions, st.grid, st.target, st.pos, st.heading, st.speed, st.can_rescue,
-            st.belief, st.comp, st.rng, st.used_occ, st.ticks, st.found_tick, st.rescue_tick,
+            st.belief, st.comp, st.rng, st.used_occ, st.ticks, st.moves, st.collisions, st.found_tick, st.rescue_tick,
             rewards, self._terminated, self._truncated, cfg.horizon_ticks, self._comm,
             cfg.slam_noise, cfg.step_reward, cfg.collision_penalty, cfg.find_reward,
             cfg.rescue_reward, VIEW_OFFSETS, VIEW_BLOCKERS, RAY_NBLOCK,

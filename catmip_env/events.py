@@ -175,7 +175,8 @@ class EventEngine:
         self._event_rewards[st.done] = 0.0
         advance(
             live, st.grid, st.target, st.pos, st.heading, st.speed, st.can_rescue, st.belief, st.comp,
-            st.rng, st.used_occ, st.ticks, st.found_tick, st.rescue_tick, st.goal, self.mstate,
+            st.rng, st.used_occ, st.ticks, st.moves, st.collisions, st.found_tick, st.rescue_tick, st.goal,
+            self.mstate,
             self._prim, self._tick_rewards, self._event_rewards, self._ma_rewards, self._event_ticks,
             self._terminated, self._truncated, self._int_params, self._float_params,
             VIEW_OFFSETS, VIEW_BLOCKERS, RAY_NBLOCK,
@@ -184,6 +185,13 @@ class EventEngine:
         self.world._observe(live)
         self._masks(live)
         return self._result()
+
+    def refresh(self, worlds: np.ndarray | None = None) -> None:
+        """Rebuild observations and masks of ``worlds`` (default all) after editing ``state`` by hand."""
+        mask = np.zeros(self.num_worlds, np.bool_)
+        mask[self.world._world_indices(worlds)] = True
+        self.world._observe(mask)
+        self._masks(mask)
 
     # -- helpers -------------------------------------------------------------------------------
     def _result(self) -> EventResult:

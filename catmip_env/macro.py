@@ -47,7 +47,10 @@ def controller(
     queue: np.ndarray,
 ) -> None:
     """Primitive action of every robot for this tick: follow a shortest path to the goal on the
-    robot's (noisy) belief with other robots as obstacles; stay on the goal and in standby."""
+    robot's (noisy) belief with other robots as obstacles; stay on the goal and in standby.
+
+    Unknown cells count as free, except the map's outer ring (the map's extent is known).
+    """
     n, h, w = pos.shape[1], belief.shape[2], belief.shape[3]
     for i in range(n):
         actions[b, i] = STAY
@@ -60,6 +63,11 @@ def controller(
                     blocked[r, c] = used_occ[b, i, r, c] != 0
                 else:
                     blocked[r, c] = (belief[b, i, r, c] & OCCUPIED) != 0
+        # the map's extent is known: its outer ring is wall even where not yet seen
+        blocked[0, :] = True
+        blocked[h - 1, :] = True
+        blocked[:, 0] = True
+        blocked[:, w - 1] = True
         for j in range(n):
             if j != i:
                 blocked[pos[b, j, 0], pos[b, j, 1]] = True
@@ -165,6 +173,8 @@ def advance(
     rng: np.ndarray,
     used_occ: np.ndarray,
     ticks: np.ndarray,
+    moves: np.ndarray,
+    collisions: np.ndarray,
     found_tick: np.ndarray,
     rescue_tick: np.ndarray,
     goal: np.ndarray,
@@ -211,7 +221,9 @@ def advance(
                        blocked, dist, queue)  # fmt: skip
             for i in range(n):
                 tick_rewards[b, i] = 0.0
-            move_robots(b, t0, grid, pos, heading, speed, actions, step_r, coll_r, tick_rewards)
+            move_robots(
+                b, t0, grid, pos, heading, speed, actions, step_r, coll_r, tick_rewards, moves, collisions
+            )  # fmt: skip
             success = perceive(
                 b, t0 + 1, grid, target, pos, heading, can_rescue, belief, comp, rng, used_occ,
                 found_tick, rescue_tick, tick_rewards, horizon, comm_sigma, noise, find_r, rescue_r,

@@ -72,13 +72,11 @@ def next_step(
     d = bfs_from(blocked, gr, gc, dist, queue, r * w + c)
     if d == UNREACHED:
         return -1
-    best = -1
-    for m in range(4):
-        mm = (heading + m) % 4 if m == 0 else m - 1  # heading first, then E, S, W, N
+    for m in range(5):
+        mm = heading if m == 0 else m - 1  # the current heading first, then E, S, W, N
         if m > 0 and mm == heading:
             continue
         rr, cc = r + _DR[mm], c + _DC[mm]
         if 0 <= rr < blocked.shape[0] and 0 <= cc < w and dist[rr * w + cc] == d - 1:
-            best = mm
-            break
-    return best
+            return mm
+    return -1  # unreachable: BFS found the robot, so a predecessor always exists
