@@ -270,8 +270,8 @@ class BatchedEngine:
         self._truncated[:] = False
         tick(
             live, actions, st.grid, st.target, st.pos, st.heading, st.speed, st.can_rescue,
-            st.belief, st.comp, st.rng, st.used_occ, st.ticks, st.moves, st.collisions, st.found_tick, st.rescue_tick,
-            rewards, self._terminated, self._truncated, cfg.horizon_ticks, self._comm,
+            st.belief, st.comp, st.rng, st.used_occ, st.ticks, st.moves, st.collisions, st.found_tick,
+            st.rescue_tick, rewards, self._terminated, self._truncated, cfg.horizon_ticks, self._comm,
             cfg.slam_noise, cfg.step_reward, cfg.collision_penalty, cfg.find_reward,
             cfg.rescue_reward, VIEW_OFFSETS, VIEW_BLOCKERS, RAY_NBLOCK,
         )  # fmt: skip
