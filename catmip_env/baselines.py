@@ -1,0 +1,392 @@
+"""Classical planning baselines (SPEC §7), choosing goals in cell mode for the active robots.
+
+All planners share the low-level controller and activation rules of the env; they differ only in
+which goal an active robot picks from its own clean belief:
+
+* ``nearest``          the reachable frontier with the smallest path distance (seeded tie-break);
+* ``utility``          the reachable frontier with the most unexplored cells in the 15x15 square
+                       around it (ties: nearer, then seeded);
+* ``rrt``              an RRT grown over the known map (step 0.5 cell, <= 10,000 iterations); samples
+                       landing in unexplored space are exploration targets (<= 500), clustered
+                       (8-connected cells); score = unexplored fraction of the 15x15 square around a
+                       cluster - path distance / farthest reachable distance; the best cluster wins;
+* ``apf``              an artificial potential field: attraction to every frontier cluster (weight =
+                       cluster size / (1 + path distance)), repulsion from teammates within radius 5,
+                       greedy descent from the robot; stops at a frontier or a local minimum;
+* ``random-frontier``  a uniformly drawn reachable frontier (floor);
+* ``random``           a uniformly drawn valid goal inside the robot's 7x7 window (floor).
+
+A frontier is an explored free cell with an unexplored 4-neighbour. Once a rescuer knows the target,
+its goal is the reachable cell next to the target with the shortest path (every planner). Paths are
+shortest 4-connected paths on the belief with unknown cells free and other robots blocked, as in the
+controller. Planners are seeded and deterministic.
+
+>>> eng = EventEngine(PRESETS["task1"], num_worlds=8, seed=0, goal_mode="cell")
+>>> planner = make_planner("nearest", seed=0)
+>>> eng.reset()
+>>> while not eng.state.done.all():
+...     eng.step(planner.act(eng))
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from catmip_env.events import EventEngine
+from catmip_env.planner import bfs_from
+from catmip_env.types import EXPLORED, OCCUPIED, TARGET_BIT
+
+__all__ = ["PLANNERS", "Planner", "make_planner"]
+
+SQUARE = 15  # side of the square whose unexplored cells measure a goal's utility
+REPULSION_RADIUS = 5.0
+RRT_STEP = 0.5
+RRT_ITERATIONS = 10_000
+RRT_TARGETS = 500
+
+
+class Planner:
+    """Base class: ``act(engine)`` returns (B, N) cell-mode actions (only active robots' matter)."""
+
+    name = "planner"
+
+    def __init__(self, seed: int = 0) -> None:
+        self.rng = np.random.default_rng(seed)
+
+    def act(self, engine: EventEngine) -> np.ndarray:
+        if engine.goal_mode != "cell":
+            raise ValueError(f"planner {self.name!r} needs an EventEngine with goal_mode='cell'")
+        st = engine.state
+        h, w = engine.shape
+        out = (st.pos[..., 0] * w + st.pos[..., 1]).astype(np.int64)  # default: stay
+        live = ~st.done
+        for b, i in zip(*np.nonzero(engine.active & live[:, None])):
+            ctx = _Context(engine, int(b), int(i))
+            goal = ctx.rescue_goal()
+            if goal is None:
+                goal = self.choose(ctx)
+            if goal is None or not ctx.valid[goal]:
+                goal = ctx.own
+            out[b, i] = goal[0] * w + goal[1]
+        return out
+
+    def choose(self, ctx: _Context) -> tuple[int, int] | None:  # pragma: no cover - abstract
+        raise NotImplementedError
+
+    # shared choices ---------------------------------------------------------------------------
+    def _pick(self, cells: np.ndarray) -> tuple[int, int] | None:
+        if len(cells) == 0:
+            return None
+        r, c = cells[self.rng.integers(len(cells))]
+        return int(r), int(c)
+
+
+class _Context:
+    """What one active robot knows at its decision: belief layers, distances, valid goals."""
+
+    def __init__(self, engine: EventEngine, b: int, i: int) -> None:
+        st = engine.state
+        h, w = engine.shape
+        self.engine, self.b, self.i = engine, b, i
+        bel = st.belief[b, i]
+        self.explored = (bel & EXPLORED) != 0
+        self.occupied = (bel & OCCUPIED) != 0
+        self.pos = st.pos[b]
+        self.own = (int(st.pos[b, i, 0]), int(st.pos[b, i, 1]))
+        blocked = self.occupied.copy()
+        blocked[0, :] = blocked[-1, :] = blocked[:, 0] = blocked[:, -1] = True
+        others = np.arange(len(self.pos)) != i
+        blocked[self.pos[others, 0], self.pos[others, 1]] = True
+        blocked[self.own] = False
+        self.blocked = blocked
+        self.dist = _distance_field(blocked, *self.own)
+        self.valid = engine.masks[b, i].reshape(h, w) != 0
+        self.knows_target = bool(bel[st.target[b, 0], st.target[b, 1]] & TARGET_BIT)
+        self.can_rescue = bool(st.can_rescue[b, i])
+        self.target = (int(st.target[b, 0]), int(st.target[b, 1]))
+        self._frontier = None
+
+    @property
+    def frontier(self) -> np.ndarray:
+        """(K, 2) reachable, valid frontier cells."""
+        if self._frontier is None:
+            e = self.explored
+            unexplored_nb = np.zeros_like(e)
+            unexplored_nb[1:, :] |= ~e[:-1, :]
+            unexplored_nb[:-1, :] |= ~e[1:, :]
+            unexplored_nb[:, 1:] |= ~e[:, :-1]
+            unexplored_nb[:, :-1] |= ~e[:, 1:]
+            f = e & ~self.occupied & unexplored_nb & (self.dist >= 0) & self.valid
+            self._frontier = np.argwhere(f)
+        return self._frontier
+
+    def rescue_goal(self) -> tuple[int, int] | None:
+        """A rescuer that knows the target heads for the nearest reachable cell next to it."""
+        if not (self.can_rescue and self.knows_target):
+            return None
+        tr, tc = self.target
+        best, best_d = None, None
+        for r, c in ((tr, tc + 1), (tr + 1, tc), (tr, tc - 1), (tr - 1, tc)):
+            d = self.dist[r, c]
+            if d >= 0 and self.valid[r, c] | ((r, c) == self.own) and (best_d is None or d < best_d):
+                best, best_d = (r, c), d
+        return best
+
+    def unexplored_counts(self) -> np.ndarray:
+        """(H, W) number of unexplored cells in the SQUARE x SQUARE box around every cell."""
+        return _box_sums(~self.explored, SQUARE // 2)
+
+
+def _box_sums(mask: np.ndarray, half: int) -> np.ndarray:
+    h, w = mask.shape
+    ii = np.zeros((h + 1, w + 1), np.int64)
+    ii[1:, 1:] = np.cumsum(np.cumsum(mask, axis=0), axis=1)
+    r0 = np.clip(np.arange(h) - half, 0, h)
+    r1 = np.clip(np.arange(h) + half + 1, 0, h)
+    c0 = np.clip(np.arange(w) - half, 0, w)
+    c1 = np.clip(np.arange(w) + half + 1, 0, w)
+    return ii[r1][:, c1] - ii[r0][:, c1] - ii[r1][:, c0] + ii[r0][:, c0]
+
+
+def _distance_field(blocked: np.ndarray, r: int, c: int) -> np.ndarray:
+    h, w = blocked.shape
+    dist = np.empty(h * w, np.int64)
+    bfs_from(blocked, r, c, dist, np.empty(h * w, np.int64), -1)
+    return dist.reshape(h, w)
+
+
+class Nearest(Planner):
+    name = "nearest"
+
+    def choose(self, ctx):
+        f = ctx.frontier
+        if len(f) == 0:
+            return None
+        d = ctx.dist[f[:, 0], f[:, 1]]
+        return self._pick(f[d == d.min()])
+
+
+class Utility(Planner):
+    name = "utility"
+
+    def choose(self, ctx):
+        f = ctx.frontier
+        if len(f) == 0:
+            return None
+        u = ctx.unexplored_counts()[f[:, 0], f[:, 1]]
+        best = f[u == u.max()]
+        d = ctx.dist[best[:, 0], best[:, 1]]
+        return self._pick(best[d == d.min()])
+
+
+class RandomFrontier(Planner):
+    name = "random-frontier"
+
+    def choose(self, ctx):
+        return self._pick(ctx.frontier)
+
+
+class RandomWindow(Planner):
+    name = "random"
+
+    def choose(self, ctx):
+        half = ctx.engine.cfg.window // 2
+        r, c = ctx.own
+        win = np.zeros_like(ctx.valid)
+        win[max(r - half, 0) : r + half + 1, max(c - half, 0) : c + half + 1] = True
+        return self._pick(np.argwhere(win & ctx.valid))
+
+
+# -- RRT --------------------------------------------------------------------------------------------
+
+
+@njit(cache=True)
+def _grow_rrt(
+    explored: np.ndarray,  # (H, W) bool
+    occupied: np.ndarray,  # (H, W) bool
+    r0: float,
+    c0: float,
+    u: np.ndarray,  # (iterations, 2) uniforms
+    step: float,
+    max_targets: int,
+    targets: np.ndarray,  # (max_targets, 2) int64 out
+) -> int:
+    """Grow an RRT from (r0, c0) over free explored space; returns the number of exploration targets
+    (cells of unexplored space that the tree reached) written to ``targets``."""
+    h, w = explored.shape
+    n_iter = u.shape[0]
+    nodes = np.empty((n_iter + 1, 2), np.float64)
+    nodes[0, 0], nodes[0, 1] = r0, c0
+    n_nodes, n_targets = 1, 0
+    # bucket grid for nearest-node queries: per cell, a linked list of nodes
+    head = np.full(h * w, -1, np.int64)
+    nxt = np.full(n_iter + 1, -1, np.int64)
+    head[int(r0 + 0.5) * w + int(c0 + 0.5)] = 0
+    for it in range(n_iter):
+        sr, sc = u[it, 0] * h - 0.5, u[it, 1] * w - 0.5
+        cr, cc = min(max(int(sr + 0.5), 0), h - 1), min(max(int(sc + 0.5), 0), w - 1)
+        best, best_d2 = -1, 1e18
+        ring = 0
+        while ring < h + w:
+            for rr in range(cr - ring, cr + ring + 1):
+                if rr < 0 or rr >= h:
+                    continue
+                for c2 in range(cc - ring, cc + ring + 1):
+                    if c2 < 0 or c2 >= w or (abs(rr - cr) != ring and abs(c2 - cc) != ring):
+                        continue
+                    k = head[rr * w + c2]
+                    while k >= 0:
+                        d2 = (nodes[k, 0] - sr) ** 2 + (nodes[k, 1] - sc) ** 2
+                        if d2 < best_d2:
+                            best, best_d2 = k, d2
+                        k = nxt[k]
+            if best >= 0 and (ring - 1) ** 2 >= best_d2:
+                break  # no node in a further ring can be closer
+            ring += 1
+        dist = math.sqrt(best_d2)
+        if dist < 1e-9:
+            continue
+        f = min(step / dist, 1.0)
+        nr = nodes[best, 0] + (sr - nodes[best, 0]) * f
+        nc = nodes[best, 1] + (sc - nodes[best, 1]) * f
+        gr, gc = int(nr + 0.5), int(nc + 0.5)
+        if gr < 1 or gc < 1 or gr > h - 2 or gc > w - 2 or occupied[gr, gc]:
+            continue
+        if not explored[gr, gc]:
+            targets[n_targets, 0], targets[n_targets, 1] = gr, gc
+            n_targets += 1
+            if n_targets >= max_targets:
+                break
+            continue
+        nodes[n_nodes, 0], nodes[n_nodes, 1] = nr, nc
+        cell = gr * w + gc
+        nxt[n_nodes] = head[cell]
+        head[cell] = n_nodes
+        n_nodes += 1
+    return n_targets
+
+
+class RRT(Planner):
+    name = "rrt"
+
+    def choose(self, ctx):
+        h, w = ctx.explored.shape
+        targets = np.empty((RRT_TARGETS, 2), np.int64)
+        u = self.rng.random((RRT_ITERATIONS, 2))
+        n = _grow_rrt(ctx.explored, ctx.occupied, float(ctx.own[0]), float(ctx.own[1]), u, RRT_STEP,
+                      RRT_TARGETS, targets)  # fmt: skip
+        if n == 0:
+            return None
+        cells = np.zeros((h, w), bool)
+        cells[targets[:n, 0], targets[:n, 1]] = True
+        labels, n_clusters = _label8(cells)
+        counts = ctx.unexplored_counts() / float(SQUARE * SQUARE)
+        reach = ctx.dist[ctx.dist >= 0]
+        far = max(int(reach.max()), 1)
+        best, best_score = None, -np.inf
+        for k in range(1, n_clusters + 1):
+            members = np.argwhere(labels == k)
+            ok = (ctx.dist[members[:, 0], members[:, 1]] >= 0) & ctx.valid[members[:, 0], members[:, 1]]
+            members = members[ok]
+            if len(members) == 0:
+                continue
+            centre = members.mean(axis=0)
+            m = members[np.argmin(((members - centre) ** 2).sum(axis=1))]
+            score = counts[m[0], m[1]] - ctx.dist[m[0], m[1]] / far
+            if score > best_score:
+                best, best_score = (int(m[0]), int(m[1])), score
+        return best
+
+
+def _label8(mask: np.ndarray) -> tuple[np.ndarray, int]:
+    """8-connected component labels (1..K) of a bool mask."""
+    labels = np.zeros(mask.shape, np.int64)
+    k = 0
+    for r, c in np.argwhere(mask):
+        if labels[r, c]:
+            continue
+        k += 1
+        stack = [(r, c)]
+        labels[r, c] = k
+        while stack:
+            y, x = stack.pop()
+            for dy in (-1, 0, 1):
+                for dx in (-1, 0, 1):
+                    yy, xx = y + dy, x + dx
+                    if (
+                        0 <= yy < mask.shape[0]
+                        and 0 <= xx < mask.shape[1]
+                        and mask[yy, xx]
+                        and not labels[yy, xx]
+                    ):
+                        labels[yy, xx] = k
+                        stack.append((yy, xx))
+    return labels, k
+
+
+# -- APF --------------------------------------------------------------------------------------------
+
+
+class APF(Planner):
+    """Artificial potential field over the robot's belief (attraction to frontier clusters,
+    repulsion from teammates), descended greedily from the robot's cell."""
+
+    name = "apf"
+    repulsion_gain = 2.0
+    max_descent = 64
+
+    def choose(self, ctx):
+        f = ctx.frontier
+        if len(f) == 0:
+            return None
+        h, w = ctx.explored.shape
+        cells = np.zeros((h, w), bool)
+        cells[f[:, 0], f[:, 1]] = True
+        labels, n_clusters = _label8(cells)
+        potential = np.zeros((h, w))
+        for k in range(1, n_clusters + 1):
+            members = np.argwhere(labels == k)
+            centre = members.mean(axis=0)
+            m = members[np.argmin(((members - centre) ** 2).sum(axis=1))]
+            d = _distance_field(ctx.blocked, int(m[0]), int(m[1]))
+            potential -= np.where(d >= 0, len(members) / (1.0 + np.maximum(d, 0)), 0.0)
+        rr, cc = np.mgrid[0:h, 0:w]
+        for j in range(len(ctx.pos)):
+            if j == ctx.i or ctx.engine.state.comp[ctx.b, j] != ctx.engine.state.comp[ctx.b, ctx.i]:
+                continue
+            dj = np.hypot(rr - ctx.pos[j, 0], cc - ctx.pos[j, 1])
+            near = dj < REPULSION_RADIUS
+            potential[near] += (
+                self.repulsion_gain * (1.0 / np.maximum(dj[near], 0.5) - 1.0 / REPULSION_RADIUS) ** 2
+            )
+        # greedy descent over reachable cells until a frontier or a local minimum
+        r, c = ctx.own
+        for _ in range(self.max_descent):
+            if cells[r, c]:
+                break
+            best, best_u = None, potential[r, c]
+            for dr, dc in ((0, 1), (1, 0), (0, -1), (-1, 0)):
+                y, x = r + dr, c + dc
+                if ctx.dist[y, x] >= 0 and not ctx.blocked[y, x] and potential[y, x] < best_u:
+                    best, best_u = (y, x), potential[y, x]
+            if best is None:
+                break
+            r, c = best
+        if (r, c) == ctx.own:  # stuck at the start: fall back to the nearest frontier
+            d = ctx.dist[f[:, 0], f[:, 1]]
+            return self._pick(f[d == d.min()])
+        return r, c
+
+
+PLANNERS = {p.name: p for p in (Nearest, Utility, RRT, APF, RandomFrontier, RandomWindow)}
+
+
+def make_planner(name: str, seed: int = 0) -> Planner:
+    """A planner by name: nearest, utility, rrt, apf, random-frontier, random."""
+    try:
+        return PLANNERS[name](seed=seed)
+    except KeyError:
+        raise ValueError(f"unknown planner {name!r}; choose one of {sorted(PLANNERS)}") from None
