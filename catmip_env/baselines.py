@@ -16,7 +16,7 @@ which goal an active robot picks from its own clean belief:
 * ``random-frontier``  a uniformly drawn reachable frontier (floor);
 * ``random``           a uniformly drawn valid goal inside the robot's 7x7 window (floor).
 
-A frontier is an explored free cell with an unexplored 4-neighbour. Once a rescuer knows the target,
+A frontier is an explored free cell with an unexplored 4-neighbour (the robot's own cell excluded). Once a rescuer knows the target,
 its goal is the reachable cell next to the target with the shortest path (every planner). Paths are
 shortest 4-connected paths on the belief with unknown cells free and other robots blocked, as in the
 controller. Planners are seeded and deterministic.
@@ -111,7 +111,8 @@ class _Context:
 
     @property
     def frontier(self) -> np.ndarray:
-        """(K, 2) reachable, valid frontier cells."""
+        """(K, 2) reachable, valid frontier cells other than the robot's own (a goal at distance 0
+        would leave a robot that faces a wall staring at it forever)."""
         if self._frontier is None:
             e = self.explored
             unexplored_nb = np.zeros_like(e)
@@ -119,7 +120,7 @@ class _Context:
             unexplored_nb[:-1, :] |= ~e[1:, :]
             unexplored_nb[:, 1:] |= ~e[:, :-1]
             unexplored_nb[:, :-1] |= ~e[:, 1:]
-            f = e & ~self.occupied & unexplored_nb & (self.dist >= 0) & self.valid
+            f = e & ~self.occupied & unexplored_nb & (self.dist > 0) & self.valid
             self._frontier = np.argwhere(f)
         return self._frontier
 
