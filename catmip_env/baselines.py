@@ -16,10 +16,10 @@ which goal an active robot picks from its own clean belief:
 * ``random-frontier``  a uniformly drawn reachable frontier (floor);
 * ``random``           a uniformly drawn valid goal inside the robot's 7x7 window (floor).
 
-A frontier is an explored free cell with an unexplored 4-neighbour (the robot's own cell excluded). Once a rescuer knows the target,
-its goal is the reachable cell next to the target with the shortest path (every planner). Paths are
-shortest 4-connected paths on the belief with unknown cells free and other robots blocked, as in the
-controller. Planners are seeded and deterministic.
+A frontier is an explored free cell with an unexplored 4-neighbour (the robot's own cell excluded).
+Once a rescuer knows the target, its goal is the reachable cell next to the target with the shortest
+path (every planner). Paths are shortest 4-connected paths on the belief with unknown cells free and
+other robots blocked, as in the controller. Planners are seeded and deterministic.
 
 >>> eng = EventEngine(PRESETS["task1"], num_worlds=8, seed=0, goal_mode="cell")
 >>> planner = make_planner("nearest", seed=0)
