@@ -28,6 +28,7 @@ lint: $(STAMP)
 
 bench: $(STAMP)
 	$(PY) benchmarks/bench_engine.py
+	$(PY) benchmarks/bench_events.py
 
 # numba keys each cached kernel on its own file only: after editing a kernel that others call, drop the cache
 clean-cache:
