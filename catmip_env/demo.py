@@ -1,112 +1,128 @@
-"""Demo: a batch of primitive-level episodes with a forward-biased random walk, statistics and a GIF.
+"""Demo: the planning baselines on a batch of episodes, a results table, and a rendered GIF.
 
-    python -m catmip_env.demo [--preset task1] [--episodes 64] [--seed 0] [--out out/demo]
+    python -m catmip_env.demo [--preset task1] [--episodes 32] [--seed 0] [--out out/demo]
 
-Runs ``--episodes`` worlds of the batched engine to the end of their episodes, prints success rate,
-rescue / target-found ticks, explored fraction and throughput, writes ``stats.json``, and renders the
-first episode to ``episode.gif`` through the PettingZoo env (same seed and episode index, so it is the
-same map). The walk moves forward with probability 0.7 and turns otherwise: a floor, not a planner.
+Every planner plays the same ``--episodes`` maps (same seed → same maps) with the macro-action layer
+(evaluation activation, goals in cell mode). The demo prints success rate, success by tick 100, mean
+rescue and target-found ticks and explored fraction per planner, writes ``results.json`` and
+``results.csv``, and renders the first episode of the best planner to ``episode.gif`` (one frame per
+tick: robots, their goals as rings, explored area, communication links).
 """
 
 from __future__ import annotations
 
 import argparse
+import csv
 import json
 import time
 from pathlib import Path
 
 import numpy as np
 
-from catmip_env import BatchedEngine, make_config, search_rescue_v0
-from catmip_env.render import save_gif
-from catmip_env.types import FORWARD, TURN_LEFT, TURN_RIGHT
+from catmip_env import make_config
+from catmip_env.baselines import PLANNERS, make_planner
+from catmip_env.events import EventEngine
+from catmip_env.render import render_world, save_gif
 
-WALK_PROBS = {FORWARD: 0.7, TURN_LEFT: 0.15, TURN_RIGHT: 0.15}
-
-
-def random_walk(rng: np.random.Generator, shape: tuple[int, ...]) -> np.ndarray:
-    return rng.choice(list(WALK_PROBS), size=shape, p=list(WALK_PROBS.values()))
+DEFAULT_PLANNERS = ("nearest", "utility", "rrt", "apf", "random-frontier", "random")
 
 
 def _progress(total: int, desc: str):
     try:
         from tqdm import tqdm
 
-        return tqdm(total=total, desc=desc, unit="tick")
+        return tqdm(total=total, desc=desc, unit="ep", leave=False, mininterval=0.5)
     except ImportError:  # tqdm comes with the render/dev extras
         return None
 
 
-def run_batch(preset: str, episodes: int, seed: int) -> dict:
+def evaluate(planner: str, preset: str, episodes: int, seed: int) -> dict:
+    """Run ``episodes`` worlds (episode indices 0..episodes-1 of ``seed``) to their end."""
     cfg = make_config(preset)
-    eng = BatchedEngine(cfg, num_worlds=episodes, seed=seed)
+    eng = EventEngine(cfg, num_worlds=episodes, seed=seed, goal_mode="cell")
+    policy = make_planner(planner, seed=seed)
     eng.reset()
-    rng = np.random.default_rng(seed)
-    bar = _progress(cfg.horizon_ticks, f"{episodes} x {preset}")
-    ticks, t0 = 0, time.perf_counter()
+    bar = _progress(episodes, f"{planner:>16}")
     explored = np.zeros(episodes)
+    t0, decisions = time.perf_counter(), 0
     while not eng.state.done.all():
         live = ~eng.state.done
-        ticks += int(live.sum())
-        eng.step(random_walk(rng, (episodes, eng.num_robots)))
-        explored = np.where(live, eng.explored_fraction(), explored)
-        if bar is not None:
-            bar.update(1)
+        decisions += int((eng.active & live[:, None]).sum())
+        eng.step(policy.act(eng))
+        explored = np.where(live, eng.world.explored_fraction(), explored)
+        if bar is not None and int(eng.state.done.sum()) > bar.n:
+            bar.update(int(eng.state.done.sum()) - bar.n)
     if bar is not None:
         bar.close()
-    dt = time.perf_counter() - t0
     st = eng.state
     rescued = st.rescue_tick >= 0
     found = st.found_tick >= 0
     return {
+        "planner": planner,
         "preset": preset,
         "episodes": episodes,
         "seed": seed,
-        "policy": "forward-biased random walk (primitive level)",
         "success_rate": float(rescued.mean()),
+        "success_by_100": float((rescued & (st.rescue_tick <= 100)).mean()),
         "mean_rescue_tick": float(st.rescue_tick[rescued].mean()) if rescued.any() else None,
-        "target_found_rate": float(found.mean()),
         "mean_target_found_tick": float(st.found_tick[found].mean()) if found.any() else None,
         "mean_explored_fraction": float(explored.mean()),
-        "world_ticks": ticks,
-        "world_ticks_per_s": ticks / dt,
+        "decisions": decisions,
+        "seconds": time.perf_counter() - t0,
     }
 
 
-def render_episode(preset: str, seed: int, path: Path, max_frames: int = 200) -> Path:
-    env = search_rescue_v0.parallel_env(preset=preset, level="primitive", render_mode="rgb_array")
-    env.reset(seed=seed, options={"episode_index": 0})
-    rng = np.random.default_rng(seed)
-    frames = [env.render()]
-    while env.agents and len(frames) < max_frames:
-        acts = random_walk(rng, (len(env.agents),))
-        env.step(dict(zip(env.agents, acts.tolist())))
-        frames.append(env.render())
-    return save_gif(frames, path, fps=12)
+def render_episode(planner: str, preset: str, seed: int, path: Path, max_frames: int = 400) -> Path:
+    """GIF of episode 0 of ``seed`` played by ``planner``, one frame per tick between events."""
+    eng = EventEngine(make_config(preset), 1, seed=seed, goal_mode="cell")
+    policy = make_planner(planner, seed=seed)
+    eng.reset(episode_indices=[0])
+    frames = [render_world(eng.world, 0)]
+    while not eng.state.done[0] and len(frames) < max_frames:
+        eng.step(policy.act(eng))
+        frames.append(render_world(eng.world, 0))
+    return save_gif(frames, path, fps=6)
 
 
-def main(argv: list[str] | None = None) -> dict:
+def _write(out: Path, rows: list[dict]) -> None:
+    tmp = out / "results.json.tmp"
+    tmp.write_text(json.dumps(rows, indent=2))
+    tmp.replace(out / "results.json")
+    tmp = out / "results.csv.tmp"
+    with tmp.open("w", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=list(rows[0]))
+        writer.writeheader()
+        writer.writerows(rows)
+    tmp.replace(out / "results.csv")
+
+
+def main(argv: list[str] | None = None) -> list[dict]:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--preset", default="task1", help="task1 | task2 | task3 | train")
-    ap.add_argument("--episodes", type=int, default=64)
+    ap.add_argument("--episodes", type=int, default=32)
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument(
+        "--planners", default=",".join(DEFAULT_PLANNERS), help=f"comma list of {sorted(PLANNERS)}"
+    )
     ap.add_argument("--out", default="out/demo")
     args = ap.parse_args(argv)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    stats = run_batch(args.preset, args.episodes, args.seed)
-    gif = render_episode(args.preset, args.seed, out / "episode.gif")
-    tmp = out / "stats.json.tmp"
-    tmp.write_text(json.dumps(stats, indent=2))
-    tmp.replace(out / "stats.json")
-    print(f"\n{stats['episodes']} episodes of {stats['preset']} ({stats['policy']}):")
-    for key in ("success_rate", "mean_rescue_tick", "target_found_rate", "mean_target_found_tick"):
-        v = stats[key]
-        print(f"  {key:<24} {'-' if v is None else f'{v:.3f}'}")
-    print(f"  {'mean_explored_fraction':<24} {stats['mean_explored_fraction']:.3f}")
-    print(f"  {'world_ticks_per_s':<24} {stats['world_ticks_per_s']:,.0f}")
-    print(f"wrote {out / 'stats.json'} and {gif}")
-    return stats
+    rows = [evaluate(p.strip(), args.preset, args.episodes, args.seed) for p in args.planners.split(",")]
+    _write(out, rows)
+    print(f"\n{args.episodes} episodes of {args.preset} (seed {args.seed}), same maps for every planner:")
+    print(f"{'planner':>16} {'success':>8} {'by t=100':>9} {'rescue t':>9} {'found t':>8} {'explored':>9}")
+    for r in rows:
+        rescue = "-" if r["mean_rescue_tick"] is None else f"{r['mean_rescue_tick']:.1f}"
+        found = "-" if r["mean_target_found_tick"] is None else f"{r['mean_target_found_tick']:.1f}"
+        print(
+            f"{r['planner']:>16} {r['success_rate']:>8.2f} {r['success_by_100']:>9.2f} {rescue:>9} "
+            f"{found:>8} {r['mean_explored_fraction']:>9.2f}"
+        )
+    best = max(rows, key=lambda r: (r["success_by_100"], -(r["mean_rescue_tick"] or 1e9)))
+    gif = render_episode(best["planner"], args.preset, args.seed, out / "episode.gif")
+    print(f"wrote {out / 'results.json'}, {out / 'results.csv'} and {gif} ({best['planner']})")
+    return rows
 
 
 if __name__ == "__main__":

@@ -21,11 +21,14 @@ def test_pettingzoo_quickstart():
     assert len(returns) == 1
 
 
-def test_demo_writes_stats_and_gif(tmp_path):
+def test_demo_writes_results_and_gif(tmp_path):
     from catmip_env import demo
 
-    stats = demo.main(["--preset", "task1", "--episodes", "4", "--out", str(tmp_path)])
-    saved = json.loads((tmp_path / "stats.json").read_text())
-    assert saved == stats and saved["episodes"] == 4
-    assert 0.0 <= saved["success_rate"] <= 1.0 and saved["world_ticks"] > 0
+    rows = demo.main(
+        ["--preset", "task1", "--episodes", "4", "--planners", "nearest,random", "--out", str(tmp_path)]
+    )
+    saved = json.loads((tmp_path / "results.json").read_text())
+    assert saved == rows and [r["planner"] for r in saved] == ["nearest", "random"]
+    assert all(0.0 <= r["success_rate"] <= 1.0 and r["episodes"] == 4 for r in saved)
+    assert (tmp_path / "results.csv").read_text().startswith("planner,")
     assert (tmp_path / "episode.gif").stat().st_size > 1000
