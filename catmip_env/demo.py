@@ -79,7 +79,7 @@ def render_episode(planner: str, preset: str, seed: int, path: Path, max_frames:
     eng.reset(episode_indices=[0])
     frames = [render_world(eng.world, 0)]
     while not eng.state.done[0] and len(frames) < max_frames:
-        eng.step(policy.act(eng))
+        eng.step(policy.act(eng), max_ticks=1)  # pause after every tick to draw it
         frames.append(render_world(eng.world, 0))
     return save_gif(frames, path, fps=6)
 

@@ -98,7 +98,7 @@ class EventEngine:
         t_min, t_max = cfg.activation
         noisy = cfg.slam_noise > 0
         self._int_params = np.array(
-            [cfg.horizon_ticks, cfg.max_ma_ticks, t_min, t_max, int(cfg.synchronous), int(noisy)], np.int64
+            [cfg.horizon_ticks, cfg.max_ma_ticks, t_min, t_max, int(cfg.synchronous), int(noisy), 0], np.int64
         )
         comm = float(cfg.comm_sigma) if cfg.comm_sigma is not None else 0.0
         self._float_params = np.array(
@@ -160,11 +160,16 @@ class EventEngine:
         self._masks(mask)
         return self._result()
 
-    def step(self, actions: np.ndarray) -> EventResult:
+    def step(self, actions: np.ndarray, max_ticks: int | None = None) -> EventResult:
         """Apply the active robots' goal actions (B, N) and run every live world to its next event.
 
-        Entries of busy robots and of finished worlds are ignored.
+        Entries of busy robots and of finished worlds are ignored. With ``max_ticks`` a world also
+        pauses after that many ticks without an event (no robot is active then; the next call just
+        continues it) — for tick-by-tick rendering. Rewards and ticks count from the previous call.
         """
+        if max_ticks is not None and (not isinstance(max_ticks, (int, np.integer)) or max_ticks < 1):
+            raise ValueError(f"max_ticks must be None or an int >= 1, got {max_ticks!r}")
+        self._int_params[6] = 0 if max_ticks is None else int(max_ticks)
         st = self.state
         live = ~st.done
         self._set_goals(np.asarray(actions), live)

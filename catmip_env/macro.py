@@ -186,15 +186,16 @@ def advance(
     event_ticks: np.ndarray,  # (B,) int64 out: ticks run in this call
     terminated: np.ndarray,  # (B,) bool out
     truncated: np.ndarray,  # (B,) bool out
-    int_params: np.ndarray,  # horizon, max_ma_ticks, t_min, t_max, sync, noisy
+    int_params: np.ndarray,  # horizon, max_ma_ticks, t_min, t_max, sync, noisy, tick limit (0: none)
     float_params: np.ndarray,  # comm_sigma, noise, step, collision, find, rescue rewards, gamma
     view_offsets: np.ndarray,
     view_blockers: np.ndarray,
     ray_nblock: np.ndarray,
 ) -> None:
-    """Run every live world until its next decision event (some robot activates) or episode end."""
+    """Run every live world until its next decision event (some robot activates), the end of its
+    episode, or (with a tick limit) ``limit`` ticks."""
     horizon, max_ma, t_min, t_max = int_params[0], int_params[1], int_params[2], int_params[3]
-    sync, noisy = int_params[4] != 0, int_params[5] != 0
+    sync, noisy, limit = int_params[4] != 0, int_params[5] != 0, int_params[6]
     comm_sigma, noise = float_params[0], float_params[1]
     step_r, coll_r, find_r, rescue_r, gamma = (
         float_params[2],
@@ -244,6 +245,8 @@ def advance(
                 break
             if activate(b, t0 + 1, comp, mstate, t_min, sync, max_ma):
                 break
+            if limit > 0 and event_ticks[b] >= limit:
+                break  # paused between events (rendering, tick-level inspection)
 
 
 @njit(cache=True)

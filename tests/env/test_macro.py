@@ -253,3 +253,26 @@ def test_invalid_actions_raise_or_become_stay():
 def test_layout_walls_are_walls():
     eng = engine()
     assert (eng.state.grid[0, 0] == WALL).all()
+
+
+def test_max_ticks_pauses_between_events():
+    """Stepping one tick at a time visits the same states as stepping event to event."""
+    fast, slow = engine(), engine()
+    a = np.array([[window(0, 3), window(0, 3)]])
+    ev = fast.step(a)
+    assert ev.event_ticks[0] == 3
+    fast_rewards = ev.rewards[0].copy()
+    ticks, total = 0, np.zeros(2)
+    ev = slow.step(a, max_ticks=1)
+    while True:
+        ticks += int(ev.event_ticks[0])
+        total += ev.rewards[0]
+        if slow.active[0].any():
+            break
+        assert slow.masks[0].sum(-1).tolist() == [1, 1]  # paused: nobody decides
+        ev = slow.step(np.zeros((1, 2), np.int64), max_ticks=1)
+        assert ev.event_ticks[0] == 1
+    assert ticks == 3 and np.array_equal(slow.state.pos, fast.state.pos)
+    assert np.allclose(total, fast_rewards) and fast_rewards.sum() < 0  # per-call rewards add up
+    with pytest.raises(ValueError, match="max_ticks"):
+        slow.step(a, max_ticks=0)
