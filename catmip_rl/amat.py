@@ -1,0 +1,362 @@
+"""AMAT — the Asynchronous Multi-Agent Transformer (SPEC §5), a plain ``torch.nn.Module``.
+
+Shapes legend: ``B`` batch (worlds or samples), ``N`` robots (tokens), ``d`` embedding, ``A`` actions
+(D*D window goals), ``C`` robot classes, ``S`` map side, ``L`` local map side, ``G`` pooled grid.
+
+Data flow of one decision::
+
+    obs --embed--> tokens (B, N, d) --encode--> rep (B, N, d), values (B, N, 1)
+    rep --decode_autoregressive--> actions, log-probs of the active robots (rollout)
+    rep, stored actions --decode_parallel--> logits (B, N, A) (teacher forcing, training)
+
+Decision order: active robots first, then busy ones, then padding, each in ascending id
+(:func:`decision_order`). Robot ``k`` of the order sees, through the decoder, the actions chosen by
+robots ``0 .. k-1``; padding tokens are masked out of attention, never fed as zeros.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import asdict, dataclass
+from typing import Any
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+__all__ = ["AmatConfig", "AMAT", "decision_order", "OBS_SCALE"]
+
+OBS_SCALE = 0.25  # uint8 macro-observations: float = value * OBS_SCALE (catmip_env.types.OBS_SCALE)
+INVALID_LOGIT = -1e10
+
+
+@dataclass(frozen=True)
+class AmatConfig:
+    """Hyper-parameters of AMAT (defaults: the paper's Table 2)."""
+
+    window: int = 7
+    """D: side of the goal window; the policy has D*D actions."""
+    local_size: int = 7
+    """L: side of the robot-centred local map."""
+    pool: int = 4
+    """G: the global CNN's adaptive max-pool output side (any map size S works)."""
+    embed_dim: int = 192
+    """d: token width."""
+    n_heads: int = 1
+    """Attention heads (d must be divisible by it)."""
+    n_blocks: int = 1
+    """Encoder and decoder blocks."""
+    n_classes: int = 2
+    """C: robot classes (the class one-hot size)."""
+
+    def __post_init__(self) -> None:
+        for name in ("window", "local_size"):
+            v = getattr(self, name)
+            if not isinstance(v, int) or v < 1 or v % 2 == 0:
+                raise ValueError(f"AmatConfig.{name} must be an odd int >= 1, got {v!r}")
+        for name in ("pool", "embed_dim", "n_heads", "n_blocks", "n_classes"):
+            v = getattr(self, name)
+            if not isinstance(v, int) or v < 1:
+                raise ValueError(f"AmatConfig.{name} must be an int >= 1, got {v!r}")
+        if self.embed_dim % self.n_heads:
+            raise ValueError(f"embed_dim {self.embed_dim} is not divisible by n_heads {self.n_heads}")
+
+    @property
+    def num_actions(self) -> int:
+        return self.window * self.window
+
+    @property
+    def global_channels(self) -> int:
+        return 5 + self.n_classes
+
+    @property
+    def local_channels(self) -> int:
+        return 4 + self.n_classes
+
+    def to_json(self) -> str:
+        return json.dumps(asdict(self), indent=2, sort_keys=True)
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> AmatConfig:
+        unknown = set(data) - set(cls.__dataclass_fields__)
+        if unknown:
+            raise ValueError(f"unknown AmatConfig field(s) {sorted(unknown)}")
+        return cls(**data)
+
+
+def decision_order(active: torch.Tensor, padding: torch.Tensor | None = None) -> torch.Tensor:
+    """(B, N) robot index at each decision position: active robots, then busy, then padding, each
+    in ascending id."""
+    n = active.shape[-1]
+    ids = torch.arange(n, device=active.device).expand_as(active)
+    rank = (~active).long() * n + ids  # active first
+    if padding is not None:
+        rank = rank + padding.long() * 2 * n
+    return torch.argsort(rank, dim=-1)
+
+
+class Attention(nn.Module):
+    """Multi-head attention with separate q / k / v / out projections (no dropout)."""
+
+    def __init__(self, d: int, n_heads: int) -> None:
+        super().__init__()
+        self.n_heads = n_heads
+        self.q, self.k, self.v, self.out = (nn.Linear(d, d) for _ in range(4))
+
+    def split(self, x: torch.Tensor) -> torch.Tensor:  # (B, T, d) -> (B, h, T, d / h)
+        b, t, d = x.shape
+        return x.view(b, t, self.n_heads, d // self.n_heads).transpose(1, 2)
+
+    def merge(self, x: torch.Tensor) -> torch.Tensor:  # (B, h, T, d / h) -> (B, T, d)
+        b, h, t, dh = x.shape
+        return x.transpose(1, 2).reshape(b, t, h * dh)
+
+    def forward(
+        self, query: torch.Tensor, key: torch.Tensor, value: torch.Tensor, allowed: torch.Tensor | None = None
+    ) -> torch.Tensor:
+        """``allowed`` (B or 1, 1, Tq, Tk) bool: which keys each query may attend to."""
+        q, k, v = self.split(self.q(query)), self.split(self.k(key)), self.split(self.v(value))
+        y = F.scaled_dot_product_attention(q, k, v, attn_mask=allowed)
+        return self.out(self.merge(y))
+
+
+class MLP(nn.Sequential):
+    def __init__(self, d: int) -> None:
+        super().__init__(nn.Linear(d, d), nn.GELU(), nn.Linear(d, d))
+
+
+class EncoderBlock(nn.Module):
+    def __init__(self, d: int, n_heads: int) -> None:
+        super().__init__()
+        self.attn = Attention(d, n_heads)
+        self.ln1 = nn.LayerNorm(d)
+        self.mlp = MLP(d)
+        self.ln2 = nn.LayerNorm(d)
+
+    def forward(self, x: torch.Tensor, allowed: torch.Tensor | None) -> torch.Tensor:
+        x = self.ln1(x + self.attn(x, x, x, allowed))
+        return self.ln2(x + self.mlp(x))
+
+
+class DecoderBlock(nn.Module):
+    def __init__(self, d: int, n_heads: int) -> None:
+        super().__init__()
+        self.self_attn = Attention(d, n_heads)
+        self.ln1 = nn.LayerNorm(d)
+        self.cross_attn = Attention(d, n_heads)
+        self.ln2 = nn.LayerNorm(d)
+        self.mlp = MLP(d)
+        self.ln3 = nn.LayerNorm(d)
+
+    def forward(self, x: torch.Tensor, rep: torch.Tensor, causal: torch.Tensor) -> torch.Tensor:
+        x = self.ln1(x + self.self_attn(x, x, x, causal))
+        x = self.ln2(rep + self.cross_attn(rep, x, x, causal))  # query: encoder rep; key/value: actions
+        return self.ln3(x + self.mlp(x))
+
+
+class AMAT(nn.Module):
+    """Embedder, encoder with per-token value head, macro-action embedder, causal decoder, policy
+    head. Tensor-in / tensor-out; see the module docstring for the data flow."""
+
+    def __init__(self, config: AmatConfig | None = None) -> None:
+        super().__init__()
+        cfg = self.config = config or AmatConfig()
+        d, c, g, l = cfg.embed_dim, cfg.n_classes, cfg.pool, cfg.local_size
+        # -- macro-observation embedder ---------------------------------------------------------
+        self.global_conv = nn.Conv2d(cfg.global_channels, 32, 7, stride=1, padding=3)
+        self.global_pool = nn.AdaptiveMaxPool2d(g)
+        self.global_ln = nn.LayerNorm([32, g, g])
+        self.local_conv1 = nn.Conv2d(cfg.local_channels, 64, 3, padding=1)
+        self.local_ln1 = nn.LayerNorm([64, l, l])
+        self.local_conv2 = nn.Conv2d(64, 32, 3, padding=1)
+        self.local_ln2 = nn.LayerNorm([32, l, l])
+        self.obs_fc1 = nn.Linear(32 * g * g + 32 * l * l, d)
+        self.obs_ln = nn.LayerNorm(d)
+        self.obs_fc2 = nn.Linear(d, d)
+        self.class_enc = nn.Linear(c, d)
+        # -- encoder ------------------------------------------------------------------------------
+        self.enc_ln = nn.LayerNorm(d)
+        self.enc_blocks = nn.ModuleList(EncoderBlock(d, cfg.n_heads) for _ in range(cfg.n_blocks))
+        self.value_head = nn.Sequential(nn.Linear(d, d), nn.GELU(), nn.LayerNorm(d), nn.Linear(d, 1))
+        # -- macro-action embedder and decoder -----------------------------------------------------
+        self.action_enc = nn.Linear(cfg.num_actions + 1, d, bias=False)  # index 0: start token
+        self.dec_class_enc = nn.Linear(c, d)
+        self.dec_ln = nn.LayerNorm(d)
+        self.dec_blocks = nn.ModuleList(DecoderBlock(d, cfg.n_heads) for _ in range(cfg.n_blocks))
+        self.policy_head = nn.Sequential(
+            nn.Linear(d, d), nn.GELU(), nn.LayerNorm(d), nn.Linear(d, cfg.num_actions)
+        )
+        self._init_weights()
+
+    # -- initialisation ---------------------------------------------------------------------------
+    def _init_weights(self) -> None:
+        """Orthogonal weights, zero biases; gain sqrt(2) for layers followed by an activation (directly
+        or after a LayerNorm), 0.01 for the rest (attention projections, second MLP layers, heads)."""
+        activated = {
+            self.global_conv, self.local_conv1, self.local_conv2, self.obs_fc1, self.obs_fc2, self.class_enc,
+            self.value_head[0], self.action_enc, self.dec_class_enc, self.policy_head[0],
+        }  # fmt: skip
+        for block in [*self.enc_blocks, *self.dec_blocks]:
+            activated.add(block.mlp[0])
+        for m in self.modules():
+            if isinstance(m, (nn.Linear, nn.Conv2d)):
+                gain = math.sqrt(2.0) if m in activated else 0.01
+                nn.init.orthogonal_(m.weight.view(m.weight.shape[0], -1), gain=gain)
+                if m.bias is not None:
+                    nn.init.zeros_(m.bias)
+
+    # -- embedder ---------------------------------------------------------------------------------
+    def embed(self, obs: dict[str, torch.Tensor]) -> torch.Tensor:
+        """Tokens (B, N, d) from macro-observations: ``global_map`` (B, N, 5+C, S, S), ``local_map``
+        (B, N, 4+C, L, L) (uint8 with float = x * 0.25, or float), ``agent_class`` (B, N, C)."""
+        gmap, lmap, cls = obs["global_map"], obs["local_map"], obs["agent_class"]
+        b, n = gmap.shape[:2]
+        g = _as_float(gmap).flatten(0, 1)  # (B*N, 5+C, S, S)
+        g = F.relu(self.global_ln(self.global_pool(self.global_conv(g)))).flatten(1)  # (B*N, 32 G^2)
+        x = _as_float(lmap).flatten(0, 1)  # (B*N, 4+C, L, L)
+        x = F.relu(self.local_ln1(self.local_conv1(x)))
+        x = F.relu(self.local_ln2(self.local_conv2(x))).flatten(1)  # (B*N, 32 L^2)
+        h = F.gelu(self.obs_fc1(torch.cat([g, x], dim=1)))  # (B*N, d)
+        h = F.gelu(self.obs_fc2(self.obs_ln(h)))
+        tokens = h.view(b, n, -1) + F.gelu(self.class_enc(cls.to(h.dtype)))  # (B, N, d)
+        return tokens
+
+    # -- encoder ----------------------------------------------------------------------------------
+    def encode(
+        self, tokens: torch.Tensor, key_padding_mask: torch.Tensor | None = None
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """(rep (B, N, d), values (B, N, 1)). ``key_padding_mask`` (B, N) bool, True = padding."""
+        allowed = None
+        if key_padding_mask is not None:
+            allowed = (~key_padding_mask)[:, None, None, :]  # (B, 1, 1, N)
+        x = self.enc_ln(tokens)
+        for block in self.enc_blocks:
+            x = block(x, allowed)
+        return x, self.value_head(x)
+
+    # -- decoder ----------------------------------------------------------------------------------
+    def _action_tokens(self, prev: torch.Tensor, cls: torch.Tensor) -> torch.Tensor:
+        """Decoder input (B, T, d) from the previous robot's action index + 1 (0 = start) and the
+        deciding robot's class one-hot."""
+        emb = F.gelu(F.embedding(prev, self.action_enc.weight.t()))  # one-hot @ W == row lookup
+        return self.dec_ln(emb + F.gelu(self.dec_class_enc(cls)))
+
+    def decode_parallel(
+        self,
+        rep: torch.Tensor,  # (B, N, d) encoder output, robot order
+        actions: torch.Tensor,  # (B, N) long, stored actions (busy robots: anything in range)
+        order: torch.Tensor,  # (B, N) long, robot index at each decision position
+        agent_class: torch.Tensor,  # (B, N, C)
+        action_mask: torch.Tensor | None = None,  # (B, N, A) bool/int, 1 = allowed
+    ) -> torch.Tensor:
+        """Teacher-forced logits (B, N, A) in robot order, in one pass; masked actions get -1e10."""
+        b, n, _ = rep.shape
+        rep_o = _gather(rep, order)  # (B, N, d) decision order
+        act_o = torch.gather(actions.clamp_min(0), 1, order)  # (B, N)
+        prev = torch.cat([torch.zeros_like(act_o[:, :1]), act_o[:, :-1] + 1], dim=1)  # shifted, 0 = start
+        x = self._action_tokens(prev, _gather(agent_class.to(rep.dtype), order))
+        causal = torch.ones(n, n, dtype=torch.bool, device=rep.device).tril()[None, None]
+        for block in self.dec_blocks:
+            x = block(x, rep_o, causal)
+        logits_o = self.policy_head(x)  # (B, N, A)
+        logits = torch.empty_like(logits_o).scatter_(1, order[..., None].expand_as(logits_o), logits_o)
+        if action_mask is not None:
+            logits = logits.masked_fill(~action_mask.bool(), INVALID_LOGIT)
+        return logits
+
+    @torch.no_grad()
+    def decode_autoregressive(
+        self,
+        rep: torch.Tensor,  # (B, N, d)
+        action_mask: torch.Tensor,  # (B, N, A)
+        order: torch.Tensor,  # (B, N)
+        active: torch.Tensor,  # (B, N) bool
+        agent_class: torch.Tensor,  # (B, N, C)
+        deterministic: bool = False,
+        generator: torch.Generator | None = None,
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """Decode the active robots one after another with cached keys/values.
+
+        Returns (actions (B, N) long, log_probs (B, N)); busy robots get their single allowed
+        ("keep") action and log-prob 0.
+        """
+        b, n, d = rep.shape
+        mask = action_mask.bool()
+        n_active = active.sum(1)  # (B,)
+        steps = int(n_active.max()) if b else 0
+        actions = mask.float().argmax(-1)  # busy robots: their keep action
+        log_probs = torch.zeros(b, n, dtype=rep.dtype, device=rep.device)
+        if steps == 0:
+            return actions, log_probs
+        order_a = order[:, :steps]  # (B, K): the first K positions hold the active robots
+        rep_o = _gather(rep, order_a)  # (B, K, d)
+        cls_o = _gather(agent_class.to(rep.dtype), order_a)
+        mask_o = _gather(mask, order_a)  # (B, K, A)
+        caches = [_BlockCache(blk, rep_o) for blk in self.dec_blocks]
+        prev = torch.zeros(b, 1, dtype=torch.long, device=rep.device)  # start token
+        rows = torch.arange(b, device=rep.device)
+        for k in range(steps):
+            x = self._action_tokens(prev, cls_o[:, k : k + 1])  # (B, 1, d)
+            for cache in caches:
+                x = cache.step(x, k)
+            logits = self.policy_head(x)[:, 0].masked_fill(~mask_o[:, k], INVALID_LOGIT)  # (B, A)
+            logp_all = torch.log_softmax(logits, -1)
+            if deterministic:
+                a = logits.argmax(-1)
+            else:
+                a = torch.multinomial(logp_all.exp(), 1, generator=generator)[:, 0]
+            valid = k < n_active  # (B,) worlds with a k-th active robot
+            robot = order_a[:, k]
+            lp = logp_all.gather(1, a[:, None])[:, 0]
+            actions[rows[valid], robot[valid]] = a[valid]
+            log_probs[rows[valid], robot[valid]] = lp[valid]
+            prev = (a + 1)[:, None]
+        return actions, log_probs
+
+    # -- convenience ------------------------------------------------------------------------------
+    def forward(self, obs: dict[str, torch.Tensor], key_padding_mask: torch.Tensor | None = None):
+        """Embed + encode: (rep, values)."""
+        return self.encode(self.embed(obs), key_padding_mask)
+
+
+class _BlockCache:
+    """Keys/values of one decoder block for the positions decoded so far (autoregressive mode)."""
+
+    def __init__(self, block: DecoderBlock, rep_o: torch.Tensor) -> None:
+        b, k, d = rep_o.shape
+        h = block.self_attn.n_heads
+        self.block, self.rep_o = block, rep_o
+        self.q_cross = block.cross_attn.split(block.cross_attn.q(rep_o))  # (B, h, K, dh), all positions
+        shape = (b, h, k, d // h)
+        self.k_self, self.v_self = rep_o.new_empty(shape), rep_o.new_empty(shape)
+        self.k_cross, self.v_cross = rep_o.new_empty(shape), rep_o.new_empty(shape)
+
+    def step(self, x: torch.Tensor, k: int) -> torch.Tensor:
+        """Block output (B, 1, d) at position k from its input x (B, 1, d)."""
+        blk = self.block
+        sa, ca = blk.self_attn, blk.cross_attn
+        self.k_self[:, :, k : k + 1] = sa.split(sa.k(x))
+        self.v_self[:, :, k : k + 1] = sa.split(sa.v(x))
+        q = sa.split(sa.q(x))
+        y = F.scaled_dot_product_attention(q, self.k_self[:, :, : k + 1], self.v_self[:, :, : k + 1])
+        x = blk.ln1(x + sa.out(sa.merge(y)))
+        self.k_cross[:, :, k : k + 1] = ca.split(ca.k(x))
+        self.v_cross[:, :, k : k + 1] = ca.split(ca.v(x))
+        y = F.scaled_dot_product_attention(
+            self.q_cross[:, :, k : k + 1], self.k_cross[:, :, : k + 1], self.v_cross[:, :, : k + 1]
+        )
+        x = blk.ln2(self.rep_o[:, k : k + 1] + ca.out(ca.merge(y)))
+        return blk.ln3(x + blk.mlp(x))
+
+
+def _gather(x: torch.Tensor, index: torch.Tensor) -> torch.Tensor:
+    """x (B, N, ...) reordered along dim 1 by index (B, K)."""
+    idx = index.view(*index.shape, *([1] * (x.dim() - 2))).expand(*index.shape, *x.shape[2:])
+    return torch.gather(x, 1, idx)
+
+
+def _as_float(x: torch.Tensor) -> torch.Tensor:
+    if x.dtype == torch.uint8:
+        return x.float() * OBS_SCALE
+    return x.float() if not x.is_floating_point() else x

@@ -1,0 +1,20 @@
+"""Tensordict keys shared by the TorchRL env, the actor, the collector and the loss — one place.
+
+Per-robot entries live under the ``"robots"`` group with batch dims ``(B, N)``.
+"""
+
+from __future__ import annotations
+
+ROBOTS = "robots"
+GLOBAL_MAP = (ROBOTS, "global_map")  # (B, N, 5 + C, S, S) uint8, float = x * 0.25
+LOCAL_MAP = (ROBOTS, "local_map")  # (B, N, 4 + C, L, L) uint8
+AGENT_CLASS = (ROBOTS, "agent_class")  # (B, N, C) float one-hot
+ACTION_MASK = (ROBOTS, "action_mask")  # (B, N, A) bool, True = allowed
+ACTIVE = (ROBOTS, "active")  # (B, N) bool, robots that decide now
+PADDING = (ROBOTS, "padding")  # (B, N) bool, padding tokens (teams of different size)
+ACTION = (ROBOTS, "action")  # (B, N) long
+LOG_PROB = (ROBOTS, "action_log_prob")  # (B, N) float, 0 for busy robots
+VALUE = (ROBOTS, "state_value")  # (B, N, 1) float
+ORDER = (ROBOTS, "order")  # (B, N) long, robot index at each decision position
+
+OBS_KEYS = (GLOBAL_MAP, LOCAL_MAP, AGENT_CLASS)
