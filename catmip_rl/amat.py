@@ -148,6 +148,24 @@ class DecoderBlock(nn.Module):
         self.ln2 = nn.LayerNorm(d)
         self.mlp = MLP(d)
         self.ln3 = nn.LayerNorm(d)
+        self._fused: tuple = ((), ())
+
+    def fused_projections(self) -> tuple[torch.Tensor, ...]:
+        """(W_qkv, b_qkv) of the self-attention and (W_kv, b_kv) of the cross-attention, concatenated
+        for one matmul per step; cached until a parameter changes (its version counter moves)."""
+        params = (self.self_attn.q, self.self_attn.k, self.self_attn.v, self.cross_attn.k, self.cross_attn.v)
+        key = tuple((t.data_ptr(), t._version) for m in params for t in (m.weight, m.bias))
+        if self._fused[0] != key:
+            with torch.no_grad():
+                sa, ca = self.self_attn, self.cross_attn
+                value = (
+                    torch.cat([sa.q.weight, sa.k.weight, sa.v.weight]),
+                    torch.cat([sa.q.bias, sa.k.bias, sa.v.bias]),
+                    torch.cat([ca.k.weight, ca.v.weight]),
+                    torch.cat([ca.k.bias, ca.v.bias]),
+                )
+            self._fused = (key, value)
+        return self._fused[1]
 
     def forward(self, x: torch.Tensor, rep: torch.Tensor, causal: torch.Tensor) -> torch.Tensor:
         x = self.ln1(x + self.self_attn(x, x, x, causal))
@@ -175,6 +193,62 @@ class AMAT(nn.Module):
         self.obs_ln = nn.LayerNorm(d)
         self.obs_fc2 = nn.Linear(d, d)
         self.class_enc = nn.Linear(c, d)
+        # -- encoder ------------------------------------------------------------------------------
+        self.enc_ln = nn.LayerNorm(d)
+        self.enc_blocks = nn.ModuleList(EncoderBlock(d, cfg.n_heads) for _ in range(cfg.n_blocks))
+        self.value_head = nn.Sequential(nn.Linear(d, d), nn.GELU(), nn.LayerNorm(d), nn.Linear(d, 1))
+        # -- macro-action embedder and decoder -----------------------------------------------------
+        self.action_enc = nn.Linear(cfg.num_actions + 1, d, bias=False)  # index 0: start token
+        self.dec_class_enc = nn.Linear(c, d)
+        self.dec_ln = nn.LayerNorm(d)
+        self.dec_blocks = nn.ModuleList(DecoderBlock(d, cfg.n_heads) for _ in range(cfg.n_blocks))
+        self.policy_head = nn.Sequential(
+            nn.Linear(d, d), nn.GELU(), nn.LayerNorm(d), nn.Linear(d, cfg.num_actions)
+        )
+        self._init_weights()
+
+    # -- initialisation ---------------------------------------------------------------------------
+    def _init_weights(self) -> None:
+        """Orthogonal weights, zero biases; gain sqrt(2) for layers followed by an activation (directly
+        or after a LayerNorm), 0.01 for the rest (attention projections, second MLP layers, heads)."""
+        activated = {
+            self.global_conv, self.local_conv1, self.local_conv2, self.obs_fc1, self.obs_fc2, self.class_enc,
+            self.value_head[0], self.action_enc, self.dec_class_enc, self.policy_head[0],
+        }  # fmt: skip
+        for block in [*self.enc_blocks, *self.dec_blocks]:
+            activated.add(block.mlp[0])
+        for m in self.modules():
+            if isinstance(m, (nn.Linear, nn.Conv2d)):
+                gain = math.sqrt(2.0) if m in activated else 0.01
+                nn.init.orthogonal_(m.weight.view(m.weight.shape[0], -1), gain=gain)
+                if m.bias is not None:
+                    nn.init.zeros_(m.bias)
+
+    # -- embedder ---------------------------------------------------------------------------------
+    def embed(self, obs: dict[str, torch.Tensor]) -> torch.Tensor:
+        """Tokens (B, N, d) from macro-observations: ``global_map`` (B, N, 5+C, S, S), ``local_map``
+        (B, N, 4+C, L, L) (uint8 with float = x * 0.25, or float), ``agent_class`` (B, N, C).
+
+        Written with functional calls: ``nn.Module.__call__`` costs ~15 us per layer on the 2-core CPU,
+        a tenth of a batch-1 decision.
+        """
+        gmap, lmap, cls = obs["global_map"], obs["local_map"], obs["agent_class"]
+        b, n = gmap.shape[:2]
+        g = _as_float(gmap).flatten(0, 1)  # (B*N, 5+C, S, S)
+        g = F.conv2d(g, self.global_conv.weight, self.global_conv.bias, padding=3)  # (B*N, 32, S, S)
+        g = _max_pool(g, self.config.pool)  # (B*N, 32, G, G)
+        g = F.relu(_ln(g, self.global_ln)).flatten(1)  # (B*N, 32 G^2)
+        x = _as_float(lmap).flatten(0, 1)  # (B*N, 4+C, L, L)
+        x = F.relu(
+            _ln(F.conv2d(x, self.local_conv1.weight, self.local_conv1.bias, padding=1), self.local_ln1)
+        )
+        x = F.relu(
+            _ln(F.conv2d(x, self.local_conv2.weight, self.local_conv2.bias, padding=1), self.local_ln2)
+        )
+        h = F.gelu(_lin(torch.cat([g, x.flatten(1)], dim=1), self.obs_fc1))  # (B*N, d)
+        h = F.gelu(_lin(_ln(h, self.obs_ln), self.obs_fc2))
+        return h.view(b, n, -1) + F.gelu(_lin(cls.to(h.dtype), self.class_enc))  # (B, N, d)
+
         # -- encoder ------------------------------------------------------------------------------
         self.enc_ln = nn.LayerNorm(d)
         self.enc_blocks = nn.ModuleList(EncoderBlock(d, cfg.n_heads) for _ in range(cfg.n_blocks))
@@ -279,39 +353,44 @@ class AMAT(nn.Module):
         """Decode the active robots one after another with cached keys/values.
 
         Returns (actions (B, N) long, log_probs (B, N)); busy robots get their single allowed
-        ("keep") action and log-prob 0.
+        ("keep") action and log-prob 0. Only the first K = max #active positions are decoded.
         """
         b, n, d = rep.shape
         mask = action_mask.bool()
         n_active = active.sum(1)  # (B,)
         steps = int(n_active.max()) if b else 0
-        actions = mask.float().argmax(-1)  # busy robots: their keep action
-        log_probs = torch.zeros(b, n, dtype=rep.dtype, device=rep.device)
+        actions = mask.to(torch.uint8).argmax(-1)  # busy robots: their keep action
+        log_probs = rep.new_zeros(b, n)
         if steps == 0:
             return actions, log_probs
         order_a = order[:, :steps]  # (B, K): the first K positions hold the active robots
         rep_o = _gather(rep, order_a)  # (B, K, d)
-        cls_o = _gather(agent_class.to(rep.dtype), order_a)
+        cls_tok = F.gelu(_lin(_gather(agent_class.to(rep.dtype), order_a), self.dec_class_enc))  # (B, K, d)
         mask_o = _gather(mask, order_a)  # (B, K, A)
         caches = [_BlockCache(blk, rep_o) for blk in self.dec_blocks]
-        prev = torch.zeros(b, 1, dtype=torch.long, device=rep.device)  # start token
-        rows = torch.arange(b, device=rep.device)
+        emb = self.action_enc.weight.t()  # (A + 1, d): one-hot @ W == row lookup
+        head = self.policy_head
+        prev = torch.zeros(b, dtype=torch.long, device=rep.device)  # start token
+        chosen = torch.empty(b, steps, dtype=torch.long, device=rep.device)
+        chosen_lp = rep.new_empty(b, steps)
         for k in range(steps):
-            x = self._action_tokens(prev, cls_o[:, k : k + 1])  # (B, 1, d)
+            x = _ln(F.gelu(emb[prev])[:, None] + cls_tok[:, k : k + 1], self.dec_ln)  # (B, 1, d)
             for cache in caches:
                 x = cache.step(x, k)
-            logits = self.policy_head(x)[:, 0].masked_fill(~mask_o[:, k], INVALID_LOGIT)  # (B, A)
+            h = _ln(F.gelu(_lin(x[:, 0], head[0])), head[2])
+            logits = _lin(h, head[3]).masked_fill_(~mask_o[:, k], INVALID_LOGIT)  # (B, A)
             logp_all = torch.log_softmax(logits, -1)
             if deterministic:
                 a = logits.argmax(-1)
             else:
                 a = torch.multinomial(logp_all.exp(), 1, generator=generator)[:, 0]
-            valid = k < n_active  # (B,) worlds with a k-th active robot
-            robot = order_a[:, k]
-            lp = logp_all.gather(1, a[:, None])[:, 0]
-            actions[rows[valid], robot[valid]] = a[valid]
-            log_probs[rows[valid], robot[valid]] = lp[valid]
-            prev = (a + 1)[:, None]
+            chosen[:, k] = a
+            chosen_lp[:, k] = logp_all.gather(1, a[:, None])[:, 0]
+            prev = a + 1
+        # write back in robot order, only where the k-th position is an active robot
+        valid = torch.arange(steps, device=rep.device)[None, :] < n_active[:, None]  # (B, K)
+        actions.scatter_(1, order_a, torch.where(valid, chosen, actions.gather(1, order_a)))
+        log_probs.scatter_(1, order_a, torch.where(valid, chosen_lp, 0.0))
         return actions, log_probs
 
     # -- convenience ------------------------------------------------------------------------------
@@ -321,33 +400,66 @@ class AMAT(nn.Module):
 
 
 class _BlockCache:
-    """Keys/values of one decoder block for the positions decoded so far (autoregressive mode)."""
+    """Keys/values of one decoder block for the positions decoded so far (autoregressive mode).
+
+    The step is written with functional calls and fused q/k/v weights: at batch 1 the decoder is a
+    chain of tiny matmuls whose cost is mostly per-call overhead.
+    """
 
     def __init__(self, block: DecoderBlock, rep_o: torch.Tensor) -> None:
         b, k, d = rep_o.shape
-        h = block.self_attn.n_heads
-        self.block, self.rep_o = block, rep_o
-        self.q_cross = block.cross_attn.split(block.cross_attn.q(rep_o))  # (B, h, K, dh), all positions
-        shape = (b, h, k, d // h)
+        sa, ca = block.self_attn, block.cross_attn
+        self.block, self.rep_o, self.h, self.d = block, rep_o, sa.n_heads, d
+        self.w_qkv, self.b_qkv, self.w_kv, self.b_kv = block.fused_projections()  # (3d, d), (2d, d)
+        self.q_cross = _heads(_lin(rep_o, ca.q), self.h)  # (B, h, K, dh): every position at once
+        shape = (b, self.h, k, d // self.h)
         self.k_self, self.v_self = rep_o.new_empty(shape), rep_o.new_empty(shape)
         self.k_cross, self.v_cross = rep_o.new_empty(shape), rep_o.new_empty(shape)
+        self.scale = (d // self.h) ** -0.5
+
+    def _attend(self, q: torch.Tensor, keys: torch.Tensor, values: torch.Tensor) -> torch.Tensor:
+        w = torch.softmax((q @ keys.transpose(-1, -2)) * self.scale, -1)  # (B, h, 1, k+1)
+        return (w @ values).transpose(1, 2).reshape(q.shape[0], 1, self.d)  # (B, 1, d)
 
     def step(self, x: torch.Tensor, k: int) -> torch.Tensor:
         """Block output (B, 1, d) at position k from its input x (B, 1, d)."""
-        blk = self.block
-        sa, ca = blk.self_attn, blk.cross_attn
-        self.k_self[:, :, k : k + 1] = sa.split(sa.k(x))
-        self.v_self[:, :, k : k + 1] = sa.split(sa.v(x))
-        q = sa.split(sa.q(x))
-        y = F.scaled_dot_product_attention(q, self.k_self[:, :, : k + 1], self.v_self[:, :, : k + 1])
-        x = blk.ln1(x + sa.out(sa.merge(y)))
-        self.k_cross[:, :, k : k + 1] = ca.split(ca.k(x))
-        self.v_cross[:, :, k : k + 1] = ca.split(ca.v(x))
-        y = F.scaled_dot_product_attention(
+        blk, h, d = self.block, self.h, self.d
+        q, key, val = F.linear(x, self.w_qkv, self.b_qkv).split(d, -1)
+        self.k_self[:, :, k : k + 1] = _heads(key, h)
+        self.v_self[:, :, k : k + 1] = _heads(val, h)
+        y = self._attend(_heads(q, h), self.k_self[:, :, : k + 1], self.v_self[:, :, : k + 1])
+        x = _ln(x + _lin(y, blk.self_attn.out), blk.ln1)
+        key, val = F.linear(x, self.w_kv, self.b_kv).split(d, -1)
+        self.k_cross[:, :, k : k + 1] = _heads(key, h)
+        self.v_cross[:, :, k : k + 1] = _heads(val, h)
+        y = self._attend(
             self.q_cross[:, :, k : k + 1], self.k_cross[:, :, : k + 1], self.v_cross[:, :, : k + 1]
         )
-        x = blk.ln2(self.rep_o[:, k : k + 1] + ca.out(ca.merge(y)))
-        return blk.ln3(x + blk.mlp(x))
+        x = _ln(self.rep_o[:, k : k + 1] + _lin(y, blk.cross_attn.out), blk.ln2)
+        m = blk.mlp
+        return _ln(x + _lin(F.gelu(_lin(x, m[0])), m[2]), blk.ln3)
+
+
+def _lin(x: torch.Tensor, layer: nn.Linear) -> torch.Tensor:
+    return F.linear(x, layer.weight, layer.bias)
+
+
+def _ln(x: torch.Tensor, layer: nn.LayerNorm) -> torch.Tensor:
+    return F.layer_norm(x, layer.normalized_shape, layer.weight, layer.bias, layer.eps)
+
+
+def _heads(x: torch.Tensor, h: int) -> torch.Tensor:
+    """(B, T, d) -> (B, h, T, d / h)."""
+    b, t, d = x.shape
+    return x.view(b, t, h, d // h).transpose(1, 2)
+
+
+def _max_pool(x: torch.Tensor, g: int) -> torch.Tensor:
+    """Adaptive max pool to g x g; two contiguous reductions when the side divides evenly."""
+    n, c, hh, ww = x.shape
+    if hh % g or ww % g:
+        return F.adaptive_max_pool2d(x, g)
+    return x.view(n, c, hh, g, ww // g).amax(-1).view(n, c, g, hh // g, g).amax(3)
 
 
 def _gather(x: torch.Tensor, index: torch.Tensor) -> torch.Tensor:

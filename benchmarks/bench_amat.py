@@ -1,0 +1,217 @@
+"""AMAT speed: batch-1 decision latency, batched acting throughput, training-step throughput.
+
+    python benchmarks/bench_amat.py [--repeats 200] [--out benchmarks/results/amat.json]
+
+* latency — one decision at batch 1 on one thread: embed every robot, encode, decode the active
+  robots autoregressively (argmax). N = 2, 3, 6 robots on the 15, 20, 32 maps of Tasks 1-3, with all
+  robots active (the joint decision at t = 0) and with one active robot (a typical asynchronous event);
+  also the split embed / encode / decode. Median of ``--repeats``.
+* acting — batched decisions (B = 64, 1024 worlds of Task 2, every robot active), one thread,
+  agent-decisions per second.
+* training — forward (embed, encode, teacher-forced decode) + PPO-style loss + backward + Adam on
+  Task-2 batches, two threads, agent-samples per second, fp32 and CPU bf16 autocast.
+
+Writes JSON and a PNG next to it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import platform
+import statistics
+import time
+from pathlib import Path
+
+import torch
+import torch.nn.functional as F
+
+from catmip_rl.amat import AMAT, decision_order
+
+TASKS = ((2, 15), (3, 20), (6, 32))  # (robots, map side) of Tasks 1-3
+
+
+def _obs(b: int, n: int, s: int, seed: int = 0) -> dict[str, torch.Tensor]:
+    g = torch.Generator().manual_seed(seed)
+    return {
+        "global_map": torch.randint(0, 5, (b, n, 7, s, s), generator=g, dtype=torch.uint8),
+        "local_map": torch.randint(0, 5, (b, n, 6, 7, 7), generator=g, dtype=torch.uint8),
+        "agent_class": F.one_hot(torch.randint(0, 2, (b, n), generator=g), 2).float(),
+    }
+
+
+def _median_ms(fn, repeats: int, warmup: int = 10) -> float:
+    for _ in range(warmup):
+        fn()
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - t0)
+    return 1000 * statistics.median(times)
+
+
+def bench_latency(model: AMAT, repeats: int) -> list[dict]:
+    torch.set_num_threads(1)
+    rows = []
+    for n, s in TASKS:
+        obs = _obs(1, n, s)
+        mask = torch.ones(1, n, model.config.num_actions, dtype=torch.bool)
+        for n_active in (n, 1):
+            active = torch.zeros(1, n, dtype=torch.bool)
+            active[0, :n_active] = True
+            order = decision_order(active)
+            with torch.inference_mode():
+                tokens = model.embed(obs)
+                rep, _ = model.encode(tokens)
+
+                def decide():
+                    r, _ = model.encode(model.embed(obs))
+                    return model.decode_autoregressive(
+                        r, mask, decision_order(active), active, obs["agent_class"], deterministic=True
+                    )
+
+                row = {
+                    "robots": n,
+                    "map": s,
+                    "active": n_active,
+                    "decision_ms": _median_ms(decide, repeats),
+                    "embed_ms": _median_ms(lambda: model.embed(obs), repeats),
+                    "encode_ms": _median_ms(lambda: model.encode(tokens), repeats),
+                    "decode_ms": _median_ms(
+                        lambda: model.decode_autoregressive(
+                            rep, mask, order, active, obs["agent_class"], deterministic=True
+                        ),
+                        repeats,
+                    ),
+                }
+            rows.append(row)
+            print(
+                f"latency N={n} S={s} active={n_active}: {row['decision_ms']:.2f} ms "
+                f"(embed {row['embed_ms']:.2f}, encode {row['encode_ms']:.2f}, decode {row['decode_ms']:.2f})"
+            )
+    return rows
+
+
+def bench_acting(model: AMAT, batches=(64, 1024)) -> list[dict]:
+    torch.set_num_threads(1)
+    rows = []
+    n, s = 3, 20
+    for b in batches:
+        obs = _obs(b, n, s)
+        mask = torch.ones(b, n, model.config.num_actions, dtype=torch.bool)
+        active = torch.ones(b, n, dtype=torch.bool)
+
+        def act():
+            with torch.inference_mode():
+                rep, _ = model.encode(model.embed(obs))
+                model.decode_autoregressive(rep, mask, decision_order(active), active, obs["agent_class"])
+
+        ms = _median_ms(act, repeats=5 if b >= 1024 else 20, warmup=2)
+        rows.append(
+            {"worlds": b, "robots": n, "map": s, "ms": ms, "agent_decisions_per_s": b * n / ms * 1000}
+        )
+        print(f"acting B={b}: {ms:.1f} ms per batch, {b * n / ms * 1000:,.0f} agent-decisions/s")
+    return rows
+
+
+def bench_training(model: AMAT, batch: int, bf16: bool, steps: int) -> dict:
+    torch.set_num_threads(2)
+    n, s = 3, 20
+    obs = _obs(batch, n, s)
+    mask = torch.ones(batch, n, model.config.num_actions, dtype=torch.bool)
+    active = torch.rand(batch, n, generator=torch.Generator().manual_seed(1)) < 0.5
+    active[:, 0] = True
+    order = decision_order(active)
+    actions = torch.randint(0, model.config.num_actions, (batch, n))
+    opt = torch.optim.Adam(model.parameters(), lr=1e-4, eps=1e-5)
+
+    def step():
+        with torch.autocast("cpu", dtype=torch.bfloat16, enabled=bf16):
+            rep, values = model.encode(model.embed(obs))
+            logits = model.decode_parallel(rep, actions, order, obs["agent_class"], mask)
+        logp = torch.log_softmax(logits.float(), -1).gather(-1, actions[..., None])[..., 0]
+        loss = -(logp * active).sum() / active.sum() + values.float().pow(2).mean()
+        opt.zero_grad(set_to_none=True)
+        loss.backward()
+        opt.step()
+
+    ms = _median_ms(step, repeats=steps, warmup=2)
+    row = {
+        "worlds": batch,
+        "robots": n,
+        "map": s,
+        "precision": "bf16-autocast" if bf16 else "fp32",
+        "ms_per_step": ms,
+        "agent_samples_per_s": batch * n / ms * 1000,
+    }
+    print(
+        f"training {row['precision']:>13} batch {batch}x{n}: {ms:.0f} ms/step, {row['agent_samples_per_s']:,.0f} agent-samples/s"
+    )
+    return row
+
+
+def plot(results: dict, path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4))
+    lat = results["latency"]
+    labels = [f"N={r['robots']}\nS={r['map']}\n{r['active']} active" for r in lat]
+    parts = ("embed_ms", "encode_ms", "decode_ms")
+    bottom = [0.0] * len(lat)
+    for key in parts:
+        vals = [r[key] for r in lat]
+        axes[0].bar(labels, vals, bottom=bottom, label=key.replace("_ms", ""))
+        bottom = [a + b for a, b in zip(bottom, vals)]
+    axes[0].scatter(labels, [r["decision_ms"] for r in lat], color="k", zorder=3, label="whole decision")
+    axes[0].axhline(1.5, color="r", ls="--", lw=1, label="1.5 ms target (N=6)")
+    axes[0].set_ylabel("ms (1 thread)")
+    axes[0].set_title("Batch-1 decision latency")
+    axes[0].legend(fontsize=8)
+    tr = results["training"]
+    axes[1].bar([f"{r['precision']}\nB={r['worlds']}" for r in tr], [r["agent_samples_per_s"] for r in tr])
+    axes[1].axhline(5000, color="r", ls="--", lw=1, label="5,000 target")
+    axes[1].set_ylabel("agent-samples / s (2 threads)")
+    axes[1].set_title("Training step (fwd + bwd + Adam), Task 2")
+    axes[1].legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--repeats", type=int, default=200)
+    ap.add_argument("--train-batch", type=int, default=256, help="worlds per training step (x3 robots)")
+    ap.add_argument("--train-steps", type=int, default=10)
+    ap.add_argument("--bf16-steps", type=int, default=2, help="bf16 is very slow on CPUs without bf16 units")
+    ap.add_argument("--out", default="benchmarks/results/amat.json")
+    args = ap.parse_args()
+    torch.manual_seed(0)
+    model = AMAT().eval()
+    results = {
+        "machine": {
+            "python": platform.python_version(),
+            "torch": torch.__version__,
+            "cpu_capability": torch.backends.cpu.get_cpu_capability(),
+        },
+        "latency": bench_latency(model, args.repeats),
+        "acting": bench_acting(model),
+        "training": [
+            bench_training(AMAT().train(), args.train_batch, False, args.train_steps),
+            bench_training(AMAT().train(), args.train_batch, True, args.bf16_steps),
+        ],
+    }
+    out = Path(args.out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = out.with_suffix(".tmp")
+    tmp.write_text(json.dumps(results, indent=2))
+    tmp.replace(out)
+    plot(results, out.with_suffix(".png"))
+    print(f"wrote {out} and {out.with_suffix('.png')}")
+
+
+if __name__ == "__main__":
+    main()
