@@ -249,53 +249,6 @@ class AMAT(nn.Module):
         h = F.gelu(_lin(_ln(h, self.obs_ln), self.obs_fc2))
         return h.view(b, n, -1) + F.gelu(_lin(cls.to(h.dtype), self.class_enc))  # (B, N, d)
 
-        # -- encoder ------------------------------------------------------------------------------
-        self.enc_ln = nn.LayerNorm(d)
-        self.enc_blocks = nn.ModuleList(EncoderBlock(d, cfg.n_heads) for _ in range(cfg.n_blocks))
-        self.value_head = nn.Sequential(nn.Linear(d, d), nn.GELU(), nn.LayerNorm(d), nn.Linear(d, 1))
-        # -- macro-action embedder and decoder -----------------------------------------------------
-        self.action_enc = nn.Linear(cfg.num_actions + 1, d, bias=False)  # index 0: start token
-        self.dec_class_enc = nn.Linear(c, d)
-        self.dec_ln = nn.LayerNorm(d)
-        self.dec_blocks = nn.ModuleList(DecoderBlock(d, cfg.n_heads) for _ in range(cfg.n_blocks))
-        self.policy_head = nn.Sequential(
-            nn.Linear(d, d), nn.GELU(), nn.LayerNorm(d), nn.Linear(d, cfg.num_actions)
-        )
-        self._init_weights()
-
-    # -- initialisation ---------------------------------------------------------------------------
-    def _init_weights(self) -> None:
-        """Orthogonal weights, zero biases; gain sqrt(2) for layers followed by an activation (directly
-        or after a LayerNorm), 0.01 for the rest (attention projections, second MLP layers, heads)."""
-        activated = {
-            self.global_conv, self.local_conv1, self.local_conv2, self.obs_fc1, self.obs_fc2, self.class_enc,
-            self.value_head[0], self.action_enc, self.dec_class_enc, self.policy_head[0],
-        }  # fmt: skip
-        for block in [*self.enc_blocks, *self.dec_blocks]:
-            activated.add(block.mlp[0])
-        for m in self.modules():
-            if isinstance(m, (nn.Linear, nn.Conv2d)):
-                gain = math.sqrt(2.0) if m in activated else 0.01
-                nn.init.orthogonal_(m.weight.view(m.weight.shape[0], -1), gain=gain)
-                if m.bias is not None:
-                    nn.init.zeros_(m.bias)
-
-    # -- embedder ---------------------------------------------------------------------------------
-    def embed(self, obs: dict[str, torch.Tensor]) -> torch.Tensor:
-        """Tokens (B, N, d) from macro-observations: ``global_map`` (B, N, 5+C, S, S), ``local_map``
-        (B, N, 4+C, L, L) (uint8 with float = x * 0.25, or float), ``agent_class`` (B, N, C)."""
-        gmap, lmap, cls = obs["global_map"], obs["local_map"], obs["agent_class"]
-        b, n = gmap.shape[:2]
-        g = _as_float(gmap).flatten(0, 1)  # (B*N, 5+C, S, S)
-        g = F.relu(self.global_ln(self.global_pool(self.global_conv(g)))).flatten(1)  # (B*N, 32 G^2)
-        x = _as_float(lmap).flatten(0, 1)  # (B*N, 4+C, L, L)
-        x = F.relu(self.local_ln1(self.local_conv1(x)))
-        x = F.relu(self.local_ln2(self.local_conv2(x))).flatten(1)  # (B*N, 32 L^2)
-        h = F.gelu(self.obs_fc1(torch.cat([g, x], dim=1)))  # (B*N, d)
-        h = F.gelu(self.obs_fc2(self.obs_ln(h)))
-        tokens = h.view(b, n, -1) + F.gelu(self.class_enc(cls.to(h.dtype)))  # (B, N, d)
-        return tokens
-
     # -- encoder ----------------------------------------------------------------------------------
     def encode(
         self, tokens: torch.Tensor, key_padding_mask: torch.Tensor | None = None
