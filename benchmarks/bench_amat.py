@@ -145,9 +145,8 @@ def bench_training(model: AMAT, batch: int, bf16: bool, steps: int) -> dict:
         "ms_per_step": ms,
         "agent_samples_per_s": batch * n / ms * 1000,
     }
-    print(
-        f"training {row['precision']:>13} batch {batch}x{n}: {ms:.0f} ms/step, {row['agent_samples_per_s']:,.0f} agent-samples/s"
-    )
+    rate = row["agent_samples_per_s"]
+    print(f"training {row['precision']:>13} batch {batch}x{n}: {ms:.0f} ms/step, {rate:,.0f} agent-samples/s")
     return row
 
 
