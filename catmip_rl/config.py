@@ -1,0 +1,125 @@
+"""Training configuration: one frozen dataclass, presets in Python, saved as JSON in every run dir."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from dataclasses import dataclass, field
+from typing import Any
+
+from catmip_env import EnvConfig, make_config
+from catmip_rl.amat import AmatConfig
+
+__all__ = ["TrainConfig", "TRAIN_PRESETS", "make_train_config"]
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    """The paper's recipe (SPEC §6.1) by default."""
+
+    env_preset: str = "train"
+    """catmip_env preset the training worlds come from."""
+    env_overrides: dict[str, Any] = field(default_factory=dict)
+    """EnvConfig field overrides (e.g. {"synchronous": true})."""
+    amat: dict[str, Any] = field(default_factory=dict)
+    """AmatConfig field overrides (window must equal the env's window)."""
+    num_worlds: int = 64
+    """Worlds (= episodes) collected per iteration."""
+    iterations: int = 62_500
+    """PPO iterations (the LR decays linearly to 0 over them)."""
+    epochs: int = 10
+    """PPO epochs per iteration."""
+    minibatches: int = 1
+    """Minibatches per epoch (1 = full batch)."""
+    lr: float = 1e-4
+    adam_eps: float = 1e-5
+    clip: float = 0.05
+    """PPO ratio clip epsilon."""
+    value_clip: float = 0.05
+    """Clip of the value prediction around the old value (normalised units)."""
+    huber_delta: float = 10.0
+    entropy_coef: float = 0.01
+    value_coef: float = 1.0
+    max_grad_norm: float = 10.0
+    gamma: float = 1.0
+    """Discount per tick."""
+    lam: float = 0.95
+    """GAE lambda along each robot's activations."""
+    seed: int = 0
+    device: str = "cpu"
+    threads: int = 2
+    """torch CPU threads."""
+    eval_every: int = 50
+    """Iterations between evaluations (0 = never)."""
+    eval_episodes: int = 32
+    eval_seed: int = 12_345
+    """Seed of the fixed evaluation map set."""
+    checkpoint_every: int = 50
+
+    def __post_init__(self) -> None:
+        for name in ("num_worlds", "iterations", "epochs", "minibatches", "threads", "eval_episodes"):
+            if not isinstance(getattr(self, name), int) or getattr(self, name) < 1:
+                raise ValueError(f"TrainConfig.{name} must be an int >= 1, got {getattr(self, name)!r}")
+        for name in ("eval_every", "checkpoint_every"):
+            if not isinstance(getattr(self, name), int) or getattr(self, name) < 0:
+                raise ValueError(f"TrainConfig.{name} must be an int >= 0, got {getattr(self, name)!r}")
+        for name in ("lr", "adam_eps", "clip", "value_clip", "huber_delta", "max_grad_norm"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"TrainConfig.{name} must be > 0, got {getattr(self, name)!r}")
+        if not 0 < self.gamma <= 1 or not 0 <= self.lam <= 1:
+            raise ValueError(f"gamma must be in (0, 1] and lam in [0, 1], got {self.gamma}, {self.lam}")
+        if self.device not in ("cpu", "cuda") and not self.device.startswith("cuda:"):
+            raise ValueError(f"device must be cpu or cuda[:i], got {self.device!r}")
+        env, amat = self.env_config(), self.amat_config()  # validates both
+        if amat.window != env.window:
+            raise ValueError(f"AMAT window {amat.window} differs from the env's goal window {env.window}")
+        if amat.local_size != env.local_size or amat.n_classes != env.num_classes:
+            raise ValueError("AMAT local_size / n_classes must match the env's local map and classes")
+
+    def env_config(self) -> EnvConfig:
+        return make_config(self.env_preset, **self.env_overrides)
+
+    def eval_env_config(self) -> EnvConfig:
+        """The training task with evaluation activation (0, 0)."""
+        return self.env_config().replace(activation=(0, 0))
+
+    def amat_config(self) -> AmatConfig:
+        return AmatConfig.from_dict(self.amat)
+
+    def replace(self, **changes: Any) -> TrainConfig:
+        names = {f.name for f in dataclasses.fields(self)}
+        unknown = sorted(set(changes) - names)
+        if unknown:
+            raise ValueError(f"unknown TrainConfig field(s) {unknown}; valid fields: {sorted(names)}")
+        return dataclasses.replace(self, **changes)
+
+    def to_json(self) -> str:
+        return json.dumps(dataclasses.asdict(self), indent=2, sort_keys=True)
+
+    @classmethod
+    def from_json(cls, text: str) -> TrainConfig:
+        return cls().replace(**json.loads(text))
+
+
+TRAIN_PRESETS: dict[str, TrainConfig] = {
+    "paper": TrainConfig(),
+    "paper-sync": TrainConfig(env_overrides={"synchronous": True}),
+    "paper-smallma": TrainConfig(env_overrides={"window": 5}, amat={"window": 5}),
+    # a minute-scale smoke run: a small map, two robots, a small AMAT
+    "tiny": TrainConfig(
+        env_overrides={"map_size": 12, "team": ["rescuer", "explorer"], "horizon_ticks": 60},
+        amat={"embed_dim": 32},
+        num_worlds=8,
+        iterations=2,
+        epochs=2,
+        eval_every=1,
+        eval_episodes=4,
+        checkpoint_every=1,
+    ),
+}
+
+
+def make_train_config(preset: str = "paper", **overrides: Any) -> TrainConfig:
+    if preset not in TRAIN_PRESETS:
+        raise ValueError(f"unknown training preset {preset!r}; known: {sorted(TRAIN_PRESETS)}")
+    return TRAIN_PRESETS[preset].replace(**overrides) if overrides else TRAIN_PRESETS[preset]

@@ -1,0 +1,67 @@
+"""Asynchronous GAE (SPEC §6.2): advantages along each robot's own sequence of activations.
+
+Robot i's k-th macro-action starts at its k-th activation (event row ``t_k``) and lasts ``dt_k`` ticks,
+until its next activation (or the end of the episode); its reward ``R_k`` is everything it collected in
+between, discounted inside the interval by gamma per tick since the activation. With values ``V_k``::
+
+    delta_k = R_k + gamma^dt_k * V_{k+1} - V_k
+    A_k     = delta_k + (gamma^dt_k * lambda) * A_{k+1}
+
+The last macro-action of an episode is unfinished: it is not trained on, and the return stops there
+(no bootstrap at truncation, as at termination): ``A_K = R_K - V_K``. Value targets are the
+lambda-returns ``A_k + V_k``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+__all__ = ["async_gae"]
+
+
+@njit(cache=True)
+def async_gae(
+    active: np.ndarray,  # (T, B, N) bool: robot decides at event row t
+    valid: np.ndarray,  # (T, B) bool: row t of world b is a real event
+    values: np.ndarray,  # (T, B, N) float: V at each decision (denormalised)
+    ma_return: np.ndarray,  # (T, B, N) float: return of the macro-action that ended at row t (read where active)
+    ma_ticks: np.ndarray,  # (T, B, N) int: its duration in ticks
+    final_return: np.ndarray,  # (B, N) float: return of each robot's last (unfinished) macro-action
+    gamma: float,
+    lam: float,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Returns (advantages, lambda-returns, trainable) of shape (T, B, N); trainable marks every
+    activation whose macro-action finished (all but each robot's last one)."""
+    t_max, b_max, n_max = active.shape
+    adv = np.zeros(active.shape, np.float64)
+    ret = np.zeros(active.shape, np.float64)
+    trainable = np.zeros(active.shape, np.bool_)
+    rows = np.empty(t_max, np.int64)
+    for b in range(b_max):
+        for i in range(n_max):
+            k = 0
+            for t in range(t_max):
+                if valid[t, b] and active[t, b, i]:
+                    rows[k] = t
+                    k += 1
+            if k == 0:
+                continue
+            # the last, unfinished macro-action: the return stops at the episode's end
+            last = rows[k - 1]
+            a_next = final_return[b, i] - values[last, b, i]
+            adv[last, b, i] = a_next
+            ret[last, b, i] = a_next + values[last, b, i]
+            v_next = values[last, b, i]
+            for j in range(k - 2, -1, -1):
+                t = rows[j]
+                t_next = rows[j + 1]
+                disc = gamma ** ma_ticks[t_next, b, i]
+                delta = ma_return[t_next, b, i] + disc * v_next - values[t, b, i]
+                a = delta + disc * lam * a_next
+                adv[t, b, i] = a
+                ret[t, b, i] = a + values[t, b, i]
+                trainable[t, b, i] = True
+                a_next = a
+                v_next = values[t, b, i]
+    return adv, ret, trainable

@@ -1,0 +1,119 @@
+"""PPO for AMAT (SPEC §6): clipped policy loss over active robots, clipped Huber value loss on
+normalised values, entropy bonus, advantage normalisation.
+
+The loss is a few lines on purpose (``ppo_loss``); ``tests/rl/test_ppo.py`` checks that its policy term
+equals TorchRL's ``ClipPPOLoss`` with the :class:`~catmip_rl.actor.AmatActor` on the same batch.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+import torch.nn.functional as F
+
+from catmip_rl.amat import AMAT
+
+__all__ = ["ValueNorm", "SampleBatch", "ppo_loss"]
+
+
+class ValueNorm(torch.nn.Module):
+    """Running mean / variance of value targets (exponential moving average with debiasing, as in
+    MAPPO); the value head predicts normalised values."""
+
+    def __init__(self, beta: float = 0.99999, eps: float = 1e-5) -> None:
+        super().__init__()
+        self.beta, self.eps = beta, eps
+        self.register_buffer("mean", torch.zeros((), dtype=torch.float64))
+        self.register_buffer("mean_sq", torch.zeros((), dtype=torch.float64))
+        self.register_buffer("debias", torch.zeros((), dtype=torch.float64))
+
+    def _stats(self) -> tuple[torch.Tensor, torch.Tensor]:
+        d = self.debias.clamp_min(self.eps)
+        mean, mean_sq = self.mean / d, self.mean_sq / d
+        return mean, (mean_sq - mean**2).clamp_min(1e-2)
+
+    @torch.no_grad()
+    def update(self, x: torch.Tensor) -> None:
+        x = x.double()
+        w = self.beta
+        self.mean.mul_(w).add_(x.mean() * (1 - w))
+        self.mean_sq.mul_(w).add_((x**2).mean() * (1 - w))
+        self.debias.mul_(w).add_(1 - w)
+
+    def normalize(self, x: torch.Tensor) -> torch.Tensor:
+        mean, var = self._stats()
+        return ((x.double() - mean) / var.sqrt()).to(x.dtype)
+
+    def denormalize(self, x: torch.Tensor) -> torch.Tensor:
+        mean, var = self._stats()
+        return (x.double() * var.sqrt() + mean).to(x.dtype)
+
+
+@dataclass
+class SampleBatch:
+    """Flat training samples: one row = one decision event of one world (all robots)."""
+
+    global_map: torch.Tensor  # (M, N, 5+C, H, W) uint8
+    local_map: torch.Tensor  # (M, N, 4+C, L, L) uint8
+    agent_class: torch.Tensor  # (M, N, C) float
+    action_mask: torch.Tensor  # (M, N, A) bool
+    order: torch.Tensor  # (M, N) long
+    action: torch.Tensor  # (M, N) long
+    log_prob: torch.Tensor  # (M, N) old log-probs
+    value: torch.Tensor  # (M, N) old normalised values
+    advantage: torch.Tensor  # (M, N) (normalised over trainable entries)
+    target: torch.Tensor  # (M, N) normalised value targets
+    trainable: torch.Tensor  # (M, N) bool: active robots whose macro-action finished
+
+    def __len__(self) -> int:
+        return self.action.shape[0]
+
+    def index(self, idx: torch.Tensor) -> SampleBatch:
+        return SampleBatch(**{k: v[idx] for k, v in self.__dict__.items()})
+
+    def to(self, device) -> SampleBatch:
+        return SampleBatch(**{k: v.to(device) for k, v in self.__dict__.items()})
+
+
+def huber(x: torch.Tensor, delta: float) -> torch.Tensor:
+    return F.huber_loss(x, torch.zeros_like(x), reduction="none", delta=delta)
+
+
+def ppo_loss(
+    model: AMAT,
+    batch: SampleBatch,
+    clip: float = 0.05,
+    value_clip: float = 0.05,
+    huber_delta: float = 10.0,
+    entropy_coef: float = 0.01,
+    value_coef: float = 1.0,
+) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
+    """Total loss and its parts; every term averages over trainable (active, finished) robots only."""
+    obs = {"global_map": batch.global_map, "local_map": batch.local_map, "agent_class": batch.agent_class}
+    rep, values = model.encode(model.embed(obs))  # (M, N, d), (M, N, 1)
+    logits = model.decode_parallel(rep, batch.action, batch.order, batch.agent_class, batch.action_mask)
+    logp_all = torch.log_softmax(logits.float(), -1)  # (M, N, A)
+    logp = logp_all.gather(-1, batch.action[..., None])[..., 0]
+    w = batch.trainable.float()
+    count = w.sum().clamp_min(1.0)
+    ratio = torch.exp(logp - batch.log_prob)
+    surrogate = torch.min(ratio * batch.advantage, ratio.clamp(1 - clip, 1 + clip) * batch.advantage)
+    policy_loss = -(surrogate * w).sum() / count
+    probs = logp_all.exp()
+    entropy_all = -(torch.where(batch.action_mask, probs * logp_all, 0.0)).sum(-1)  # (M, N)
+    entropy = (entropy_all * w).sum() / count
+    v = values[..., 0].float()
+    v_clipped = batch.value + (v - batch.value).clamp(-value_clip, value_clip)
+    value_loss = torch.max(huber(v - batch.target, huber_delta), huber(v_clipped - batch.target, huber_delta))
+    value_loss = (value_loss * w).sum() / count
+    loss = policy_loss + value_coef * value_loss - entropy_coef * entropy
+    with torch.no_grad():
+        stats = {
+            "loss/policy": policy_loss.detach(),
+            "loss/value": value_loss.detach(),
+            "loss/entropy": entropy.detach(),
+            "ppo/approx_kl": (((ratio - 1) - (logp - batch.log_prob)) * w).sum() / count,
+            "ppo/clip_fraction": (((ratio - 1).abs() > clip).float() * w).sum() / count,
+        }
+    return loss, stats
