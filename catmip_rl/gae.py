@@ -25,7 +25,7 @@ def async_gae(
     active: np.ndarray,  # (T, B, N) bool: robot decides at event row t
     valid: np.ndarray,  # (T, B) bool: row t of world b is a real event
     values: np.ndarray,  # (T, B, N) float: V at each decision (denormalised)
-    ma_return: np.ndarray,  # (T, B, N) float: return of the macro-action that ended at row t (read where active)
+    ma_return: np.ndarray,  # (T, B, N) float: return of the macro-action ending at row t (where active)
     ma_ticks: np.ndarray,  # (T, B, N) int: its duration in ticks
     final_return: np.ndarray,  # (B, N) float: return of each robot's last (unfinished) macro-action
     gamma: float,
