@@ -32,7 +32,8 @@ METRICS = [
     "rollout/success_rate", "rollout/rescue_tick", "rollout/target_found_rate",
     "rollout/target_found_tick",
     "rollout/explored_fraction", "rollout/episode_ticks", "rollout/return_rescuer", "rollout/return_explorer",
-    "loss/policy", "loss/value", "loss/entropy", "ppo/approx_kl", "ppo/clip_fraction", "ppo/grad_norm", "ppo/lr",
+    "loss/policy", "loss/value", "loss/entropy",
+    "ppo/approx_kl", "ppo/clip_fraction", "ppo/grad_norm", "ppo/lr",
     "eval/success_rate", "eval/rescue_tick", "eval/target_found_tick", "eval/explored_fraction",
     "time/collect_s", "time/advantage_s", "time/update_s", "time/iteration_s",
 ]  # fmt: skip
