@@ -1,0 +1,89 @@
+"""PPO loss: equals TorchRL's ClipPPOLoss on the policy term; busy robots are never loss terms."""
+
+import torch
+from tensordict import TensorDict
+from torchrl.objectives import ClipPPOLoss
+
+from catmip_rl import keys as K
+from catmip_rl.actor import AmatActor, AmatCritic
+from catmip_rl.ppo import SampleBatch, ValueNorm, ppo_loss
+
+from .test_amat import _obs, _shaken
+
+
+def _setup(b=6, n=3, seed=0):
+    m = _shaken(seed=seed)
+    obs = _obs(b, n, 15, seed=seed)
+    mask = torch.ones(b, n, 49, dtype=torch.bool)
+    mask[..., :5] = False
+    active = torch.ones(b, n, dtype=torch.bool)
+    robots = dict(obs, action_mask=mask, active=active)
+    td = TensorDict({K.ROBOTS: TensorDict(robots, batch_size=[b, n])}, batch_size=[b])
+    td = AmatActor(m)(td)
+    with torch.no_grad():  # move the policy so that ratios differ from 1 and some are clipped
+        for p in m.parameters():
+            p.add_(0.01 * torch.randn_like(p))
+    adv = torch.randn(b, n, generator=torch.Generator().manual_seed(seed))
+    batch = SampleBatch(
+        global_map=obs["global_map"], local_map=obs["local_map"], agent_class=obs["agent_class"],
+        action_mask=mask, order=td[K.ORDER], action=td[K.ACTION], log_prob=td[K.LOG_PROB],
+        value=td[K.VALUE][..., 0], advantage=adv, target=torch.randn(b, n), trainable=active.clone(),
+    )  # fmt: skip
+    return m, td, batch
+
+
+def test_policy_loss_equals_torchrl_clip_ppo_loss():
+    m, td, batch = _setup()
+    td.set((K.ROBOTS, "advantage"), batch.advantage[..., None])
+    td.set((K.ROBOTS, "value_target"), batch.target[..., None])
+    loss_mod = ClipPPOLoss(
+        AmatActor(m), AmatCritic(m), clip_epsilon=0.05, entropy_bonus=False, normalize_advantage=False
+    )
+    loss_mod.set_keys(
+        action=K.ACTION, sample_log_prob=K.LOG_PROB, advantage=(K.ROBOTS, "advantage"), value=K.VALUE,
+        value_target=(K.ROBOTS, "value_target"),
+    )  # fmt: skip
+    ref = loss_mod(td.clone())
+    _, parts = ppo_loss(m, batch, clip=0.05)
+    assert torch.allclose(parts["loss/policy"], ref["loss_objective"].detach(), atol=1e-6)
+    assert 0 < parts["ppo/clip_fraction"] < 1
+
+
+def test_busy_robots_are_inputs_never_loss_terms():
+    m, _, batch = _setup()
+    batch.trainable[:, 1] = False  # robot 1 busy (or unfinished) in every sample
+    loss, _ = ppo_loss(m, batch)
+    altered = SampleBatch(**batch.__dict__)
+    altered.advantage = batch.advantage.clone()
+    altered.advantage[:, 1] = 1e3
+    altered.log_prob = batch.log_prob.clone()
+    altered.log_prob[:, 1] -= 5.0
+    altered.target = batch.target.clone()
+    altered.target[:, 1] = -1e3
+    loss2, _ = ppo_loss(m, altered)
+    assert torch.allclose(loss, loss2)
+    # the gradient reaching robot 1's logits is exactly zero
+    captured = {}
+    orig = m.decode_parallel
+
+    def hook(*args, **kwargs):
+        logits = orig(*args, **kwargs)
+        logits.retain_grad()
+        captured["logits"] = logits
+        return logits
+
+    m.decode_parallel = hook
+    loss, _ = ppo_loss(m, batch)
+    loss.backward()
+    g = captured["logits"].grad
+    assert (g[:, 1] == 0).all() and g[:, 0].abs().sum() > 0
+
+
+def test_value_norm_tracks_and_inverts():
+    vn = ValueNorm(beta=0.9)
+    x = torch.randn(1000, dtype=torch.float64) * 7 + 3
+    for _ in range(200):
+        vn.update(x)
+    y = vn.normalize(x)
+    assert abs(float(y.mean())) < 0.05 and abs(float(y.std()) - 1) < 0.05
+    assert torch.allclose(vn.denormalize(y), x, atol=1e-6)
