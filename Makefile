@@ -29,6 +29,8 @@ lint: $(STAMP)
 bench: $(STAMP)
 	$(PY) benchmarks/bench_engine.py
 	$(PY) benchmarks/bench_events.py
+	$(PY) benchmarks/bench_amat.py
+	$(PY) benchmarks/bench_train.py
 
 # numba keys each cached kernel on its own file only: after editing a kernel that others call, drop the cache
 clean-cache:
