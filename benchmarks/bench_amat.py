@@ -17,7 +17,6 @@ Writes JSON and a PNG next to it.
 from __future__ import annotations
 
 import argparse
-import json
 import platform
 import statistics
 import time
@@ -25,6 +24,7 @@ from pathlib import Path
 
 import torch
 import torch.nn.functional as F
+from common import write_json
 
 from catmip_rl.amat import AMAT, decision_order
 
@@ -203,13 +203,9 @@ def main() -> None:
             bench_training(AMAT().train(), args.train_batch, True, args.bf16_steps),
         ],
     }
-    out = Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.with_suffix(".tmp")
-    tmp.write_text(json.dumps(results, indent=2))
-    tmp.replace(out)
+    out = write_json(args.out, results)
     plot(results, out.with_suffix(".png"))
-    print(f"wrote {out} and {out.with_suffix('.png')}")
+    print(f"wrote {out.with_suffix('.png')}")
 
 
 if __name__ == "__main__":

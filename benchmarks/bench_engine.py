@@ -10,18 +10,17 @@ timed loop (map generation included). Actions are uniformly random primitive act
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import platform
 import subprocess
 import sys
 import time
-from pathlib import Path
 
 os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import numpy as np  # noqa: E402
+from common import write_json  # noqa: E402
 
 from catmip_env import BatchedEngine, make_config, search_rescue_v0  # noqa: E402
 
@@ -122,12 +121,7 @@ def main() -> None:
             results["pettingzoo"].append(r)
             print(f"pettingzoo {preset} B=1 {kw or 'full comm'}: {r['ticks_per_s']:>9,.0f} ticks/s")
     print(f"fresh-process start (cached numba): {results['startup_s_cached']:.2f} s")
-    out = Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.with_suffix(".tmp")
-    tmp.write_text(json.dumps(results, indent=2))
-    tmp.replace(out)
-    print(f"wrote {out}")
+    write_json(args.out, results)
 
 
 if __name__ == "__main__":

@@ -12,16 +12,15 @@ evaluation rule (0, 0) and the training rule (2, 5).
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import platform
 import time
-from pathlib import Path
 
 os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import numpy as np  # noqa: E402
+from common import write_json  # noqa: E402
 
 from catmip_env import make_config, search_rescue_v0  # noqa: E402
 from catmip_env.baselines import PLANNERS, make_planner  # noqa: E402
@@ -145,12 +144,7 @@ def main() -> None:
         r = bench_planner(name, "task3", args.decisions)
         results["planners"].append(r)
         print(f"planner {name:16s} task3: {r['ms_per_decision']:.3f} ms/decision")
-    out = Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.with_suffix(".tmp")
-    tmp.write_text(json.dumps(results, indent=2))
-    tmp.replace(out)
-    print(f"wrote {out}")
+    write_json(args.out, results)
 
 
 if __name__ == "__main__":

@@ -13,13 +13,13 @@ from __future__ import annotations
 
 import argparse
 import csv
-import json
 import platform
 import shutil
 import tempfile
 from pathlib import Path
 
 import torch
+from common import write_json
 
 from catmip_rl.config import make_train_config
 from catmip_rl.train import train
@@ -66,12 +66,7 @@ def main() -> None:
         },  # fmt: skip
         "runs": [run(10, args.iterations, args.threads), run(2, args.iterations, args.threads)],
     }
-    out = Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.with_suffix(".tmp")
-    tmp.write_text(json.dumps(results, indent=2))
-    tmp.replace(out)
-    print(f"wrote {out}")
+    write_json(args.out, results)
 
 
 if __name__ == "__main__":

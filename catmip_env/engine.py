@@ -25,7 +25,7 @@ from catmip_env.config import EnvConfig
 from catmip_env.dynamics import perceive, tick
 from catmip_env.layout import parse_layout
 from catmip_env.mapgen import Episode, generate
-from catmip_env.observe import observe
+from catmip_env.observe import observe as build_observations
 from catmip_env.rng import seed_state
 from catmip_env.sensing import RAY_NBLOCK, VIEW_BLOCKERS, VIEW_OFFSETS
 from catmip_env.types import CLUE, EXPLORED, OBSTACLE, TARGET, WALL, global_channels, local_channels
@@ -165,7 +165,7 @@ class BatchedEngine:
         """
         if seed is not None:
             self.seed(seed)
-        idx = self._world_indices(worlds)
+        idx = self.world_indices(worlds)
         if episode_indices is None:
             episode_indices = np.arange(self.next_episode, self.next_episode + len(idx))
         episode_indices = np.asarray(episode_indices, dtype=np.int64).reshape(-1)
@@ -188,7 +188,7 @@ class BatchedEngine:
             cfg.horizon_ticks, self._comm, cfg.slam_noise, cfg.find_reward, cfg.rescue_reward,
             VIEW_OFFSETS, VIEW_BLOCKERS, RAY_NBLOCK,
         )  # fmt: skip
-        self._observe(mask)
+        self.observe(mask)
         return idx
 
     def episode_streams(self, episode: int) -> tuple[np.random.Generator, np.uint64]:
@@ -240,7 +240,8 @@ class BatchedEngine:
             doors=np.zeros((0, 2), np.int64),
         )
 
-    def _world_indices(self, worlds: np.ndarray | None) -> np.ndarray:
+    def world_indices(self, worlds: np.ndarray | None) -> np.ndarray:
+        """Indices of the worlds named by a bool mask (B,) or an index list (None: all); checked."""
         if worlds is None:
             return np.arange(self.num_worlds)
         w = np.asarray(worlds)
@@ -276,7 +277,7 @@ class BatchedEngine:
             cfg.rescue_reward, VIEW_OFFSETS, VIEW_BLOCKERS, RAY_NBLOCK,
         )  # fmt: skip
         st.done |= self._terminated | self._truncated
-        self._observe(live)
+        self.observe(live)
         return StepResult(rewards, self._terminated, self._truncated)
 
     def _check_actions(self, actions: np.ndarray) -> np.ndarray:
@@ -298,9 +299,10 @@ class BatchedEngine:
             )
         return a
 
-    def _observe(self, worlds: np.ndarray) -> None:
+    def observe(self, worlds: np.ndarray) -> None:
+        """Rebuild the macro-observations of the worlds in the bool mask ``worlds`` (B,)."""
         st = self.state
-        observe(
+        build_observations(
             worlds, st.belief, st.used_occ, self.noisy, st.pos, st.cls, st.comp, st.goal,
             st.target, self.obs_global, self.obs_local,
         )  # fmt: skip

@@ -187,15 +187,15 @@ class EventEngine:
             VIEW_OFFSETS, VIEW_BLOCKERS, RAY_NBLOCK,
         )  # fmt: skip
         st.done |= self._terminated | self._truncated
-        self.world._observe(live)
+        self.world.observe(live)
         self._masks(live)
         return self._result()
 
     def refresh(self, worlds: np.ndarray | None = None) -> None:
         """Rebuild observations and masks of ``worlds`` (default all) after editing ``state`` by hand."""
         mask = np.zeros(self.num_worlds, np.bool_)
-        mask[self.world._world_indices(worlds)] = True
-        self.world._observe(mask)
+        mask[self.world.world_indices(worlds)] = True
+        self.world.observe(mask)
         self._masks(mask)
 
     # -- helpers -------------------------------------------------------------------------------
