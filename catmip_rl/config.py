@@ -105,6 +105,20 @@ TRAIN_PRESETS: dict[str, TrainConfig] = {
     "paper": TrainConfig(),
     "paper-sync": TrainConfig(env_overrides={"synchronous": True}),
     "paper-smallma": TrainConfig(env_overrides={"window": 5}, amat={"window": 5}),
+    # minutes on 2 cores: a 12x12 map, two robots, d = 64, more and larger PPO steps than the paper;
+    # the slow learning test trains it and checks it beats the random policy clearly
+    "small": TrainConfig(
+        env_overrides={"map_size": 12, "team": ["rescuer", "explorer"], "horizon_ticks": 80},
+        amat={"embed_dim": 64},
+        num_worlds=64,
+        iterations=100,
+        epochs=6,
+        minibatches=4,
+        lr=5e-4,
+        clip=0.1,
+        eval_every=20,
+        checkpoint_every=20,
+    ),
     # a minute-scale smoke run: a small map, two robots, a small AMAT
     "tiny": TrainConfig(
         env_overrides={"map_size": 12, "team": ["rescuer", "explorer"], "horizon_ticks": 60},
