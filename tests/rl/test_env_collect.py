@@ -2,7 +2,6 @@
 
 import numpy as np
 import torch
-from torchrl.envs.libs.pettingzoo import PettingZooWrapper  # noqa: F401  (the wrapper path stays importable)
 from torchrl.envs.utils import check_env_specs
 
 from catmip_env import make_config
