@@ -28,7 +28,16 @@ from catmip_env.mapgen import Episode, generate
 from catmip_env.observe import observe as build_observations
 from catmip_env.rng import seed_state
 from catmip_env.sensing import RAY_NBLOCK, VIEW_BLOCKERS, VIEW_OFFSETS
-from catmip_env.types import CLUE, EXPLORED, OBSTACLE, TARGET, WALL, global_channels, local_channels
+from catmip_env.types import (
+    CLUE,
+    EXPLORED,
+    OBSTACLE,
+    TARGET,
+    TARGET_BIT,
+    WALL,
+    global_channels,
+    local_channels,
+)
 
 __all__ = ["WorldState", "BatchedEngine", "StepResult"]
 
@@ -312,7 +321,7 @@ class BatchedEngine:
         """(B, N) bool: which robots' beliefs contain the target cell."""
         st = self.state
         b = np.arange(self.num_worlds)
-        return (st.belief[b, :, st.target[:, 0], st.target[:, 1]] & 8) != 0
+        return (st.belief[b, :, st.target[:, 0], st.target[:, 1]] & TARGET_BIT) != 0
 
     def explored_fraction(self) -> np.ndarray:
         """(B,) fraction of the interior cells (outer wall ring excluded) the team has explored."""

@@ -72,10 +72,14 @@ def build_batch(r: Rollout, value_norm: ValueNorm, gamma: float, lam: float, n_c
 
 
 @torch.no_grad()
-def evaluate_policy(model: AMAT, cfg: TrainConfig, device: torch.device) -> dict[str, float]:
-    """Deterministic episodes of the training task with evaluation activation on a fixed map set."""
-    col = Collector(cfg.eval_env_config(), cfg.eval_episodes, cfg.eval_seed, cfg.gamma, str(device))
-    return col.collect(model, first_episode=0, deterministic=True).stats
+def evaluate_policy(
+    model: AMAT, cfg: TrainConfig, device: torch.device, collector: Collector | None = None
+) -> dict[str, float]:
+    """Deterministic episodes of the training task with evaluation activation on a fixed map set
+    (pass the ``collector`` of a previous call to reuse its storage)."""
+    if collector is None:
+        collector = Collector(cfg.eval_env_config(), cfg.eval_episodes, cfg.eval_seed, cfg.gamma, str(device))
+    return collector.collect(model, first_episode=0, deterministic=True).stats
 
 
 def _save(path: Path, it: int, episodes: int, model, opt, sched, value_norm, gen, cfg) -> None:
@@ -156,6 +160,9 @@ def train(cfg: TrainConfig, run_dir: str | Path, resume: bool = False, progress:
     opt = torch.optim.Adam(model.parameters(), lr=cfg.lr, eps=cfg.adam_eps)
     sched = torch.optim.lr_scheduler.LambdaLR(opt, lambda it: max(0.0, 1.0 - it / cfg.iterations))
     value_norm = ValueNorm().to(device)
+    evaluator = None
+    if cfg.eval_every:
+        evaluator = Collector(cfg.eval_env_config(), cfg.eval_episodes, cfg.eval_seed, cfg.gamma, str(device))
     start, episodes = 0, 0
     if resume:
         model.load_state_dict(saved["model"])
@@ -204,7 +211,7 @@ def train(cfg: TrainConfig, run_dir: str | Path, resume: bool = False, progress:
         row |= {f"rollout/{k}": v for k, v in rollout.stats.items() if f"rollout/{k}" in METRICS}
         row |= {"time/collect_s": t1 - t0, "time/advantage_s": t2 - t1, "time/update_s": t3 - t2}
         if cfg.eval_every and (it % cfg.eval_every == 0 or it == cfg.iterations):
-            ev = evaluate_policy(model, cfg, device)
+            ev = evaluate_policy(model, cfg, device, evaluator)
             row |= {f"eval/{k}": ev[k] for k in ("success_rate", "rescue_tick", "target_found_tick",
                                                  "explored_fraction")}  # fmt: skip
         row["time/iteration_s"] = time.perf_counter() - t0
