@@ -44,8 +44,16 @@ def save_model(model: AMAT, path: str | Path, extra: dict[str, Any] | None = Non
 
 
 def load_model(path: str | Path, map_location: str | torch.device = "cpu") -> AMAT:
-    """Rebuild the model from a checkpoint written by :func:`save_model` (on CPU by default)."""
-    blob = torch.load(Path(path), map_location=map_location, weights_only=True)
+    """Rebuild the model (on CPU by default) from a file written by :func:`save_model`, a training
+    checkpoint (``RUN_DIR/checkpoints/*.pt``) or a training run dir (its latest checkpoint)."""
+    path = Path(path)
+    if path.is_dir():
+        path = path / "checkpoints" / "latest.pt"
+    if not path.is_file():
+        raise FileNotFoundError(f"no AMAT checkpoint at {path}")
+    blob = torch.load(path, map_location=map_location, weights_only=True)
+    if isinstance(blob, dict) and "model" in blob and "amat_config" in blob:  # a training checkpoint
+        blob = {"format": FORMAT, "config": blob["amat_config"], "state_dict": blob["model"]}
     if not isinstance(blob, dict) or blob.get("format") != FORMAT:
         raise ValueError(f"{path} is not an AMAT checkpoint (expected format {FORMAT!r})")
     model = AMAT(AmatConfig.from_dict(blob["config"]))

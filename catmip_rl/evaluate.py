@@ -1,0 +1,416 @@
+"""Evaluation protocol of the paper's Section 7 (SPEC §8): one setting, one method, N episodes.
+
+    setting = EvalSetting("task2", comm="4", noise=0.05, max_ma_ticks=10)
+    result = evaluate("amat:runs/a/checkpoints/latest.pt", setting, episodes=100, seed=0)
+    result.summary["success_by_100"], result.curve  # success rate vs mission time
+    result.write("out/eval")                         # episodes.csv/json, curve.csv, summary.json
+
+Every method plays the maps of episode indices ``0 .. episodes-1`` of ``seed`` (a map depends only on
+the task, the seed and the episode index), with evaluation activation (0, 0). Planners choose cells
+on their own robot's belief. AMAT acts deterministically (argmax) and is executed as it would be on the
+robots (:class:`AmatExecutor`): in every neighbourhood with an active robot the coordinator (lowest
+id) runs encoder + decoder on the members' embeddings only; a robot out of communication decides alone.
+Messages are counted per decision event: each non-coordinator member sends its embedding (d float32)
+and each active non-coordinator member receives its goal; ``bytes_raw`` is the same traffic with raw
+macro-observations instead of embeddings.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+import zlib
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from catmip_env import EnvConfig, make_config
+from catmip_env.baselines import PLANNERS, make_planner
+from catmip_env.events import EventEngine
+from catmip_rl.amat import AMAT, decision_order
+from catmip_rl.checkpoint import load_model
+from catmip_rl.distributed import message_bytes
+from catmip_rl.files import atomic_write_csv, atomic_write_text
+
+__all__ = [
+    "EvalSetting",
+    "EvalResult",
+    "AmatExecutor",
+    "Method",
+    "parse_method",
+    "evaluate",
+    "success_curve",
+    "map_hash",
+    "render_episode",
+    "TASKS",
+    "COMM_SETTINGS",
+]
+
+TASKS = ("task1", "task2", "task3")
+COMM_SETTINGS = {"full": None, "4": 4.0, "2": 2.0}
+GOAL_BYTES = 2
+"""A goal message: the window index (D^2 <= 65,536) as an unsigned 16-bit integer."""
+
+
+@dataclass(frozen=True)
+class EvalSetting:
+    """One cell of the paper's grid: task, communication, SLAM noise, macro-action length."""
+
+    task: str = "task1"
+    comm: str = "full"
+    """"full" or the link range sigma in cells ("4", "2", any positive number)."""
+    noise: float = 0.0
+    max_ma_ticks: int = 10
+
+    def __post_init__(self) -> None:
+        if self.task not in TASKS:
+            raise ValueError(f"unknown task {self.task!r}; choose one of {list(TASKS)}")
+        comm_sigma(self.comm)
+        if not 0.0 <= self.noise < 1.0:
+            raise ValueError(f"noise must be in [0, 1), got {self.noise!r}")
+        if not isinstance(self.max_ma_ticks, int) or self.max_ma_ticks < 1:
+            raise ValueError(f"max_ma_ticks must be an int >= 1, got {self.max_ma_ticks!r}")
+
+    def env_config(self, window: int | None = None) -> EnvConfig:
+        """The task's evaluation config (activation (0, 0)); ``window`` = the policy's goal window D."""
+        extra = {} if window is None else {"window": window}
+        return make_config(
+            self.task,
+            comm_sigma=comm_sigma(self.comm),
+            slam_noise=float(self.noise),
+            max_ma_ticks=self.max_ma_ticks,
+            **extra,
+        )
+
+    @property
+    def label(self) -> str:
+        comm = "full" if comm_sigma(self.comm) is None else f"sigma{self.comm}"
+        return f"{self.task}-{comm}-noise{self.noise:g}-ma{self.max_ma_ticks}"
+
+
+def comm_sigma(comm: str | float | None) -> float | None:
+    """``"full"``/None -> None, ``"4"`` -> 4.0; anything else raises."""
+    if comm is None or comm == "full":
+        return None
+    try:
+        sigma = float(comm)
+    except (TypeError, ValueError):
+        raise ValueError(f"comm must be 'full' or a positive range sigma, got {comm!r}") from None
+    if not sigma > 0:
+        raise ValueError(f"comm must be 'full' or a positive range sigma, got {comm!r}")
+    return sigma
+
+
+# -- methods ------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class Method:
+    """``name`` as written on plots; ``kind`` "planner" or "amat"; ``target`` the planner's name or
+    the AMAT checkpoint path."""
+
+    name: str
+    kind: str
+    target: str
+
+
+def parse_method(spec: str) -> Method:
+    """``nearest`` | ``utility`` | ``rrt`` | ``apf`` | ``random-frontier`` | ``random`` |
+    ``amat:PATH`` | ``NAME=amat:PATH`` (PATH: a model file, a training checkpoint or a run dir)."""
+    spec = spec.strip()
+    name = None
+    if "=" in spec:
+        name, spec = (s.strip() for s in spec.split("=", 1))
+    if spec.startswith("amat:"):
+        path = spec[len("amat:") :]
+        if not path:
+            raise ValueError("amat method needs a checkpoint: amat:PATH")
+        if not Path(path).exists():
+            raise FileNotFoundError(f"AMAT checkpoint {path!r} does not exist")
+        return Method(name or "amat", "amat", path)
+    if spec not in PLANNERS:
+        raise ValueError(f"unknown method {spec!r}; choose amat:PATH or one of {sorted(PLANNERS)}")
+    return Method(name or spec, "planner", spec)
+
+
+class AmatExecutor:
+    """Distributed execution of an AMAT policy over a batch of worlds of an :class:`EventEngine`
+    (window goal mode), with message accounting.
+
+    At an event, every robot of a live world embeds its own macro-observation (one batched call). For
+    every neighbourhood with an active robot, its members' tokens (ascending id) form one row of a
+    padded batch; encoder and decoder run on each row with the other rows' robots invisible (padding
+    masked). With full communication there is one neighbourhood per world and the decision equals the
+    centralised one exactly.
+    """
+
+    def __init__(self, model: AMAT, deterministic: bool = True, generator: torch.Generator | None = None):
+        self.model = model.eval()
+        self.deterministic = deterministic
+        self.generator = generator
+        self.messages = self.bytes_embedding = self.bytes_raw = None
+
+    def reset_counters(self, num_worlds: int) -> None:
+        self.messages = np.zeros(num_worlds, np.int64)
+        self.bytes_embedding = np.zeros(num_worlds, np.int64)
+        self.bytes_raw = np.zeros(num_worlds, np.int64)
+
+    @torch.no_grad()
+    def act(self, engine: EventEngine) -> np.ndarray:
+        """Goal actions (B, N) of the active robots of live worlds (others: anything valid)."""
+        if engine.goal_mode != "window" or engine.cfg.window != self.model.config.window:
+            raise ValueError(
+                f"AMAT with window {self.model.config.window} needs an EventEngine in window mode with "
+                f"window {self.model.config.window}, got {engine.goal_mode!r} / {engine.cfg.window}"
+            )
+        if self.messages is None or self.messages.shape[0] != engine.num_worlds:
+            self.reset_counters(engine.num_worlds)
+        st = engine.state
+        n = engine.num_robots
+        actions = engine.masks.argmax(-1).astype(np.int64)
+        active = engine.active & ~st.done[:, None]
+        if not active.any():
+            return actions
+        # one row per neighbourhood (= component label, its lowest id) with an active member
+        bb, ii = np.nonzero(active)
+        has_active = np.zeros((engine.num_worlds, n), np.bool_)
+        has_active[bb, st.comp[bb, ii]] = True
+        b_of_row, label = np.nonzero(has_active)
+        member = st.comp[b_of_row] == label[:, None]  # (R, N), members in ascending id
+        r = len(b_of_row)
+        slot = np.cumsum(member, axis=1) - 1  # position of each member inside its row
+        row_idx, robot = np.nonzero(member)
+        pos = slot[row_idx, robot]
+        world = b_of_row[row_idx]
+        # every member embeds its own macro-observation (robots of other neighbourhoods need not)
+        c = engine.cfg.num_classes
+        cls = torch.nn.functional.one_hot(torch.from_numpy(st.cls[world, robot]), c).float()
+        tokens = self.model.embed(
+            {
+                "global_map": torch.from_numpy(engine.obs_global[world, robot])[None],
+                "local_map": torch.from_numpy(engine.obs_local[world, robot])[None],
+                "agent_class": cls[None],
+            }
+        )[0]  # (K, d)
+        tok = tokens.new_zeros(r, n, tokens.shape[-1])
+        tok[row_idx, pos] = tokens
+        padding = torch.ones(r, n, dtype=torch.bool)
+        padding[row_idx, pos] = False
+        act_rows = torch.zeros(r, n, dtype=torch.bool)
+        act_rows[row_idx, pos] = torch.from_numpy(active[world, robot])
+        mask_rows = torch.zeros(r, n, engine.num_actions, dtype=torch.bool)
+        mask_rows[:, :, engine.stay_action] = True  # padding slots: any single valid entry
+        mask_rows[row_idx, pos] = torch.from_numpy(engine.masks[world, robot].astype(np.bool_))
+        cls_rows = torch.zeros(r, n, c)
+        cls_rows[row_idx, pos] = cls
+        rep, _ = self.model.encode(tok, key_padding_mask=padding)
+        order = decision_order(act_rows, padding)
+        a, _ = self.model.decode_autoregressive(
+            rep, mask_rows, order, act_rows, cls_rows, deterministic=self.deterministic,
+            generator=self.generator,
+        )  # fmt: skip
+        chosen = a[row_idx, pos].numpy()
+        is_active = act_rows[row_idx, pos].numpy()
+        actions[world[is_active], robot[is_active]] = chosen[is_active]
+        self._count(engine, b_of_row, member, active)
+        return actions
+
+    def _count(self, engine: EventEngine, b_of_row: np.ndarray, member: np.ndarray, active: np.ndarray):
+        sizes = message_bytes(self.model.config, engine.shape)
+        for k, b in enumerate(b_of_row):
+            ids = np.flatnonzero(member[k])
+            others = ids[1:]  # the coordinator is the lowest id
+            n_goals = int(active[b, others].sum())
+            self.messages[b] += len(others) + n_goals
+            self.bytes_embedding[b] += len(others) * sizes["embedding"] + n_goals * GOAL_BYTES
+            self.bytes_raw[b] += len(others) * sizes["raw_float32"] + n_goals * GOAL_BYTES
+
+
+def make_policy(method: Method, seed: int, model: AMAT | None = None):
+    """(policy with ``act(engine)``, goal mode, window) for ``method``."""
+    if method.kind == "planner":
+        return make_planner(method.target, seed=seed), "cell", None
+    model = model if model is not None else load_model(method.target)
+    return AmatExecutor(model), "window", model.config.window
+
+
+# -- results ------------------------------------------------------------------------------------
+def success_curve(rescue_ticks: np.ndarray, horizon: int) -> np.ndarray:
+    """Fraction of episodes rescued by tick t, for t = 0 .. horizon ((horizon + 1,) float)."""
+    ticks = np.asarray(rescue_ticks)
+    rescued = ticks[ticks >= 0]
+    counts = np.bincount(np.minimum(rescued, horizon), minlength=horizon + 1)
+    return np.cumsum(counts) / max(len(ticks), 1)
+
+
+@dataclass
+class EvalResult:
+    method: str
+    setting: EvalSetting
+    seed: int
+    episodes: list[dict[str, Any]]
+    curve: np.ndarray
+    summary: dict[str, Any] = field(default_factory=dict)
+
+    def write(self, out: str | Path) -> Path:
+        """``episodes.csv``, ``episodes.json``, ``curve.csv``, ``summary.json`` in ``out`` (atomic)."""
+        out = Path(out)
+        out.mkdir(parents=True, exist_ok=True)
+        atomic_write_text(out / "episodes.json", json.dumps(self.episodes, indent=1))
+        atomic_write_csv(out / "episodes.csv", self.episodes)
+        atomic_write_csv(
+            out / "curve.csv", [{"tick": t, "success_rate": float(v)} for t, v in enumerate(self.curve)]
+        )
+        atomic_write_text(out / "summary.json", json.dumps(self.summary, indent=2))
+        return out
+
+
+def _progress(total: int, desc: str, enabled: bool):
+    if not enabled:
+        return None
+    try:
+        from tqdm import tqdm
+    except ImportError:
+        return None
+    return tqdm(total=total, desc=desc, unit="ep", leave=False, mininterval=0.5)
+
+
+def evaluate(
+    method: str | Method,
+    setting: EvalSetting,
+    episodes: int = 100,
+    seed: int = 0,
+    model: AMAT | None = None,
+    progress: bool = False,
+    engine_hook=None,
+) -> EvalResult:
+    """Play ``episodes`` maps of ``setting`` (episode indices 0.. of ``seed``) with ``method``.
+
+    ``model`` overrides loading the AMAT checkpoint; ``engine_hook(engine)`` is called after every
+    event (for rendering or inspection).
+    """
+    method = parse_method(method) if isinstance(method, str) else method
+    if not isinstance(episodes, int) or episodes < 1:
+        raise ValueError(f"episodes must be an int >= 1, got {episodes!r}")
+    policy, goal_mode, window = make_policy(method, seed, model)
+    cfg = setting.env_config(window)
+    eng = EventEngine(cfg, num_worlds=episodes, seed=seed, goal_mode=goal_mode)
+    eng.reset(episode_indices=np.arange(episodes))
+    maps = [map_hash(eng, e) for e in range(episodes)]
+    if isinstance(policy, AmatExecutor):
+        policy.reset_counters(episodes)
+    decisions = np.zeros(episodes, np.int64)
+    events = np.zeros(episodes, np.int64)
+    bar = _progress(episodes, f"{method.name} {setting.label}", progress)
+    t0 = time.perf_counter()
+    while not eng.state.done.all():
+        live = ~eng.state.done
+        decisions += (eng.active & live[:, None]).sum(1)
+        events += live
+        eng.step(policy.act(eng))
+        if engine_hook is not None:
+            engine_hook(eng)
+        if bar is not None and int(eng.state.done.sum()) > bar.n:
+            bar.update(int(eng.state.done.sum()) - bar.n)
+    if bar is not None:
+        bar.close()
+    seconds = time.perf_counter() - t0
+    st = eng.state
+    explored = eng.world.explored_fraction()
+    rows = []
+    for e in range(episodes):
+        row = {
+            "method": method.name,
+            "task": setting.task,
+            "comm": setting.comm,
+            "noise": setting.noise,
+            "max_ma_ticks": setting.max_ma_ticks,
+            "seed": seed,
+            "episode": e,
+            "map_hash": maps[e],
+            "rescued": bool(st.rescue_tick[e] >= 0),
+            "rescue_tick": int(st.rescue_tick[e]) if st.rescue_tick[e] >= 0 else None,
+            "target_found_tick": int(st.found_tick[e]) if st.found_tick[e] >= 0 else None,
+            "explored_fraction": float(explored[e]),
+            "ticks": int(st.ticks[e]),
+            "events": int(events[e]),
+            "decisions": int(decisions[e]),
+        }
+        if isinstance(policy, AmatExecutor):
+            row.update(
+                messages=int(policy.messages[e]),
+                bytes_embedding=int(policy.bytes_embedding[e]),
+                bytes_raw=int(policy.bytes_raw[e]),
+            )
+        else:  # planners decide on the robot's own (C-SLAM merged) belief: no decision messages
+            row.update(messages=0, bytes_embedding=0, bytes_raw=0)
+        rows.append(row)
+    curve = success_curve(st.rescue_tick, cfg.horizon_ticks)
+    result = EvalResult(method.name, setting, seed, rows, curve)
+    result.summary = summarise(rows, curve, cfg.horizon_ticks)
+    result.summary.update(
+        method=method.name,
+        method_kind=method.kind,
+        checkpoint=method.target if method.kind == "amat" else None,
+        setting=asdict(setting),
+        label=setting.label,
+        seed=seed,
+        seconds=seconds,
+    )
+    return result
+
+
+def map_hash(engine: EventEngine, b: int) -> str:
+    """CRC-32 (hex) of world ``b``'s map, target and start poses: equal hashes = the same episode."""
+    st = engine.state
+    parts = (st.grid[b], st.target[b], st.pos[b], st.heading[b], st.cls[b])
+    return f"{zlib.crc32(b''.join(np.ascontiguousarray(p).tobytes() for p in parts)):08x}"
+
+
+def summarise(rows: list[dict[str, Any]], curve: np.ndarray, horizon: int) -> dict[str, Any]:
+    """Success rates, mean ticks, explored fraction and message sizes over the episodes of ``rows``."""
+
+    def mean(key: str) -> float | None:
+        vals = [r[key] for r in rows if r[key] is not None]
+        return float(np.mean(vals)) if vals else None
+
+    decisions = sum(r["decisions"] for r in rows)
+    return {
+        "episodes": len(rows),
+        "horizon": horizon,
+        "success_rate": float(curve[-1]),
+        "success_by_100": float(curve[min(100, horizon)]),
+        "mean_rescue_tick": mean("rescue_tick"),
+        "mean_target_found_tick": mean("target_found_tick"),
+        "target_found_rate": float(np.mean([r["target_found_tick"] is not None for r in rows])),
+        "mean_explored_fraction": mean("explored_fraction"),
+        "decisions": decisions,
+        "bytes_per_decision_embedding": sum(r["bytes_embedding"] for r in rows) / max(decisions, 1),
+        "bytes_per_decision_raw": sum(r["bytes_raw"] for r in rows) / max(decisions, 1),
+    }
+
+
+def render_episode(
+    method: str | Method,
+    setting: EvalSetting,
+    path: str | Path,
+    episode: int = 0,
+    seed: int = 0,
+    fps: int = 6,
+    max_frames: int = 600,
+    model: AMAT | None = None,
+) -> Path:
+    """GIF of one evaluation episode (the map of ``episode`` of ``seed``, as in :func:`evaluate`),
+    one frame per tick: robots, their goals, explored area, communication links."""
+    from catmip_env.render import render_world, save_gif
+
+    method = parse_method(method) if isinstance(method, str) else method
+    policy, goal_mode, window = make_policy(method, seed, model)
+    eng = EventEngine(setting.env_config(window), num_worlds=1, seed=seed, goal_mode=goal_mode)
+    eng.reset(episode_indices=[episode])
+    frames = [render_world(eng.world, 0)]
+    while not eng.state.done[0] and len(frames) < max_frames:
+        eng.step(policy.act(eng), max_ticks=1)  # pause after every tick to draw it
+        frames.append(render_world(eng.world, 0))
+    return save_gif(frames, path, fps=fps)

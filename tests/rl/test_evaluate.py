@@ -1,0 +1,227 @@
+"""Evaluation protocol, distributed execution, paper-figure runs, rendering and their CLI."""
+
+from __future__ import annotations
+
+import csv
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from catmip_env.events import EventEngine
+from catmip_rl import AMAT, AmatConfig, save_model
+from catmip_rl.amat import decision_order
+from catmip_rl.cli import main as cli
+from catmip_rl.distributed import message_bytes
+from catmip_rl.evaluate import (
+    GOAL_BYTES,
+    AmatExecutor,
+    EvalSetting,
+    evaluate,
+    parse_method,
+    render_episode,
+    success_curve,
+)
+from catmip_rl.paper import FIGURES, run_figure
+
+
+def _sharp_model(window: int = 7, seed: int = 0) -> AMAT:
+    """A small AMAT whose policy logits are far apart (no near-ties for argmax to flip on)."""
+    torch.manual_seed(seed)
+    model = AMAT(AmatConfig(window=window, embed_dim=32))
+    with torch.no_grad():
+        model.policy_head[3].weight.mul_(300.0)
+    return model.eval()
+
+
+@pytest.fixture(scope="module")
+def ckpt(tmp_path_factory):
+    return str(save_model(_sharp_model(), tmp_path_factory.mktemp("m") / "model.pt"))
+
+
+def test_evaluation_is_reproducible(ckpt):
+    setting = EvalSetting("task1", "2", 0.05)
+    for method in ("nearest", f"amat:{ckpt}"):
+        a = evaluate(method, setting, episodes=3, seed=4)
+        b = evaluate(method, setting, episodes=3, seed=4)
+        assert a.episodes == b.episodes
+        np.testing.assert_array_equal(a.curve, b.curve)
+
+
+def test_every_method_sees_the_same_maps(ckpt, tmp_path):
+    small_window = save_model(_sharp_model(window=5), tmp_path / "d5.pt")
+    setting = EvalSetting("task2", "4")
+    hashes = {}
+    for method in ("nearest", "rrt", "random", f"amat:{ckpt}", f"amat:{small_window}"):
+        res = evaluate(method, setting, episodes=3, seed=11)
+        hashes[method] = [r["map_hash"] for r in res.episodes]
+    assert len({tuple(h) for h in hashes.values()}) == 1
+    assert len(set(hashes["nearest"])) == 3  # three different maps
+    other = evaluate("nearest", setting, episodes=3, seed=12)
+    assert [r["map_hash"] for r in other.episodes] != hashes["nearest"]
+    # a map depends on the episode index only: episode 1 alone equals episode 1 of the batch
+    eng = EventEngine(setting.env_config(), 1, seed=11)
+    eng.reset(episode_indices=[1])
+    from catmip_rl.evaluate import map_hash
+
+    assert map_hash(eng, 0) == hashes["nearest"][1]
+
+
+def test_curve_is_monotone_and_matches_the_episodes(ckpt):
+    res = evaluate("random", EvalSetting("task1"), episodes=8, seed=2)
+    curve = res.curve
+    assert curve.shape == (301,)
+    assert np.all(np.diff(curve) >= 0)
+    ticks = [r["rescue_tick"] for r in res.episodes]
+    for t in (0, 50, 100, 200, 300):
+        assert curve[t] == pytest.approx(np.mean([x is not None and x <= t for x in ticks]))
+    assert res.summary["success_rate"] == pytest.approx(np.mean([r["rescued"] for r in res.episodes]))
+    assert res.summary["success_by_100"] == curve[100]
+    np.testing.assert_array_equal(success_curve(np.array([-1, 3, 3, 5]), 5), [0, 0, 0, 0.5, 0.5, 0.75])
+
+
+def _centralised(model: AMAT, eng: EventEngine) -> np.ndarray:
+    st = eng.state
+    obs = {
+        "global_map": torch.from_numpy(eng.obs_global),
+        "local_map": torch.from_numpy(eng.obs_local),
+        "agent_class": torch.nn.functional.one_hot(torch.from_numpy(st.cls), 2).float(),
+    }
+    active = torch.from_numpy(eng.active & ~st.done[:, None])
+    with torch.no_grad():
+        rep, _ = model.encode(model.embed(obs))
+        a, _ = model.decode_autoregressive(
+            rep, torch.from_numpy(eng.masks), decision_order(active), active, obs["agent_class"], True
+        )
+    return np.where(active.numpy(), a.numpy(), eng.masks.argmax(-1))
+
+
+@pytest.mark.parametrize("task", ["task1", "task2"])
+def test_distributed_execution_equals_centralised_under_full_communication(task):
+    model = _sharp_model()
+    eng = EventEngine(EvalSetting(task).env_config(), 3, seed=5)
+    eng.reset()
+    executor = AmatExecutor(model)
+    compared = 0
+    for _ in range(40):
+        if eng.state.done.all():
+            break
+        live_active = eng.active & ~eng.state.done[:, None]
+        want = _centralised(model, eng)
+        got = executor.act(eng)
+        np.testing.assert_array_equal(got[live_active], want[live_active])
+        compared += int(live_active.sum())
+        eng.step(got)
+    assert compared > 40
+
+
+def test_distributed_execution_splits_neighbourhoods():
+    """Under partial communication each neighbourhood decides on its own members' tokens only, and
+    the messages are counted per neighbourhood."""
+    model = _sharp_model()
+    cfg = EvalSetting("task3", "2").env_config()
+    eng = EventEngine(cfg, 2, seed=1)
+    eng.reset()
+    executor = AmatExecutor(model)
+    seen_split = False
+    for _ in range(30):
+        st = eng.state
+        active = eng.active & ~st.done[:, None]
+        before = executor.messages.copy() if executor.messages is not None else np.zeros(2, np.int64)
+        got = executor.act(eng)
+        sizes = message_bytes(model.config, eng.shape)
+        for b in range(2):
+            expect_msgs, expect_bytes = 0, 0
+            for label in np.unique(st.comp[b]):
+                members = np.flatnonzero(st.comp[b] == label)
+                if not active[b, members].any():
+                    continue
+                seen_split |= len(members) < cfg.num_robots
+                sub = {
+                    "global_map": torch.from_numpy(eng.obs_global[b, members])[None],
+                    "local_map": torch.from_numpy(eng.obs_local[b, members])[None],
+                    "agent_class": torch.nn.functional.one_hot(
+                        torch.from_numpy(st.cls[b, members]), 2
+                    ).float()[None],
+                }
+                act = torch.from_numpy(active[b, members])[None]
+                with torch.no_grad():
+                    rep, _ = model.encode(model.embed(sub))
+                    a, _ = model.decode_autoregressive(
+                        rep, torch.from_numpy(eng.masks[b, members])[None], decision_order(act), act,
+                        sub["agent_class"], True,
+                    )  # fmt: skip
+                sel = active[b, members]
+                np.testing.assert_array_equal(got[b, members][sel], a[0].numpy()[sel])
+                others = members[1:]
+                goals = int(active[b, others].sum())
+                expect_msgs += len(others) + goals
+                expect_bytes += len(others) * sizes["embedding"] + goals * GOAL_BYTES
+            assert executor.messages[b] - before[b] == expect_msgs
+        eng.step(got)
+    assert seen_split, "no event with more than one neighbourhood: pick another seed"
+    assert executor.bytes_raw.sum() > 20 * executor.bytes_embedding.sum() > 0
+
+
+def test_parse_method_errors(tmp_path):
+    assert parse_method("rrt").kind == "planner"
+    assert parse_method("best=nearest").name == "best"
+    with pytest.raises(ValueError, match="unknown method"):
+        parse_method("astar")
+    with pytest.raises(FileNotFoundError, match="does not exist"):
+        parse_method(f"amat:{tmp_path / 'none.pt'}")
+    with pytest.raises(ValueError, match="comm"):
+        EvalSetting("task1", "far")
+    with pytest.raises(ValueError, match="unknown task"):
+        EvalSetting("task9")
+
+
+def test_write_and_cli_eval(ckpt, tmp_path, capsys):
+    assert cli(["eval", "--method", f"amat:{ckpt}", "--task", "task1", "--comm", "4", "--episodes", "2",
+                "--out", str(tmp_path / "e"), "--no-progress", "--threads", "1"]) == 0  # fmt: skip
+    out = capsys.readouterr().out
+    assert "bytes with embeddings" in out
+    summary = json.loads((tmp_path / "e" / "summary.json").read_text())
+    assert summary["episodes"] == 2 and summary["setting"]["comm"] == "4"
+    with open(tmp_path / "e" / "episodes.csv") as f:
+        rows = list(csv.DictReader(f))
+    assert len(rows) == 2 and {"rescue_tick", "target_found_tick", "explored_fraction", "bytes_raw"} <= set(
+        rows[0]
+    )
+    assert cli(["eval", "--method", "dijkstra", "--out", str(tmp_path / "x")]) == 2
+    assert "unknown method" in capsys.readouterr().err
+
+
+def test_figure_runs_on_a_tiny_budget(ckpt, tmp_path):
+    fig_dir = run_figure(11, ["nearest", f"learned=amat:{ckpt}"], episodes=2, out=tmp_path, progress=False)
+    assert (fig_dir / "fig11.png").stat().st_size > 1000
+    with open(fig_dir / "curves.csv") as f:
+        rows = list(csv.DictReader(f))
+    assert {r["panel"] for r in rows} == {p for p, _ in FIGURES[11][1]}
+    assert {r["method"] for r in rows} == {"nearest", "learned"}
+    # the plotted curve is the per-episode data
+    for panel, setting in FIGURES[11][1]:
+        episodes = json.loads((fig_dir / setting.label / "nearest" / "episodes.json").read_text())
+        curve = [float(r["success_rate"]) for r in rows if r["panel"] == panel and r["method"] == "nearest"]
+        assert len(curve) == 401
+        assert np.all(np.diff(curve) >= 0)
+        assert curve[-1] == np.mean([e["rescued"] for e in episodes])
+    marl = json.loads((fig_dir / "marl_eval.json").read_text())
+    run = marl["catmip-fig11"]["task2-full-noise0-ma5"]["learned"]["seed_0"]
+    assert len(run["step_0"]["success"]) == 2 and "success_rate" in run["absolute_metrics"]
+
+
+@pytest.mark.parametrize("figure", sorted(FIGURES))
+def test_cli_bench_paper_every_figure(figure, tmp_path):
+    assert cli(["bench", "paper", "--figure", str(figure), "--methods", "nearest", "--episodes", "1",
+                "--jobs", "1", "--out", str(tmp_path)]) == 0  # fmt: skip
+    assert (tmp_path / f"fig{figure}" / f"fig{figure}.png").exists()
+
+
+def test_render_gif(ckpt, tmp_path):
+    iio = pytest.importorskip("imageio.v3")
+    path = render_episode(f"amat:{ckpt}", EvalSetting("task1", "2"), tmp_path / "ep.gif", max_frames=25)
+    frames = iio.imread(path)
+    assert frames.shape[0] == 25 and frames.shape[-1] == 3
+    assert cli(["render", "--method", "nearest", "--out", str(tmp_path / "n.gif"), "--threads", "1"]) == 0
