@@ -60,7 +60,7 @@ def bench_engine(preset: str, num_worlds: int, seconds: float, **overrides) -> d
 
 
 def bench_pettingzoo(preset: str, seconds: float, **overrides) -> dict:
-    env = search_rescue_v0.parallel_env(preset=preset, **overrides)
+    env = search_rescue_v0.parallel_env(preset=preset, level="primitive", **overrides)
     env.reset(seed=0)
     rng = np.random.default_rng(0)
     pool = [

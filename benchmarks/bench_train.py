@@ -1,12 +1,13 @@
 """Seconds per training iteration of the paper recipe, split into collection / advantages / update.
 
-    python benchmarks/bench_train.py [--iterations 2] [--epochs 10] [--out benchmarks/results/train.json]
+    python benchmarks/bench_train.py [--iterations 2] [--epochs 10 2] [--worlds 64] [--bf16]
+                                     [--out benchmarks/results/train.json]
 
 One iteration = 64 ``train``-preset episodes (20x20, 3 robots, horizon 200, activation (2, 5)) collected
 by the async-aware collector, asynchronous GAE, and ``--epochs`` full-batch PPO epochs, on ``--threads``
 torch threads (2 = the whole machine). Reports env-steps/s end to end (decision events of all worlds
-per second of iteration) for the 10-epoch recipe and a 2-epoch one, in fp32 and, with ``--bf16``, CPU
-bf16 autocast for the update.
+per second of iteration, and world-ticks per second) for the 10-epoch recipe and a 2-epoch one, in fp32
+and, with ``--bf16``, CPU bf16 autocast for the update (the PPO loss's forward pass; collection in fp32).
 """
 
 from __future__ import annotations
@@ -16,38 +17,75 @@ import csv
 import platform
 import shutil
 import tempfile
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import torch
 from common import write_json
 
+import catmip_rl.train as train_module
 from catmip_rl.config import make_train_config
 from catmip_rl.train import train
 
 
-def run(epochs: int, iterations: int, threads: int) -> dict:
-    cfg = make_train_config("paper", iterations=iterations, epochs=epochs, threads=threads,
+@contextmanager
+def instrumented(bf16: bool) -> Iterator[list[dict]]:
+    """Record each rollout's decision events and world-ticks; with ``bf16``, run the PPO loss under
+    CPU bf16 autocast. Wraps the names ``catmip_rl.train`` calls, restored on exit."""
+    seen: list[dict] = []
+    build_batch, ppo_loss = train_module.build_batch, train_module.ppo_loss
+
+    def recording_build_batch(r, *args, **kwargs):
+        seen.append({"events": r.num_samples, "world_ticks": r.stats["episode_ticks"] * r.valid.shape[1]})
+        return build_batch(r, *args, **kwargs)
+
+    def bf16_ppo_loss(*args, **kwargs):
+        with torch.autocast("cpu", dtype=torch.bfloat16):
+            return ppo_loss(*args, **kwargs)
+
+    train_module.build_batch = recording_build_batch
+    if bf16:
+        train_module.ppo_loss = bf16_ppo_loss
+    try:
+        yield seen
+    finally:
+        train_module.build_batch, train_module.ppo_loss = build_batch, ppo_loss
+
+
+def run(epochs: int, iterations: int, threads: int, worlds: int = 64, bf16: bool = False) -> dict:
+    cfg = make_train_config("paper", iterations=iterations, epochs=epochs, threads=threads, num_worlds=worlds,
                             eval_every=0, checkpoint_every=0)  # fmt: skip
     tmp = Path(tempfile.mkdtemp(prefix="catmip_bench_"))
     try:
-        train(cfg, tmp / "run", progress=False)
+        with instrumented(bf16) as seen:
+            train(cfg, tmp / "run", progress=False)
         rows = list(csv.DictReader((tmp / "run" / "metrics.csv").open()))
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
     last = rows[-1]  # the first iteration includes numba/torch warm-up
-    events = float(last["samples"])  # trainable samples; decision events are reported below
+    iteration_s = float(last["time/iteration_s"])
     out = {
         "epochs": epochs,
         "threads": threads,
+        "num_worlds": worlds,
+        "iterations": iterations,
+        "precision": "bf16-autocast" if bf16 else "fp32",
         "collect_s": float(last["time/collect_s"]),
         "advantage_s": float(last["time/advantage_s"]),
         "update_s": float(last["time/update_s"]),
-        "iteration_s": float(last["time/iteration_s"]),
-        "trainable_samples": events,
+        "iteration_s": iteration_s,
+        "trainable_samples": float(last["samples"]),  # trainable (robot, event) samples
+        "decision_events": seen[-1]["events"],
+        "world_ticks": seen[-1]["world_ticks"],
+        "events_per_s": seen[-1]["events"] / iteration_s,
+        "world_ticks_per_s": seen[-1]["world_ticks"] / iteration_s,
     }
     print(
-        f"{epochs:2d} epochs: {out['iteration_s']:.1f} s/iteration (collect {out['collect_s']:.1f}, "
-        f"advantages {out['advantage_s']:.2f}, update {out['update_s']:.1f})"
+        f"{epochs:2d} epochs {out['precision']}: {iteration_s:.1f} s/iteration "
+        f"(collect {out['collect_s']:.1f}, adv. {out['advantage_s']:.2f}, update {out['update_s']:.1f}) "
+        f"{out['events_per_s']:,.0f} decision events/s, {out['world_ticks_per_s']:,.0f} world-ticks/s",
+        flush=True,
     )
     return out
 
@@ -55,16 +93,23 @@ def run(epochs: int, iterations: int, threads: int) -> dict:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--iterations", type=int, default=2, help="the last one is reported")
+    ap.add_argument("--epochs", type=int, nargs="+", default=[10, 2], help="PPO epoch counts to time")
+    ap.add_argument("--worlds", type=int, default=64, help="episodes per iteration (64 = the paper)")
     ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--bf16", action="store_true", help="also time each recipe with bf16 autocast")
     ap.add_argument("--out", default="benchmarks/results/train.json")
     args = ap.parse_args()
+    runs = []
+    for bf16 in (False, True) if args.bf16 else (False,):
+        for epochs in args.epochs:
+            runs.append(run(epochs, args.iterations, args.threads, args.worlds, bf16))
     results = {
         "machine": {
             "python": platform.python_version(),
             "torch": torch.__version__,
             "cpu_capability": torch.backends.cpu.get_cpu_capability(),
         },  # fmt: skip
-        "runs": [run(10, args.iterations, args.threads), run(2, args.iterations, args.threads)],
+        "runs": runs,
     }
     write_json(args.out, results)
 

@@ -1,0 +1,120 @@
+"""benchmarks/run_all.py: the summary judges targets from the measured values; a tiny real run works."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+BENCH = ROOT / "benchmarks"
+
+
+@pytest.fixture(scope="module")
+def run_all():
+    sys.path.insert(0, str(BENCH))  # run_all imports its sibling ``common``
+    try:
+        spec = importlib.util.spec_from_file_location("run_all", BENCH / "run_all.py")
+        mod = importlib.util.module_from_spec(spec)
+        sys.modules["run_all"] = mod  # dataclasses look their module up
+        spec.loader.exec_module(mod)
+        yield mod
+    finally:
+        sys.modules.pop("run_all", None)
+        sys.path.remove(str(BENCH))
+
+
+def _engine(task2: float, task3: float, pz: float) -> dict:
+    row = {"num_worlds": 64, "overrides": {}}
+    return {
+        "engine": [{**row, "preset": "task2", "world_ticks_per_s": task2},
+                   {**row, "preset": "task3", "world_ticks_per_s": task3}],
+        "pettingzoo": [{"preset": "task3", "overrides": {}, "ticks_per_s": pz}],
+    }  # fmt: skip
+
+
+def _write(out: Path, **results: dict) -> None:
+    for name, data in results.items():
+        (out / f"{name}.json").write_text(json.dumps(data))
+
+
+def _status(out: Path) -> dict[str, str]:
+    return {c["label"]: c["status"] for c in json.loads((out / "run_all.json").read_text())["checks"]}
+
+
+def test_summary_marks_targets_from_values(run_all, tmp_path):
+    _write(
+        tmp_path,
+        engine=_engine(task2=99_999.0, task3=40_000.0, pz=12_000.0),
+        amat={"latency": [{"robots": 6, "map": 32, "active": 6, "decision_ms": 1.4}]},
+        train={"runs": [{"epochs": 2, "num_worlds": 64, "precision": "fp32", "collect_s": 2.5,
+                         "advantage_s": 0.1, "update_s": 3.0, "iteration_s": 5.6, "events_per_s": 1_200.0,
+                         "world_ticks_per_s": 5_000.0}]},
+    )  # fmt: skip
+    md, png = run_all.write_summary(tmp_path)
+    status = _status(tmp_path)
+    assert status["task2, B = 64, full comm"] == "**unmet**"  # just below 100,000
+    assert status["task3, B = 64, full comm"] == "met"  # exactly on the target
+    assert status["PettingZoo adapter, slowest setting (task3, full comm)"] == "met"
+    assert status["batch-1 decision, N = 6, S = 32, all active"] == "met"  # 1.4 <= 1.5 ms
+    assert status["collection of 64 episodes"] == "**unmet**"  # 2.5 s > 2 s
+    assert status["env-steps/s end to end, 2 epochs"] == "met"
+    # no 10-epoch run: estimated as collect + advantages + 5 x update = 17.6 s > 15 s
+    est = next(
+        c for c in json.loads((tmp_path / "run_all.json").read_text())["checks"] if "est." in c["label"]
+    )
+    assert est["value"] == pytest.approx(17.6) and est["status"] == "**unmet**"
+    text = md.read_text()
+    assert "Not run (no JSON)" in text  # events and scaling are missing
+    assert "| 99,999 world-ticks/s | ≥ 100,000 world-ticks/s | **unmet** |" in text
+    assert png is not None and png.stat().st_size > 10_000
+
+
+def test_summary_reports_failures_and_ignores_their_stale_json(run_all, tmp_path):
+    _write(tmp_path, engine=_engine(task2=1e6, task3=1e6, pz=1e6))
+    failed = run_all.RunStatus("engine", ran=True, ok=False, returncode=1, command="python x",
+                               error="exit code 1\nTraceback: boom")  # fmt: skip
+    md, _ = run_all.write_summary(tmp_path, {"engine": failed})
+    text = md.read_text()
+    assert "**FAILED**" in text and "Traceback: boom" in text
+    assert "1,000,000" not in text and _status(tmp_path) == {}
+
+
+def test_paper_targets_not_judged_on_other_world_counts(run_all, tmp_path):
+    _write(tmp_path, train={"runs": [{"epochs": 10, "num_worlds": 8, "precision": "fp32", "collect_s": 0.5,
+                                      "advantage_s": 0.0, "update_s": 1.0, "iteration_s": 1.5}]})  # fmt: skip
+    run_all.write_summary(tmp_path)
+    status = _status(tmp_path)
+    assert status["paper-recipe iteration (10 epochs)"] == "n/a"
+    assert status["collection of 64 episodes"] == "n/a"
+
+
+@pytest.mark.slow
+def test_run_all_quick_scaling(tmp_path):
+    """The real thing in a tiny setting: one subprocess, JSON, SUMMARY.md and both PNGs."""
+    tiny = ["--seconds", "0.05", "--pass", "scaling=--maps 15 20 --teams 2 3"]
+    cmd = [
+        sys.executable,
+        str(BENCH / "run_all.py"),
+        "--quick",
+        "--only",
+        "scaling",
+        "--out-dir",
+        str(tmp_path),
+    ]
+    cmd += tiny
+    proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    data = json.loads((tmp_path / "scaling.json").read_text())
+    assert [r["map"] for r in data["curves"]["map_size"]] == [15, 20]
+    assert [r["robots"] for r in data["curves"]["team_size"]] == [2, 3]
+    for row in data["curves"]["map_size"] + data["curves"]["team_size"]:
+        assert row["engine_world_ticks_per_s"] > 0 and row["events_per_s"] > 0 and row["amat_ms"] > 0
+    assert "## Scaling" in (tmp_path / "SUMMARY.md").read_text()
+    for png in ("scaling.png", "summary.png"):
+        assert (tmp_path / png).stat().st_size > 10_000
+    assert not list(tmp_path.glob("*.tmp*"))  # atomic writes leave no temporaries
