@@ -55,6 +55,12 @@ class TrainConfig:
     eval_seed: int = 12_345
     """Seed of the fixed evaluation map set."""
     checkpoint_every: int = 50
+    collector: str = "local"
+    """Where episodes are collected: "local" (this process) or "ray" (Ray workers, the distributed extra)."""
+    ray_workers: int = 2
+    """Ray collector workers; each collects num_worlds / ray_workers worlds per iteration."""
+    ray_address: str | None = None
+    """Ray cluster to join ("auto", "host:port", "ray://host:port"); None starts a local one on loopback."""
 
     def __post_init__(self) -> None:
         for name in ("num_worlds", "iterations", "epochs", "minibatches", "threads", "eval_episodes"):
@@ -70,6 +76,20 @@ class TrainConfig:
             raise ValueError(f"gamma must be in (0, 1] and lam in [0, 1], got {self.gamma}, {self.lam}")
         if self.device not in ("cpu", "cuda") and not self.device.startswith("cuda:"):
             raise ValueError(f"device must be cpu or cuda[:i], got {self.device!r}")
+        if self.collector not in ("local", "ray"):
+            raise ValueError(f"TrainConfig.collector must be 'local' or 'ray', got {self.collector!r}")
+        if not isinstance(self.ray_workers, int) or self.ray_workers < 1:
+            raise ValueError(f"TrainConfig.ray_workers must be an int >= 1, got {self.ray_workers!r}")
+        if self.collector == "ray" and self.num_worlds % self.ray_workers:
+            raise ValueError(
+                f"num_worlds ({self.num_worlds}) must be divisible by ray_workers ({self.ray_workers}): "
+                "each Ray worker collects an equal share of the worlds"
+            )
+        if self.ray_address is not None and (not isinstance(self.ray_address, str) or not self.ray_address):
+            raise ValueError(
+                f"TrainConfig.ray_address must be None, 'auto', 'host:port' or 'ray://host:port', "
+                f"got {self.ray_address!r}"
+            )
         env, amat = self.env_config(), self.amat_config()  # validates both
         if amat.window != env.window:
             raise ValueError(f"AMAT window {amat.window} differs from the env's goal window {env.window}")
@@ -117,6 +137,22 @@ TRAIN_PRESETS: dict[str, TrainConfig] = {
         lr=5e-4,
         clip=0.1,
         eval_every=20,
+        checkpoint_every=20,
+    ),
+    # the README demo's model: the small recipe on the Task-1 world (15x15, rescuer + explorer) with
+    # training activation (2, 5); about 9 iterations a minute on 2 cores
+    "task1": TrainConfig(
+        env_preset="task1",
+        env_overrides={"activation": [2, 5]},
+        amat={"embed_dim": 64},
+        num_worlds=64,
+        iterations=600,
+        epochs=6,
+        minibatches=4,
+        lr=5e-4,
+        clip=0.1,
+        eval_every=50,
+        eval_episodes=64,
         checkpoint_every=20,
     ),
     # a minute-scale smoke run: a small map, two robots, a small AMAT

@@ -155,7 +155,6 @@ def train(cfg: TrainConfig, run_dir: str | Path, resume: bool = False, progress:
     torch.manual_seed(cfg.seed)
     gen = torch.Generator().manual_seed(cfg.seed)
     env_cfg = cfg.env_config()
-    collector = Collector(env_cfg, cfg.num_worlds, cfg.seed, cfg.gamma, str(device))
     model = AMAT(cfg.amat_config()).to(device)
     opt = torch.optim.Adam(model.parameters(), lr=cfg.lr, eps=cfg.adam_eps)
     sched = torch.optim.lr_scheduler.LambdaLR(opt, lambda it: max(0.0, 1.0 - it / cfg.iterations))
@@ -172,6 +171,12 @@ def train(cfg: TrainConfig, run_dir: str | Path, resume: bool = False, progress:
         gen.set_state(saved["generator"])
         torch.set_rng_state(saved["torch_rng"])
         start, episodes = saved["iteration"], saved["episodes"]
+    if cfg.collector == "ray":  # the same episodes, collected by Ray workers (catmip_rl/ray_collect.py)
+        from catmip_rl.ray_collect import RayRolloutCollector
+
+        collector = RayRolloutCollector(cfg, model)
+    else:
+        collector = Collector(env_cfg, cfg.num_worlds, cfg.seed, cfg.gamma, str(device))
     csv_file, csv_writer = _open_csv(run_dir / "metrics.csv", start if resume else None)
     tb = _tensorboard(run_dir)
     bar = None
@@ -181,59 +186,65 @@ def train(cfg: TrainConfig, run_dir: str | Path, resume: bool = False, progress:
         bar = tqdm(total=cfg.iterations, initial=start, desc="train", unit="it")
 
     # -- the loop ----------------------------------------------------------------------------------------
-    for it in range(start + 1, cfg.iterations + 1):
-        t0 = time.perf_counter()
-        rollout = collector.collect(model, first_episode=episodes, generator=gen)
-        episodes += cfg.num_worlds
-        t1 = time.perf_counter()
-        batch, info = build_batch(rollout, value_norm, cfg.gamma, cfg.lam, env_cfg.num_classes, device)
-        t2 = time.perf_counter()
-        model.train()
-        stats: dict[str, float] = {}
-        for _ in range(cfg.epochs):
-            perm = (
-                torch.randperm(len(batch), generator=gen) if cfg.minibatches > 1 else torch.arange(len(batch))
+    try:
+        for it in range(start + 1, cfg.iterations + 1):
+            t0 = time.perf_counter()
+            rollout = collector.collect(model, first_episode=episodes, generator=gen)
+            episodes += cfg.num_worlds
+            t1 = time.perf_counter()
+            batch, info = build_batch(rollout, value_norm, cfg.gamma, cfg.lam, env_cfg.num_classes, device)
+            t2 = time.perf_counter()
+            model.train()
+            stats: dict[str, float] = {}
+            for _ in range(cfg.epochs):
+                perm = (
+                    torch.randperm(len(batch), generator=gen)
+                    if cfg.minibatches > 1
+                    else torch.arange(len(batch))
+                )
+                for idx in perm.chunk(cfg.minibatches):
+                    loss, parts = ppo_loss(
+                        model, batch.index(idx.to(device)), cfg.clip, cfg.value_clip, cfg.huber_delta,
+                        cfg.entropy_coef, cfg.value_coef,
+                    )  # fmt: skip
+                    opt.zero_grad(set_to_none=True)
+                    loss.backward()
+                    grad_norm = torch.nn.utils.clip_grad_norm_(model.parameters(), cfg.max_grad_norm)
+                    opt.step()
+                    stats = {k: float(v) for k, v in parts.items()} | {"ppo/grad_norm": float(grad_norm)}
+            stats["ppo/lr"] = opt.param_groups[0]["lr"]
+            sched.step()
+            t3 = time.perf_counter()
+            row = {"iteration": it, "episodes": episodes, "samples": info["samples"], **stats}
+            row |= {f"rollout/{k}": v for k, v in rollout.stats.items() if f"rollout/{k}" in METRICS}
+            row |= {"time/collect_s": t1 - t0, "time/advantage_s": t2 - t1, "time/update_s": t3 - t2}
+            if cfg.eval_every and (it % cfg.eval_every == 0 or it == cfg.iterations):
+                ev = evaluate_policy(model, cfg, device, evaluator)
+                row |= {f"eval/{k}": ev[k] for k in ("success_rate", "rescue_tick", "target_found_tick",
+                                                     "explored_fraction")}  # fmt: skip
+            row["time/iteration_s"] = time.perf_counter() - t0
+            csv_writer.writerow(
+                {k: (v if not (isinstance(v, float) and math.isnan(v)) else "") for k, v in row.items()}
             )
-            for idx in perm.chunk(cfg.minibatches):
-                loss, parts = ppo_loss(
-                    model, batch.index(idx.to(device)), cfg.clip, cfg.value_clip, cfg.huber_delta,
-                    cfg.entropy_coef, cfg.value_coef,
-                )  # fmt: skip
-                opt.zero_grad(set_to_none=True)
-                loss.backward()
-                grad_norm = torch.nn.utils.clip_grad_norm_(model.parameters(), cfg.max_grad_norm)
-                opt.step()
-                stats = {k: float(v) for k, v in parts.items()} | {"ppo/grad_norm": float(grad_norm)}
-        stats["ppo/lr"] = opt.param_groups[0]["lr"]
-        sched.step()
-        t3 = time.perf_counter()
-        row = {"iteration": it, "episodes": episodes, "samples": info["samples"], **stats}
-        row |= {f"rollout/{k}": v for k, v in rollout.stats.items() if f"rollout/{k}" in METRICS}
-        row |= {"time/collect_s": t1 - t0, "time/advantage_s": t2 - t1, "time/update_s": t3 - t2}
-        if cfg.eval_every and (it % cfg.eval_every == 0 or it == cfg.iterations):
-            ev = evaluate_policy(model, cfg, device, evaluator)
-            row |= {f"eval/{k}": ev[k] for k in ("success_rate", "rescue_tick", "target_found_tick",
-                                                 "explored_fraction")}  # fmt: skip
-        row["time/iteration_s"] = time.perf_counter() - t0
-        csv_writer.writerow(
-            {k: (v if not (isinstance(v, float) and math.isnan(v)) else "") for k, v in row.items()}
-        )
-        csv_file.flush()
-        if tb is not None:
-            for k, v in row.items():
-                if k != "iteration" and isinstance(v, (int, float)) and not math.isnan(v):
-                    tb.add_scalar(k, v, it)
-        if cfg.checkpoint_every and (it % cfg.checkpoint_every == 0 or it == cfg.iterations):
-            _save(latest, it, episodes, model, opt, sched, value_norm, gen, cfg)
-            _save(ckpt_dir / f"iter_{it:06d}.pt", it, episodes, model, opt, sched, value_norm, gen, cfg)
+            csv_file.flush()
+            if tb is not None:
+                for k, v in row.items():
+                    if k != "iteration" and isinstance(v, (int, float)) and not math.isnan(v):
+                        tb.add_scalar(k, v, it)
+            if cfg.checkpoint_every and (it % cfg.checkpoint_every == 0 or it == cfg.iterations):
+                _save(latest, it, episodes, model, opt, sched, value_norm, gen, cfg)
+                _save(ckpt_dir / f"iter_{it:06d}.pt", it, episodes, model, opt, sched, value_norm, gen, cfg)
+            if bar is not None:
+                bar.update(1)
+                bar.set_postfix(
+                    success=f"{row.get('rollout/success_rate', 0):.2f}", t=f"{row['time/iteration_s']:.1f}s"
+                )
+    finally:
         if bar is not None:
-            bar.update(1)
-            bar.set_postfix(
-                success=f"{row.get('rollout/success_rate', 0):.2f}", t=f"{row['time/iteration_s']:.1f}s"
-            )
-    if bar is not None:
-        bar.close()
-    csv_file.close()
-    if tb is not None:
-        tb.close()
+            bar.close()
+        csv_file.close()
+        if tb is not None:
+            tb.close()
+        if cfg.collector == "ray":
+            collector.close()  # stops the workers, and Ray if this run started it
     return model

@@ -1,0 +1,267 @@
+"""Collection on Ray workers through TorchRL's :class:`~torchrl.collectors.distributed.RayCollector`.
+
+``--collector ray`` splits the B worlds of an iteration over W remote workers. Worker ``w`` is a Ray
+actor running :class:`ShardCollector` (a TorchRL collector class): it owns a
+:class:`~catmip_rl.collect.Collector` over ``B / W`` worlds of the event engine and, for an iteration
+whose first episode is ``E``, collects episodes ``E + w * B/W ... E + (w+1) * B/W - 1``, so that the
+workers together collect exactly the episodes of the local collector, in the same order. Actions are
+sampled from a generator seeded by (run seed, the worker's first episode): a run is reproducible for
+a given worker count.
+
+Each iteration the driver pushes the current weights through RayCollector's weight sync
+(:meth:`update_policy_weights_`, a :class:`~torchrl.weight_update.RayWeightSyncScheme`), and
+RayCollector's synchronous iterator gathers one TensorDict per worker (batch ``[B/W]``: one row per
+world, time padded to ``horizon_ticks + 1`` so that the workers' batches stack) and stacks them;
+:class:`RayRolloutCollector` turns the stack back into one :class:`~catmip_rl.collect.Rollout`
+(worlds in episode order, time trimmed to the longest episode) for ``build_batch`` and PPO.
+"""
+
+from __future__ import annotations
+
+import copy
+import datetime
+import functools
+import os
+from collections import OrderedDict
+from collections.abc import Iterator
+from typing import Any
+
+import numpy as np
+import torch
+from tensordict import TensorDict
+from torchrl.collectors import BaseCollector
+
+from catmip_rl.amat import AMAT
+from catmip_rl.collect import Collector, Rollout
+from catmip_rl.config import TrainConfig
+
+__all__ = ["ShardCollector", "RayRolloutCollector", "import_ray", "RAY_MISSING"]
+
+RAY_MISSING = "--collector ray needs the distributed extra: pip install 'catmip[distributed]'"
+# (T, B, ...) arrays of a Rollout; final_return is (B, N) and stats a dict
+_TIME_MAJOR = (
+    "global_map", "local_map", "agent_class", "action_mask", "active", "order", "action", "log_prob",
+    "value", "ma_return", "ma_ticks", "valid",
+)  # fmt: skip
+
+
+def import_ray() -> Any:
+    """The ``ray`` module, or a RuntimeError naming the extra to install."""
+    try:
+        import ray
+    except ImportError as err:
+        raise RuntimeError(RAY_MISSING) from err
+    return ray
+
+
+def _sampling_seed(seed: int, first_episode: int) -> int:
+    """Seed of a worker's sampling generator for the shard starting at ``first_episode``."""
+    return int(np.random.SeedSequence([seed, first_episode]).generate_state(1, np.uint64)[0])
+
+
+def _stat_weights(collector: Collector, stats: dict[str, float]) -> dict[str, float]:
+    """How many worlds / robots each of ``episode_stats``' means is over (to merge shards)."""
+    st = collector.engine.state
+    b = collector.engine.num_worlds
+    w = {k: float(b) for k in stats}
+    w["rescue_tick"] = float((st.rescue_tick >= 0).sum())
+    w["target_found_tick"] = float((st.found_tick >= 0).sum())
+    for k, cls in enumerate(collector.engine.cfg.classes):
+        w[f"return_{cls.name}"] = float((st.cls == k).sum())
+    return w
+
+
+def merge_stats(stats: list[dict[str, float]], weights: list[dict[str, float]]) -> dict[str, float]:
+    """Weighted means of the shards' episode statistics (NaN where no shard has a sample)."""
+    out = {}
+    for key in stats[0]:
+        total = sum(w[key] for w in weights)
+        num = sum(s[key] * w[key] for s, w in zip(stats, weights) if w[key] > 0)
+        out[key] = num / total if total > 0 else float("nan")
+    return out
+
+
+class ShardCollector(BaseCollector):
+    """TorchRL collector over one Ray worker's share of worlds: one TensorDict per iteration.
+
+    ``create_env_fn`` builds the worker's :class:`Collector`; ``policy`` is the AMAT whose weights
+    RayCollector's weight sync overwrites. The other TorchRL collector arguments RayCollector passes
+    (frames, devices, exploration, ...) do not apply and are ignored.
+    """
+
+    def __init__(
+        self,
+        create_env_fn: Any,
+        policy: AMAT | None = None,
+        *,
+        policy_factory: Any = None,
+        worker_idx: int = 0,
+        seed: int = 0,
+        pad_steps: int = 1,
+        threads: int = 1,
+        **_torchrl_kwargs: Any,
+    ) -> None:
+        super().__init__()
+        torch.set_num_threads(threads)
+        make = create_env_fn[0] if isinstance(create_env_fn, (list, tuple)) else create_env_fn
+        self.collector: Collector = make()
+        self.policy = (policy if policy is not None else policy_factory()).cpu()
+        self.worker_idx = worker_idx
+        self.seed = seed
+        self.pad_steps = pad_steps
+        self.share = self.collector.engine.num_worlds
+        self.first_episode = 0
+        self.deterministic = False
+        self.total_frames = -1
+        self.requested_frames_per_batch = self.frames_per_batch = self.share
+
+    def plan(self, first_episode: int, deterministic: bool = False) -> None:
+        """Set the first episode of the iteration (over all workers) that the next batch is part of."""
+        self.first_episode = first_episode
+        self.deterministic = deterministic
+
+    def _batch(self) -> TensorDict:
+        first = self.first_episode + self.worker_idx * self.share
+        gen = torch.Generator().manual_seed(_sampling_seed(self.seed, first))
+        r = self.collector.collect(self.policy, first, generator=gen, deterministic=self.deterministic)
+        b, t = self.share, r.steps
+        data = {}
+        for key in _TIME_MAJOR:
+            arr = getattr(r, key)
+            padded = np.zeros((b, self.pad_steps) + arr.shape[2:], arr.dtype)
+            padded[:, :t] = arr.swapaxes(0, 1)
+            data[key] = torch.from_numpy(padded)
+        data["final_return"] = torch.from_numpy(r.final_return)
+        data["steps"] = torch.full((b,), t, dtype=torch.int64)
+        data["episode"] = torch.arange(first, first + b)
+        # worker-level means and what they average over, repeated per world so that batches stack
+        weights = _stat_weights(self.collector, r.stats)
+        data["stats"] = {k: torch.full((b,), v, dtype=torch.float64) for k, v in r.stats.items()}
+        data["stats_weight"] = {k: torch.full((b,), v, dtype=torch.float64) for k, v in weights.items()}
+        return TensorDict(data, batch_size=[b], device="cpu")
+
+    def iterator(self) -> Iterator[TensorDict]:
+        while True:
+            yield self._batch()
+
+    def _maybe_fallback_update(self, policy_or_weights: Any = None, *, model_id: str | None = None) -> None:
+        """Weights handed to this collector go into its policy (received ones are in place already)."""
+        if policy_or_weights is None:
+            return
+        weights = policy_or_weights
+        if isinstance(weights, torch.nn.Module):
+            weights = TensorDict.from_module(weights)
+        TensorDict.from_module(self.policy).data.update_(weights)
+
+    def set_seed(self, seed: int, static_seed: bool = False) -> int:
+        self.seed = seed
+        return seed
+
+    def state_dict(self) -> OrderedDict:
+        return OrderedDict(first_episode=self.first_episode, seed=self.seed)
+
+    def load_state_dict(self, state_dict: OrderedDict, strict: bool = True) -> None:
+        self.first_episode = state_dict["first_episode"]
+        self.seed = state_dict["seed"]
+
+    def shutdown(
+        self, timeout: float | None = None, close_env: bool = True, raise_on_error: bool = True
+    ) -> None:
+        """Nothing to release: the worker's engine is plain memory."""
+
+    @classmethod
+    def as_remote(cls, remote_config: dict[str, Any] | None = None):
+        """The Ray actor class RayCollector instantiates on the workers."""
+        ray = import_ray()
+        return ray.remote(**(remote_config or {}))(cls)
+
+
+def _ray_init_config(address: str | None, workers: int) -> dict[str, Any]:
+    """``ray.init`` arguments: join ``address``, or start a private cluster on loopback."""
+    if address is None:
+        return {
+            "address": "local",
+            "num_cpus": max(workers, os.cpu_count() or 1),
+            "include_dashboard": False,
+            "_node_ip_address": "127.0.0.1",
+            "log_to_driver": True,
+        }
+    return {"address": address, "log_to_driver": True}
+
+
+class RayRolloutCollector:
+    """Driver side of ``--collector ray``: ``collect`` returns the same :class:`Rollout` as
+    :meth:`Collector.collect` would, gathered from ``cfg.ray_workers`` Ray workers.
+
+    Joins the cluster at ``cfg.ray_address`` or, when it is None and Ray is not initialised yet, starts
+    a local one (shut down again by :meth:`close`).
+    """
+
+    def __init__(self, cfg: TrainConfig, model: AMAT) -> None:
+        import_ray()
+        from torchrl.collectors.distributed import RayCollector
+        from torchrl.weight_update import _ray as weight_sync
+
+        # TorchRL's weight-sync rendezvous waits 60 s for a fresh Ray worker that imports torch and
+        # torchrl; on a busy small machine that import alone can take longer, so allow more time
+        if getattr(weight_sync, "_DIST_TIMEOUT", None) is not None:
+            weight_sync._DIST_TIMEOUT = max(weight_sync._DIST_TIMEOUT, datetime.timedelta(minutes=10))
+
+        self.cfg = cfg
+        self.workers = cfg.ray_workers
+        self.model = model
+        on_cpu = all(p.device.type == "cpu" for p in model.parameters())
+        self._mirror = model if on_cpu else copy.deepcopy(model).cpu()
+        share = cfg.num_worlds // cfg.ray_workers
+        make = functools.partial(Collector, cfg.env_config(), share, cfg.seed, cfg.gamma, "cpu")
+        try:
+            self._rc = RayCollector(
+                make,
+                policy=self._mirror,
+                collector_class=ShardCollector,
+                collector_kwargs={"seed": cfg.seed, "pad_steps": cfg.env_config().horizon_ticks + 1},
+                num_collectors=cfg.ray_workers,
+                remote_configs={"num_cpus": 1},
+                ray_init_config=_ray_init_config(cfg.ray_address, cfg.ray_workers),
+                frames_per_batch=cfg.num_worlds,  # a frame is a world's episode here
+                total_frames=2**62,  # endless: the training loop decides when to stop (-1 ends at once)
+                sync=True,
+            )
+        except ConnectionError as err:  # nothing at that address, a missing auth token, ...
+            raise RuntimeError(
+                f"--collector ray: cannot join the Ray cluster at {cfg.ray_address}: {err}"
+            ) from err
+        # wait until every worker is built (imports, numba, engine): the weight sync's rendezvous
+        # at the first update then only waits for the connection (TorchRL gives it 60 s)
+        self._rc.map_fn("plan", [(0, False)] * self.workers)
+        self._iter = iter(self._rc)
+
+    def collect(
+        self, model: AMAT, first_episode: int, generator: torch.Generator | None = None,
+        deterministic: bool = False,
+    ) -> Rollout:  # fmt: skip
+        """One episode per world (indices ``first_episode + b``) with ``model``'s current weights
+        (``generator`` is unused: each worker seeds its own)."""
+        if model is not self.model:
+            raise ValueError("RayRolloutCollector.collect: pass the model it was built with")
+        if self._mirror is not model:
+            self._mirror.load_state_dict(model.state_dict())
+        self._rc.update_policy_weights_()
+        self._rc.map_fn("plan", [(first_episode, deterministic)] * self.workers)
+        td = next(self._iter).reshape(-1)  # (W, B/W) -> (B,) worlds in episode order
+        episodes = td["episode"].numpy()
+        if not np.array_equal(episodes, np.arange(first_episode, first_episode + len(episodes))):
+            raise RuntimeError(f"ray workers returned episodes {episodes.tolist()} out of order")
+        t = int(td["steps"].max())
+        arrays = {k: np.ascontiguousarray(td[k][:, :t].numpy().swapaxes(0, 1)) for k in _TIME_MAJOR}
+        share = len(episodes) // self.workers
+        rows = range(0, len(episodes), share)
+        stats = [{k: float(v[i]) for k, v in td["stats"].items()} for i in rows]
+        weights = [{k: float(v[i]) for k, v in td["stats_weight"].items()} for i in rows]
+        return Rollout(
+            **arrays, final_return=td["final_return"].numpy().copy(), stats=merge_stats(stats, weights)
+        )
+
+    def close(self) -> None:
+        """Stop the workers (and the local Ray cluster if this collector started it)."""
+        self._rc.shutdown()
