@@ -3,8 +3,9 @@ PYTHON ?= python3
 VENV   ?= .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
+DSTAMP := $(VENV)/.installed-distributed
 
-.PHONY: demo test test-fast lint bench clean clean-cache
+.PHONY: demo demo-env test test-fast test-distributed lint bench bench-quick clean clean-cache
 
 # torch comes from the machine's CPU wheel first, so that nothing pulls a CUDA build
 $(STAMP): pyproject.toml
@@ -13,24 +14,39 @@ $(STAMP): pyproject.toml
 	$(PY) -m pip install --quiet --disable-pip-version-check -e '.[all]'
 	touch $(STAMP)
 
+# the distributed extra (ray) on top of the same .venv
+$(DSTAMP): $(STAMP)
+	$(PY) -m pip install --quiet --disable-pip-version-check -e '.[all,distributed]'
+	touch $(DSTAMP)
+
+# train AMAT for a few minutes on Task 1, evaluate it (and the shipped model) against the planners
 demo: $(STAMP)
-	$(PY) -m catmip_env.demo --out out/demo
+	$(PY) -m catmip_rl.demo --out out/demo
+
+# the planners only (no torch needed): the catmip_env demo
+demo-env: $(STAMP)
+	$(PY) -m catmip_env.demo --out out/demo-env
 
 test: $(STAMP)
-	$(PY) -m pytest -n 2 tests
+	$(PY) -m pytest -n 2 -m "not ray" tests
 
 test-fast: $(STAMP)
-	$(PY) -m pytest -n 2 -m "not slow" tests
+	$(PY) -m pytest -n 2 -m "not slow and not ray" tests
+
+# the Ray collector against a local Ray cluster on loopback
+test-distributed: $(DSTAMP)
+	$(PY) -m pytest -m ray tests
 
 lint: $(STAMP)
 	$(PY) -m ruff check .
 	$(PY) -m ruff format --check .
 
+# every benchmark, JSON per benchmark + benchmarks/results/SUMMARY.md and summary.png (bench-quick: short settings)
 bench: $(STAMP)
-	$(PY) benchmarks/bench_engine.py
-	$(PY) benchmarks/bench_events.py
-	$(PY) benchmarks/bench_amat.py
-	$(PY) benchmarks/bench_train.py
+	$(PY) benchmarks/run_all.py
+
+bench-quick: $(STAMP)
+	$(PY) benchmarks/run_all.py --quick
 
 # numba keys each cached kernel on its own file only: after editing a kernel that others call, drop the cache
 clean-cache:

@@ -1,7 +1,7 @@
-"""``catmip`` command line: ``catmip train ...`` (evaluation and benchmarks come later).
+"""``catmip`` command line: ``catmip train | eval | render | bench paper | bench perf``.
 
-Flags map onto :class:`~catmip_rl.config.TrainConfig` fields; ``--set field=value`` reaches any field
-(values are JSON: ``--set env_overrides='{"comm_sigma": 4.0}'``).
+``train`` flags map onto :class:`~catmip_rl.config.TrainConfig` fields; ``--set field=value`` reaches any
+field (values are JSON: ``--set env_overrides='{"comm_sigma": 4.0}'``).
 """
 
 from __future__ import annotations
@@ -33,7 +33,8 @@ def _train(args: argparse.Namespace) -> int:
 
     overrides = _parse_set(args.set)
     for name in ("iterations", "num_worlds", "epochs", "minibatches", "seed", "device", "threads",
-                 "eval_every", "eval_episodes", "checkpoint_every", "lr"):  # fmt: skip
+                 "eval_every", "eval_episodes", "checkpoint_every", "lr", "collector", "ray_workers",
+                 "ray_address"):  # fmt: skip
         value = getattr(args, name)
         if value is not None:
             overrides[name] = value
@@ -51,8 +52,97 @@ def _train(args: argparse.Namespace) -> int:
     return 0
 
 
+def _setting(args: argparse.Namespace):
+    from catmip_rl.evaluate import EvalSetting
+
+    return EvalSetting(args.task, args.comm, args.noise, args.max_ma_ticks)
+
+
+def _add_setting_flags(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--task", default="task1", choices=["task1", "task2", "task3"])
+    p.add_argument("--comm", default="full", help="full | 4 | 2 (link range sigma in cells)")
+    p.add_argument("--noise", type=float, default=0.0, help="SLAM noise: per-tick cell flip probability")
+    p.add_argument("--max-ma-ticks", type=int, default=10, help="longest macro-action (5 | 10 | 20)")
+    p.add_argument("--seed", type=int, default=0, help="map set: episode k plays map k of this seed")
+    p.add_argument("--threads", type=int, default=2, help="torch CPU threads")
+
+
+def _eval(args: argparse.Namespace) -> int:
+    import torch
+
+    from catmip_rl.evaluate import evaluate
+
+    torch.set_num_threads(args.threads)
+    try:
+        setting = _setting(args)
+        result = evaluate(args.method, setting, args.episodes, args.seed, progress=not args.no_progress)
+    except (ValueError, FileNotFoundError) as err:
+        print(f"catmip eval: {err}", file=sys.stderr)
+        return 2
+    out = result.write(args.out)
+    s = result.summary
+    rescue = "-" if s["mean_rescue_tick"] is None else f"{s['mean_rescue_tick']:.1f}"
+    print(
+        f"{s['method']} on {s['label']}, {s['episodes']} episodes (seed {args.seed}): success "
+        f"{s['success_rate']:.2f}, by tick 100 {s['success_by_100']:.2f}, mean rescue tick {rescue}, "
+        f"explored {s['mean_explored_fraction']:.2f}"
+    )
+    if s["decisions"] and s["bytes_per_decision_embedding"]:
+        print(
+            f"messages per decision: {s['bytes_per_decision_embedding']:.0f} bytes with embeddings vs "
+            f"{s['bytes_per_decision_raw']:.0f} bytes with raw macro-observations"
+        )
+    print(f"wrote {out}/episodes.csv, episodes.json, curve.csv, summary.json")
+    return 0
+
+
+def _render(args: argparse.Namespace) -> int:
+    import torch
+
+    from catmip_rl.evaluate import render_episode
+
+    torch.set_num_threads(args.threads)
+    try:
+        path = render_episode(args.method, _setting(args), args.out, args.episode, args.seed, args.fps)
+    except (ValueError, FileNotFoundError, ImportError) as err:
+        print(f"catmip render: {err}", file=sys.stderr)
+        return 2
+    print(f"wrote {path}")
+    return 0
+
+
+def _bench(args: argparse.Namespace) -> int:
+    if args.suite == "perf":
+        import subprocess
+        from pathlib import Path
+
+        script = Path.cwd() / "benchmarks" / "run_all.py"
+        if not script.exists():
+            print(
+                "catmip bench perf runs benchmarks/run_all.py: call it from the repository root",
+                file=sys.stderr,
+            )
+            return 2
+        return subprocess.call([sys.executable, str(script), *(["--quick"] if args.quick else [])])
+    from catmip_rl.paper import FIGURES, run_figure
+
+    if args.all == (args.figure is not None):
+        print("catmip bench paper: give --figure N or --all", file=sys.stderr)
+        return 2
+    figures = sorted(FIGURES) if args.all else [args.figure]
+    methods = [m for m in args.methods.split(",") if m.strip()] + list(args.method)
+    try:
+        for fig in figures:
+            out = run_figure(fig, methods, args.episodes, args.seed, args.out, args.jobs)
+            print(f"figure {fig}: {out}/fig{fig}.png, curves.csv, summary.csv, marl_eval.json")
+    except (ValueError, FileNotFoundError) as err:
+        print(f"catmip bench paper: {err}", file=sys.stderr)
+        return 2
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="catmip", description="CATMiP: train and evaluate AMAT")
+    ap = argparse.ArgumentParser(prog="catmip", description="CATMiP: train, evaluate and benchmark AMAT")
     sub = ap.add_subparsers(dest="command", required=True)
     tr = sub.add_parser("train", help="PPO training of AMAT (SPEC §6)")
     tr.add_argument("--preset", default="paper", choices=sorted(TRAIN_PRESETS))
@@ -69,9 +159,43 @@ def main(argv: list[str] | None = None) -> int:
     tr.add_argument("--eval-every", type=int)
     tr.add_argument("--eval-episodes", type=int)
     tr.add_argument("--checkpoint-every", type=int)
+    tr.add_argument("--collector", choices=["local", "ray"], help="collect here or on Ray workers")
+    tr.add_argument("--ray-workers", type=int, help="Ray workers (each collects num_worlds / N worlds)")
+    tr.add_argument("--ray-address", help="Ray cluster to join: auto | HOST:PORT | ray://HOST:PORT")
     tr.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE", help="any TrainConfig field")
     tr.add_argument("--no-progress", action="store_true")
     tr.set_defaults(func=_train)
+    methods = (
+        "nearest | utility | rrt | apf | random-frontier | random | amat:PATH (model, checkpoint or run dir)"
+    )
+    ev = sub.add_parser("eval", help="evaluate a method on the paper's protocol (SPEC §8)")
+    ev.add_argument("--method", required=True, help=methods)
+    _add_setting_flags(ev)
+    ev.add_argument("--episodes", type=int, default=100)
+    ev.add_argument("--out", required=True, help="folder for episodes.csv/json, curve.csv, summary.json")
+    ev.add_argument("--no-progress", action="store_true")
+    ev.set_defaults(func=_eval)
+    rd = sub.add_parser("render", help="an animated GIF of one evaluation episode")
+    rd.add_argument("--method", required=True, help=methods)
+    _add_setting_flags(rd)
+    rd.add_argument("--episode", type=int, default=0, help="which map of the seed's map set")
+    rd.add_argument("--fps", type=int, default=6)
+    rd.add_argument("--out", required=True, help="GIF path")
+    rd.set_defaults(func=_render)
+    be = sub.add_parser("bench", help="paper figures (success vs time) or the performance benchmarks")
+    be.add_argument("suite", choices=["paper", "perf"])
+    be.add_argument("--figure", type=int, help="paper figure 6 | 7 | 8 | 9 | 10 | 11")
+    be.add_argument("--all", action="store_true", help="every paper figure")
+    be.add_argument(
+        "--methods", default="nearest,utility,rrt,apf", help="comma list of methods (NAME=amat:PATH allowed)"
+    )
+    be.add_argument("--method", action="append", default=[], help="one more method (repeatable)")
+    be.add_argument("--episodes", type=int, default=100)
+    be.add_argument("--seed", type=int, default=0)
+    be.add_argument("--jobs", type=int, default=2, help="parallel processes")
+    be.add_argument("--out", default="out/paper")
+    be.add_argument("--quick", action="store_true", help="perf: short settings")
+    be.set_defaults(func=_bench)
     args = ap.parse_args(argv)
     return args.func(args)
 

@@ -28,7 +28,10 @@ import numpy as np
 from catmip_rl.evaluate import EvalSetting, Method, evaluate, parse_method
 from catmip_rl.files import atomic_write_csv, atomic_write_text
 
-__all__ = ["FIGURES", "DEFAULT_METHODS", "figure_settings", "run_figure", "marl_eval_json", "plot_figure"]
+__all__ = [
+    "FIGURES", "DEFAULT_METHODS", "figure_settings", "run_figure", "marl_eval_json", "plot_figure",
+    "summary_markdown",
+]  # fmt: skip
 
 DEFAULT_METHODS = ("nearest", "utility", "rrt", "apf")
 SUMMARY_KEYS = (
@@ -147,6 +150,28 @@ def _map(tasks: list, jobs: int, progress: bool, desc: str) -> list[dict[str, An
     if bar is not None:
         bar.close()
     return results
+
+
+def summary_markdown(rows: list[dict[str, Any]]) -> str:
+    """Success by tick 100 / by the horizon and mean rescue tick, one row per method, one column
+    group per panel."""
+    panels = list(dict.fromkeys(r["panel"] for r in rows))
+    methods = list(dict.fromkeys(r["method"] for r in rows))
+    cell = {(r["panel"], r["method"]): r for r in rows}
+    head = "| method | " + " | ".join(panels) + " |"
+    lines = [head, "|---" * (len(panels) + 1) + "|"]
+    for m in methods:
+        parts = []
+        for p in panels:
+            r = cell.get((p, m))
+            if r is None:
+                parts.append("-")
+                continue
+            rescue = "-" if r["mean_rescue_tick"] is None else f"{r['mean_rescue_tick']:.0f}"
+            parts.append(f"{r['success_by_100']:.2f} / {r['success_rate']:.2f} / {rescue}")
+        lines.append(f"| {m} | " + " | ".join(parts) + " |")
+    note = "\nCells: success by tick 100 / success by the horizon / mean rescue tick of rescued episodes.\n"
+    return "\n".join(lines) + "\n" + note
 
 
 def marl_eval_json(runs: list[tuple[str, str, str]], figure: int) -> dict[str, Any]:

@@ -196,6 +196,7 @@ def test_write_and_cli_eval(ckpt, tmp_path, capsys):
 def test_figure_runs_on_a_tiny_budget(ckpt, tmp_path):
     fig_dir = run_figure(11, ["nearest", f"learned=amat:{ckpt}"], episodes=2, out=tmp_path, progress=False)
     assert (fig_dir / "fig11.png").stat().st_size > 1000
+    assert "| learned |" in (fig_dir / "summary.md").read_text()
     with open(fig_dir / "curves.csv") as f:
         rows = list(csv.DictReader(f))
     assert {r["panel"] for r in rows} == {p for p, _ in FIGURES[11][1]}

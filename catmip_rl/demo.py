@@ -1,0 +1,107 @@
+"""The README's main job: train AMAT briefly on Task 1, then evaluate it against the planners.
+
+    python -m catmip_rl.demo [--iterations 24] [--episodes 64] [--out out/demo]
+
+1. ``catmip train --preset task1`` for ``--iterations`` PPO iterations (a few minutes on 2 cores) into
+   ``OUT/train`` (config, metrics.csv, TensorBoard, checkpoints);
+2. the evaluation protocol (SPEC §8) on ``--episodes`` fixed Task-1 maps: the model just trained, the
+   shipped model (``catmip_rl/models/amat_task1.pt``, the same recipe trained longer) and the planning
+   baselines, all on the same maps;
+3. ``OUT/results.csv`` + ``results.md`` (table), ``OUT/success.png`` (success rate vs mission time),
+   ``OUT/episode.gif`` (the shipped model on episode 0), per-method folders with per-episode results.
+"""
+
+from __future__ import annotations
+
+import argparse
+import re
+import time
+from pathlib import Path
+
+import torch
+
+from catmip_rl.evaluate import EvalSetting, evaluate, render_episode
+from catmip_rl.files import atomic_write_csv, atomic_write_text
+from catmip_rl.paper import plot_figure
+
+SHIPPED = Path(__file__).parent / "models" / "amat_task1.pt"
+PLANNERS = ("nearest", "utility", "rrt", "apf", "random-frontier", "random")
+COLUMNS = ("success_rate", "success_by_100", "mean_rescue_tick", "mean_target_found_tick",
+           "mean_explored_fraction", "bytes_per_decision_embedding", "seconds")  # fmt: skip
+
+
+def _fmt(v) -> str:
+    if v is None:
+        return "-"
+    return f"{v:.2f}" if isinstance(v, float) else str(v)
+
+
+def main(argv: list[str] | None = None) -> list[dict]:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--iterations", type=int, default=24, help="PPO iterations of the short training run")
+    ap.add_argument("--episodes", type=int, default=64, help="evaluation maps (Task 1)")
+    ap.add_argument("--seed", type=int, default=0, help="evaluation map set")
+    ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--out", default="out/demo")
+    args = ap.parse_args(argv)
+    out = Path(args.out)
+    torch.set_num_threads(args.threads)
+
+    # 1. a short training run (a fresh one every time: the folder is replaced)
+    from catmip_rl.config import make_train_config
+    from catmip_rl.train import train
+
+    run_dir = out / "train"
+    if (run_dir / "checkpoints").exists():
+        import shutil
+
+        shutil.rmtree(run_dir)
+    cfg = make_train_config("task1", iterations=args.iterations, threads=args.threads, eval_every=0,
+                            checkpoint_every=args.iterations)  # fmt: skip
+    print(
+        f"[1/3] training AMAT on Task 1: {args.iterations} iterations x {cfg.num_worlds} episodes, {run_dir}"
+    )
+    t0 = time.perf_counter()
+    train(cfg, run_dir, progress=True)
+    print(f"      {time.perf_counter() - t0:.0f} s")
+
+    # 2. evaluation on the same maps
+    setting = EvalSetting("task1")
+    methods = [f"AMAT (demo, {args.iterations} it)=amat:{run_dir}"]
+    if SHIPPED.exists():
+        methods.append(f"AMAT (shipped)=amat:{SHIPPED}")
+    methods += list(PLANNERS)
+    print(f"[2/3] evaluating {len(methods)} methods on {args.episodes} Task-1 maps (seed {args.seed})")
+    rows, curves = [], []
+    for spec in methods:
+        res = evaluate(spec, setting, episodes=args.episodes, seed=args.seed, progress=True)
+        res.write(out / "eval" / re.sub(r"[^A-Za-z0-9_.-]+", "_", res.method).strip("_"))
+        rows.append({"method": res.method} | {k: res.summary[k] for k in COLUMNS})
+        curves += [{"figure": "demo", "panel": "Task 1, full communication", "method": res.method, "tick": t,
+                    "success_rate": float(v)} for t, v in enumerate(res.curve)]  # fmt: skip
+
+    # 3. table, plot, GIF
+    atomic_write_csv(out / "results.csv", rows)
+    atomic_write_csv(out / "curves.csv", curves)
+    lines = ["| method | " + " | ".join(COLUMNS) + " |", "|---" * (len(COLUMNS) + 1) + "|"]
+    lines += ["| " + " | ".join([r["method"], *(_fmt(r[k]) for k in COLUMNS)]) + " |" for r in rows]
+    atomic_write_text(out / "results.md", "\n".join(lines) + "\n")
+    png = plot_figure(out / "curves.csv", out / "success.png", title=f"Task 1, {args.episodes} maps")
+    gif_model = SHIPPED if SHIPPED.exists() else run_dir
+    print("[3/3] rendering an episode")
+    gif = render_episode(f"amat:{gif_model}", setting, out / "episode.gif", episode=0, seed=args.seed)
+
+    print(f"\n{args.episodes} Task-1 maps, same maps for every method:")
+    print(f"{'method':>28} {'success':>8} {'by t=100':>9} {'rescue t':>9} {'found t':>8} {'explored':>9}")
+    for r in rows:
+        print(
+            f"{r['method']:>28} {r['success_rate']:>8.2f} {r['success_by_100']:>9.2f} "
+            f"{_fmt(r['mean_rescue_tick']):>9} {_fmt(r['mean_target_found_tick']):>8} "
+            f"{r['mean_explored_fraction']:>9.2f}"
+        )
+    print(f"\nwrote {out / 'results.md'}, {out / 'results.csv'}, {png}, {gif}, {run_dir} and {out / 'eval'}/")
+    return rows
+
+
+if __name__ == "__main__":
+    main()
