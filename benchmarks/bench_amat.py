@@ -3,9 +3,11 @@
     python benchmarks/bench_amat.py [--repeats 200] [--out benchmarks/results/amat.json]
 
 * latency — one decision at batch 1 on one thread: embed every robot, encode, decode the active
-  robots autoregressively (argmax). N = 2, 3, 6 robots on the 15, 20, 32 maps of Tasks 1-3, with all
-  robots active (the joint decision at t = 0) and with one active robot (a typical asynchronous event);
-  also the split embed / encode / decode. Median of ``--repeats``.
+  robots autoregressively (argmax). N = 2, 3, 6 robots on the 15, 20, 32 maps of Tasks 1-3 (presets
+  task1-3, real observations after 30 random decision events), with all robots active (the joint
+  decision at t = 0) and with one active robot (a typical asynchronous event); also the split embed /
+  encode / decode of the torch path, and the numba path ``catmip_rl.fast_infer.FastAmat`` on the same
+  observations and on random dense maps (its worst case). Median of ``--repeats``.
 * acting — batched decisions (B = 64, 1024 worlds of Task 2, every robot active), one thread,
   agent-decisions per second.
 * training — forward (embed, encode, teacher-forced decode) + PPO-style loss + backward + Adam on
@@ -22,13 +24,17 @@ import statistics
 import time
 from pathlib import Path
 
+import numpy as np
 import torch
 import torch.nn.functional as F
 from common import write_json
 
+from catmip_env.config import PRESETS
+from catmip_env.events import EventEngine
 from catmip_rl.amat import AMAT, decision_order
+from catmip_rl.fast_infer import FastAmat
 
-TASKS = ((2, 15), (3, 20), (6, 32))  # (robots, map side) of Tasks 1-3
+TASKS = ((2, 15, "task1"), (3, 20, "task2"), (6, 32, "task3"))  # (robots, map side, preset) of Tasks 1-3
 
 
 def _obs(b: int, n: int, s: int, seed: int = 0) -> dict[str, torch.Tensor]:
@@ -37,6 +43,21 @@ def _obs(b: int, n: int, s: int, seed: int = 0) -> dict[str, torch.Tensor]:
         "global_map": torch.randint(0, 5, (b, n, 7, s, s), generator=g, dtype=torch.uint8),
         "local_map": torch.randint(0, 5, (b, n, 6, 7, 7), generator=g, dtype=torch.uint8),
         "agent_class": F.one_hot(torch.randint(0, 2, (b, n), generator=g), 2).float(),
+    }
+
+
+def _env_obs(preset: str, events: int = 30) -> dict[str, np.ndarray]:
+    """One world's real observation (numpy, no batch axis) after ``events`` random decision events."""
+    eng = EventEngine(PRESETS[preset], 1, seed=0)
+    eng.reset()
+    rng = np.random.default_rng(0)
+    for _ in range(events):
+        eng.step(np.argmax(rng.random(eng.masks.shape) * eng.masks, axis=-1))
+    c = PRESETS[preset].num_classes
+    return {
+        "global_map": eng.obs_global[0].copy(),
+        "local_map": eng.obs_local[0].copy(),
+        "agent_class": np.eye(c, dtype=np.float32)[eng.state.cls[0]],
     }
 
 
@@ -53,13 +74,19 @@ def _median_ms(fn, repeats: int, warmup: int = 10) -> float:
 
 def bench_latency(model: AMAT, repeats: int) -> list[dict]:
     torch.set_num_threads(1)
+    # FastAmat's kernels are serial: one thread. (numba.set_num_threads would start numba's OpenMP pool,
+    # which makes every torch op in the process ~50x slower: two OpenMP runtimes competing.)
+    fast = FastAmat.from_model(model)
     rows = []
-    for n, s in TASKS:
-        obs = _obs(1, n, s)
+    for n, s, preset in TASKS:
+        x = _env_obs(preset)
+        obs = {k: torch.from_numpy(v)[None] for k, v in x.items()}
+        rnd = {k: v[0].numpy() for k, v in _obs(1, n, s).items()}
         mask = torch.ones(1, n, model.config.num_actions, dtype=torch.bool)
         for n_active in (n, 1):
             active = torch.zeros(1, n, dtype=torch.bool)
             active[0, :n_active] = True
+            mask_np, active_np = mask[0].numpy(), active[0].numpy()
             order = decision_order(active)
             with torch.inference_mode():
                 tokens = model.embed(obs)
@@ -84,11 +111,19 @@ def bench_latency(model: AMAT, repeats: int) -> list[dict]:
                         ),
                         repeats,
                     ),
+                    "fast_decision_ms": _median_ms(
+                        lambda: fast.decide(**x, action_mask=mask_np, active=active_np), repeats
+                    ),
+                    "fast_random_maps_ms": _median_ms(
+                        lambda: fast.decide(**rnd, action_mask=mask_np, active=active_np),
+                        max(repeats // 10, 5),
+                    ),
                 }
             rows.append(row)
+            parts = ", ".join(f"{k[:-3]} {row[k]:.2f}" for k in ("embed_ms", "encode_ms", "decode_ms"))
             print(
-                f"latency N={n} S={s} active={n_active}: {row['decision_ms']:.2f} ms "
-                f"(embed {row['embed_ms']:.2f}, encode {row['encode_ms']:.2f}, decode {row['decode_ms']:.2f})"
+                f"latency N={n} S={s} active={n_active}: torch {row['decision_ms']:.2f} ms ({parts}); "
+                f"FastAmat {row['fast_decision_ms']:.2f} ms (random maps {row['fast_random_maps_ms']:.2f})"
             )
     return rows
 
@@ -163,9 +198,19 @@ def plot(results: dict, path: Path) -> None:
     bottom = [0.0] * len(lat)
     for key in parts:
         vals = [r[key] for r in lat]
-        axes[0].bar(labels, vals, bottom=bottom, label=key.replace("_ms", ""))
+        axes[0].bar(labels, vals, bottom=bottom, label="torch " + key.replace("_ms", ""))
         bottom = [a + b for a, b in zip(bottom, vals)]
-    axes[0].scatter(labels, [r["decision_ms"] for r in lat], color="k", zorder=3, label="whole decision")
+    axes[0].scatter(
+        labels, [r["decision_ms"] for r in lat], color="k", zorder=3, label="whole decision (torch)"
+    )
+    axes[0].scatter(
+        labels, [r["fast_decision_ms"] for r in lat], color="tab:purple", marker="D", zorder=3,
+        label="FastAmat (numba)",
+    )  # fmt: skip
+    axes[0].scatter(
+        labels, [r["fast_random_maps_ms"] for r in lat], color="tab:purple", marker="x", zorder=3,
+        label="FastAmat, random dense maps",
+    )  # fmt: skip
     axes[0].axhline(1.5, color="r", ls="--", lw=1, label="1.5 ms target (N=6)")
     axes[0].set_ylabel("ms (1 thread)")
     axes[0].set_title("Batch-1 decision latency")
