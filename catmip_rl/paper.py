@@ -5,8 +5,8 @@
 Each figure is a row of panels (one per setting); each panel draws, for every method, the success rate
 vs mission time over the same ``episodes`` maps. Every (panel, method) run is independent, so runs go
 to a process pool. Written per figure under ``out/fig{N}/``: ``curves.csv`` (figure, panel, method, tick,
-success_rate), ``summary.csv`` (one row per run), ``fig{N}.png``, per-run folders with the per-episode
-results of :mod:`catmip_rl.evaluate`, and ``marl_eval.json`` (see :func:`marl_eval_json`).
+success_rate), ``summary.csv`` (one row per run), ``summary.md``, ``fig{N}.png``, per-run folders with
+the per-episode results of :mod:`catmip_rl.evaluate`, and ``marl_eval.json`` (see :func:`marl_eval_json`).
 
 Figure layout (SPEC §8): 6-8 = Tasks 1-3, panels = communication {full, sigma 4, sigma 2};
 9 = SLAM noise 5 % with full communication, panels = Tasks 1-3; 10 = noise 5 % with sigma = 2, panels =
@@ -120,6 +120,7 @@ def run_figure(
     atomic_write_csv(fig_dir / "curves.csv", curve_rows)
     atomic_write_csv(fig_dir / "summary.csv", summary_rows)
     atomic_write_text(fig_dir / "marl_eval.json", json.dumps(marl_eval_json(runs, figure), indent=1))
+    atomic_write_text(fig_dir / "summary.md", summary_markdown(summary_rows))
     plot_figure(
         fig_dir / "curves.csv", fig_dir / f"fig{figure}.png", title=f"Fig. {figure}: {FIGURES[figure][0]}"
     )
