@@ -226,3 +226,10 @@ def test_render_gif(ckpt, tmp_path):
     frames = iio.imread(path)
     assert frames.shape[0] == 25 and frames.shape[-1] == 3
     assert cli(["render", "--method", "nearest", "--out", str(tmp_path / "n.gif"), "--threads", "1"]) == 0
+
+
+def test_cli_bench_perf_needs_the_repository(tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)
+    assert cli(["bench", "perf", "--quick"]) == 2
+    assert "benchmarks/run_all.py" in capsys.readouterr().err
+    assert cli(["bench", "paper", "--figure", "6", "--all"]) == 2
