@@ -5,6 +5,7 @@ import torch
 import torch.nn.functional as F
 
 from catmip_rl.amat import AMAT, AmatConfig, decision_order
+from tests.rl.helpers import shaken_model
 
 
 def _obs(b, n, s, c=2, l=7, seed=0):
@@ -27,16 +28,6 @@ def _mask_active(b, n, a=49, seed=0):
     return mask, active
 
 
-def _shaken(config=None, seed=0):
-    """A model whose weights are far from the tiny-gain init, so that attention really mixes."""
-    torch.manual_seed(seed)
-    m = AMAT(config)
-    with torch.no_grad():
-        for p in m.parameters():
-            p.add_(0.2 * torch.randn_like(p))
-    return m.eval()
-
-
 def test_parameter_count_matches_the_paper_minus_the_unused_module():
     assert sum(p.numel() for p in AMAT().parameters()) == 1_171_282
     assert sum(p.numel() for p in AMAT(AmatConfig(window=5)).parameters()) == 1_162_042
@@ -56,7 +47,7 @@ def test_any_map_size_and_team_size(s, n):
 
 
 def test_teacher_forced_and_autoregressive_log_probs_agree():
-    m = _shaken()
+    m = shaken_model()
     obs = _obs(8, 5, 20)
     mask, active = _mask_active(8, 5)
     order = decision_order(active)
@@ -81,7 +72,7 @@ def test_teacher_forced_and_autoregressive_log_probs_agree():
 
 
 def test_masked_actions_have_zero_probability():
-    m = _shaken()
+    m = shaken_model()
     obs = _obs(16, 3, 15)
     mask, active = _mask_active(16, 3)
     order = decision_order(active)
@@ -96,7 +87,7 @@ def test_masked_actions_have_zero_probability():
 
 
 def test_permuting_busy_robots_leaves_active_robots_unchanged():
-    m = _shaken()
+    m = shaken_model()
     n = 6
     obs = _obs(1, n, 20)
     active = torch.tensor([[True, False, True, False, False, True]])
@@ -117,7 +108,7 @@ def test_permuting_busy_robots_leaves_active_robots_unchanged():
 
 
 def test_padding_mask_makes_padded_and_unpadded_batches_agree():
-    m = _shaken()
+    m = shaken_model()
     obs = _obs(1, 3, 20)
     mask, active = _mask_active(1, 3)
     active[:] = True
@@ -139,7 +130,7 @@ def test_padding_mask_makes_padded_and_unpadded_batches_agree():
 
 
 def test_deterministic_decoding_is_reproducible_and_sampling_is_seeded():
-    m = _shaken()
+    m = shaken_model()
     obs = _obs(4, 3, 15)
     mask, active = _mask_active(4, 3)
     rep, _ = m(obs)

@@ -7,29 +7,20 @@ import torch.nn.functional as F
 
 from catmip_env.config import make_config
 from catmip_env.events import EventEngine
-from catmip_rl.amat import AMAT, AmatConfig, decision_order
+from catmip_rl.amat import AmatConfig, decision_order
 from catmip_rl.fast_infer import FastAmat
+from tests.rl.helpers import shaken_model
 
 SMALL = AmatConfig(embed_dim=32, n_blocks=2, n_heads=2)
 ODD = AmatConfig(window=5, local_size=5, pool=3, n_classes=3, embed_dim=48, n_heads=3)  # uneven pool bins
 TOL = 1e-4
 
 
-def _shaken(config=None, seed=0):
-    """A model whose weights are far from the tiny-gain init, so that attention and the heads really mix."""
-    torch.manual_seed(seed)
-    m = AMAT(config)
-    with torch.no_grad():
-        for p in m.parameters():
-            p.add_(0.2 * torch.randn_like(p))
-    return m.eval()
-
-
 @pytest.fixture(scope="module")
 def models():
     out = {}
     for name, cfg in (("table2", None), ("small", SMALL), ("odd", ODD)):
-        m = _shaken(cfg)
+        m = shaken_model(cfg)
         out[name] = (m, FastAmat.from_model(m))
     return out
 
