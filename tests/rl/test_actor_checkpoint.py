@@ -7,14 +7,13 @@ from tensordict import TensorDict
 from tensordict.nn import set_interaction_type
 
 from catmip_env import make_config
-from catmip_env.events import EventEngine
+from catmip_env.events import EventEngine, random_valid_actions
 from catmip_rl import keys as K
 from catmip_rl.actor import AmatActor, AmatCritic
 from catmip_rl.amat import AMAT, AmatConfig
 from catmip_rl.checkpoint import load_model, save_model
 from catmip_rl.distributed import decide_by_neighbourhood, message_bytes
-
-from .test_amat import _shaken
+from tests.rl.helpers import shaken_model
 
 
 def _td_from_engine(eng: EventEngine) -> TensorDict:
@@ -36,12 +35,12 @@ def engine():
     eng = EventEngine(make_config("train"), 4, seed=0)
     eng.reset()
     rng = np.random.default_rng(0)
-    eng.step(np.argmax(rng.random(eng.masks.shape) * eng.masks, axis=-1))  # a mid-episode event
+    eng.step(random_valid_actions(eng.masks, rng))  # a mid-episode event
     return eng
 
 
 def test_actor_samples_valid_goals_and_get_dist_rescores_them(engine):
-    actor = AmatActor(_shaken())
+    actor = AmatActor(shaken_model())
     td = actor(_td_from_engine(engine))
     a, lp, mask, active = td[K.ACTION], td[K.LOG_PROB], td[K.ACTION_MASK], td[K.ACTIVE]
     assert mask.gather(-1, a[..., None]).all()
@@ -67,7 +66,7 @@ def test_actor_engine_roundtrip_plays_episodes(engine):
 
 
 def test_deterministic_interaction_type(engine):
-    actor = AmatActor(_shaken())
+    actor = AmatActor(shaken_model())
     base = _td_from_engine(engine)
     with set_interaction_type("deterministic"):
         a1 = actor(base.clone())[K.ACTION]
@@ -79,7 +78,7 @@ def test_deterministic_interaction_type(engine):
 
 
 def test_checkpoint_roundtrip_and_errors(tmp_path):
-    m = _shaken(AmatConfig(window=5))
+    m = shaken_model(AmatConfig(window=5))
     path = save_model(m, tmp_path / "amat.pt", extra={"iteration": 3})
     assert (tmp_path / "amat.json").exists() and not list(tmp_path.glob(".*tmp"))
     back = load_model(path)
@@ -97,7 +96,7 @@ def test_checkpoint_roundtrip_and_errors(tmp_path):
 
 
 def test_distributed_execution_with_full_communication_matches_centralised(engine):
-    actor = AmatActor(_shaken(), deterministic=True)
+    actor = AmatActor(shaken_model(), deterministic=True)
     td = actor(_td_from_engine(engine))
     for b in range(engine.num_worlds):
         obs = {k: td["robots", k][b] for k in ("global_map", "local_map", "agent_class")}

@@ -7,12 +7,13 @@ from torchrl.objectives import ClipPPOLoss
 from catmip_rl import keys as K
 from catmip_rl.actor import AmatActor, AmatCritic
 from catmip_rl.ppo import SampleBatch, ValueNorm, ppo_loss
+from tests.rl.helpers import shaken_model
 
-from .test_amat import _obs, _shaken
+from .test_amat import _obs
 
 
 def _setup(b=6, n=3, seed=0):
-    m = _shaken(seed=seed)
+    m = shaken_model(seed=seed)
     obs = _obs(b, n, 15, seed=seed)
     mask = torch.ones(b, n, 49, dtype=torch.bool)
     mask[..., :5] = False
