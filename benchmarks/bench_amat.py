@@ -24,16 +24,15 @@ import statistics
 import time
 from pathlib import Path
 
-import numpy as np
 import torch
 import torch.nn.functional as F
-from common import write_json
+from common import env_observation, write_json
 
 from catmip_env.config import PRESETS
-from catmip_env.events import EventEngine
 from catmip_rl.amat import AMAT, decision_order
 from catmip_rl.fast_infer import FastAmat
 
+TOKEN_INPUTS = ("global_map", "local_map", "agent_class")
 TASKS = ((2, 15, "task1"), (3, 20, "task2"), (6, 32, "task3"))  # (robots, map side, preset) of Tasks 1-3
 
 
@@ -43,21 +42,6 @@ def _obs(b: int, n: int, s: int, seed: int = 0) -> dict[str, torch.Tensor]:
         "global_map": torch.randint(0, 5, (b, n, 7, s, s), generator=g, dtype=torch.uint8),
         "local_map": torch.randint(0, 5, (b, n, 6, 7, 7), generator=g, dtype=torch.uint8),
         "agent_class": F.one_hot(torch.randint(0, 2, (b, n), generator=g), 2).float(),
-    }
-
-
-def _env_obs(preset: str, events: int = 30) -> dict[str, np.ndarray]:
-    """One world's real observation (numpy, no batch axis) after ``events`` random decision events."""
-    eng = EventEngine(PRESETS[preset], 1, seed=0)
-    eng.reset()
-    rng = np.random.default_rng(0)
-    for _ in range(events):
-        eng.step(np.argmax(rng.random(eng.masks.shape) * eng.masks, axis=-1))
-    c = PRESETS[preset].num_classes
-    return {
-        "global_map": eng.obs_global[0].copy(),
-        "local_map": eng.obs_local[0].copy(),
-        "agent_class": np.eye(c, dtype=np.float32)[eng.state.cls[0]],
     }
 
 
@@ -79,7 +63,7 @@ def bench_latency(model: AMAT, repeats: int) -> list[dict]:
     fast = FastAmat.from_model(model)
     rows = []
     for n, s, preset in TASKS:
-        x = _env_obs(preset)
+        x = {k: v for k, v in env_observation(PRESETS[preset], events=30).items() if k in TOKEN_INPUTS}
         obs = {k: torch.from_numpy(v)[None] for k, v in x.items()}
         rnd = {k: v[0].numpy() for k, v in _obs(1, n, s).items()}
         mask = torch.ones(1, n, model.config.num_actions, dtype=torch.bool)

@@ -24,13 +24,9 @@ from common import write_json  # noqa: E402
 
 from catmip_env import make_config, search_rescue_v0  # noqa: E402
 from catmip_env.baselines import PLANNERS, make_planner  # noqa: E402
-from catmip_env.events import EventEngine  # noqa: E402
+from catmip_env.events import EventEngine, random_valid_actions  # noqa: E402
 
 TASKS = ("task1", "task2", "task3")
-
-
-def random_valid(rng: np.random.Generator, masks: np.ndarray) -> np.ndarray:
-    return np.argmax(rng.random(masks.shape) * masks, axis=-1)
 
 
 def bench_engine(preset: str, num_worlds: int, seconds: float, activation) -> dict:
@@ -38,7 +34,7 @@ def bench_engine(preset: str, num_worlds: int, seconds: float, activation) -> di
     eng.reset()
     rng = np.random.default_rng(0)
     for _ in range(20):
-        eng.step(random_valid(rng, eng.masks))
+        eng.step(random_valid_actions(eng.masks, rng))
         if eng.state.done.any():
             eng.reset(worlds=eng.state.done)
     ticks = events = decisions = 0
@@ -46,7 +42,7 @@ def bench_engine(preset: str, num_worlds: int, seconds: float, activation) -> di
     t0 = time.perf_counter()
     while time.perf_counter() - t0 < seconds:
         t1 = time.perf_counter()
-        a = random_valid(rng, eng.masks)
+        a = random_valid_actions(eng.masks, rng)
         policy_s += time.perf_counter() - t1
         live = ~eng.state.done
         decisions += int((eng.active & live[:, None]).sum())
@@ -78,7 +74,7 @@ def bench_pettingzoo(preset: str, seconds: float, activation) -> dict:
     t0 = time.perf_counter()
     while time.perf_counter() - t0 < seconds:
         masks = np.stack([obs[a]["action_mask"] for a in env.agents])
-        acts = dict(zip(env.agents, random_valid(rng, masks).tolist()))
+        acts = dict(zip(env.agents, random_valid_actions(masks, rng).tolist()))
         obs, _, _, _, infos = env.step(acts)
         ticks += infos["robot_0"]["event_ticks"]
         events += 1

@@ -34,10 +34,10 @@ os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import numpy as np  # noqa: E402
-from common import plot_scaling_panels, write_json  # noqa: E402
+from common import env_observation, plot_scaling_panels, write_json  # noqa: E402
 
 from catmip_env import BatchedEngine, EnvConfig, make_config  # noqa: E402
-from catmip_env.events import EventEngine  # noqa: E402
+from catmip_env.events import EventEngine, random_valid_actions  # noqa: E402
 
 MAPS = (15, 20, 32, 64)
 TEAMS = (2, 3, 6, 12)
@@ -95,7 +95,7 @@ def event_rates(cfg: EnvConfig, num_worlds: int, seconds: float) -> dict[str, fl
     rng = np.random.default_rng(0)
 
     def goals() -> np.ndarray:
-        return np.argmax(rng.random(eng.masks.shape) * eng.masks, axis=-1)
+        return random_valid_actions(eng.masks, rng)
 
     for _ in range(20):
         eng.step(goals())
@@ -138,27 +138,6 @@ def median_ms(
         walls.append(w)
         cpus.append(c)
     return 1000 * statistics.median(walls), 1000 * statistics.median(cpus)
-
-
-def observation(cfg: EnvConfig, events: int = 10) -> dict[str, np.ndarray]:
-    """One world's macro-observation (numpy, no batch axis) after ``events`` random decision events,
-    every robot marked active: real maps (rooms, explored area, merged beliefs), real action masks."""
-    eng = EventEngine(cfg.replace(activation=(0, 0)), 1, seed=0)
-    eng.reset()
-    rng = np.random.default_rng(0)
-    for _ in range(events):
-        goals = np.argmax(rng.random(eng.masks.shape) * eng.masks, axis=-1)
-        eng.step(goals)
-        if eng.state.done[0]:
-            eng.reset()
-    n = cfg.num_robots
-    return {
-        "global_map": eng.obs_global[0].copy(),  # (N, 5+C, S, S) uint8
-        "local_map": eng.obs_local[0].copy(),  # (N, 4+C, L, L) uint8
-        "agent_class": np.eye(cfg.num_classes, dtype=np.float32)[eng.state.cls[0]],  # (N, C) one-hot
-        "action_mask": eng.masks[0].astype(bool),  # (N, A)
-        "active": np.ones(n, dtype=bool),
-    }
 
 
 class AmatTimer:
@@ -220,7 +199,7 @@ def measure(map_size: int, robots: int, args: argparse.Namespace, amat: AmatTime
     row |= event_rates(cfg, args.num_worlds, args.seconds)
     row["amat_ms"] = row["amat_cpu_ms"] = row["fast_amat_ms"] = row["fast_amat_cpu_ms"] = None
     if amat is not None:
-        x = observation(cfg)
+        x = env_observation(cfg)
         row["amat_ms"], row["amat_cpu_ms"] = amat.torch_ms(x, args.seconds)
         row["fast_amat_ms"], row["fast_amat_cpu_ms"] = amat.fast_ms(x, args.seconds)
     fast = f", FastAmat {row['fast_amat_ms']:.2f} ms" if row["fast_amat_ms"] is not None else ""

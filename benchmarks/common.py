@@ -6,6 +6,11 @@ import json
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
+from catmip_env import EnvConfig
+from catmip_env.events import EventEngine, random_valid_actions
+
 
 def write_json(path: str | Path, results: Any) -> Path:
     """Write results as JSON atomically (temporary file, then rename) and say where."""
@@ -16,6 +21,25 @@ def write_json(path: str | Path, results: Any) -> Path:
     tmp.replace(path)
     print(f"wrote {path}")
     return path
+
+
+def env_observation(cfg: EnvConfig, events: int = 10) -> dict[str, np.ndarray]:
+    """One world's macro-observation (numpy, no batch axis) after ``events`` random decision events,
+    every robot marked active: real maps (rooms, explored area, merged beliefs), real action masks."""
+    eng = EventEngine(cfg.replace(activation=(0, 0)), 1, seed=0)
+    eng.reset()
+    rng = np.random.default_rng(0)
+    for _ in range(events):
+        eng.step(random_valid_actions(eng.masks, rng))
+        if eng.state.done[0]:
+            eng.reset()
+    return {
+        "global_map": eng.obs_global[0].copy(),  # (N, 5+C, S, S) uint8
+        "local_map": eng.obs_local[0].copy(),  # (N, 4+C, L, L) uint8
+        "agent_class": np.eye(cfg.num_classes, dtype=np.float32)[eng.state.cls[0]],  # (N, C) one-hot
+        "action_mask": eng.masks[0].astype(bool),  # (N, A)
+        "active": np.ones(cfg.num_robots, dtype=bool),
+    }
 
 
 def log_labels(ax: Any) -> None:

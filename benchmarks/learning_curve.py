@@ -21,7 +21,7 @@ import numpy as np
 import torch
 
 from catmip_env.baselines import make_planner
-from catmip_env.events import EventEngine
+from catmip_env.events import EventEngine, random_valid_actions
 from catmip_rl.amat import AMAT
 from catmip_rl.collect import Collector
 from catmip_rl.config import make_train_config
@@ -48,7 +48,7 @@ def random_window_success(cfg_env) -> tuple[float, float]:
     rng = np.random.default_rng(0)
     eng.reset()
     while not eng.state.done.all():
-        eng.step(np.argmax(rng.random(eng.masks.shape) * eng.masks, axis=-1))
+        eng.step(random_valid_actions(eng.masks, rng))
     t = eng.state.rescue_tick
     return float((t >= 0).mean()), float(((t >= 0) & (t <= 100)).mean())
 

@@ -30,10 +30,15 @@ from catmip_env.macro import (
 )
 from catmip_env.sensing import RAY_NBLOCK, VIEW_BLOCKERS, VIEW_OFFSETS
 
-__all__ = ["EventEngine", "EventResult", "GOAL_MODES"]
+__all__ = ["EventEngine", "EventResult", "GOAL_MODES", "random_valid_actions"]
 
 GOAL_MODES = ("window", "cell")
 INVALID_ACTION_MODES = ("raise", "stay")
+
+
+def random_valid_actions(masks: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """One uniformly random allowed action per robot for masks (..., A) (a random floor, test input)."""
+    return np.argmax(rng.random(masks.shape) * masks, axis=-1)
 
 
 class EventResult(NamedTuple):

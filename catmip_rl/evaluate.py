@@ -266,14 +266,15 @@ class EvalResult:
         return out
 
 
-def _progress(total: int, desc: str, enabled: bool):
+def progress_bar(total: int, desc: str, enabled: bool = True, unit: str = "ep", leave: bool = False):
+    """A tqdm bar, or None when disabled or tqdm is missing (it comes with the rl extra)."""
     if not enabled:
         return None
     try:
         from tqdm import tqdm
     except ImportError:
         return None
-    return tqdm(total=total, desc=desc, unit="ep", leave=False, mininterval=0.5)
+    return tqdm(total=total, desc=desc, unit=unit, leave=leave, mininterval=0.5)
 
 
 def evaluate(
@@ -302,7 +303,7 @@ def evaluate(
         policy.reset_counters(episodes)
     decisions = np.zeros(episodes, np.int64)
     events = np.zeros(episodes, np.int64)
-    bar = _progress(episodes, f"{method.name} {setting.label}", progress)
+    bar = progress_bar(episodes, f"{method.name} {setting.label}", progress)
     t0 = time.perf_counter()
     while not eng.state.done.all():
         live = ~eng.state.done

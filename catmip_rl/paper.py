@@ -20,12 +20,13 @@ import json
 import multiprocessing
 import os
 from concurrent.futures import ProcessPoolExecutor
+from contextlib import ExitStack
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from catmip_rl.evaluate import EvalSetting, Method, evaluate, parse_method
+from catmip_rl.evaluate import EvalSetting, Method, evaluate, parse_method, progress_bar
 from catmip_rl.files import atomic_write_csv, atomic_write_text
 
 __all__ = [
@@ -71,12 +72,12 @@ def figure_settings(figure: int) -> list[tuple[str, EvalSetting]]:
     return FIGURES[figure][1]
 
 
-def _run_one(args: tuple[str, EvalSetting, int, int, str, int]) -> dict[str, Any]:
-    spec, setting, episodes, seed, out, threads = args
+def _run_one(args: tuple[Method, EvalSetting, int, int, str, int]) -> dict[str, Any]:
+    method, setting, episodes, seed, out, threads = args
     import torch
 
     torch.set_num_threads(threads)
-    result = evaluate(spec, setting, episodes=episodes, seed=seed)
+    result = evaluate(method, setting, episodes=episodes, seed=seed)
     result.write(out)
     return {"out": out, "summary": result.summary, "curve": result.curve.tolist()}
 
@@ -96,19 +97,13 @@ def run_figure(
     names = [m.name for m in parsed]
     if len(set(names)) != len(names):
         raise ValueError(f"method names must be unique (use NAME=amat:PATH), got {names}")
-    specs = list(methods or DEFAULT_METHODS)
     fig_dir = Path(out) / f"fig{figure}"
-    tasks = []
-    for _panel, setting in panels:
-        for spec, method in zip(specs, parsed):
-            run_dir = fig_dir / setting.label / method.name
-            tasks.append((spec, setting, episodes, seed, str(run_dir), 1 if jobs > 1 else 2))
+    grid = [(panel, setting, method) for panel, setting in panels for method in parsed]
+    threads = 1 if jobs > 1 else 2
+    tasks = [(m, st, episodes, seed, str(fig_dir / st.label / m.name), threads) for _, st, m in grid]
     results = _map(tasks, jobs, progress, f"figure {figure}")
-    panel_of = {s.label: p for p, s in panels}
     curve_rows, summary_rows, runs = [], [], []
-    for task, res in zip(tasks, results):
-        setting, method = task[1], parse_method(task[0])
-        panel = panel_of[setting.label]
+    for (panel, _setting, method), res in zip(grid, results):
         for t, v in enumerate(res["curve"]):
             curve_rows.append(
                 {"figure": figure, "panel": panel, "method": method.name, "tick": t, "success_rate": v}
@@ -128,26 +123,19 @@ def run_figure(
 
 
 def _map(tasks: list, jobs: int, progress: bool, desc: str) -> list[dict[str, Any]]:
-    bar = None
-    if progress:
-        try:
-            from tqdm import tqdm
-
-            bar = tqdm(total=len(tasks), desc=desc, unit="run")
-        except ImportError:
-            bar = None
+    bar = progress_bar(len(tasks), desc, progress, unit="run", leave=True)
     results: list[dict[str, Any]] = []
-    if jobs <= 1:
-        for t in tasks:
-            results.append(_run_one(t))
+    with ExitStack() as stack:
+        if jobs <= 1:
+            runs = map(_run_one, tasks)
+        else:
+            spawn = multiprocessing.get_context("spawn")
+            pool = stack.enter_context(ProcessPoolExecutor(max_workers=jobs, mp_context=spawn))
+            runs = pool.map(_run_one, tasks)
+        for res in runs:
+            results.append(res)
             if bar is not None:
                 bar.update(1)
-    else:
-        with ProcessPoolExecutor(max_workers=jobs, mp_context=multiprocessing.get_context("spawn")) as pool:
-            for res in pool.map(_run_one, tasks):
-                results.append(res)
-                if bar is not None:
-                    bar.update(1)
     if bar is not None:
         bar.close()
     return results

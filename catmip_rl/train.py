@@ -22,6 +22,7 @@ from catmip_rl.amat import AMAT
 from catmip_rl.checkpoint import atomic_torch_save
 from catmip_rl.collect import Collector, Rollout
 from catmip_rl.config import TrainConfig
+from catmip_rl.files import atomic_write_text
 from catmip_rl.gae import async_gae
 from catmip_rl.ppo import SampleBatch, ValueNorm, ppo_loss
 
@@ -143,9 +144,7 @@ def train(cfg: TrainConfig, run_dir: str | Path, resume: bool = False, progress:
             f"{run_dir} already holds a run; pass --resume to continue it or pick a new dir"
         )
     run_dir.mkdir(parents=True, exist_ok=True)
-    tmp = run_dir / "config.json.tmp"
-    tmp.write_text(cfg.to_json())
-    tmp.replace(run_dir / "config.json")
+    atomic_write_text(run_dir / "config.json", cfg.to_json())
 
     # -- build the parts -------------------------------------------------------------------------------
     torch.set_num_threads(cfg.threads)

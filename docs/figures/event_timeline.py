@@ -19,7 +19,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from catmip_env import PRESETS  # noqa: E402
-from catmip_env.events import EventEngine  # noqa: E402
+from catmip_env.events import EventEngine, random_valid_actions  # noqa: E402
 from catmip_env.macro import M_WAIT  # noqa: E402
 
 
@@ -29,7 +29,7 @@ def trace(seed: int, ticks: int):
     rng = np.random.default_rng(seed)
     events = [(0, eng.active[0].copy(), np.zeros(eng.num_robots, np.int64))]
     while eng.state.ticks[0] < ticks and not eng.state.done[0]:
-        eng.step(np.argmax(rng.random(eng.masks.shape) * eng.masks, axis=-1))
+        eng.step(random_valid_actions(eng.masks, rng))
         events.append((int(eng.state.ticks[0]), eng.active[0].copy(), eng.mstate[0, :, M_WAIT].copy()))
     names = [eng.cfg.classes[c].name for c in eng.state.cls[0]]
     return events, names

@@ -5,15 +5,11 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from catmip_env import make_config
-from catmip_env.events import EventEngine
+from catmip_env.events import EventEngine, random_valid_actions
 from catmip_env.macro import M_KNEW
 from catmip_env.types import CLUE, CLUE_BIT, EXPLORED, FREE, OCCUPIED, TARGET, TARGET_BIT
 
 from .helpers import bfs_distance
-
-
-def _random_valid(rng, masks):
-    return np.argmax(rng.random(masks.shape) * masks, axis=-1)
 
 
 @settings(max_examples=25, deadline=None)
@@ -73,7 +69,7 @@ def test_event_invariants(seed, preset, comm, noise, activation, sync, goal_mode
         if not live.any():
             break
         assert eng.active[live].any(axis=1).all(), "a live world waits at an event nobody decides"
-        ev = eng.step(_random_valid(rng, eng.masks))
+        ev = eng.step(random_valid_actions(eng.masks, rng))
         total[live] += ev.rewards[live]
         ticks[live] += ev.event_ticks[live]
     s = eng.state
@@ -94,7 +90,7 @@ def _play(eng, seed, events=400):
     for _ in range(events):
         if eng.state.done.all():
             break
-        ev = eng.step(_random_valid(rng, eng.masks))
+        ev = eng.step(random_valid_actions(eng.masks, rng))
         out.append(
             [x.copy() for x in ev]
             + [eng.obs_global.copy(), eng.obs_local.copy(), eng.masks.copy(), eng.state.pos.copy()]

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from catmip_env import EnvConfig
-from catmip_env.events import EventEngine
+from catmip_env.events import EventEngine, random_valid_actions
 from catmip_env.macro import M_DEADLINE, M_STANDBY
 from catmip_env.types import WALL
 
@@ -214,7 +214,7 @@ def test_masks_follow_the_rule():
                 )
             else:
                 assert eng.masks[0, i].sum() == 1 and eng.masks[0, i, 24] == 1
-        a = np.argmax(rng.random(eng.masks.shape) * eng.masks, axis=-1)
+        a = random_valid_actions(eng.masks, rng)
         eng.step(a)
         if eng.state.done[0]:
             break

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 import torch
 
-from catmip_env.events import EventEngine
+from catmip_env.events import EventEngine, random_valid_actions
 from catmip_rl.amat import AMAT
 from catmip_rl.config import make_train_config
 from catmip_rl.train import evaluate_policy, train
@@ -16,7 +16,7 @@ def _random_window_success(cfg) -> float:
     rng = np.random.default_rng(0)
     eng.reset()
     while not eng.state.done.all():
-        eng.step(np.argmax(rng.random(eng.masks.shape) * eng.masks, axis=-1))
+        eng.step(random_valid_actions(eng.masks, rng))
     return float((eng.state.rescue_tick >= 0).mean())
 
 
