@@ -227,9 +227,15 @@ class AMAT(nn.Module):
         """
         gmap, lmap, cls = obs["global_map"], obs["local_map"], obs["agent_class"]
         b, n = gmap.shape[:2]
-        g = _as_float(gmap).flatten(0, 1)  # (B*N, 5+C, S, S)
-        g = F.conv2d(g, self.global_conv.weight, self.global_conv.bias, padding=3)  # (B*N, 32, S, S)
-        g = _max_pool(g, self.config.pool)  # (B*N, 32, G, G)
+        if gmap.dtype == torch.uint8 and gmap.device.type == "cpu" and torch.is_grad_enabled():
+            # training on CPU: sparse conv + pool with a winning-cell backward (catmip_rl.sparse_conv)
+            from catmip_rl.sparse_conv import global_conv_pool
+
+            g = global_conv_pool(gmap, self.global_conv.weight, self.global_conv.bias, self.config.pool)
+        else:
+            g = _as_float(gmap).flatten(0, 1)  # (B*N, 5+C, S, S)
+            g = F.conv2d(g, self.global_conv.weight, self.global_conv.bias, padding=3)  # (B*N, 32, S, S)
+            g = _max_pool(g, self.config.pool)  # (B*N, 32, G, G)
         g = F.relu(_ln(g, self.global_ln)).flatten(1)  # (B*N, 32 G^2)
         x = _as_float(lmap).flatten(0, 1)  # (B*N, 4+C, L, L)
         x = F.relu(

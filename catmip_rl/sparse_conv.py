@@ -1,0 +1,209 @@
+"""The global CNN of AMAT's embedder for training on CPU: convolution + adaptive max pool, forward and
+backward, on the sparse uint8 global maps (SPEC §3, §5).
+
+``global_conv_pool(gmap, weight, bias, pool)`` equals
+``adaptive_max_pool2d(conv2d(gmap * 0.25, weight, bias, padding=k // 2), pool)`` with its gradients for
+``weight`` and ``bias`` (the maps are data: no input gradient), at a fraction of the dense cost:
+
+* forward — per decision event, the robots' global convolutions by ``fast_infer``'s shared/sparse split
+  (the belief channels that merged robots share are convolved once, the robot stamps and goal as the
+  few cells they are; exact for any input, dense where that is cheaper), then the max pool, keeping the
+  winning cell of every (robot, channel, bin);
+* backward — max pooling passes each bin's gradient to its winning cell alone, so the weight gradient
+  is ``sum over (robot, channel, bin) of grad * (the k x k input patch at the winning cell)``: one
+  contiguous k * C run per kernel row of a channel-last copy of the map, instead of a dense
+  correlation over every cell.
+
+Both are numba loops (GIL released) over a fixed number of chunks of the batch, run on torch's number of
+threads: the results do not depend on the thread count. Ties inside a bin go to the first cell in
+row-major order, as torch's pool; because the sums run in another order than torch's convolution, a
+near-tie can pick another cell than the dense path would (values agree to float32 rounding either way).
+"""
+
+from __future__ import annotations
+
+from collections import namedtuple
+from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
+
+import numpy as np
+import torch
+from numba import njit
+
+from catmip_rl.amat import OBS_SCALE
+from catmip_rl.fast_infer import _SHARED, _add_planes, _fill, _ones_conv, _robot_conv, _row_prefix
+
+__all__ = ["global_conv_pool", "GlobalConvPool", "CHUNKS"]
+
+CHUNKS = 8
+"""Work split of the parallel loops: fixed, so that results do not depend on the thread count."""
+
+_jit = njit(cache=True, nogil=True, error_model="numpy", fastmath={"reassoc", "contract", "nsz"})
+
+
+_GW = namedtuple("_GW", ["g_w", "g_pre", "g_torch", "g_b"])
+
+
+class _ConvWeights:
+    """The global conv's weights in the layouts of ``fast_infer``'s kernels (fields as its ``_Weights``)."""
+
+    def __init__(self, weight: torch.Tensor, bias: torch.Tensor) -> None:
+        w = weight.detach().float().cpu().numpy()
+        self.g_torch = np.ascontiguousarray(w)
+        self.g_w = np.ascontiguousarray(w[:, :, ::-1, ::-1].transpose(1, 2, 3, 0))  # (C, k, k, O) flipped
+        self.g_pre = _row_prefix(self.g_w)
+        self.g_b = np.ascontiguousarray(bias.detach().float().cpu().numpy())
+
+    def as_tuple(self):
+        return _GW(self.g_w, self.g_pre, self.g_torch, self.g_b)
+
+
+@_jit
+def _pool_argmax(x, g, pooled, where):
+    """Adaptive max pool of x (S, S, O) into pooled (O, g, g) and the winning flat cell y * S + x into
+    where (O, g, g); torch's bins, the first maximum in row-major order (strictly greater replaces)."""
+    h, wd, n_out = x.shape
+    flat = x.ravel()
+    best = np.empty(n_out, np.float32)
+    arg = np.empty(n_out, np.int32)
+    for gy in range(g):
+        y0, y1 = gy * h // g, ((gy + 1) * h + g - 1) // g
+        for gx in range(g):
+            x0, x1 = gx * wd // g, ((gx + 1) * wd + g - 1) // g
+            best[:] = -np.inf
+            arg[:] = y0 * wd + x0
+            for yy in range(y0, y1):
+                for xx in range(x0, x1):
+                    cell = np.int32(yy * wd + xx)
+                    row = flat[cell * n_out : (cell + 1) * n_out]  # a slice: the loop vectorises
+                    for o in range(n_out):
+                        v = row[o]
+                        gt = v > best[o]
+                        best[o] = v if gt else best[o]
+                        arg[o] = cell if gt else arg[o]
+            for o in range(n_out):
+                pooled[o, gy, gx] = best[o]
+                where[o, gy, gx] = arg[o]
+
+
+@_jit
+def _forward(w, gmap, scale, ones, g, pooled, where, m0, m1):
+    """Events m0 .. m1-1 of gmap (M, N, C, S, S): pooled and where (M * N, O, g, g) of their robots
+    (``fast_infer``'s shared base + per-robot convolution, into buffers reused across events)."""
+    n, n_ch, h, wd = gmap.shape[1:]
+    zero = np.zeros((h, wd), gmap.dtype)
+    base = np.empty((h, wd, w.g_b.size), np.float32)
+    work = np.empty((h, wd, w.g_b.size), np.float32)
+    conv = (w.g_w, w.g_pre, w.g_torch)
+    for m in range(m0, m1):
+        _fill(base, w.g_b)
+        _add_planes(base, conv, ones, gmap[m, 0], 0, min(_SHARED, n_ch), zero, scale)
+        for i in range(n):
+            _robot_conv(w, gmap[m], i, scale, ones, zero, base, work)
+            _pool_argmax(work, g, pooled[m * n + i], where[m * n + i])
+
+
+@_jit
+def _weight_grad(gmap, scale, grad, where, k, r0, r1, acc):
+    """acc (O, k, k, 8) += the weight gradient of robots r0 .. r1-1: grad * the input patch at each
+    bin's winning cell, summed. gmap (R, C, S, S) uint8 / float, grad and where (R, O, g, g).
+
+    Patches are read from a zero-padded channel-last copy of the map with the channels padded to 8, so
+    that each kernel row is whole vectors."""
+    n_ch, h, wd = gmap.shape[1:]
+    n_out, k2, ch8 = acc.shape[0], acc.shape[1], acc.shape[3]
+    pad = k // 2
+    run = k * ch8
+    wp = wd + 2 * pad
+    xp = np.zeros((h + 2 * pad) * wp * ch8, np.float32)
+    a = acc.ravel()
+    for r in range(r0, r1):
+        for y in range(h):
+            for x in range(wd):
+                c0 = ((y + pad) * wp + x + pad) * ch8
+                for c in range(n_ch):
+                    xp[c0 + c] = gmap[r, c, y, x] * scale
+        gr, wr = grad[r].ravel(), where[r].ravel()
+        cells = gr.size // n_out
+        for j in range(gr.size):
+            gv = gr[j]
+            if gv == 0.0:
+                continue
+            d0 = (j // cells) * k2 * run
+            s0 = ((wr[j] // wd) * wp + wr[j] % wd) * ch8
+            for ty in range(k):
+                d1, s1 = d0 + ty * run, s0 + ty * wp * ch8
+                dst, src = a[d1 : d1 + run], xp[s1 : s1 + run]  # slices, so that the loop vectorises
+                for q in range(run):
+                    dst[q] += gv * src[q]
+
+
+_POOLS: dict[int, ThreadPoolExecutor] = {}
+
+
+def _in_chunks(work: Callable[[int, int, int], None], n_items: int) -> None:
+    """``work(lo, hi, chunk)`` on CHUNKS contiguous ranges of ``n_items``, on as many threads as torch
+    uses (the kernels release the GIL; no second OpenMP runtime next to torch's)."""
+    bounds = np.linspace(0, n_items, CHUNKS + 1).astype(np.int64)
+    jobs = [(int(bounds[c]), int(bounds[c + 1]), c) for c in range(CHUNKS) if bounds[c + 1] > bounds[c]]
+    workers = max(1, min(torch.get_num_threads(), len(jobs)))
+    if workers == 1:
+        for job in jobs:
+            work(*job)
+        return
+    if workers not in _POOLS:
+        _POOLS[workers] = ThreadPoolExecutor(workers, thread_name_prefix="catmip-sparse-conv")
+    for future in [_POOLS[workers].submit(work, *job) for job in jobs]:
+        future.result()
+
+
+class GlobalConvPool(torch.autograd.Function):
+    """``(gmap (M, N, C, S, S) uint8, weight, bias, pool) -> (M * N, O, pool, pool)``; see the module."""
+
+    @staticmethod
+    def forward(ctx, gmap: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor, pool: int) -> torch.Tensor:
+        m, n, _, s, s2 = gmap.shape
+        n_out, k = weight.shape[0], weight.shape[-1]
+        w = _ConvWeights(weight, bias)
+        ones = _ones_conv(w.g_w, np.ones((s, s2), np.float32))
+        maps = gmap.numpy()
+        pooled = np.empty((m * n, n_out, pool, pool), np.float32)
+        where = np.empty((m * n, n_out, pool, pool), np.int32)
+        scale = np.float32(OBS_SCALE)
+        weights = w.as_tuple()
+        _in_chunks(lambda lo, hi, _: _forward(weights, maps, scale, ones, pool, pooled, where, lo, hi), m)
+        ctx.save_for_backward(gmap)
+        ctx.where, ctx.k = where, k
+        return torch.from_numpy(pooled)
+
+    @staticmethod
+    def backward(ctx, grad: torch.Tensor):
+        (gmap,) = ctx.saved_tensors
+        d_weight = d_bias = None
+        if ctx.needs_input_grad[1]:
+            g = np.ascontiguousarray(grad.detach().float().numpy())
+            maps = gmap.flatten(0, 1).numpy()
+            n_out, n_ch, k = g.shape[1], maps.shape[1], ctx.k
+            acc = np.zeros((CHUNKS, n_out, k, k, (n_ch + 7) // 8 * 8), np.float32)  # one per chunk
+            scale = np.float32(OBS_SCALE)
+            where = ctx.where
+            _in_chunks(lambda lo, hi, c: _weight_grad(maps, scale, g, where, k, lo, hi, acc[c]), len(maps))
+            total = acc.sum(0, dtype=np.float64)[..., :n_ch].transpose(0, 3, 1, 2)  # (O, C, k, k)
+            d_weight = torch.from_numpy(np.ascontiguousarray(total, dtype=np.float32))
+        if ctx.needs_input_grad[2]:
+            d_bias = grad.sum((0, 2, 3))
+        return None, d_weight, d_bias, None
+
+
+def global_conv_pool(gmap: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor, pool: int) -> torch.Tensor:
+    """Global conv + adaptive max pool of uint8 maps (M, N, C, S, S) on CPU -> (M * N, O, pool, pool)."""
+    if gmap.dtype != torch.uint8 or gmap.dim() != 5 or gmap.device.type != "cpu":
+        raise ValueError(
+            f"global_conv_pool needs CPU uint8 maps (M, N, C, S, S), got {gmap.dtype} {tuple(gmap.shape)} "
+            f"on {gmap.device}"
+        )
+    if gmap.shape[2] != weight.shape[1] or gmap.shape[3] != gmap.shape[4]:
+        raise ValueError(
+            f"maps must be (M, N, {weight.shape[1]}, S, S) for this convolution, got {tuple(gmap.shape)}"
+        )
+    return GlobalConvPool.apply(gmap.contiguous(), weight, bias, pool)
