@@ -26,8 +26,8 @@ from catmip_rl.amat import AMAT
 from catmip_rl.collect import Collector
 from catmip_rl.config import make_train_config
 from catmip_rl.gae import async_gae  # noqa: F401  (compiled before the clock starts)
-from catmip_rl.ppo import ValueNorm, ppo_loss
-from catmip_rl.train import build_batch
+from catmip_rl.ppo import ValueNorm
+from catmip_rl.train import build_batch, make_optimizer, ppo_update
 
 EVAL_EPISODES = 64
 EVAL_SEED = 2025
@@ -73,7 +73,7 @@ def main() -> None:
     torch.manual_seed(cfg.seed)
     gen = torch.Generator().manual_seed(cfg.seed)
     model = AMAT(cfg.amat_config())
-    opt = torch.optim.Adam(model.parameters(), lr=cfg.lr, eps=cfg.adam_eps)
+    opt = make_optimizer(model, cfg)
     value_norm = ValueNorm()
     collector = Collector(cfg.env_config(), cfg.num_worlds, cfg.seed, cfg.gamma)
     evaluator = Collector(eval_env, EVAL_EPISODES, EVAL_SEED, cfg.gamma)
@@ -95,15 +95,7 @@ def main() -> None:
         batch, _ = build_batch(
             rollout, value_norm, cfg.gamma, cfg.lam, cfg.env_config().num_classes, torch.device("cpu")
         )
-        model.train()
-        for _ in range(cfg.epochs):
-            for idx in torch.randperm(len(batch), generator=gen).chunk(cfg.minibatches):
-                loss, _ = ppo_loss(model, batch.index(idx), cfg.clip, cfg.value_clip, cfg.huber_delta,
-                                   cfg.entropy_coef, cfg.value_coef)  # fmt: skip
-                opt.zero_grad(set_to_none=True)
-                loss.backward()
-                torch.nn.utils.clip_grad_norm_(model.parameters(), cfg.max_grad_norm)
-                opt.step()
+        ppo_update(model, opt, batch, cfg, gen)
         it += 1
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)

@@ -32,9 +32,9 @@ def _train(args: argparse.Namespace) -> int:
     from catmip_rl.train import train
 
     overrides = _parse_set(args.set)
-    for name in ("iterations", "num_worlds", "epochs", "minibatches", "seed", "device", "threads",
-                 "eval_every", "eval_episodes", "checkpoint_every", "lr", "collector", "ray_workers",
-                 "ray_address"):  # fmt: skip
+    for name in ("iterations", "num_worlds", "epochs", "minibatches", "micro_batch", "seed", "device",
+                 "threads", "eval_every", "eval_episodes", "checkpoint_every", "lr", "collector",
+                 "ray_workers", "ray_address"):  # fmt: skip
         value = getattr(args, name)
         if value is not None:
             overrides[name] = value
@@ -152,6 +152,7 @@ def main(argv: list[str] | None = None) -> int:
     tr.add_argument("--num-worlds", type=int)
     tr.add_argument("--epochs", type=int)
     tr.add_argument("--minibatches", type=int)
+    tr.add_argument("--micro-batch", type=int, help="events per forward/backward pass (0 = whole minibatch)")
     tr.add_argument("--lr", type=float)
     tr.add_argument("--seed", type=int)
     tr.add_argument("--device", help="cpu | cuda | cuda:N")

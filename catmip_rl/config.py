@@ -31,6 +31,9 @@ class TrainConfig:
     """PPO epochs per iteration."""
     minibatches: int = 1
     """Minibatches per epoch (1 = full batch)."""
+    micro_batch: int = 512
+    """Decision events per forward/backward pass: a minibatch's gradient is accumulated over its
+    micro-batches (the same gradient, in bounded memory and faster on CPU caches); 0 = one pass."""
     lr: float = 1e-4
     adam_eps: float = 1e-5
     clip: float = 0.05
@@ -66,7 +69,7 @@ class TrainConfig:
         for name in ("num_worlds", "iterations", "epochs", "minibatches", "threads", "eval_episodes"):
             if not isinstance(getattr(self, name), int) or getattr(self, name) < 1:
                 raise ValueError(f"TrainConfig.{name} must be an int >= 1, got {getattr(self, name)!r}")
-        for name in ("eval_every", "checkpoint_every"):
+        for name in ("eval_every", "checkpoint_every", "micro_batch"):
             if not isinstance(getattr(self, name), int) or getattr(self, name) < 0:
                 raise ValueError(f"TrainConfig.{name} must be an int >= 0, got {getattr(self, name)!r}")
         for name in ("lr", "adam_eps", "clip", "value_clip", "huber_delta", "max_grad_norm"):

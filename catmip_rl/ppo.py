@@ -88,15 +88,20 @@ def ppo_loss(
     huber_delta: float = 10.0,
     entropy_coef: float = 0.01,
     value_coef: float = 1.0,
+    count: torch.Tensor | float | None = None,
 ) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
-    """Total loss and its parts; every term averages over trainable (active, finished) robots only."""
+    """Total loss and its parts; every term averages over trainable (active, finished) robots only.
+
+    ``count`` replaces the number of trainable robots as the denominator: with the count of a whole
+    minibatch, the losses (and parts) of its micro-batches add up to the minibatch's.
+    """
     obs = {"global_map": batch.global_map, "local_map": batch.local_map, "agent_class": batch.agent_class}
     rep, values = model.encode(model.embed(obs))  # (M, N, d), (M, N, 1)
     logits = model.decode_parallel(rep, batch.action, batch.order, batch.agent_class, batch.action_mask)
     logp_all = torch.log_softmax(logits.float(), -1)  # (M, N, A)
     logp = logp_all.gather(-1, batch.action[..., None])[..., 0]
     w = batch.trainable.float()
-    count = w.sum().clamp_min(1.0)
+    count = w.sum().clamp_min(1.0) if count is None else count
     ratio = torch.exp(logp - batch.log_prob)
     surrogate = torch.min(ratio * batch.advantage, ratio.clamp(1 - clip, 1 + clip) * batch.advantage)
     policy_loss = -(surrogate * w).sum() / count
