@@ -10,8 +10,10 @@
   observations and on random dense maps (its worst case). Median of ``--repeats``.
 * acting — batched decisions (B = 64, 1024 worlds of Task 2, every robot active), one thread,
   agent-decisions per second.
-* training — forward (embed, encode, teacher-forced decode) + PPO-style loss + backward + Adam on
-  Task-2 batches, two threads, agent-samples per second, fp32 and CPU bf16 autocast.
+* training — one PPO minibatch step (``ppo_loss``: embed, encode, teacher-forced decode; backward;
+  grad-norm clip; fused Adam) on a batch of 256 decision events drawn from Task-2 episodes (real maps,
+  uint8 as the collector stores them, so the global CNN takes its sparse path), two threads,
+  agent-samples (robot tokens) per second, fp32 and CPU bf16 autocast.
 
 Writes JSON and a PNG next to it.
 """
@@ -24,13 +26,18 @@ import statistics
 import time
 from pathlib import Path
 
+import numpy as np
 import torch
 import torch.nn.functional as F
 from common import env_observation, write_json
 
-from catmip_env.config import PRESETS
+from catmip_env.config import PRESETS, make_config
+from catmip_env.events import EventEngine, random_valid_actions
 from catmip_rl.amat import AMAT, decision_order
+from catmip_rl.config import make_train_config
 from catmip_rl.fast_infer import FastAmat
+from catmip_rl.ppo import SampleBatch, ppo_loss
+from catmip_rl.train import make_optimizer
 
 TOKEN_INPUTS = ("global_map", "local_map", "agent_class")
 TASKS = ((2, 15, "task1"), (3, 20, "task2"), (6, 32, "task3"))  # (robots, map side, preset) of Tasks 1-3
@@ -134,38 +141,69 @@ def bench_acting(model: AMAT, batches=(64, 1024)) -> list[dict]:
     return rows
 
 
-def bench_training(model: AMAT, batch: int, bf16: bool, steps: int) -> dict:
+def task2_training_batch(events: int, seed: int = 0) -> SampleBatch:
+    """``events`` decision events drawn uniformly from one episode in each of 64 Task-2 worlds (20x20,
+    rescuer + 2 explorers, training activation (2, 5)) played with random valid goals: real maps as a
+    training batch holds them, from the first event to the last. Advantages and targets are random."""
+    eng = EventEngine(make_config("task2", activation=(2, 5)), 64, seed)
+    eng.reset()
+    rng = np.random.default_rng(seed)
+    rows: dict[str, list] = {k: [] for k in ("global_map", "local_map", "cls", "mask", "active", "action")}
+    while not eng.state.done.all():
+        live = np.flatnonzero(~eng.state.done)
+        actions = random_valid_actions(eng.masks, rng)
+        seen = (eng.obs_global, eng.obs_local, eng.state.cls, eng.masks, eng.active, actions)
+        for key, value in zip(rows, seen):
+            rows[key].append(np.array(value[live]))
+        eng.step(actions)
+    data = {k: torch.from_numpy(np.concatenate(v)) for k, v in rows.items()}
+    pick = torch.from_numpy(rng.choice(len(data["action"]), events, replace=False))
+    data = {k: v[pick] for k, v in data.items()}
+    active = data["active"].bool()
+    g = torch.Generator().manual_seed(seed)
+    m, n = active.shape
+    return SampleBatch(
+        global_map=data["global_map"],
+        local_map=data["local_map"],
+        agent_class=F.one_hot(data["cls"].long(), 2).float(),
+        action_mask=data["mask"].bool(),
+        order=decision_order(active),
+        action=data["action"].long(),
+        log_prob=-torch.rand(m, n, generator=g),
+        value=torch.randn(m, n, generator=g),
+        advantage=torch.randn(m, n, generator=g),
+        target=torch.randn(m, n, generator=g),
+        trainable=active,
+    )
+
+
+def bench_training(model: AMAT, batch: SampleBatch, bf16: bool, steps: int) -> dict:
+    """One PPO minibatch step as training runs it: ``ppo_loss`` forward, backward, grad-norm clip and
+    fused Adam (``catmip_rl.train.make_optimizer``), on two threads."""
     torch.set_num_threads(2)
-    n, s = 3, 20
-    obs = _obs(batch, n, s)
-    mask = torch.ones(batch, n, model.config.num_actions, dtype=torch.bool)
-    active = torch.rand(batch, n, generator=torch.Generator().manual_seed(1)) < 0.5
-    active[:, 0] = True
-    order = decision_order(active)
-    actions = torch.randint(0, model.config.num_actions, (batch, n))
-    opt = torch.optim.Adam(model.parameters(), lr=1e-4, eps=1e-5)
+    opt = make_optimizer(model, make_train_config("paper"))
+    m, n = batch.action.shape
 
     def step():
         with torch.autocast("cpu", dtype=torch.bfloat16, enabled=bf16):
-            rep, values = model.encode(model.embed(obs))
-            logits = model.decode_parallel(rep, actions, order, obs["agent_class"], mask)
-        logp = torch.log_softmax(logits.float(), -1).gather(-1, actions[..., None])[..., 0]
-        loss = -(logp * active).sum() / active.sum() + values.float().pow(2).mean()
+            loss, _ = ppo_loss(model, batch)
         opt.zero_grad(set_to_none=True)
         loss.backward()
+        torch.nn.utils.clip_grad_norm_(model.parameters(), 10.0)
         opt.step()
 
     ms = _median_ms(step, repeats=steps, warmup=2)
     row = {
-        "worlds": batch,
+        "worlds": m,
         "robots": n,
-        "map": s,
+        "map": batch.global_map.shape[-1],
+        "batch": "task2 rollout events",
         "precision": "bf16-autocast" if bf16 else "fp32",
         "ms_per_step": ms,
-        "agent_samples_per_s": batch * n / ms * 1000,
+        "agent_samples_per_s": m * n / ms * 1000,
     }
     rate = row["agent_samples_per_s"]
-    print(f"training {row['precision']:>13} batch {batch}x{n}: {ms:.0f} ms/step, {rate:,.0f} agent-samples/s")
+    print(f"training {row['precision']:>13} batch {m}x{n}: {ms:.0f} ms/step, {rate:,.0f} agent-samples/s")
     return row
 
 
@@ -212,13 +250,16 @@ def plot(results: dict, path: Path) -> None:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--repeats", type=int, default=200)
-    ap.add_argument("--train-batch", type=int, default=256, help="worlds per training step (x3 robots)")
+    ap.add_argument(
+        "--train-batch", type=int, default=256, help="decision events per training step (x3 robots)"
+    )
     ap.add_argument("--train-steps", type=int, default=10)
     ap.add_argument("--bf16-steps", type=int, default=2, help="bf16 is very slow on CPUs without bf16 units")
     ap.add_argument("--out", default="benchmarks/results/amat.json")
     args = ap.parse_args()
     torch.manual_seed(0)
     model = AMAT().eval()
+    batch = task2_training_batch(args.train_batch)
     results = {
         "machine": {
             "python": platform.python_version(),
@@ -228,8 +269,8 @@ def main() -> None:
         "latency": bench_latency(model, args.repeats),
         "acting": bench_acting(model),
         "training": [
-            bench_training(AMAT().train(), args.train_batch, False, args.train_steps),
-            bench_training(AMAT().train(), args.train_batch, True, args.bf16_steps),
+            bench_training(AMAT().train(), batch, False, args.train_steps),
+            bench_training(AMAT().train(), batch, True, args.bf16_steps),
         ],
     }
     out = write_json(args.out, results)
