@@ -11,8 +11,8 @@ backward, on the sparse uint8 global maps (SPEC §3, §5).
   winning cell of every (robot, channel, bin);
 * backward — max pooling passes each bin's gradient to its winning cell alone, so the weight gradient
   is ``sum over (robot, channel, bin) of grad * (the k x k input patch at the winning cell)``: one
-  contiguous k * C run per kernel row of a channel-last copy of the map, instead of a dense
-  correlation over every cell.
+  contiguous run per patch in a copy of the map laid out by kernel row, instead of a dense correlation
+  over every cell.
 
 Both are numba loops (GIL released) over a fixed number of chunks of the batch, run on torch's number of
 threads: the results do not depend on the thread count. Ties inside a bin go to the first cell in
@@ -105,37 +105,41 @@ def _forward(w, gmap, scale, ones, g, pooled, where, m0, m1):
 
 @_jit
 def _weight_grad(gmap, scale, grad, where, k, r0, r1, acc):
-    """acc (O, k, k, 8) += the weight gradient of robots r0 .. r1-1: grad * the input patch at each
-    bin's winning cell, summed. gmap (R, C, S, S) uint8 / float, grad and where (R, O, g, g).
+    """acc (O, k (tx), k (ty), 8) += the weight gradient of robots r0 .. r1-1: grad * the input patch at
+    each bin's winning cell, summed. gmap (R, C, S, S) uint8 / float, grad and where (R, O, g, g).
 
-    Patches are read from a zero-padded channel-last copy of the map with the channels padded to 8, so
-    that each kernel row is whole vectors."""
+    The map is copied zero-padded, channel-last with the channels padded to 8, and stacked by kernel
+    row: ``rows[y, x, ty] = padded[y + ty, x]``. The patch of output cell (y, x) is then one contiguous
+    run ``rows[y, x : x + k]`` of k * k * 8 floats, added in a single vectorised loop."""
     n_ch, h, wd = gmap.shape[1:]
-    n_out, k2, ch8 = acc.shape[0], acc.shape[1], acc.shape[3]
+    n_out, ch8 = acc.shape[0], acc.shape[3]
     pad = k // 2
-    run = k * ch8
     wp = wd + 2 * pad
-    xp = np.zeros((h + 2 * pad) * wp * ch8, np.float32)
-    a = acc.ravel()
+    run = k * k * ch8
+    padded = np.zeros((h + 2 * pad, wp, ch8), np.float32)
+    rows = np.zeros((h, wp, k, ch8), np.float32)
+    a, v = acc.ravel(), rows.ravel()
     for r in range(r0, r1):
+        for c in range(n_ch):
+            for y in range(h):
+                for x in range(wd):
+                    padded[y + pad, x + pad, c] = gmap[r, c, y, x] * scale
         for y in range(h):
-            for x in range(wd):
-                c0 = ((y + pad) * wp + x + pad) * ch8
-                for c in range(n_ch):
-                    xp[c0 + c] = gmap[r, c, y, x] * scale
+            for ty in range(k):
+                for x in range(wp):
+                    for c in range(ch8):
+                        rows[y, x, ty, c] = padded[y + ty, x, c]
         gr, wr = grad[r].ravel(), where[r].ravel()
         cells = gr.size // n_out
         for j in range(gr.size):
             gv = gr[j]
             if gv == 0.0:
                 continue
-            d0 = (j // cells) * k2 * run
-            s0 = ((wr[j] // wd) * wp + wr[j] % wd) * ch8
-            for ty in range(k):
-                d1, s1 = d0 + ty * run, s0 + ty * wp * ch8
-                dst, src = a[d1 : d1 + run], xp[s1 : s1 + run]  # slices, so that the loop vectorises
-                for q in range(run):
-                    dst[q] += gv * src[q]
+            d0 = (j // cells) * run
+            s0 = ((wr[j] // wd) * wp + wr[j] % wd) * k * ch8
+            dst, src = a[d0 : d0 + run], v[s0 : s0 + run]  # slices, so that the loop vectorises
+            for q in range(run):
+                dst[q] += gv * src[q]
 
 
 _POOLS: dict[int, ThreadPoolExecutor] = {}
@@ -188,7 +192,7 @@ class GlobalConvPool(torch.autograd.Function):
             scale = np.float32(OBS_SCALE)
             where = ctx.where
             _in_chunks(lambda lo, hi, c: _weight_grad(maps, scale, g, where, k, lo, hi, acc[c]), len(maps))
-            total = acc.sum(0, dtype=np.float64)[..., :n_ch].transpose(0, 3, 1, 2)  # (O, C, k, k)
+            total = acc.sum(0, dtype=np.float64)[..., :n_ch].transpose(0, 3, 2, 1)  # (O, C, ty, tx)
             d_weight = torch.from_numpy(np.ascontiguousarray(total, dtype=np.float32))
         if ctx.needs_input_grad[2]:
             d_bias = grad.sum((0, 2, 3))
