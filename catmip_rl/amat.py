@@ -115,8 +115,19 @@ class Attention(nn.Module):
     def forward(
         self, query: torch.Tensor, key: torch.Tensor, value: torch.Tensor, allowed: torch.Tensor | None = None
     ) -> torch.Tensor:
-        """``allowed`` (B or 1, 1, Tq, Tk) bool: which keys each query may attend to."""
-        q, k, v = self.split(self.q(query)), self.split(self.k(key)), self.split(self.v(value))
+        """``allowed`` (B or 1, 1, Tq, Tk) bool: which keys each query may attend to. Projections of the
+        same input are one matrix product (q/k/v of self-attention, k/v of cross-attention)."""
+        d = query.shape[-1]
+        if key is value:
+            if query is key:
+                lin = (self.q, self.k, self.v)
+                q, k, v = F.linear(query, *_stacked(lin)).split(d, -1)
+            else:
+                q = self.q(query)
+                k, v = F.linear(key, *_stacked((self.k, self.v))).split(d, -1)
+        else:
+            q, k, v = self.q(query), self.k(key), self.v(value)
+        q, k, v = self.split(q), self.split(k), self.split(v)
         y = F.scaled_dot_product_attention(q, k, v, attn_mask=allowed)
         return self.out(self.merge(y))
 
@@ -236,15 +247,15 @@ class AMAT(nn.Module):
             g = _as_float(gmap).flatten(0, 1)  # (B*N, 5+C, S, S)
             g = F.conv2d(g, self.global_conv.weight, self.global_conv.bias, padding=3)  # (B*N, 32, S, S)
             g = _max_pool(g, self.config.pool)  # (B*N, 32, G, G)
-        g = F.relu(_ln(g, self.global_ln)).flatten(1)  # (B*N, 32 G^2)
+        g = F.relu(_ln(g, self.global_ln), inplace=True).flatten(1)  # (B*N, 32 G^2)
         x = _as_float(lmap).flatten(0, 1)  # (B*N, 4+C, L, L)
-        x = F.relu(
-            _ln(F.conv2d(x, self.local_conv1.weight, self.local_conv1.bias, padding=1), self.local_ln1)
-        )
-        x = F.relu(
-            _ln(F.conv2d(x, self.local_conv2.weight, self.local_conv2.bias, padding=1), self.local_ln2)
-        )
-        h = F.gelu(_lin(torch.cat([g, x.flatten(1)], dim=1), self.obs_fc1))  # (B*N, d)
+        x = F.conv2d(x, self.local_conv1.weight, self.local_conv1.bias, padding=1)
+        x = F.relu(_ln(x, self.local_ln1), inplace=True)  # LayerNorm's backward does not need its output
+        x = F.conv2d(x, self.local_conv2.weight, self.local_conv2.bias, padding=1)
+        x = F.relu(_ln(x, self.local_ln2), inplace=True).flatten(1)  # (B*N, 32 L^2)
+        w1 = self.obs_fc1.weight  # (d, 32 G^2 + 32 L^2): two products instead of a concatenated input
+        h = torch.addmm(self.obs_fc1.bias, x, w1[:, g.shape[1] :].t()).addmm_(g, w1[:, : g.shape[1]].t())
+        h = F.gelu(h)  # (B*N, d)
         h = F.gelu(_lin(_ln(h, self.obs_ln), self.obs_fc2))
         return h.view(b, n, -1) + F.gelu(_lin(cls.to(h.dtype), self.class_enc))  # (B, N, d)
 
@@ -390,6 +401,11 @@ class _BlockCache:
         x = _ln(self.rep_o[:, k : k + 1] + _lin(y, blk.cross_attn.out), blk.ln2)
         m = blk.mlp
         return _ln(x + _lin(F.gelu(_lin(x, m[0])), m[2]), blk.ln3)
+
+
+def _stacked(layers: tuple[nn.Linear, ...]) -> tuple[torch.Tensor, torch.Tensor]:
+    """(weight, bias) of linear layers on the same input, stacked along the output dimension."""
+    return torch.cat([m.weight for m in layers]), torch.cat([m.bias for m in layers])
 
 
 def _lin(x: torch.Tensor, layer: nn.Linear) -> torch.Tensor:
