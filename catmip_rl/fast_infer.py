@@ -204,6 +204,19 @@ def _row_prefix(w: np.ndarray) -> np.ndarray:
     return pre.astype(np.float32)
 
 
+ConvWeights = namedtuple("ConvWeights", ["g_w", "g_pre", "g_torch", "g_b"])
+"""The global convolution's fields of ``_Weights`` alone, for callers of the convolution kernels
+(``catmip_rl.sparse_conv``). Defined here: numba's cache of this module's kernels names the type."""
+
+
+def conv_weights(weight: np.ndarray, bias: np.ndarray) -> ConvWeights:
+    """The global convolution (O, C, k, k) + bias (O,) in the kernels' layouts: flipped (C, k, k, O), its
+    row prefix sums, torch's layout, the bias."""
+    w = np.ascontiguousarray(weight, dtype=np.float32)
+    flipped = np.ascontiguousarray(w[:, :, ::-1, ::-1].transpose(1, 2, 3, 0))
+    return ConvWeights(flipped, _row_prefix(flipped), w, np.ascontiguousarray(bias, dtype=np.float32))
+
+
 def _extract(cfg: AmatConfig, p: dict[str, np.ndarray]) -> _Weights:
     """Weights in the layouts the kernels read (see the field comments of ``_Weights``)."""
     d, g, l = cfg.embed_dim, cfg.pool, cfg.local_size
@@ -231,7 +244,7 @@ def _extract(cfg: AmatConfig, p: dict[str, np.ndarray]) -> _Weights:
     fc1_local = (
         fc1[:, n_glob:].reshape(d, w2.shape[0], l, l).transpose(0, 2, 3, 1).reshape(d, -1)
     )  # (y, x, c)
-    g_w = f32(p["global_conv.weight"][:, :, ::-1, ::-1].transpose(1, 2, 3, 0))
+    g = conv_weights(p["global_conv.weight"], p["global_conv.bias"])
     l1_w = f32(p["local_conv1.weight"][:, :, ::-1, ::-1].transpose(1, 2, 3, 0))
     nb = cfg.n_blocks
     e, dd = "enc_blocks", "dec_blocks"
@@ -241,10 +254,10 @@ def _extract(cfg: AmatConfig, p: dict[str, np.ndarray]) -> _Weights:
     dcls_tab = _gelu_np(p["dec_class_enc.weight"].T + p["dec_class_enc.bias"])  # (C, d): one-hot rows
     dx_tab = _layer_norm_np(act_tab[None] + dcls_tab[:, None], p["dec_ln.weight"], p["dec_ln.bias"])
     return _Weights(
-        g_w=g_w,
-        g_pre=_row_prefix(g_w),
-        g_torch=p["global_conv.weight"],
-        g_b=p["global_conv.bias"],
+        g_w=g.g_w,
+        g_pre=g.g_pre,
+        g_torch=g.g_torch,
+        g_b=g.g_b,
         g_ln=ln("global_ln"),
         l1_w=l1_w,
         l1_pre=_row_prefix(l1_w),

@@ -22,7 +22,6 @@ near-tie can pick another cell than the dense path would (values agree to float3
 
 from __future__ import annotations
 
-from collections import namedtuple
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 
@@ -31,7 +30,7 @@ import torch
 from numba import njit
 
 from catmip_rl.amat import OBS_SCALE
-from catmip_rl.fast_infer import _SHARED, _add_planes, _fill, _ones_conv, _robot_conv, _row_prefix
+from catmip_rl.fast_infer import _SHARED, _add_planes, _fill, _ones_conv, _robot_conv, conv_weights
 
 __all__ = ["global_conv_pool", "GlobalConvPool", "CHUNKS"]
 
@@ -39,23 +38,6 @@ CHUNKS = 8
 """Work split of the parallel loops: fixed, so that results do not depend on the thread count."""
 
 _jit = njit(cache=True, nogil=True, error_model="numpy", fastmath={"reassoc", "contract", "nsz"})
-
-
-_GW = namedtuple("_GW", ["g_w", "g_pre", "g_torch", "g_b"])
-
-
-class _ConvWeights:
-    """The global conv's weights in the layouts of ``fast_infer``'s kernels (fields as its ``_Weights``)."""
-
-    def __init__(self, weight: torch.Tensor, bias: torch.Tensor) -> None:
-        w = weight.detach().float().cpu().numpy()
-        self.g_torch = np.ascontiguousarray(w)
-        self.g_w = np.ascontiguousarray(w[:, :, ::-1, ::-1].transpose(1, 2, 3, 0))  # (C, k, k, O) flipped
-        self.g_pre = _row_prefix(self.g_w)
-        self.g_b = np.ascontiguousarray(bias.detach().float().cpu().numpy())
-
-    def as_tuple(self):
-        return _GW(self.g_w, self.g_pre, self.g_torch, self.g_b)
 
 
 @_jit
@@ -168,13 +150,12 @@ class GlobalConvPool(torch.autograd.Function):
     def forward(ctx, gmap: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor, pool: int) -> torch.Tensor:
         m, n, _, s, s2 = gmap.shape
         n_out, k = weight.shape[0], weight.shape[-1]
-        w = _ConvWeights(weight, bias)
-        ones = _ones_conv(w.g_w, np.ones((s, s2), np.float32))
+        weights = conv_weights(weight.detach().float().cpu().numpy(), bias.detach().float().cpu().numpy())
+        ones = _ones_conv(weights.g_w, np.ones((s, s2), np.float32))
         maps = gmap.numpy()
         pooled = np.empty((m * n, n_out, pool, pool), np.float32)
         where = np.empty((m * n, n_out, pool, pool), np.int32)
         scale = np.float32(OBS_SCALE)
-        weights = w.as_tuple()
         _in_chunks(lambda lo, hi, _: _forward(weights, maps, scale, ones, pool, pooled, where, lo, hi), m)
         ctx.save_for_backward(gmap)
         ctx.where, ctx.k = where, k
