@@ -253,9 +253,8 @@ class AMAT(nn.Module):
         x = F.relu(_ln(x, self.local_ln1), inplace=True)  # LayerNorm's backward does not need its output
         x = F.conv2d(x, self.local_conv2.weight, self.local_conv2.bias, padding=1)
         x = F.relu(_ln(x, self.local_ln2), inplace=True).flatten(1)  # (B*N, 32 L^2)
-        w1 = self.obs_fc1.weight  # (d, 32 G^2 + 32 L^2): two products instead of a concatenated input
-        h = torch.addmm(self.obs_fc1.bias, x, w1[:, g.shape[1] :].t()).addmm_(g, w1[:, : g.shape[1]].t())
-        h = F.gelu(h)  # (B*N, d)
+        w1, n_g = self.obs_fc1.weight, g.shape[1]  # two products instead of a concatenated input
+        h = F.gelu(F.linear(x, w1[:, n_g:], self.obs_fc1.bias) + F.linear(g, w1[:, :n_g]))  # (B*N, d)
         h = F.gelu(_lin(_ln(h, self.obs_ln), self.obs_fc2))
         return h.view(b, n, -1) + F.gelu(_lin(cls.to(h.dtype), self.class_enc))  # (B, N, d)
 

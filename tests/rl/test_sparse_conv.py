@@ -159,3 +159,14 @@ def test_micro_batches_give_the_minibatch_gradient():
     assert torch.allclose(p, p_micro, atol=1e-6)
     for k in stats:
         assert stats_micro[k] == pytest.approx(stats[k], rel=1e-4, abs=1e-6), k
+
+
+def test_a_bf16_autocast_training_step_runs():
+    """CPU bf16 autocast (bench_train --bf16): the float32 sparse conv output meets bf16 layers."""
+    batch = _batch(worlds=2).index(torch.arange(6))
+    model = shaken_model(AmatConfig(embed_dim=32)).train()
+    with torch.autocast("cpu", dtype=torch.bfloat16):
+        loss, _ = ppo_loss(model, batch)
+    loss.backward()
+    assert torch.isfinite(loss)
+    assert all(torch.isfinite(p.grad).all() for p in model.parameters() if p.grad is not None)
