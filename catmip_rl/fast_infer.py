@@ -654,9 +654,8 @@ def _add_planes(out, conv, ones, planes, ch0, ch1, zero, scale):
 
 
 @_jit
-def _shared_base(w, gmap, scale, ones, zero):
-    """(S, S, O): bias + robot 0's convolution of the shared channels (explored, occupied, target)."""
-    base = np.empty((gmap.shape[2], gmap.shape[3], w.g_b.size), np.float32)
+def _shared_base(w, gmap, scale, ones, zero, base):
+    """base (S, S, O) = bias + robot 0's convolution of the shared channels (explored, occupied, target)."""
     _fill(base, w.g_b)
     _add_planes(base, (w.g_w, w.g_pre, w.g_torch), ones, gmap[0], 0, min(_SHARED, gmap.shape[1]), zero, scale)
     return base
@@ -691,7 +690,7 @@ def _robot_conv(w, gmap, i, scale, ones, zero, base, out):
 def _global_conv_all(w, gmap, scale, ones):
     """(N, S, S, O): every robot's global convolution (channel-last)."""
     zero = np.zeros(gmap.shape[2:], gmap.dtype)
-    base = _shared_base(w, gmap, scale, ones, zero)
+    base = _shared_base(w, gmap, scale, ones, zero, np.empty(gmap.shape[2:] + (w.g_b.size,), np.float32))
     out = np.empty((gmap.shape[0], gmap.shape[2], gmap.shape[3], w.g_b.size), np.float32)
     for i in range(gmap.shape[0]):
         _robot_conv(w, gmap, i, scale, ones, zero, base, out[i])
@@ -771,7 +770,7 @@ def _embed(w, pool, gmap, g_scale, lmap, l_scale, cls, ones_g, ones_l):
     feats = np.empty((n, w.fc1_w.shape[1]), np.float32)
     # global CNN -> pooled, LayerNorm, ReLU
     zero = np.zeros((s, s), gmap.dtype)
-    base = _shared_base(w, gmap, g_scale, ones_g, zero)
+    base = _shared_base(w, gmap, g_scale, ones_g, zero, np.empty((s, s, w.g_b.size), np.float32))
     work = np.empty((s, s, w.g_b.size), np.float32)
     for i in range(n):
         _robot_conv(w, gmap, i, g_scale, ones_g, zero, base, work)

@@ -30,7 +30,7 @@ import torch
 from numba import njit
 
 from catmip_rl.amat import OBS_SCALE
-from catmip_rl.fast_infer import _SHARED, _add_planes, _fill, _ones_conv, _robot_conv, conv_weights
+from catmip_rl.fast_infer import _ones_conv, _robot_conv, _shared_base, conv_weights
 
 __all__ = ["global_conv_pool", "GlobalConvPool", "CHUNKS"]
 
@@ -72,14 +72,12 @@ def _pool_argmax(x, g, pooled, where):
 def _forward(w, gmap, scale, ones, g, pooled, where, m0, m1):
     """Events m0 .. m1-1 of gmap (M, N, C, S, S): pooled and where (M * N, O, g, g) of their robots
     (``fast_infer``'s shared base + per-robot convolution, into buffers reused across events)."""
-    n, n_ch, h, wd = gmap.shape[1:]
+    n, _, h, wd = gmap.shape[1:]
     zero = np.zeros((h, wd), gmap.dtype)
     base = np.empty((h, wd, w.g_b.size), np.float32)
     work = np.empty((h, wd, w.g_b.size), np.float32)
-    conv = (w.g_w, w.g_pre, w.g_torch)
     for m in range(m0, m1):
-        _fill(base, w.g_b)
-        _add_planes(base, conv, ones, gmap[m, 0], 0, min(_SHARED, n_ch), zero, scale)
+        _shared_base(w, gmap[m], scale, ones, zero, base)
         for i in range(n):
             _robot_conv(w, gmap[m], i, scale, ones, zero, base, work)
             _pool_argmax(work, g, pooled[m * n + i], where[m * n + i])
