@@ -11,8 +11,8 @@ backward, on the sparse uint8 global maps (SPEC §3, §5).
   winning cell of every (robot, channel, bin);
 * backward — max pooling passes each bin's gradient to its winning cell alone, so the weight gradient
   is ``sum over (robot, channel, bin) of grad * (the k x k input patch at the winning cell)``: one
-  contiguous run per patch in a copy of the map laid out by kernel row, instead of a dense correlation
-  over every cell.
+  contiguous run per patch in a copy of the map laid out by kernel row, four bins of a channel at a
+  time, instead of a dense correlation over every cell.
 
 Both are numba loops (GIL released) over a fixed number of chunks of the batch, run on torch's number of
 threads: the results do not depend on the thread count. Ties inside a bin go to the first cell in
@@ -90,15 +90,18 @@ def _weight_grad(gmap, scale, grad, where, k, r0, r1, acc):
 
     The map is copied zero-padded, channel-last with the channels padded to 8, and stacked by kernel
     row: ``rows[y, x, ty] = padded[y + ty, x]``. The patch of output cell (y, x) is then one contiguous
-    run ``rows[y, x : x + k]`` of k * k * 8 floats, added in a single vectorised loop."""
+    run ``rows[y, x : x + k]`` of k * k * 8 floats. The bins of one output channel share their
+    destination, so they are added four at a time (one load and store of it for four products)."""
     n_ch, h, wd = gmap.shape[1:]
     n_out, ch8 = acc.shape[0], acc.shape[3]
     pad = k // 2
     wp = wd + 2 * pad
     run = k * k * ch8
-    padded = np.zeros((h + 2 * pad, wp, ch8), np.float32)
-    rows = np.zeros((h, wp, k, ch8), np.float32)
+    padded = np.zeros((h + 2 * pad, wp, ch8), np.float32)  # borders and channels >= C stay 0
+    rows = np.empty((h, wp, k, ch8), np.float32)
     a, v = acc.ravel(), rows.ravel()
+    gains = np.zeros(grad[0, 0].size + 3, np.float32)  # one channel's nonzero bins, padded to 4s
+    starts = np.zeros(grad[0, 0].size + 3, np.int64)
     for r in range(r0, r1):
         for c in range(n_ch):
             for y in range(h):
@@ -109,17 +112,25 @@ def _weight_grad(gmap, scale, grad, where, k, r0, r1, acc):
                 for x in range(wp):
                     for c in range(ch8):
                         rows[y, x, ty, c] = padded[y + ty, x, c]
-        gr, wr = grad[r].ravel(), where[r].ravel()
-        cells = gr.size // n_out
-        for j in range(gr.size):
-            gv = gr[j]
-            if gv == 0.0:
-                continue
-            d0 = (j // cells) * run
-            s0 = ((wr[j] // wd) * wp + wr[j] % wd) * k * ch8
-            dst, src = a[d0 : d0 + run], v[s0 : s0 + run]  # slices, so that the loop vectorises
-            for q in range(run):
-                dst[q] += gv * src[q]
+        for o in range(n_out):
+            gr, wr = grad[r, o].ravel(), where[r, o].ravel()
+            used = 0
+            for j in range(gr.size):
+                if gr[j] != 0.0:
+                    gains[used] = gr[j]
+                    starts[used] = ((wr[j] // wd) * wp + wr[j] % wd) * k * ch8
+                    used += 1
+            for j in range(used, (used + 3) // 4 * 4):
+                gains[j], starts[j] = 0.0, 0
+            dst = a[o * run : (o + 1) * run]
+            for j in range(0, used, 4):
+                g0, g1, g2, g3 = gains[j], gains[j + 1], gains[j + 2], gains[j + 3]
+                s0 = v[starts[j] : starts[j] + run]  # slices, so that the loop vectorises
+                s1 = v[starts[j + 1] : starts[j + 1] + run]
+                s2 = v[starts[j + 2] : starts[j + 2] + run]
+                s3 = v[starts[j + 3] : starts[j + 3] + run]
+                for q in range(run):
+                    dst[q] += g0 * s0[q] + g1 * s1[q] + g2 * s2[q] + g3 * s3[q]
 
 
 _POOLS: dict[int, ThreadPoolExecutor] = {}
