@@ -36,6 +36,7 @@ from catmip_env.events import EventEngine, random_valid_actions
 from catmip_rl.amat import AMAT, decision_order
 from catmip_rl.config import make_train_config
 from catmip_rl.fast_infer import FastAmat
+from catmip_rl.heap import keep_freed_memory
 from catmip_rl.ppo import SampleBatch, ppo_loss
 from catmip_rl.train import make_optimizer
 
@@ -186,6 +187,7 @@ def bench_training(model: AMAT, batch: SampleBatch, bf16: bool, steps: int) -> d
     """One PPO minibatch step as training runs it: ``ppo_loss`` forward, backward, grad-norm clip and
     fused Adam (``catmip_rl.train.make_optimizer``), on two threads."""
     torch.set_num_threads(2)
+    keep_freed_memory()  # as catmip_rl.train.train does
     opt = make_optimizer(model, make_train_config("paper"))
     m, n = batch.action.shape
 

@@ -24,6 +24,7 @@ from catmip_rl.collect import Collector, Rollout
 from catmip_rl.config import TrainConfig
 from catmip_rl.files import atomic_write_text
 from catmip_rl.gae import async_gae
+from catmip_rl.heap import keep_freed_memory
 from catmip_rl.ppo import SampleBatch, ValueNorm, ppo_loss
 
 __all__ = ["train", "build_batch", "make_optimizer", "ppo_update", "evaluate_policy", "METRICS"]
@@ -184,6 +185,7 @@ def train(cfg: TrainConfig, run_dir: str | Path, resume: bool = False, progress:
 
     # -- build the parts -------------------------------------------------------------------------------
     torch.set_num_threads(cfg.threads)
+    keep_freed_memory()  # reuse the step's large activations' pages (catmip_rl.heap)
     device = torch.device(cfg.device)
     if device.type == "cuda" and not torch.cuda.is_available():
         raise RuntimeError("--device cuda requested but torch sees no CUDA device")
