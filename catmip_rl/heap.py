@@ -1,8 +1,8 @@
 """Keep freed memory in the process heap during training (Linux, glibc).
 
 A PPO step allocates and frees activations of 5-20 MB each (the local CNN's feature maps, the embedder's
-inputs). glibc's malloc serves blocks that large with fresh ``mmap`` pages and returns them to the
-kernel on free, so every step page-faults its working set in again: ~4,000-8,000 faults a step on a
+inputs). glibc's malloc serves blocks that large with fresh ``mmap`` pages, or trims them off the top
+of the heap once freed, so every step page-faults its working set in again: ~4,000-8,000 faults a step on a
 Task-2 batch, 5-10 % of the step on the 2-core VM this project is measured on. Raising the mmap and trim
 thresholds makes malloc serve them from the heap and keep what is freed, so later steps reuse the pages
 (~100 faults a step). The cost is memory the process keeps after its peak, which training reaches again
