@@ -169,12 +169,7 @@ class DecoderBlock(nn.Module):
         """(W_qkv, b_qkv) of the self-attention and (W_kv, b_kv) of the cross-attention, concatenated
         for one matmul per decoding step (rebuilt per call: a few microseconds, and never stale)."""
         sa, ca = self.self_attn, self.cross_attn
-        return (
-            torch.cat([sa.q.weight, sa.k.weight, sa.v.weight]),
-            torch.cat([sa.q.bias, sa.k.bias, sa.v.bias]),
-            torch.cat([ca.k.weight, ca.v.weight]),
-            torch.cat([ca.k.bias, ca.v.bias]),
-        )
+        return (*_stacked((sa.q, sa.k, sa.v)), *_stacked((ca.k, ca.v)))
 
     def forward(self, x: torch.Tensor, rep: torch.Tensor, causal: torch.Tensor) -> torch.Tensor:
         x = self.ln1(x + self.self_attn(x, x, x, causal))

@@ -205,13 +205,14 @@ def _row_prefix(w: np.ndarray) -> np.ndarray:
 
 
 ConvWeights = namedtuple("ConvWeights", ["g_w", "g_pre", "g_torch", "g_b"])
-"""The global convolution's fields of ``_Weights`` alone, for callers of the convolution kernels
-(``catmip_rl.sparse_conv``). Defined here: numba's cache of this module's kernels names the type."""
+"""One k x k convolution in the layouts of the sparse convolution kernels (the global convolution's
+fields of ``_Weights``), also for callers of the kernels (``catmip_rl.sparse_conv``). Defined here:
+numba's cache of this module's kernels names the type."""
 
 
 def conv_weights(weight: np.ndarray, bias: np.ndarray) -> ConvWeights:
-    """The global convolution (O, C, k, k) + bias (O,) in the kernels' layouts: flipped (C, k, k, O), its
-    row prefix sums, torch's layout, the bias."""
+    """A convolution (O, C, k, k) + bias (O,) in the kernels' layouts: flipped (C, k, k, O), its row
+    prefix sums, torch's layout, the bias."""
     w = np.ascontiguousarray(weight, dtype=np.float32)
     flipped = np.ascontiguousarray(w[:, :, ::-1, ::-1].transpose(1, 2, 3, 0))
     return ConvWeights(flipped, _row_prefix(flipped), w, np.ascontiguousarray(bias, dtype=np.float32))
@@ -244,8 +245,8 @@ def _extract(cfg: AmatConfig, p: dict[str, np.ndarray]) -> _Weights:
     fc1_local = (
         fc1[:, n_glob:].reshape(d, w2.shape[0], l, l).transpose(0, 2, 3, 1).reshape(d, -1)
     )  # (y, x, c)
-    g = conv_weights(p["global_conv.weight"], p["global_conv.bias"])
-    l1_w = f32(p["local_conv1.weight"][:, :, ::-1, ::-1].transpose(1, 2, 3, 0))
+    gconv = conv_weights(p["global_conv.weight"], p["global_conv.bias"])
+    lconv = conv_weights(p["local_conv1.weight"], p["local_conv1.bias"])
     nb = cfg.n_blocks
     e, dd = "enc_blocks", "dec_blocks"
     d_qkv_w = fused(dd, nb, ("self_attn.q", "self_attn.k", "self_attn.v"), "weight")
@@ -254,15 +255,12 @@ def _extract(cfg: AmatConfig, p: dict[str, np.ndarray]) -> _Weights:
     dcls_tab = _gelu_np(p["dec_class_enc.weight"].T + p["dec_class_enc.bias"])  # (C, d): one-hot rows
     dx_tab = _layer_norm_np(act_tab[None] + dcls_tab[:, None], p["dec_ln.weight"], p["dec_ln.bias"])
     return _Weights(
-        g_w=g.g_w,
-        g_pre=g.g_pre,
-        g_torch=g.g_torch,
-        g_b=g.g_b,
+        **gconv._asdict(),
         g_ln=ln("global_ln"),
-        l1_w=l1_w,
-        l1_pre=_row_prefix(l1_w),
-        l1_torch=p["local_conv1.weight"],
-        l1_b=p["local_conv1.bias"],
+        l1_w=lconv.g_w,
+        l1_pre=lconv.g_pre,
+        l1_torch=lconv.g_torch,
+        l1_b=lconv.g_b,
         l1_ln=ln_hwc("local_ln1"),
         l2_w=f32(w2.transpose(0, 2, 3, 1).reshape(w2.shape[0], w2.shape[2], -1)),  # (out, ty, (tx, c))
         l2_b=p["local_conv2.bias"],
