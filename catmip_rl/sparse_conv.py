@@ -11,7 +11,7 @@ backward, on the sparse uint8 global maps (SPEC §3, §5).
   winning cell of every (robot, channel, bin);
 * backward — max pooling passes each bin's gradient to its winning cell alone, so the weight gradient
   is ``sum over (robot, channel, bin) of grad * (the k x k input patch at the winning cell)``: one
-  contiguous run per patch in a copy of the map laid out by kernel row, four bins of a channel at a
+  contiguous run per patch in a copy of the map laid out by kernel column, four bins of a channel at a
   time, instead of a dense correlation over every cell.
 
 Both are numba loops (GIL released) over a fixed number of chunks of the batch, run on torch's number of
@@ -43,26 +43,32 @@ _jit = njit(cache=True, nogil=True, error_model="numpy", fastmath={"reassoc", "c
 @_jit
 def _pool_argmax(x, g, pooled, where):
     """Adaptive max pool of x (S, S, O) into pooled (O, g, g) and the winning flat cell y * S + x into
-    where (O, g, g); torch's bins, the first maximum in row-major order (strictly greater replaces)."""
+    where (O, g, g); torch's bins, the first maximum in row-major order (strictly greater replaces).
+
+    The running maximum and its cell alternate between two buffers, read from one and written to the
+    other: an in-place ``best = v if v > best else best`` compiles to masked vector stores, which cost
+    this loop 2x on AMD CPUs."""
     h, wd, n_out = x.shape
     flat = x.ravel()
-    best = np.empty(n_out, np.float32)
-    arg = np.empty(n_out, np.int32)
+    best, best_next = np.empty(n_out, np.float32), np.empty(n_out, np.float32)
+    arg, arg_next = np.empty(n_out, np.int32), np.empty(n_out, np.int32)
     for gy in range(g):
         y0, y1 = gy * h // g, ((gy + 1) * h + g - 1) // g
         for gx in range(g):
             x0, x1 = gx * wd // g, ((gx + 1) * wd + g - 1) // g
-            best[:] = -np.inf
-            arg[:] = y0 * wd + x0
+            first = y0 * wd + x0
+            best[:] = flat[first * n_out : (first + 1) * n_out]
+            arg[:] = first
             for yy in range(y0, y1):
-                for xx in range(x0, x1):
+                for xx in range(x0 + (yy == y0), x1):
                     cell = np.int32(yy * wd + xx)
                     row = flat[cell * n_out : (cell + 1) * n_out]  # a slice: the loop vectorises
                     for o in range(n_out):
-                        v = row[o]
-                        gt = v > best[o]
-                        best[o] = v if gt else best[o]
-                        arg[o] = cell if gt else arg[o]
+                        v, b = row[o], best[o]
+                        gt = v > b
+                        best_next[o] = v if gt else b
+                        arg_next[o] = cell if gt else arg[o]
+                    best, best_next, arg, arg_next = best_next, best, arg_next, arg
             for o in range(n_out):
                 pooled[o, gy, gx] = best[o]
                 where[o, gy, gx] = arg[o]
@@ -85,21 +91,23 @@ def _forward(w, gmap, scale, ones, g, pooled, where, m0, m1):
 
 @_jit
 def _weight_grad(gmap, scale, grad, where, k, r0, r1, acc):
-    """acc (O, k (tx), k (ty), 8) += the weight gradient of robots r0 .. r1-1: grad * the input patch at
+    """acc (O, k (ty), k (tx), 8) += the weight gradient of robots r0 .. r1-1: grad * the input patch at
     each bin's winning cell, summed. gmap (R, C, S, S) uint8 / float, grad and where (R, O, g, g).
 
     The map is copied zero-padded, channel-last with the channels padded to 8, and stacked by kernel
-    row: ``rows[y, x, ty] = padded[y + ty, x]``. The patch of output cell (y, x) is then one contiguous
-    run ``rows[y, x : x + k]`` of k * k * 8 floats. The bins of one output channel share their
-    destination, so they are added four at a time (one load and store of it for four products)."""
+    column: ``cols[x, y] = padded[y, x : x + k]`` (k * 8 floats). The patch of output cell (y, x) is then
+    one contiguous run ``cols[x, y : y + k]`` of k * k * 8 floats, and the copy is one contiguous run per
+    (x, y) too. The bins of one output channel share their destination, so they are added four at a
+    time (one load and store of it for four products)."""
     n_ch, h, wd = gmap.shape[1:]
     n_out, ch8 = acc.shape[0], acc.shape[3]
     pad = k // 2
-    wp = wd + 2 * pad
-    run = k * k * ch8
-    padded = np.zeros((h + 2 * pad, wp, ch8), np.float32)  # borders and channels >= C stay 0
-    rows = np.empty((h, wp, k, ch8), np.float32)
-    a, v = acc.ravel(), rows.ravel()
+    hp, wp = h + 2 * pad, wd + 2 * pad
+    seg = k * ch8  # one kernel row of a patch
+    run = k * seg
+    padded = np.zeros((hp, wp, ch8), np.float32)  # borders and channels >= C stay 0
+    cols = np.empty((wd, hp, k, ch8), np.float32)
+    a, v, p = acc.ravel(), cols.ravel(), padded.ravel()
     gains = np.zeros(grad[0, 0].size + 3, np.float32)  # one channel's nonzero bins, padded to 4s
     starts = np.zeros(grad[0, 0].size + 3, np.int64)
     for r in range(r0, r1):
@@ -107,18 +115,19 @@ def _weight_grad(gmap, scale, grad, where, k, r0, r1, acc):
             for y in range(h):
                 for x in range(wd):
                     padded[y + pad, x + pad, c] = gmap[r, c, y, x] * scale
-        for y in range(h):
-            for ty in range(k):
-                for x in range(wp):
-                    for c in range(ch8):
-                        rows[y, x, ty, c] = padded[y + ty, x, c]
+        for x in range(wd):
+            for y in range(hp):
+                d0, s0 = (x * hp + y) * seg, (y * wp + x) * ch8
+                dst, src = v[d0 : d0 + seg], p[s0 : s0 + seg]
+                for q in range(seg):
+                    dst[q] = src[q]
         for o in range(n_out):
             gr, wr = grad[r, o].ravel(), where[r, o].ravel()
             used = 0
             for j in range(gr.size):
                 if gr[j] != 0.0:
                     gains[used] = gr[j]
-                    starts[used] = ((wr[j] // wd) * wp + wr[j] % wd) * k * ch8
+                    starts[used] = ((wr[j] % wd) * hp + wr[j] // wd) * seg
                     used += 1
             for j in range(used, (used + 3) // 4 * 4):
                 gains[j], starts[j] = 0.0, 0
@@ -182,7 +191,7 @@ class GlobalConvPool(torch.autograd.Function):
             scale = np.float32(OBS_SCALE)
             where = ctx.where
             _in_chunks(lambda lo, hi, c: _weight_grad(maps, scale, g, where, k, lo, hi, acc[c]), len(maps))
-            total = acc.sum(0, dtype=np.float64)[..., :n_ch].transpose(0, 3, 2, 1)  # (O, C, ty, tx)
+            total = acc.sum(0, dtype=np.float64)[..., :n_ch].transpose(0, 3, 1, 2)  # (O, C, ty, tx)
             d_weight = torch.from_numpy(np.ascontiguousarray(total, dtype=np.float32))
         if ctx.needs_input_grad[2]:
             d_bias = grad.sum((0, 2, 3))
