@@ -9,9 +9,10 @@ values equal to float32 rounding), in one numba call, without torch. What makes 
 
 * the convolutions on the maps are linear, so they are split by input channel, and the maps are
   sparse. A channel whose most common value is ``m`` contributes ``m * conv(ones)`` (precomputed per
-  map size) plus the cells that differ from ``m``, added as ``value * kernel`` around them; a row's run
-  of equal cells is added at once through prefix sums of the kernel rows. Channels where over half the
-  cells differ are convolved densely. Exact for any input;
+  map size) plus the cells that differ from ``m``: a row's run of n equal cells adds ``value`` times
+  a precomputed run kernel (what n ones in a row add to each output row: one contiguous run of output
+  cells per kernel row; runs longer than ``RUN_MAX`` in pieces). Channels where over half the cells
+  differ are convolved densely. Exact for any input;
 * the shared channels of the global map (explored, occupied, target) are convolved once, for robot 0;
   another robot adds the convolution of the cells where its channels differ (none under merged
   beliefs: compared, never assumed), or convolves its own when that is cheaper;
@@ -43,9 +44,9 @@ _SHARED = 3  # global-map channels that robots with merged beliefs share: explor
 _Weights = namedtuple(
     "_Weights",
     [
-        # embedder: convolutions in scatter layout (in, flipped ky, flipped kx, out), with row prefix
-        # sums and a dense layout; LayerNorms as (2, n) = weight, bias; local activations channel-last
-        "g_w", "g_pre", "g_torch", "g_b", "g_ln", "l1_w", "l1_pre", "l1_torch", "l1_b", "l1_ln",
+        # embedder: convolutions in scatter layout (in, flipped ky, flipped kx, out), with run kernels
+        # and a dense layout; LayerNorms as (2, n) = weight, bias; local activations channel-last
+        "g_w", "g_runs", "g_torch", "g_b", "g_ln", "l1_w", "l1_runs", "l1_torch", "l1_b", "l1_ln",
         "l2_w", "l2_b", "l2_ln",
         "fc1_w", "fc1_b", "obs_ln", "fc2_w", "fc2_b", "cls_w", "cls_b", "cls_tab",
         # encoder (per-block tensors stacked along axis 0) and value head
@@ -76,8 +77,7 @@ class FastAmat:
     def __init__(self, config: AmatConfig, state_dict: Mapping[str, Any]) -> None:
         self.config = config
         self._w = _extract(config, {k: _numpy(v) for k, v in state_dict.items()})
-        ones = np.ones((config.local_size, config.local_size), np.float32)
-        self._ones_local = _ones_conv(self._w.l1_w, ones)
+        self._ones_local = ones_conv(self._w.l1_w, config.local_size, config.local_size)
         self._ones_global: dict[int, np.ndarray] = {}
 
     @classmethod
@@ -156,7 +156,7 @@ class FastAmat:
     def _ones(self, s: int) -> np.ndarray:
         """(5+C, S, S, 32): the global convolution (no bias) of an all-ones channel, per channel."""
         if s not in self._ones_global:
-            self._ones_global[s] = _ones_conv(self._w.g_w, np.ones((s, s), np.float32))
+            self._ones_global[s] = ones_conv(self._w.g_w, s, s)
         return self._ones_global[s]
 
     def _inputs(self, global_map, local_map, agent_class):
@@ -197,25 +197,51 @@ def _layer_norm_np(x: np.ndarray, weight: np.ndarray, bias: np.ndarray) -> np.nd
     return (x - mean) / np.sqrt(var + _LN_EPS) * weight + bias
 
 
-def _row_prefix(w: np.ndarray) -> np.ndarray:
-    """(C, k, k + 1, O): prefix sums of each flipped kernel row along kx (for runs of equal cells)."""
-    pre = np.zeros((w.shape[0], w.shape[1], w.shape[2] + 1, w.shape[3]))
-    pre[:, :, 1:] = np.cumsum(w, axis=2, dtype=np.float64)
-    return pre.astype(np.float32)
+RUN_MAX = 8
+"""Longest run of equal cells with a precomputed run kernel; longer runs are added in pieces."""
 
 
-ConvWeights = namedtuple("ConvWeights", ["g_w", "g_pre", "g_torch", "g_b"])
+def _run_kernels(flipped: np.ndarray) -> np.ndarray:
+    """(C, RUN_MAX, k, RUN_MAX + k - 1, O): per input channel and run length n, what n ones at input
+    cells (r, c .. c + n - 1) add to output row r - k//2 + i at column c - k//2 + t:
+    ``R[n - 1, i, t] = sum of the flipped kernel row i's taps j with 0 <= t - j < n`` (t < n + k - 1)."""
+    n_ch, k, _, n_out = flipped.shape
+    pre = np.zeros((n_ch, k, k + 1, n_out))
+    pre[:, :, 1:] = np.cumsum(flipped, axis=2, dtype=np.float64)
+    out = np.zeros((n_ch, RUN_MAX, k, RUN_MAX + k - 1, n_out), np.float32)
+    for n in range(1, RUN_MAX + 1):
+        t = np.arange(n + k - 1)
+        out[:, n - 1, :, : n + k - 1] = pre[:, :, np.minimum(k, t + 1)] - pre[:, :, np.maximum(0, t - n + 1)]
+    return out
+
+
+def ones_conv(flipped: np.ndarray, h: int, wd: int) -> np.ndarray:
+    """(C, H, W, O): per input channel, the convolution (no bias, zero padding) of an all-ones H x W
+    plane with the flipped kernels (C, k, k, O): at each output cell, the sum of the taps that fall on
+    the plane, from 2-D prefix sums of the kernel."""
+    n_ch, k, _, n_out = flipped.shape
+    pad = k // 2
+    pre = np.zeros((n_ch, k + 1, k + 1, n_out))
+    pre[:, 1:, 1:] = np.cumsum(np.cumsum(flipped, axis=1, dtype=np.float64), axis=2)
+    y, x = np.arange(h), np.arange(wd)
+    i0, i1 = np.clip(y + pad - h + 1, 0, k), np.clip(y + pad + 1, 0, k)  # taps of output row y
+    j0, j1 = np.clip(x + pad - wd + 1, 0, k), np.clip(x + pad + 1, 0, k)
+    rows = pre[:, i1] - pre[:, i0]  # (C, H, k + 1, O)
+    return np.ascontiguousarray(rows[:, :, j1] - rows[:, :, j0], dtype=np.float32)
+
+
+ConvWeights = namedtuple("ConvWeights", ["g_w", "g_runs", "g_torch", "g_b"])
 """One k x k convolution in the layouts of the sparse convolution kernels (the global convolution's
 fields of ``_Weights``), also for callers of the kernels (``catmip_rl.sparse_conv``). Defined here:
 numba's cache of this module's kernels names the type."""
 
 
 def conv_weights(weight: np.ndarray, bias: np.ndarray) -> ConvWeights:
-    """A convolution (O, C, k, k) + bias (O,) in the kernels' layouts: flipped (C, k, k, O), its row
-    prefix sums, torch's layout, the bias."""
+    """A convolution (O, C, k, k) + bias (O,) in the kernels' layouts: flipped (C, k, k, O), its run
+    kernels, torch's layout, the bias."""
     w = np.ascontiguousarray(weight, dtype=np.float32)
     flipped = np.ascontiguousarray(w[:, :, ::-1, ::-1].transpose(1, 2, 3, 0))
-    return ConvWeights(flipped, _row_prefix(flipped), w, np.ascontiguousarray(bias, dtype=np.float32))
+    return ConvWeights(flipped, _run_kernels(flipped), w, np.ascontiguousarray(bias, dtype=np.float32))
 
 
 def _extract(cfg: AmatConfig, p: dict[str, np.ndarray]) -> _Weights:
@@ -258,7 +284,7 @@ def _extract(cfg: AmatConfig, p: dict[str, np.ndarray]) -> _Weights:
         **gconv._asdict(),
         g_ln=ln("global_ln"),
         l1_w=lconv.g_w,
-        l1_pre=lconv.g_pre,
+        l1_runs=lconv.g_runs,
         l1_torch=lconv.g_torch,
         l1_b=lconv.g_b,
         l1_ln=ln_hwc("local_ln1"),
@@ -503,50 +529,22 @@ def _class_token(c, tab, w, b, out):
 
 # -- convolutions -----------------------------------------------------------------------------------
 @_jit
-def _scatter(out, w_ch, r, c, v):
-    """Add ``v`` at input cell (r, c) through the flipped kernel w_ch (k, k, O) into out (H, W, O)
-    (zero padding): output row r - k//2 + i gains ``v * w_ch[i]`` over its valid columns, one
-    contiguous run per kernel row."""
+def _add_run(out, runs_ch, r, c, n, v):
+    """out (H, W, O) += the convolution of ``v`` at input cells (r, c .. c + n - 1), n <= RUN_MAX (zero
+    padding), from the channel's run kernels runs_ch (RUN_MAX, k, RUN_MAX + k - 1, O): output row
+    r - k//2 + i gains ``v * runs_ch[n - 1, i]`` over its valid columns, one contiguous run."""
     h, wd, n_out = out.shape
-    k = w_ch.shape[0]
+    k = runs_ch.shape[1]
     pad = k // 2
-    o_flat, w_flat = out.ravel(), w_ch.ravel()
-    j0, j1 = max(0, pad - c), min(k, wd + pad - c)
-    run = (j1 - j0) * n_out
+    t0, t1 = max(0, pad - c), min(n + k - 1, wd + pad - c)
+    size = (t1 - t0) * n_out
+    o_flat = out.ravel()
     for i in range(max(0, pad - r), min(k, h + pad - r)):
-        o0 = ((r - pad + i) * wd + c - pad + j0) * n_out
-        w0 = (i * k + j0) * n_out
-        dst, src = o_flat[o0 : o0 + run], w_flat[w0 : w0 + run]  # slices: indices provably >= 0
-        for j in range(run):
+        o0 = ((r - pad + i) * wd + c - pad + t0) * n_out
+        dst = o_flat[o0 : o0 + size]  # slices: indices provably >= 0, the loop vectorises
+        src = runs_ch[n - 1, i].ravel()[t0 * n_out : t0 * n_out + size]
+        for j in range(size):
             dst[j] += v * src[j]
-
-
-@_jit
-def _ones_conv(w, plane):
-    """Per input channel, the convolution (no bias) of ``plane``: (C_in, H, W, O)."""
-    n_ch, n_out = w.shape[0], w.shape[3]
-    h, wd = plane.shape
-    out = np.zeros((n_ch, h, wd, n_out), np.float32)
-    for ch in range(n_ch):
-        for r in range(h):
-            for c in range(wd):
-                _scatter(out[ch], w[ch], r, c, plane[r, c])
-    return out
-
-
-@_jit
-def _scatter_run(out, pre_ch, r, c0, c1, v):
-    """Add ``v`` at input cells (r, c0 .. c1-1) into out (H, W, O): per kernel row and output cell, the
-    sum of the overlapping flipped-kernel taps, a difference of the row prefix sums pre_ch (k, k+1, O)."""
-    h, wd, n_out = out.shape
-    k = pre_ch.shape[0]
-    pad = k // 2
-    for i in range(max(0, pad - r), min(k, h + pad - r)):
-        y = r - pad + i
-        for x in range(max(0, c0 - pad), min(wd, c1 + pad)):
-            lo, hi = max(0, x + pad - c1 + 1), min(k, x + pad - c0 + 1)
-            for o in range(n_out):
-                out[y, x, o] += v * (pre_ch[i, hi, o] - pre_ch[i, lo, o])
 
 
 @_jit
@@ -577,9 +575,9 @@ def _reference(flat, zero):
 
 
 @_jit
-def _add_runs(out, w_ch, pre_ch, plane, under, ref, scale):
+def _add_runs(out, runs_ch, plane, under, ref, scale):
     """out (H, W, O) += conv of ``(plane - under - ref) * scale`` for one input channel: each row's runs
-    of equal nonzero values, runs of 3+ cells through the prefix sums, shorter ones cell by cell."""
+    of equal nonzero values through the run kernels (``RUN_MAX`` cells at a time)."""
     for r in range(plane.shape[0]):
         row, low = plane[r], under[r]
         if _count_ne(row, low, ref) == 0:  # sparse planes: most rows end here
@@ -592,11 +590,8 @@ def _add_runs(out, w_ch, pre_ch, plane, under, ref, scale):
                 while e < row.size and float(row[e]) - float(low[e]) - ref == v:
                     e += 1
                 val = np.float32(v * scale)
-                if e - c >= 3:
-                    _scatter_run(out, pre_ch, r, c, e, val)
-                else:
-                    for cc in range(c, e):
-                        _scatter(out, w_ch, r, cc, val)
+                for start in range(c, e, RUN_MAX):
+                    _add_run(out, runs_ch, r, start, min(RUN_MAX, e - start), val)
             c = e
 
 
@@ -628,11 +623,11 @@ def _dense_conv(out, w_torch, planes, chans, scale):
 def _add_planes(out, conv, ones, planes, ch0, ch1, zero, scale):
     """out (H, W, O) += the convolution of input channels ch0 .. ch1-1 of ``planes * scale``.
 
-    ``conv`` = (flipped kernels (C_in, k, k, O), their row prefix sums, torch's (O, C_in, k, k)).
+    ``conv`` = (run kernels (C_in, RUN_MAX, k, RUN_MAX + k - 1, O), torch's (O, C_in, k, k)).
     A channel contributes ``m * conv(ones)`` for its majority value m (if any), then the runs of cells
     that differ from m; channels where over half the cells differ are convolved densely, together.
     """
-    w_flip, pre, w_torch = conv
+    runs, w_torch = conv
     dense = np.empty(ch1 - ch0, np.int64)
     n_dense = 0
     for ch in range(ch0, ch1):
@@ -646,7 +641,7 @@ def _add_planes(out, conv, ones, planes, ch0, ch1, zero, scale):
             o_flat, ones_flat = out.ravel(), ones[ch].ravel()
             for j in range(o_flat.size):
                 o_flat[j] += m * ones_flat[j]
-        _add_runs(out, w_flip[ch], pre[ch], planes[ch], zero, ref, scale)
+        _add_runs(out, runs[ch], planes[ch], zero, ref, scale)
     if n_dense:
         _dense_conv(out, w_torch, planes, dense[:n_dense], scale)
 
@@ -655,7 +650,7 @@ def _add_planes(out, conv, ones, planes, ch0, ch1, zero, scale):
 def _shared_base(w, gmap, scale, ones, zero, base):
     """base (S, S, O) = bias + robot 0's convolution of the shared channels (explored, occupied, target)."""
     _fill(base, w.g_b)
-    _add_planes(base, (w.g_w, w.g_pre, w.g_torch), ones, gmap[0], 0, min(_SHARED, gmap.shape[1]), zero, scale)
+    _add_planes(base, (w.g_runs, w.g_torch), ones, gmap[0], 0, min(_SHARED, gmap.shape[1]), zero, scale)
     return base
 
 
@@ -664,7 +659,7 @@ def _robot_conv(w, gmap, i, scale, ones, zero, base, out):
     """out (S, S, O) = robot i's global convolution. Its shared channels start from robot 0's (``base``)
     plus the convolution of the cells where they differ, unless computing them afresh is cheaper."""
     shared = min(_SHARED, gmap.shape[1])
-    conv = (w.g_w, w.g_pre, w.g_torch)
+    conv = (w.g_runs, w.g_torch)
     diff = 0
     for ch in range(shared):
         diff += _count_ne(gmap[i, ch].ravel(), gmap[0, ch].ravel(), 0.0)
@@ -676,7 +671,7 @@ def _robot_conv(w, gmap, i, scale, ones, zero, base, out):
         _copy(out, base)
         if diff:
             for ch in range(shared):
-                _add_runs(out, w.g_w[ch], w.g_pre[ch], gmap[i, ch], gmap[0, ch], 0.0, scale)
+                _add_runs(out, w.g_runs[ch], gmap[i, ch], gmap[0, ch], 0.0, scale)
         first = shared
     else:
         _fill(out, w.g_b)
@@ -783,7 +778,7 @@ def _embed(w, pool, gmap, g_scale, lmap, l_scale, cls, ones_g, ones_l):
     zero_l = np.zeros((side, side), lmap.dtype)
     for i in range(n):
         _fill(h1, w.l1_b)
-        _add_planes(h1, (w.l1_w, w.l1_pre, w.l1_torch), ones_l, lmap[i], 0, lmap.shape[1], zero_l, l_scale)
+        _add_planes(h1, (w.l1_runs, w.l1_torch), ones_l, lmap[i], 0, lmap.shape[1], zero_l, l_scale)
         h1_flat = h1.ravel()
         _layer_norm(h1_flat, w.l1_ln, h1_flat)
         _relu(h1_flat)

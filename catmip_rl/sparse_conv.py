@@ -30,7 +30,7 @@ import torch
 from numba import njit
 
 from catmip_rl.amat import OBS_SCALE
-from catmip_rl.fast_infer import _ones_conv, _robot_conv, _shared_base, conv_weights
+from catmip_rl.fast_infer import _robot_conv, _shared_base, conv_weights, ones_conv
 
 __all__ = ["global_conv_pool", "GlobalConvPool", "CHUNKS"]
 
@@ -169,7 +169,7 @@ class GlobalConvPool(torch.autograd.Function):
         m, n, _, s, s2 = gmap.shape
         n_out, k = weight.shape[0], weight.shape[-1]
         weights = conv_weights(weight.detach().float().cpu().numpy(), bias.detach().float().cpu().numpy())
-        ones = _ones_conv(weights.g_w, np.ones((s, s2), np.float32))
+        ones = ones_conv(weights.g_w, s, s2)
         maps = gmap.numpy()
         pooled = np.empty((m * n, n_out, pool, pool), np.float32)
         where = np.empty((m * n, n_out, pool, pool), np.int32)

@@ -8,7 +8,7 @@ import torch.nn.functional as F
 from catmip_env.config import make_config
 from catmip_env.events import EventEngine
 from catmip_rl.amat import AmatConfig, decision_order
-from catmip_rl.fast_infer import FastAmat
+from catmip_rl.fast_infer import RUN_MAX, FastAmat, conv_weights, ones_conv
 from tests.rl.helpers import shaken_model
 
 SMALL = AmatConfig(embed_dim=32, n_blocks=2, n_heads=2)
@@ -126,11 +126,37 @@ def test_shared_sparse_global_conv_equals_conv2d(models, s):
     mostly_explored[:, 0, 2:5, 3 : s - 2] = 0  # ... and the runs of cells that differ from it
     maps.append(mostly_explored)
     maps.append(rng.normal(size=(2, 7, s, s)).astype(np.float32))  # float, no zeros: dense everywhere
+    runs = np.zeros((2, 7, s, s), np.uint8)  # row r: runs of 1 .. s cells (RUN_MAX and longer, in pieces)
+    for r in range(s):
+        n = r + 1
+        runs[:, 3 + r % 4, r, s - n :] = 1 + r % 4
+        runs[1, 3 + r % 4, r, : max(0, s - n - 1)] = 2  # and a second run before it, in robot 1's map
+    assert s > RUN_MAX
+    maps.append(runs)
     for g in maps:
         x = torch.from_numpy(g).float() * (0.25 if g.dtype == np.uint8 else 1.0)
         with torch.no_grad():
             ref = F.conv2d(x, m.global_conv.weight, m.global_conv.bias, padding=3).numpy()
         np.testing.assert_allclose(fast.global_conv(g), ref, atol=1e-5 * np.abs(ref).max(), rtol=0)
+
+
+@pytest.mark.parametrize("k, h, w", [(7, 20, 20), (7, 5, 9), (3, 7, 7), (5, 4, 11)])
+def test_ones_conv_equals_conv2d(k, h, w):
+    """``ones_conv``: the convolution of an all-ones plane per input channel, for kernels larger than
+    the plane too."""
+    rng = np.random.default_rng(k * h * w)
+    weight = torch.from_numpy(rng.normal(size=(6, 3, k, k)).astype(np.float32))
+    with torch.no_grad():
+        ref = F.conv2d(torch.ones(1, 3, h, w), weight, padding=k // 2)[0]  # (O, H, W)
+        per_channel = [
+            F.conv2d(torch.ones(1, 1, h, w), weight[:, c : c + 1], padding=k // 2)[0] for c in range(3)
+        ]
+    flipped = conv_weights(weight.numpy(), np.zeros(6, np.float32)).g_w
+    ones = ones_conv(flipped, h, w)  # (C, H, W, O)
+    assert ones.shape == (3, h, w, 6) and ones.dtype == np.float32
+    for c in range(3):
+        np.testing.assert_allclose(ones[c].transpose(2, 0, 1), per_channel[c].numpy(), atol=1e-5)
+    np.testing.assert_allclose(ones.sum(0).transpose(2, 0, 1), ref.numpy(), atol=1e-5)
 
 
 @pytest.mark.parametrize("name", ["table2", "small", "odd"])
