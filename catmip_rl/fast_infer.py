@@ -201,33 +201,50 @@ RUN_MAX = 8
 """Longest run of equal cells with a precomputed run kernel; longer runs are added in pieces."""
 
 
-def _run_kernels(flipped: np.ndarray) -> np.ndarray:
-    """(C, RUN_MAX, k, RUN_MAX + k - 1, O): per input channel and run length n, what n ones at input
+@_jit
+def _run_kernels(flipped, run_max):
+    """(C, run_max, k, run_max + k - 1, O): per input channel and run length n, what n ones at input
     cells (r, c .. c + n - 1) add to output row r - k//2 + i at column c - k//2 + t:
-    ``R[n - 1, i, t] = sum of the flipped kernel row i's taps j with 0 <= t - j < n`` (t < n + k - 1)."""
+    ``R[n - 1, i, t] = sum of the flipped kernel row i's taps j with 0 <= t - j < n`` (t < n + k - 1),
+    built as R_n = R_(n-1) + the kernel row shifted by n - 1 (summed in float64)."""
     n_ch, k, _, n_out = flipped.shape
-    pre = np.zeros((n_ch, k, k + 1, n_out))
-    pre[:, :, 1:] = np.cumsum(flipped, axis=2, dtype=np.float64)
-    out = np.zeros((n_ch, RUN_MAX, k, RUN_MAX + k - 1, n_out), np.float32)
-    for n in range(1, RUN_MAX + 1):
-        t = np.arange(n + k - 1)
-        out[:, n - 1, :, : n + k - 1] = pre[:, :, np.minimum(k, t + 1)] - pre[:, :, np.maximum(0, t - n + 1)]
+    out = np.zeros((n_ch, run_max, k, run_max + k - 1, n_out), np.float32)
+    acc = np.empty((run_max + k - 1, n_out))
+    for ch in range(n_ch):
+        for i in range(k):
+            acc[:] = 0.0
+            for n in range(1, run_max + 1):
+                for j in range(k):
+                    for o in range(n_out):
+                        acc[n - 1 + j, o] += flipped[ch, i, j, o]
+                for t in range(n + k - 1):
+                    for o in range(n_out):
+                        out[ch, n - 1, i, t, o] = acc[t, o]
     return out
 
 
-def ones_conv(flipped: np.ndarray, h: int, wd: int) -> np.ndarray:
+@_jit
+def ones_conv(flipped, h, wd):
     """(C, H, W, O): per input channel, the convolution (no bias, zero padding) of an all-ones H x W
     plane with the flipped kernels (C, k, k, O): at each output cell, the sum of the taps that fall on
-    the plane, from 2-D prefix sums of the kernel."""
+    the plane, from 2-D prefix sums of the kernel (float64)."""
     n_ch, k, _, n_out = flipped.shape
     pad = k // 2
-    pre = np.zeros((n_ch, k + 1, k + 1, n_out))
-    pre[:, 1:, 1:] = np.cumsum(np.cumsum(flipped, axis=1, dtype=np.float64), axis=2)
-    y, x = np.arange(h), np.arange(wd)
-    i0, i1 = np.clip(y + pad - h + 1, 0, k), np.clip(y + pad + 1, 0, k)  # taps of output row y
-    j0, j1 = np.clip(x + pad - wd + 1, 0, k), np.clip(x + pad + 1, 0, k)
-    rows = pre[:, i1] - pre[:, i0]  # (C, H, k + 1, O)
-    return np.ascontiguousarray(rows[:, :, j1] - rows[:, :, j0], dtype=np.float32)
+    pre = np.zeros((k + 1, k + 1, n_out))
+    out = np.empty((n_ch, h, wd, n_out), np.float32)
+    for ch in range(n_ch):
+        for i in range(k):
+            for j in range(k):
+                for o in range(n_out):
+                    corner = pre[i, j + 1, o] + pre[i + 1, j, o] - pre[i, j, o]
+                    pre[i + 1, j + 1, o] = corner + flipped[ch, i, j, o]
+        for y in range(h):
+            i0, i1 = min(k, max(0, y + pad - h + 1)), min(k, y + pad + 1)  # taps of output row y
+            for x in range(wd):
+                j0, j1 = min(k, max(0, x + pad - wd + 1)), min(k, x + pad + 1)
+                for o in range(n_out):
+                    out[ch, y, x, o] = pre[i1, j1, o] - pre[i0, j1, o] - pre[i1, j0, o] + pre[i0, j0, o]
+    return out
 
 
 ConvWeights = namedtuple("ConvWeights", ["g_w", "g_runs", "g_torch", "g_b"])
@@ -241,7 +258,8 @@ def conv_weights(weight: np.ndarray, bias: np.ndarray) -> ConvWeights:
     kernels, torch's layout, the bias."""
     w = np.ascontiguousarray(weight, dtype=np.float32)
     flipped = np.ascontiguousarray(w[:, :, ::-1, ::-1].transpose(1, 2, 3, 0))
-    return ConvWeights(flipped, _run_kernels(flipped), w, np.ascontiguousarray(bias, dtype=np.float32))
+    b = np.ascontiguousarray(bias, dtype=np.float32)
+    return ConvWeights(flipped, _run_kernels(flipped, RUN_MAX), w, b)
 
 
 def _extract(cfg: AmatConfig, p: dict[str, np.ndarray]) -> _Weights:
