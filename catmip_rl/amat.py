@@ -8,6 +8,7 @@ Data flow of one decision::
     obs --embed--> tokens (B, N, d) --encode--> rep (B, N, d), values (B, N, 1)
     rep --decode_autoregressive--> actions, log-probs of the active robots (rollout)
     rep, stored actions --decode_parallel--> logits (B, N, A) (teacher forcing, training)
+    tokens, stored actions --score--> logits, values of selected robots only (the PPO loss)
 
 Decision order: active robots first, then busy ones, then padding, each in ascending id
 (:func:`decision_order`). Robot ``k`` of the order sees, through the decoder, the actions chosen by
@@ -113,10 +114,18 @@ class Attention(nn.Module):
         return x.transpose(1, 2).reshape(b, t, h * dh)
 
     def forward(
-        self, query: torch.Tensor, key: torch.Tensor, value: torch.Tensor, allowed: torch.Tensor | None = None
+        self,
+        query: torch.Tensor,
+        key: torch.Tensor,
+        value: torch.Tensor,
+        allowed: torch.Tensor | None = None,
+        rows: torch.Tensor | None = None,
     ) -> torch.Tensor:
         """``allowed`` (B or 1, 1, Tq, Tk) bool: which keys each query may attend to. Projections of the
-        same input are one matrix product (q/k/v of self-attention, k/v of cross-attention)."""
+        same input are one matrix product (q/k/v of self-attention, k/v of cross-attention).
+
+        ``rows`` (K,) long: flat indices into the B * Tq query rows; the output is then those rows
+        only, (K, d), and the output projection runs on them alone."""
         d = query.shape[-1]
         if key is value:
             if query is key:
@@ -131,10 +140,11 @@ class Attention(nn.Module):
             # training on CPU: a few tokens per event (catmip_rl.small_attention)
             from catmip_rl.small_attention import small_attention
 
-            return self.out(small_attention(q, k, v, allowed, self.n_heads))
-        q, k, v = self.split(q), self.split(k), self.split(v)
-        y = F.scaled_dot_product_attention(q, k, v, attn_mask=allowed)
-        return self.out(self.merge(y))
+            y = small_attention(q, k, v, allowed, self.n_heads)
+        else:
+            q, k, v = self.split(q), self.split(k), self.split(v)
+            y = self.merge(F.scaled_dot_product_attention(q, k, v, attn_mask=allowed))
+        return self.out(y if rows is None else y.flatten(0, 1)[rows])
 
 
 class MLP(nn.Sequential):
@@ -150,8 +160,12 @@ class EncoderBlock(nn.Module):
         self.mlp = MLP(d)
         self.ln2 = nn.LayerNorm(d)
 
-    def forward(self, x: torch.Tensor, allowed: torch.Tensor | None) -> torch.Tensor:
-        x = self.ln1(x + self.attn(x, x, x, allowed))
+    def forward(
+        self, x: torch.Tensor, allowed: torch.Tensor | None, rows: torch.Tensor | None = None
+    ) -> torch.Tensor:
+        """(B, T, d), or the flat rows ``rows`` of it (K, d): every token is a key, only they are queries."""
+        h = self.attn(x, x, x, allowed, rows)
+        x = self.ln1((x if rows is None else x.flatten(0, 1)[rows]) + h)
         return self.ln2(x + self.mlp(x))
 
 
@@ -171,9 +185,13 @@ class DecoderBlock(nn.Module):
         sa, ca = self.self_attn, self.cross_attn
         return (*_stacked((sa.q, sa.k, sa.v)), *_stacked((ca.k, ca.v)))
 
-    def forward(self, x: torch.Tensor, rep: torch.Tensor, causal: torch.Tensor) -> torch.Tensor:
+    def forward(
+        self, x: torch.Tensor, rep: torch.Tensor, causal: torch.Tensor, rows: torch.Tensor | None = None
+    ) -> torch.Tensor:
+        """(B, T, d), or the flat rows ``rows`` of it (K, d) (every position is still a key)."""
         x = self.ln1(x + self.self_attn(x, x, x, causal))
-        x = self.ln2(rep + self.cross_attn(rep, x, x, causal))  # query: encoder rep; key/value: actions
+        y = self.cross_attn(rep, x, x, causal, rows)  # query: encoder rep; key/value: actions
+        x = self.ln2((rep if rows is None else rep.flatten(0, 1)[rows]) + y)
         return self.ln3(x + self.mlp(x))
 
 
@@ -278,6 +296,13 @@ class AMAT(nn.Module):
         emb = F.gelu(F.embedding(prev, self.action_enc.weight.t()))  # one-hot @ W == row lookup
         return self.dec_ln(emb + F.gelu(self.dec_class_enc(cls)))
 
+    def _teacher_tokens(self, actions: torch.Tensor, order: torch.Tensor, cls: torch.Tensor) -> torch.Tensor:
+        """Teacher-forced decoder input (B, N, d) in decision order: position k gets the stored action
+        of the robot at position k - 1 (the start token at 0) and its own robot's class."""
+        act_o = torch.gather(actions.clamp_min(0), 1, order)  # (B, N)
+        prev = torch.cat([torch.zeros_like(act_o[:, :1]), act_o[:, :-1] + 1], dim=1)  # shifted, 0 = start
+        return self._action_tokens(prev, _gather(cls, order))
+
     def decode_parallel(
         self,
         rep: torch.Tensor,  # (B, N, d) encoder output, robot order
@@ -287,11 +312,9 @@ class AMAT(nn.Module):
         action_mask: torch.Tensor | None = None,  # (B, N, A) bool/int, 1 = allowed
     ) -> torch.Tensor:
         """Teacher-forced logits (B, N, A) in robot order, in one pass; masked actions get -1e10."""
-        b, n, _ = rep.shape
+        n = rep.shape[1]
         rep_o = _gather(rep, order)  # (B, N, d) decision order
-        act_o = torch.gather(actions.clamp_min(0), 1, order)  # (B, N)
-        prev = torch.cat([torch.zeros_like(act_o[:, :1]), act_o[:, :-1] + 1], dim=1)  # shifted, 0 = start
-        x = self._action_tokens(prev, _gather(agent_class.to(rep.dtype), order))
+        x = self._teacher_tokens(actions, order, agent_class.to(rep.dtype))
         causal = torch.ones(n, n, dtype=torch.bool, device=rep.device).tril()[None, None]
         for block in self.dec_blocks:
             x = block(x, rep_o, causal)
@@ -354,6 +377,52 @@ class AMAT(nn.Module):
         actions.scatter_(1, order_a, torch.where(valid, chosen, actions.gather(1, order_a)))
         log_probs.scatter_(1, order_a, torch.where(valid, chosen_lp, 0.0))
         return actions, log_probs
+
+    # -- training ---------------------------------------------------------------------------------
+    def score(
+        self,
+        tokens: torch.Tensor,  # (B, N, d) embedded macro-observations
+        actions: torch.Tensor,  # (B, N) long, stored actions
+        order: torch.Tensor,  # (B, N) long, robot index at each decision position
+        agent_class: torch.Tensor,  # (B, N, C)
+        select: torch.Tensor,  # (B, N) bool: the robots to score
+        action_mask: torch.Tensor | None = None,  # (B, N, A) bool/int, 1 = allowed
+        key_padding_mask: torch.Tensor | None = None,  # (B, N) bool, True = padding
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """Teacher-forced logits (K, A) and values (K, 1) of the K selected robots, in the row-major
+        order of ``select``: ``decode_parallel`` and ``encode`` at those robots, computed for them alone.
+
+        Every robot is still a key of every attention; past the last attention of a stack, only the
+        selected rows are computed (the output projection, LayerNorms, MLP and heads): with one block,
+        the encoder's too, since only the selected robots' representations are then read. The PPO loss
+        weighs only trainable robots, about a third of the tokens in asynchronous training.
+        """
+        b, n, d = tokens.shape
+        allowed = None if key_padding_mask is None else (~key_padding_mask)[:, None, None, :]
+        rows = select.flatten().nonzero()[:, 0]  # (K,) flat robot-order indices
+        one_block = len(self.dec_blocks) == 1  # the decoder reads the selected representations only
+        x = self.enc_ln(tokens)
+        last = len(self.enc_blocks) - 1
+        for i, block in enumerate(self.enc_blocks):
+            x = block(x, allowed, rows if one_block and i == last else None)
+        rep_sel = x if one_block else x.flatten(0, 1)[rows]  # (K, d)
+        values = self.value_head(rep_sel)
+        # decoder, in decision order: the flat position of each selected robot
+        pos = torch.empty_like(order).scatter_(1, order, torch.arange(n, device=order.device).expand(b, n))
+        rows_o = (pos + torch.arange(b, device=order.device)[:, None] * n).flatten()[rows]
+        if one_block:  # queries of unselected positions are never read: zeros
+            rep_o = tokens.new_zeros(b * n, d).index_copy(0, rows_o, rep_sel).view(b, n, d)
+        else:
+            rep_o = _gather(x, order)
+        y = self._teacher_tokens(actions, order, agent_class.to(tokens.dtype))
+        causal = torch.ones(n, n, dtype=torch.bool, device=tokens.device).tril()[None, None]
+        last = len(self.dec_blocks) - 1
+        for j, block in enumerate(self.dec_blocks):
+            y = block(y, rep_o, causal, rows_o if j == last else None)
+        logits = self.policy_head(y)  # (K, A)
+        if action_mask is not None:
+            logits = logits.masked_fill(~action_mask.flatten(0, 1)[rows].bool(), INVALID_LOGIT)
+        return logits, values
 
     # -- convenience ------------------------------------------------------------------------------
     def forward(self, obs: dict[str, torch.Tensor], key_padding_mask: torch.Tensor | None = None):

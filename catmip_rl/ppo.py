@@ -96,29 +96,30 @@ def ppo_loss(
     minibatch, the losses (and parts) of its micro-batches add up to the minibatch's.
     """
     obs = {"global_map": batch.global_map, "local_map": batch.local_map, "agent_class": batch.agent_class}
-    rep, values = model.encode(model.embed(obs))  # (M, N, d), (M, N, 1)
-    logits = model.decode_parallel(rep, batch.action, batch.order, batch.agent_class, batch.action_mask)
-    logp_all = torch.log_softmax(logits.float(), -1)  # (M, N, A)
-    logp = logp_all.gather(-1, batch.action[..., None])[..., 0]
-    w = batch.trainable.float()
-    count = w.sum().clamp_min(1.0) if count is None else count
-    ratio = torch.exp(logp - batch.log_prob)
-    surrogate = torch.min(ratio * batch.advantage, ratio.clamp(1 - clip, 1 + clip) * batch.advantage)
-    policy_loss = -(surrogate * w).sum() / count
+    sel = batch.trainable.bool()  # the loss reads these robots only: logits and values of them alone
+    logits, values = model.score(
+        model.embed(obs), batch.action, batch.order, batch.agent_class, sel, batch.action_mask
+    )  # (K, A), (K, 1)
+    action, old_logp, adv = batch.action[sel], batch.log_prob[sel], batch.advantage[sel]
+    logp_all = torch.log_softmax(logits.float(), -1)  # (K, A)
+    logp = logp_all.gather(-1, action[:, None])[:, 0]
+    count = sel.sum().clamp_min(1).float() if count is None else count
+    ratio = torch.exp(logp - old_logp)
+    surrogate = torch.min(ratio * adv, ratio.clamp(1 - clip, 1 + clip) * adv)
+    policy_loss = -surrogate.sum() / count
     probs = logp_all.exp()
-    entropy_all = -(torch.where(batch.action_mask, probs * logp_all, 0.0)).sum(-1)  # (M, N)
-    entropy = (entropy_all * w).sum() / count
-    v = values[..., 0].float()
-    v_clipped = batch.value + (v - batch.value).clamp(-value_clip, value_clip)
-    value_loss = torch.max(huber(v - batch.target, huber_delta), huber(v_clipped - batch.target, huber_delta))
-    value_loss = (value_loss * w).sum() / count
+    entropy = -(torch.where(batch.action_mask[sel].bool(), probs * logp_all, 0.0)).sum() / count
+    v, old_v, target = values[:, 0].float(), batch.value[sel], batch.target[sel]
+    v_clipped = old_v + (v - old_v).clamp(-value_clip, value_clip)
+    value_loss = torch.max(huber(v - target, huber_delta), huber(v_clipped - target, huber_delta))
+    value_loss = value_loss.sum() / count
     loss = policy_loss + value_coef * value_loss - entropy_coef * entropy
     with torch.no_grad():
         stats = {
             "loss/policy": policy_loss.detach(),
             "loss/value": value_loss.detach(),
             "loss/entropy": entropy.detach(),
-            "ppo/approx_kl": (((ratio - 1) - (logp - batch.log_prob)) * w).sum() / count,
-            "ppo/clip_fraction": (((ratio - 1).abs() > clip).float() * w).sum() / count,
+            "ppo/approx_kl": ((ratio - 1) - (logp - old_logp)).sum() / count,
+            "ppo/clip_fraction": ((ratio - 1).abs() > clip).float().sum() / count,
         }
     return loss, stats

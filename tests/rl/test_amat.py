@@ -169,3 +169,51 @@ def test_initialisation():
     assert w.abs().max() < 0.05
     w = m.obs_fc1.weight  # followed by GELU: gain sqrt(2), orthogonal rows
     assert torch.allclose(w @ w.t(), 2 * torch.eye(w.shape[0]), atol=1e-4)
+
+
+@pytest.mark.parametrize(
+    "config, padded",
+    [(None, False), (None, True), (AmatConfig(embed_dim=32, n_blocks=2, n_heads=2), False)],
+)
+@pytest.mark.parametrize("grad", [False, True])  # with grad on CPU, attention runs in small_attention
+def test_score_equals_encode_and_decode_parallel_at_the_selected_robots(config, padded, grad):
+    m = shaken_model(config)
+    b, n = 6, 4
+    obs = _obs(b, n, 15, seed=3)
+    mask, active = _mask_active(b, n, seed=3)
+    pad = None
+    if padded:
+        pad = torch.zeros(b, n, dtype=torch.bool)
+        pad[::2, -1] = True  # every other world has one robot fewer
+        active &= ~pad
+    order = decision_order(active, pad)
+    actions = (mask * torch.rand(mask.shape, generator=torch.Generator().manual_seed(4))).argmax(-1)
+    select = active & (torch.rand(b, n, generator=torch.Generator().manual_seed(5)) < 0.7)
+    select[0] = False  # a world with no selected robot
+    with torch.set_grad_enabled(grad):
+        tokens = m.embed(obs).detach().requires_grad_(grad)
+        rep, values = m.encode(tokens, pad)
+        logits = m.decode_parallel(rep, actions, order, obs["agent_class"], mask)
+        logits_s, values_s = m.score(tokens, actions, order, obs["agent_class"], select, mask, pad)
+    k = int(select.sum())
+    assert logits_s.shape == (k, 49) and values_s.shape == (k, 1) and 0 < k < b * n
+    assert torch.allclose(logits_s, logits[select], atol=1e-5)
+    assert torch.allclose(values_s, values[select], atol=1e-5)
+    if grad:  # the same gradients, into every token (unselected robots are still inputs)
+        w = torch.randn(k, 49, generator=torch.Generator().manual_seed(7))
+        g_full = torch.autograd.grad((logits[select] * w).sum() + values[select].sum(), tokens)[0]
+        g_sel = torch.autograd.grad((logits_s * w).sum() + values_s.sum(), tokens)[0]
+        assert torch.allclose(g_sel, g_full, atol=1e-5) and g_full[~select].abs().sum() > 0
+
+
+def test_score_with_nothing_selected():
+    m = shaken_model()
+    obs = _obs(2, 3, 15)
+    mask, active = _mask_active(2, 3)
+    tokens = m.embed(obs)
+    select = torch.zeros(2, 3, dtype=torch.bool)
+    logits, values = m.score(
+        tokens, torch.zeros(2, 3, dtype=torch.long), decision_order(active), obs["agent_class"], select, mask
+    )
+    assert logits.shape == (0, 49) and values.shape == (0, 1)
+    (logits.sum() + values.sum()).backward()

@@ -63,21 +63,20 @@ def test_busy_robots_are_inputs_never_loss_terms():
     altered.target[:, 1] = -1e3
     loss2, _ = ppo_loss(m, altered)
     assert torch.allclose(loss, loss2)
-    # the gradient reaching robot 1's logits is exactly zero
+    # robot 1 is never scored, yet the loss's gradient reaches its token: an input of the others' terms
     captured = {}
-    orig = m.decode_parallel
+    orig = m.score
 
-    def hook(*args, **kwargs):
-        logits = orig(*args, **kwargs)
-        logits.retain_grad()
-        captured["logits"] = logits
-        return logits
+    def hook(tokens, actions, order, agent_class, select, *args, **kwargs):
+        tokens.retain_grad()
+        captured["tokens"], captured["select"] = tokens, select
+        return orig(tokens, actions, order, agent_class, select, *args, **kwargs)
 
-    m.decode_parallel = hook
+    m.score = hook
     loss, _ = ppo_loss(m, batch)
     loss.backward()
-    g = captured["logits"].grad
-    assert (g[:, 1] == 0).all() and g[:, 0].abs().sum() > 0
+    assert not captured["select"][:, 1].any() and captured["select"][:, 0].any()
+    assert captured["tokens"].grad[:, 1].abs().sum() > 0
 
 
 def test_value_norm_tracks_and_inverts():
