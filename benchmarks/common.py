@@ -12,6 +12,24 @@ from catmip_env import EnvConfig
 from catmip_env.events import EventEngine, random_valid_actions
 
 
+def cpu_times() -> tuple[int, int] | None:
+    """(steal, total) CPU jiffies of the machine so far (Linux /proc/stat), or None elsewhere: the
+    difference over a measurement gives the share of CPU time the hypervisor gave to other guests."""
+    try:
+        fields = Path("/proc/stat").read_text().split("\n", 1)[0].split()[1:]
+    except OSError:
+        return None
+    values = [int(v) for v in fields]
+    return (values[7] if len(values) > 7 else 0), sum(values[:8])
+
+
+def steal_percent(before: tuple[int, int] | None, after: tuple[int, int] | None) -> float | None:
+    """CPU steal between two ``cpu_times()`` readings, in percent of all CPU time (None if unknown)."""
+    if before is None or after is None or after[1] <= before[1]:
+        return None
+    return 100.0 * (after[0] - before[0]) / (after[1] - before[1])
+
+
 def write_json(path: str | Path, results: Any) -> Path:
     """Write results as JSON atomically (temporary file, then rename) and say where."""
     path = Path(path)

@@ -253,6 +253,8 @@ def amat_checks(d: dict, scaling: dict | None) -> list[Check]:
         best = r.get("best_agent_samples_per_s")
         parts = [f"median step; best {best:,.0f}/s"] if best else []
         parts.append(r.get("batch", "random maps"))
+        if r.get("cpu_steal_pct") is not None:
+            parts.append(f"CPU steal {r['cpu_steal_pct']:.0f} %")
         label = f"training step {r['precision']}, {r['worlds']}x{r['robots']} batch"
         rate = r["agent_samples_per_s"]
         out.append(Check("amat", label, rate, "agent-samples/s", 5_000, note="; ".join(parts)))
