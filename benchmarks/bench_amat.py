@@ -40,8 +40,9 @@ from catmip_rl.amat import AMAT, decision_order
 from catmip_rl.config import make_train_config
 from catmip_rl.fast_infer import FastAmat
 from catmip_rl.heap import keep_freed_memory
+from catmip_rl.parallel_update import ParallelGradients
 from catmip_rl.ppo import SampleBatch, ppo_loss
-from catmip_rl.train import make_optimizer
+from catmip_rl.train import loss_kwargs, make_optimizer
 
 TOKEN_INPUTS = ("global_map", "local_map", "agent_class")
 TASKS = ((2, 15, "task1"), (3, 20, "task2"), (6, 32, "task3"))  # (robots, map side, preset) of Tasks 1-3
@@ -186,44 +187,65 @@ def task2_training_batch(events: int, seed: int = 0) -> SampleBatch:
     )
 
 
-def bench_training(model: AMAT, batch: SampleBatch, bf16: bool, steps: int) -> dict:
+def bench_training(model: AMAT, batch: SampleBatch, bf16: bool, steps: int, processes: int = 1) -> dict:
     """One PPO minibatch step as training runs it: ``ppo_loss`` forward, backward, grad-norm clip and
-    fused Adam (``catmip_rl.train.make_optimizer``), on two threads."""
+    fused Adam (``catmip_rl.train.make_optimizer``). One process on two threads, or ``processes``
+    single-threaded processes (``catmip_rl.parallel_update``), each with one micro-batch of ``batch``'s
+    events (so the step covers ``processes`` x as many events)."""
     torch.set_num_threads(2)
     keep_freed_memory()  # as catmip_rl.train.train does
-    opt = make_optimizer(model, make_train_config("paper"))
+    cfg = make_train_config("paper")
+    opt = make_optimizer(model, cfg)
     m, n = batch.action.shape
+    parallel = None
+    if processes > 1:
+        parallel = ParallelGradients(model, processes, **loss_kwargs(cfg))
+        batch = SampleBatch(**{k: torch.cat([v] * processes) for k, v in batch.__dict__.items()})
+        parallel.set_batch(batch)
+        parts = list(torch.arange(m * processes).chunk(processes))
+        count = batch.trainable.sum().clamp_min(1).float()
 
     def step():
-        with torch.autocast("cpu", dtype=torch.bfloat16, enabled=bf16):
-            loss, _ = ppo_loss(model, batch)
         opt.zero_grad(set_to_none=True)
-        loss.backward()
+        if parallel is not None:
+            parallel.backward(model, parts, count, batch)
+        else:
+            with torch.autocast("cpu", dtype=torch.bfloat16, enabled=bf16):
+                loss, _ = ppo_loss(model, batch)
+            loss.backward()
         torch.nn.utils.clip_grad_norm_(model.parameters(), 10.0)
         opt.step()
 
-    for _ in range(2):
-        step()
-    before = cpu_times()
-    times = _times_ms(step, repeats=steps, warmup=0)
-    steal = steal_percent(before, cpu_times())
+    try:
+        for _ in range(2):
+            step()
+        before = cpu_times()
+        times = _times_ms(step, repeats=steps, warmup=0)
+        steal = steal_percent(before, cpu_times())
+    finally:
+        if parallel is not None:
+            parallel.close()
     ms = statistics.median(times)
+    samples = m * n * processes
     row = {
         "worlds": m,
         "robots": n,
         "map": batch.global_map.shape[-1],
         "batch": "task2 rollout events",
         "precision": "bf16-autocast" if bf16 else "fp32",
+        "processes": processes,
+        "threads_per_process": 2 if processes == 1 else 1,
         "ms_per_step": ms,
         "best_ms_per_step": times[0],
-        "agent_samples_per_s": m * n / ms * 1000,  # median step
-        "best_agent_samples_per_s": m * n / times[0] * 1000,
+        "agent_samples_per_s": samples / ms * 1000,  # median step
+        "best_agent_samples_per_s": samples / times[0] * 1000,
         "cpu_steal_pct": steal,
     }
     rate, best = row["agent_samples_per_s"], row["best_agent_samples_per_s"]
     stolen = "" if steal is None else f", CPU steal {steal:.0f} %"
+    how = "1 process x 2 threads" if processes == 1 else f"{processes} processes x 1 thread"
     print(
-        f"training {row['precision']:>13} batch {m}x{n}: {ms:.0f} ms/step (median), "
+        f"training {row['precision']:>13} batch {m}x{n}, {how}: {ms:.0f} ms/step (median), "
         f"{rate:,.0f} agent-samples/s (best step {best:,.0f}/s{stolen})"
     )
     return row
@@ -260,7 +282,11 @@ def plot(results: dict, path: Path) -> None:
     axes[0].set_title("Batch-1 decision latency")
     axes[0].legend(fontsize=8)
     tr = results["training"]
-    axes[1].bar([f"{r['precision']}\nB={r['worlds']}" for r in tr], [r["agent_samples_per_s"] for r in tr])
+    procs = [r.get("processes", 1) for r in tr]
+    labels = [
+        f"{r['precision']}\nB={r['worlds']}" + (f" x{p} proc" if p > 1 else "") for r, p in zip(tr, procs)
+    ]
+    axes[1].bar(labels, [r["agent_samples_per_s"] for r in tr])
     axes[1].axhline(5000, color="r", ls="--", lw=1, label="5,000 target")
     axes[1].set_ylabel("agent-samples / s (2 threads)")
     axes[1].set_title("Training step (fwd + bwd + Adam), Task 2")
@@ -294,6 +320,7 @@ def main() -> None:
         "acting": bench_acting(model),
         "training": [
             *(bench_training(AMAT().train(), batch, False, args.train_steps) for batch in batches),
+            bench_training(AMAT().train(), batches[-1], False, args.train_steps, processes=2),
             bench_training(AMAT().train(), batches[0], True, args.bf16_steps),
         ],
     }

@@ -1,13 +1,15 @@
 """Seconds per training iteration of the paper recipe, split into collection / advantages / update.
 
     python benchmarks/bench_train.py [--iterations 2] [--epochs 10 2] [--worlds 64] [--bf16]
-                                     [--out benchmarks/results/train.json]
+                                     [--update-processes 2 1] [--out benchmarks/results/train.json]
 
 One iteration = 64 ``train``-preset episodes (20x20, 3 robots, horizon 200, activation (2, 5)) collected
 by the async-aware collector, asynchronous GAE, and ``--epochs`` full-batch PPO epochs, on ``--threads``
-torch threads (2 = the whole machine). Reports env-steps/s end to end (decision events of all worlds
-per second of iteration, and world-ticks per second) for the 10-epoch recipe and a 2-epoch one, in fp32
-and, with ``--bf16``, CPU bf16 autocast for the update (the PPO loss's forward pass; collection in fp32).
+torch threads (2 = the whole machine), the update's gradients computed by ``--update-processes``
+processes (2 = the recipe on CPU: two single-threaded processes; 1 = one process on ``--threads``).
+Reports env-steps/s end to end (decision events of all worlds per second of iteration, and world-ticks
+per second) for the 10-epoch recipe and a 2-epoch one, in fp32 and, with ``--bf16``, CPU bf16 autocast
+for the update (the PPO loss's forward pass, in one process; collection in fp32).
 """
 
 from __future__ import annotations
@@ -24,6 +26,7 @@ from pathlib import Path
 import torch
 from common import write_json
 
+import catmip_rl.ppo as ppo_module
 import catmip_rl.train as train_module
 from catmip_rl.config import make_train_config
 from catmip_rl.train import train
@@ -32,9 +35,10 @@ from catmip_rl.train import train
 @contextmanager
 def instrumented(bf16: bool) -> Iterator[list[dict]]:
     """Record each rollout's decision events and world-ticks; with ``bf16``, run the PPO loss under
-    CPU bf16 autocast. Wraps the names ``catmip_rl.train`` calls, restored on exit."""
+    CPU bf16 autocast (in this process). Wraps the names ``catmip_rl.train`` and ``catmip_rl.ppo`` call,
+    restored on exit."""
     seen: list[dict] = []
-    build_batch, ppo_loss = train_module.build_batch, train_module.ppo_loss
+    build_batch, ppo_loss = train_module.build_batch, ppo_module.ppo_loss
 
     def recording_build_batch(r, *args, **kwargs):
         seen.append({"events": r.num_samples, "world_ticks": r.stats["episode_ticks"] * r.valid.shape[1]})
@@ -46,16 +50,19 @@ def instrumented(bf16: bool) -> Iterator[list[dict]]:
 
     train_module.build_batch = recording_build_batch
     if bf16:
-        train_module.ppo_loss = bf16_ppo_loss
+        ppo_module.ppo_loss = bf16_ppo_loss
     try:
         yield seen
     finally:
-        train_module.build_batch, train_module.ppo_loss = build_batch, ppo_loss
+        train_module.build_batch, ppo_module.ppo_loss = build_batch, ppo_loss
 
 
-def run(epochs: int, iterations: int, threads: int, worlds: int = 64, bf16: bool = False) -> dict:
+def run(
+    epochs: int, iterations: int, threads: int, worlds: int = 64, bf16: bool = False, processes: int = 2
+) -> dict:
+    processes = 1 if bf16 else processes  # autocast is set in this process only
     cfg = make_train_config("paper", iterations=iterations, epochs=epochs, threads=threads, num_worlds=worlds,
-                            eval_every=0, checkpoint_every=0)  # fmt: skip
+                            eval_every=0, checkpoint_every=0, update_processes=processes)  # fmt: skip
     tmp = Path(tempfile.mkdtemp(prefix="catmip_bench_"))
     try:
         with instrumented(bf16) as seen:
@@ -68,6 +75,7 @@ def run(epochs: int, iterations: int, threads: int, worlds: int = 64, bf16: bool
     out = {
         "epochs": epochs,
         "threads": threads,
+        "update_processes": processes,
         "num_worlds": worlds,
         "iterations": iterations,
         "precision": "bf16-autocast" if bf16 else "fp32",
@@ -82,7 +90,7 @@ def run(epochs: int, iterations: int, threads: int, worlds: int = 64, bf16: bool
         "world_ticks_per_s": seen[-1]["world_ticks"] / iteration_s,
     }
     print(
-        f"{epochs:2d} epochs {out['precision']}: {iteration_s:.1f} s/iteration "
+        f"{epochs:2d} epochs {out['precision']}, {processes} update proc.: {iteration_s:.1f} s/iteration "
         f"(collect {out['collect_s']:.1f}, adv. {out['advantage_s']:.2f}, update {out['update_s']:.1f}) "
         f"{out['events_per_s']:,.0f} decision events/s, {out['world_ticks_per_s']:,.0f} world-ticks/s",
         flush=True,
@@ -97,12 +105,20 @@ def main() -> None:
     ap.add_argument("--worlds", type=int, default=64, help="episodes per iteration (64 = the paper)")
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--bf16", action="store_true", help="also time each recipe with bf16 autocast")
+    ap.add_argument(
+        "--update-processes",
+        type=int,
+        nargs="+",
+        default=[2],
+        help="gradient processes of the update to time",
+    )
     ap.add_argument("--out", default="benchmarks/results/train.json")
     args = ap.parse_args()
     runs = []
     for bf16 in (False, True) if args.bf16 else (False,):
-        for epochs in args.epochs:
-            runs.append(run(epochs, args.iterations, args.threads, args.worlds, bf16))
+        for processes in args.update_processes if not bf16 else (1,):
+            for epochs in args.epochs:
+                runs.append(run(epochs, args.iterations, args.threads, args.worlds, bf16, processes))
     results = {
         "machine": {
             "python": platform.python_version(),

@@ -256,6 +256,8 @@ def amat_checks(d: dict, scaling: dict | None) -> list[Check]:
         if r.get("cpu_steal_pct") is not None:
             parts.append(f"CPU steal {r['cpu_steal_pct']:.0f} %")
         label = f"training step {r['precision']}, {r['worlds']}x{r['robots']} batch"
+        if r.get("processes", 1) > 1:
+            label += f", {r['processes']} processes x 1 thread"
         rate = r["agent_samples_per_s"]
         out.append(Check("amat", label, rate, "agent-samples/s", 5_000, note="; ".join(parts)))
     if not lat and not d.get("training"):

@@ -33,8 +33,8 @@ def _train(args: argparse.Namespace) -> int:
 
     overrides = _parse_set(args.set)
     for name in ("iterations", "num_worlds", "epochs", "minibatches", "micro_batch", "seed", "device",
-                 "threads", "eval_every", "eval_episodes", "checkpoint_every", "lr", "collector",
-                 "ray_workers", "ray_address"):  # fmt: skip
+                 "threads", "update_processes", "eval_every", "eval_episodes", "checkpoint_every", "lr",
+                 "collector", "ray_workers", "ray_address"):  # fmt: skip
         value = getattr(args, name)
         if value is not None:
             overrides[name] = value
@@ -157,6 +157,11 @@ def main(argv: list[str] | None = None) -> int:
     tr.add_argument("--seed", type=int)
     tr.add_argument("--device", help="cpu | cuda | cuda:N")
     tr.add_argument("--threads", type=int)
+    tr.add_argument(
+        "--update-processes",
+        type=int,
+        help="CPU processes computing the update's gradients (1 thread each if > 1)",
+    )
     tr.add_argument("--eval-every", type=int)
     tr.add_argument("--eval-episodes", type=int)
     tr.add_argument("--checkpoint-every", type=int)

@@ -52,6 +52,10 @@ class TrainConfig:
     device: str = "cpu"
     threads: int = 2
     """torch CPU threads."""
+    update_processes: int = 1
+    """Processes computing the PPO update's gradients (CPU): 1 = this one, on ``threads`` threads; n > 1 =
+    this one and n - 1 helpers, one thread each, sharing every minibatch's micro-batches (data parallel,
+    the same update to float32 rounding; ~15 % faster than one process with two threads on 2 cores)."""
     eval_every: int = 50
     """Iterations between evaluations (0 = never)."""
     eval_episodes: int = 32
@@ -66,7 +70,16 @@ class TrainConfig:
     """Ray cluster to join ("auto", "host:port", "ray://host:port"); None starts a local one on loopback."""
 
     def __post_init__(self) -> None:
-        for name in ("num_worlds", "iterations", "epochs", "minibatches", "threads", "eval_episodes"):
+        positive = (
+            "num_worlds",
+            "iterations",
+            "epochs",
+            "minibatches",
+            "threads",
+            "eval_episodes",
+            "update_processes",
+        )
+        for name in positive:
             if not isinstance(getattr(self, name), int) or getattr(self, name) < 1:
                 raise ValueError(f"TrainConfig.{name} must be an int >= 1, got {getattr(self, name)!r}")
         for name in ("eval_every", "checkpoint_every", "micro_batch"):
@@ -79,6 +92,11 @@ class TrainConfig:
             raise ValueError(f"gamma must be in (0, 1] and lam in [0, 1], got {self.gamma}, {self.lam}")
         if self.device not in ("cpu", "cuda") and not self.device.startswith("cuda:"):
             raise ValueError(f"device must be cpu or cuda[:i], got {self.device!r}")
+        if self.update_processes > 1 and self.device != "cpu":
+            raise ValueError(
+                f"update_processes = {self.update_processes} computes gradients in CPU processes; with "
+                f"device {self.device!r} set update_processes = 1"
+            )
         if self.collector not in ("local", "ray"):
             raise ValueError(f"TrainConfig.collector must be 'local' or 'ray', got {self.collector!r}")
         if not isinstance(self.ray_workers, int) or self.ray_workers < 1:
@@ -125,9 +143,10 @@ class TrainConfig:
 
 
 TRAIN_PRESETS: dict[str, TrainConfig] = {
-    "paper": TrainConfig(),
-    "paper-sync": TrainConfig(env_overrides={"synchronous": True}),
-    "paper-smallma": TrainConfig(env_overrides={"window": 5}, amat={"window": 5}),
+    # the paper's recipe; on CPU the update's gradients come from two single-threaded processes
+    "paper": TrainConfig(update_processes=2),
+    "paper-sync": TrainConfig(env_overrides={"synchronous": True}, update_processes=2),
+    "paper-smallma": TrainConfig(env_overrides={"window": 5}, amat={"window": 5}, update_processes=2),
     # minutes on 2 cores: a 12x12 map, two robots, d = 64, more and larger PPO steps than the paper;
     # the slow learning test trains it and checks it beats the random policy clearly
     "small": TrainConfig(

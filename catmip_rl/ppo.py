@@ -14,7 +14,7 @@ import torch.nn.functional as F
 
 from catmip_rl.amat import AMAT
 
-__all__ = ["ValueNorm", "SampleBatch", "ppo_loss"]
+__all__ = ["ValueNorm", "SampleBatch", "ppo_loss", "accumulate_gradients"]
 
 
 class ValueNorm(torch.nn.Module):
@@ -123,3 +123,18 @@ def ppo_loss(
             "ppo/clip_fraction": ((ratio - 1).abs() > clip).float().sum() / count,
         }
     return loss, stats
+
+
+def accumulate_gradients(
+    model: AMAT, batch: SampleBatch, parts, count: torch.Tensor | float, **loss_kwargs
+) -> dict[str, float]:
+    """Backward of ``ppo_loss`` over the micro-batches ``parts`` (index tensors into ``batch``), each
+    averaged with the minibatch's ``count``, into the model's .grad (added to what is there); returns
+    the loss parts summed over the micro-batches."""
+    sums: dict[str, float] = {}
+    for part in parts:
+        loss, stats = ppo_loss(model, batch.index(part), **loss_kwargs, count=count)
+        loss.backward()
+        for k, v in stats.items():
+            sums[k] = sums.get(k, 0.0) + float(v)
+    return sums

@@ -25,9 +25,18 @@ from catmip_rl.config import TrainConfig
 from catmip_rl.files import atomic_write_text
 from catmip_rl.gae import async_gae
 from catmip_rl.heap import keep_freed_memory
-from catmip_rl.ppo import SampleBatch, ValueNorm, ppo_loss
+from catmip_rl.parallel_update import ParallelGradients
+from catmip_rl.ppo import SampleBatch, ValueNorm, accumulate_gradients
 
-__all__ = ["train", "build_batch", "make_optimizer", "ppo_update", "evaluate_policy", "METRICS"]
+__all__ = [
+    "train",
+    "build_batch",
+    "make_optimizer",
+    "ppo_update",
+    "loss_kwargs",
+    "evaluate_policy",
+    "METRICS",
+]
 
 METRICS = [
     "iteration", "episodes", "samples",
@@ -79,30 +88,42 @@ def make_optimizer(model: AMAT, cfg: TrainConfig) -> torch.optim.Adam:
     return torch.optim.Adam(model.parameters(), lr=cfg.lr, eps=cfg.adam_eps, fused=True)
 
 
+def loss_kwargs(cfg: TrainConfig) -> dict[str, float]:
+    """The config's ``ppo_loss`` coefficients."""
+    return {
+        "clip": cfg.clip, "value_clip": cfg.value_clip, "huber_delta": cfg.huber_delta,
+        "entropy_coef": cfg.entropy_coef, "value_coef": cfg.value_coef,
+    }  # fmt: skip
+
+
 def ppo_update(
-    model: AMAT, opt: torch.optim.Optimizer, batch: SampleBatch, cfg: TrainConfig, gen: torch.Generator
+    model: AMAT,
+    opt: torch.optim.Optimizer,
+    batch: SampleBatch,
+    cfg: TrainConfig,
+    gen: torch.Generator,
+    parallel: ParallelGradients | None = None,
 ) -> dict[str, float]:
     """``cfg.epochs`` passes over ``cfg.minibatches`` minibatches of ``batch``, one Adam step each; each
-    minibatch's gradient is accumulated over micro-batches of ``cfg.micro_batch`` events. Returns the
-    last minibatch's loss parts and gradient norm."""
+    minibatch's gradient is accumulated over micro-batches of ``cfg.micro_batch`` events, by this
+    process or, with ``parallel``, shared with its helper processes. Returns the last minibatch's loss
+    parts and gradient norm."""
     model.train()
     params = [p for p in model.parameters() if p.requires_grad]
     stats: dict[str, float] = {}
+    if parallel is not None:
+        parallel.set_batch(batch)
     for _ in range(cfg.epochs):
         perm = torch.randperm(len(batch), generator=gen) if cfg.minibatches > 1 else torch.arange(len(batch))
         for idx in perm.chunk(cfg.minibatches):
             idx = idx.to(batch.action.device)
             count = batch.trainable[idx].sum().clamp_min(1).float()
             opt.zero_grad(set_to_none=True)
-            sums: dict[str, float] = {}
-            for part in idx.split(cfg.micro_batch) if cfg.micro_batch else (idx,):
-                loss, parts = ppo_loss(
-                    model, batch.index(part), cfg.clip, cfg.value_clip, cfg.huber_delta, cfg.entropy_coef,
-                    cfg.value_coef, count=count,
-                )  # fmt: skip
-                loss.backward()
-                for k, v in parts.items():
-                    sums[k] = sums.get(k, 0.0) + float(v)
+            parts = list(idx.split(cfg.micro_batch)) if cfg.micro_batch else [idx]
+            if parallel is None:
+                sums = accumulate_gradients(model, batch, parts, count, **loss_kwargs(cfg))
+            else:
+                sums = parallel.backward(model, parts, count, batch)
             grad_norm = torch.nn.utils.clip_grad_norm_(params, cfg.max_grad_norm)
             opt.step()
             stats = sums | {"ppo/grad_norm": float(grad_norm)}
@@ -214,6 +235,9 @@ def train(cfg: TrainConfig, run_dir: str | Path, resume: bool = False, progress:
         collector = RayRolloutCollector(cfg, model)
     else:
         collector = Collector(env_cfg, cfg.num_worlds, cfg.seed, cfg.gamma, str(device))
+    parallel = None
+    if cfg.update_processes > 1:  # data-parallel gradients (catmip_rl/parallel_update.py)
+        parallel = ParallelGradients(model, cfg.update_processes, **loss_kwargs(cfg))
     csv_file, csv_writer = _open_csv(run_dir / "metrics.csv", start if resume else None)
     tb = _tensorboard(run_dir)
     bar = None
@@ -231,7 +255,7 @@ def train(cfg: TrainConfig, run_dir: str | Path, resume: bool = False, progress:
             t1 = time.perf_counter()
             batch, info = build_batch(rollout, value_norm, cfg.gamma, cfg.lam, env_cfg.num_classes, device)
             t2 = time.perf_counter()
-            stats = ppo_update(model, opt, batch, cfg, gen)
+            stats = ppo_update(model, opt, batch, cfg, gen, parallel)
             stats["ppo/lr"] = opt.param_groups[0]["lr"]
             sched.step()
             t3 = time.perf_counter()
@@ -267,4 +291,6 @@ def train(cfg: TrainConfig, run_dir: str | Path, resume: bool = False, progress:
             tb.close()
         if cfg.collector == "ray":
             collector.close()  # stops the workers, and Ray if this run started it
+        if parallel is not None:
+            parallel.close()
     return model

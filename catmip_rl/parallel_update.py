@@ -1,0 +1,198 @@
+"""Data-parallel PPO gradients on a multi-core CPU: this process and helper processes, one torch thread
+each, every one taking its share of a minibatch's micro-batches.
+
+On CPUs with few cores a training step's small convolutions, matrix products and elementwise ops scale
+poorly over threads (two threads run a Task-2 step ~1.5x faster than one), while two single-threaded
+processes, each with its own micro-batches, do twice the work of one (~15 % more agent-samples/s than one
+process with two threads on the 2-core machine; docs/benchmarks.md). The PPO update is a sum of
+micro-batch gradients, so it splits without approximation::
+
+    with ParallelGradients(model, processes=2, **loss_kwargs) as grads:
+        grads.set_batch(batch)                      # once per iteration: shared memory, no copies
+        stats = grads.backward(model, parts, count)  # per minibatch: .grad of model = the sum
+        ...clip, optimiser step on this process only
+
+The helpers hold a copy of the model's parameters only (no optimiser): before each minibatch they load
+the current parameters from a shared buffer and return their micro-batches' gradient through another;
+this process adds them to its own. Micro-batch ``j`` of a minibatch goes to process ``j % processes``
+(this process is 0) and the sum runs in a fixed order, so results do not depend on timing; they equal
+the one-process update to float32 rounding (the order of the micro-batch sum differs).
+"""
+
+from __future__ import annotations
+
+import traceback
+from typing import Any
+
+import torch
+import torch.multiprocessing as mp
+
+from catmip_rl.amat import AMAT, AmatConfig
+from catmip_rl.ppo import SampleBatch, accumulate_gradients
+
+__all__ = ["ParallelGradients"]
+
+
+def _flat_grads(model: AMAT, out: torch.Tensor) -> None:
+    """out (P,) = the gradients of every parameter, flattened in ``parameters()`` order (0 if none)."""
+    start = 0
+    for p in model.parameters():
+        n = p.numel()
+        if p.grad is None:
+            out[start : start + n].zero_()
+        else:
+            out[start : start + n].copy_(p.grad.reshape(-1))
+        start += n
+
+
+def _load_params(model: AMAT, flat: torch.Tensor) -> None:
+    start = 0
+    with torch.no_grad():
+        for p in model.parameters():
+            n = p.numel()
+            p.copy_(flat[start : start + n].view_as(p))
+            start += n
+
+
+def _helper(conn, config: dict[str, Any], params: torch.Tensor, grads: torch.Tensor, loss_kwargs) -> None:
+    """A helper process: one torch thread, a copy of the model, commands from ``conn``."""
+    from catmip_rl.heap import keep_freed_memory
+
+    torch.set_num_threads(1)
+    keep_freed_memory()
+    model = AMAT(AmatConfig(**config)).train()
+    batch = None
+    while True:
+        try:
+            msg = conn.recv()
+        except EOFError:  # the training process is gone
+            return
+        try:
+            if msg[0] == "stop":
+                return
+            if msg[0] == "batch":
+                batch = msg[1]
+                conn.send(("ok", None))
+            elif msg[0] == "backward":
+                _, parts, count = msg
+                _load_params(model, params)
+                model.zero_grad(set_to_none=True)
+                sums = accumulate_gradients(model, batch, parts, count, **loss_kwargs)
+                _flat_grads(model, grads)
+                conn.send(("ok", sums))
+        except Exception:  # reported to the training process, which raises it
+            conn.send(("error", traceback.format_exc()))
+
+
+class ParallelGradients:
+    """``processes - 1`` helper processes computing PPO gradients with this one (see the module).
+
+    Parameters
+    ----------
+    model : AMAT
+        The model being trained (CPU); helpers build a copy of its architecture.
+    processes : int
+        Processes computing gradients, this one included (>= 2).
+    **loss_kwargs
+        ``ppo_loss`` keyword arguments (clip, value_clip, huber_delta, entropy_coef, value_coef).
+    """
+
+    def __init__(self, model: AMAT, processes: int, **loss_kwargs: Any) -> None:
+        if not isinstance(processes, int) or processes < 2:
+            raise ValueError(f"ParallelGradients needs processes >= 2, got {processes!r}")
+        if any(p.device.type != "cpu" for p in model.parameters()):
+            raise ValueError("ParallelGradients runs on CPU: the model's parameters must be on the CPU")
+        self.processes, self.loss_kwargs = processes, dict(loss_kwargs)
+        numel = sum(p.numel() for p in model.parameters())
+        self._params = torch.zeros(numel).share_memory_()
+        self._grads = [torch.zeros(numel).share_memory_() for _ in range(processes - 1)]
+        ctx = mp.get_context("spawn")  # not fork: this process runs OpenMP and numba threads
+        self._conns, self._procs = [], []
+        config = model.config.__dict__.copy()
+        try:
+            for grads in self._grads:
+                parent, child = ctx.Pipe()
+                proc = ctx.Process(
+                    target=_helper, args=(child, config, self._params, grads, self.loss_kwargs), daemon=True
+                )
+                proc.start()
+                child.close()
+                self._conns.append(parent)
+                self._procs.append(proc)
+        except BaseException:
+            self.close()
+            raise
+
+    def _reply(self, i: int) -> Any:
+        try:
+            status, value = self._conns[i].recv()
+        except EOFError:
+            raise RuntimeError(
+                f"gradient helper process {i + 1} died (exit code {self._procs[i].exitcode})"
+            ) from None
+        if status == "error":
+            raise RuntimeError(f"gradient helper process {i + 1} failed:\n{value}")
+        return value
+
+    def set_batch(self, batch: SampleBatch) -> None:
+        """Hand the helpers the iteration's batch: its tensors move to shared memory (no copies later)."""
+        shared = SampleBatch(**{k: v.cpu().share_memory_() for k, v in batch.__dict__.items()})
+        for conn in self._conns:
+            conn.send(("batch", shared))
+        for i in range(len(self._conns)):
+            self._reply(i)
+
+    def backward(
+        self, model: AMAT, parts: list[torch.Tensor], count: torch.Tensor | float, batch: SampleBatch
+    ) -> dict[str, float]:
+        """The summed gradient of ``ppo_loss`` over the micro-batches ``parts`` (index tensors into the
+        batch given to ``set_batch``, here ``batch``) into ``model``'s .grad, which must start as None
+        or zero; returns the loss parts summed over the micro-batches. Runs on one torch thread here."""
+        count = float(count)
+        params = list(model.parameters())
+        start = 0
+        with torch.no_grad():
+            for p in params:
+                self._params[start : start + p.numel()].copy_(p.reshape(-1))
+                start += p.numel()
+        for i, conn in enumerate(self._conns):
+            conn.send(("backward", parts[i + 1 :: self.processes], count))
+        threads = torch.get_num_threads()
+        torch.set_num_threads(1)
+        try:
+            sums = accumulate_gradients(model, batch, parts[:: self.processes], count, **self.loss_kwargs)
+        finally:
+            torch.set_num_threads(threads)
+        for i, grads in enumerate(self._grads):
+            for k, v in self._reply(i).items():
+                sums[k] = sums.get(k, 0.0) + v
+            start = 0
+            with torch.no_grad():
+                for p in params:
+                    g = grads[start : start + p.numel()].view_as(p)
+                    if p.grad is None:
+                        p.grad = g.clone()
+                    else:
+                        p.grad.add_(g)
+                    start += p.numel()
+        return sums
+
+    def close(self) -> None:
+        """Stop the helpers (also on garbage collection and at exit: they are daemons)."""
+        for conn in self._conns:
+            try:
+                conn.send(("stop",))
+                conn.close()
+            except (OSError, BrokenPipeError):
+                pass
+        for proc in self._procs:
+            proc.join(timeout=10)
+            if proc.is_alive():
+                proc.terminate()
+        self._conns, self._procs = [], []
+
+    def __enter__(self) -> ParallelGradients:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
