@@ -21,6 +21,7 @@ the one-process update to float32 rounding (the order of the micro-batch sum dif
 
 from __future__ import annotations
 
+import dataclasses
 import traceback
 from typing import Any
 
@@ -33,25 +34,26 @@ from catmip_rl.ppo import SampleBatch, accumulate_gradients
 __all__ = ["ParallelGradients"]
 
 
-def _flat_grads(model: AMAT, out: torch.Tensor) -> None:
-    """out (P,) = the gradients of every parameter, flattened in ``parameters()`` order (0 if none)."""
-    start = 0
-    for p in model.parameters():
-        n = p.numel()
-        if p.grad is None:
-            out[start : start + n].zero_()
-        else:
-            out[start : start + n].copy_(p.grad.reshape(-1))
-        start += n
-
-
-def _load_params(model: AMAT, flat: torch.Tensor) -> None:
+def _pack(tensors: list[torch.Tensor | None], params: list[torch.Tensor], out: torch.Tensor) -> None:
+    """out (P,) = the tensors (shaped like ``params``; None: zeros) flattened one after another."""
     start = 0
     with torch.no_grad():
-        for p in model.parameters():
-            n = p.numel()
-            p.copy_(flat[start : start + n].view_as(p))
+        for t, like in zip(tensors, params):
+            n = like.numel()
+            if t is None:
+                out[start : start + n].zero_()
+            else:
+                out[start : start + n].copy_(t.reshape(-1))
             start += n
+
+
+def _unpack(flat: torch.Tensor, params: list[torch.Tensor]) -> list[torch.Tensor]:
+    """Views of flat (P,) shaped like the parameters, in order."""
+    views, start = [], 0
+    for p in params:
+        views.append(flat[start : start + p.numel()].view_as(p))
+        start += p.numel()
+    return views
 
 
 def _helper(conn, config: dict[str, Any], params: torch.Tensor, grads: torch.Tensor, loss_kwargs) -> None:
@@ -75,10 +77,13 @@ def _helper(conn, config: dict[str, Any], params: torch.Tensor, grads: torch.Ten
                 conn.send(("ok", None))
             elif msg[0] == "backward":
                 _, parts, count = msg
-                _load_params(model, params)
+                own = list(model.parameters())
+                with torch.no_grad():
+                    for p, value in zip(own, _unpack(params, own)):
+                        p.copy_(value)
                 model.zero_grad(set_to_none=True)
                 sums = accumulate_gradients(model, batch, parts, count, **loss_kwargs)
-                _flat_grads(model, grads)
+                _pack([p.grad for p in own], own, grads)
                 conn.send(("ok", sums))
         except Exception:  # reported to the training process, which raises it
             conn.send(("error", traceback.format_exc()))
@@ -108,7 +113,7 @@ class ParallelGradients:
         self._grads = [torch.zeros(numel).share_memory_() for _ in range(processes - 1)]
         ctx = mp.get_context("spawn")  # not fork: this process runs OpenMP and numba threads
         self._conns, self._procs = [], []
-        config = model.config.__dict__.copy()
+        config = dataclasses.asdict(model.config)
         try:
             for grads in self._grads:
                 parent, child = ctx.Pipe()
@@ -123,24 +128,29 @@ class ParallelGradients:
             self.close()
             raise
 
-    def _reply(self, i: int) -> Any:
-        try:
-            status, value = self._conns[i].recv()
-        except EOFError:
-            raise RuntimeError(
-                f"gradient helper process {i + 1} died (exit code {self._procs[i].exitcode})"
-            ) from None
-        if status == "error":
-            raise RuntimeError(f"gradient helper process {i + 1} failed:\n{value}")
-        return value
+    def _replies(self) -> list[Any]:
+        """Every helper's answer to the last command (all of them read, so none is left in a pipe);
+        raises the first helper's error."""
+        replies, errors = [], []
+        for i, conn in enumerate(self._conns):
+            try:
+                status, value = conn.recv()
+            except EOFError:
+                status, value = "died", f"exit code {self._procs[i].exitcode}"
+            if status != "ok":
+                what = "failed" if status == "error" else status
+                errors.append(f"gradient helper process {i + 1} {what}:\n{value}")
+            replies.append(value)
+        if errors:
+            raise RuntimeError(errors[0])
+        return replies
 
     def set_batch(self, batch: SampleBatch) -> None:
         """Hand the helpers the iteration's batch: its tensors move to shared memory (no copies later)."""
         shared = SampleBatch(**{k: v.cpu().share_memory_() for k, v in batch.__dict__.items()})
         for conn in self._conns:
             conn.send(("batch", shared))
-        for i in range(len(self._conns)):
-            self._reply(i)
+        self._replies()
 
     def backward(
         self, model: AMAT, parts: list[torch.Tensor], count: torch.Tensor | float, batch: SampleBatch
@@ -150,31 +160,29 @@ class ParallelGradients:
         or zero; returns the loss parts summed over the micro-batches. Runs on one torch thread here."""
         count = float(count)
         params = list(model.parameters())
-        start = 0
-        with torch.no_grad():
-            for p in params:
-                self._params[start : start + p.numel()].copy_(p.reshape(-1))
-                start += p.numel()
+        _pack(params, params, self._params)
         for i, conn in enumerate(self._conns):
             conn.send(("backward", parts[i + 1 :: self.processes], count))
         threads = torch.get_num_threads()
         torch.set_num_threads(1)
         try:
             sums = accumulate_gradients(model, batch, parts[:: self.processes], count, **self.loss_kwargs)
-        finally:
-            torch.set_num_threads(threads)
-        for i, grads in enumerate(self._grads):
-            for k, v in self._reply(i).items():
+        except BaseException:
+            try:
+                self._replies()  # leave no answer in the pipes for the next call
+            finally:
+                torch.set_num_threads(threads)
+            raise
+        torch.set_num_threads(threads)
+        for reply, grads in zip(self._replies(), self._grads):
+            for k, v in reply.items():
                 sums[k] = sums.get(k, 0.0) + v
-            start = 0
             with torch.no_grad():
-                for p in params:
-                    g = grads[start : start + p.numel()].view_as(p)
+                for p, g in zip(params, _unpack(grads, params)):
                     if p.grad is None:
                         p.grad = g.clone()
                     else:
                         p.grad.add_(g)
-                    start += p.numel()
         return sums
 
     def close(self) -> None:

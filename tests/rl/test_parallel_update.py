@@ -7,6 +7,7 @@ import torch
 
 from catmip_rl.config import make_train_config
 from catmip_rl.parallel_update import ParallelGradients
+from catmip_rl.ppo import accumulate_gradients
 from catmip_rl.train import loss_kwargs, make_optimizer, ppo_update, train
 from tests.rl.helpers import shaken_model
 from tests.rl.test_sparse_conv import _batch
@@ -55,10 +56,18 @@ def test_errors_are_reported():
         bad = [torch.arange(2), torch.tensor([len(batch) + 5])]  # the helper's micro-batch is out of range
         with pytest.raises(RuntimeError, match="gradient helper process 1 failed"):
             parallel.backward(model, bad, 1.0, batch)
-        # the helper survives its error and keeps serving
+        bad_here = [torch.tensor([len(batch) + 5]), torch.arange(2)]  # this process's micro-batch
+        with pytest.raises(IndexError):
+            parallel.backward(model, bad_here, 1.0, batch)
+        # the helper survives its error, and the failed calls left no answer in the pipe
+        parts = [torch.arange(2), torch.arange(2, 4)]
         model.zero_grad(set_to_none=True)
-        parallel.backward(model, [torch.arange(2), torch.arange(2, 4)], 2.0, batch)
-        assert all(p.grad is not None for p in model.parameters() if p.requires_grad)
+        parallel.backward(model, parts, 2.0, batch)
+        got = [p.grad.clone() for p in model.parameters()]
+    model.zero_grad(set_to_none=True)
+    accumulate_gradients(model, batch, parts, 2.0, **loss_kwargs(cfg))
+    for g, p in zip(got, model.parameters()):
+        assert torch.allclose(g, p.grad, atol=1e-6)
 
 
 def test_training_with_two_update_processes(tmp_path):
