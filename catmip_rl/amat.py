@@ -395,9 +395,14 @@ class AMAT(nn.Module):
         Every robot is still a key of every attention; past the last attention of a stack, only the
         selected rows are computed (the output projection, LayerNorms, MLP and heads): with one block,
         the encoder's too, since only the selected robots' representations are then read. The PPO loss
-        weighs only trainable robots, about a third of the tokens in asynchronous training.
+        weighs only trainable robots, about half of a Task-2 batch's tokens.
         """
         b, n, d = tokens.shape
+        if select.shape != (b, n) or order.shape != (b, n) or actions.shape != (b, n):
+            raise ValueError(
+                f"score: select {tuple(select.shape)}, order {tuple(order.shape)} and actions "
+                f"{tuple(actions.shape)} must all be (B, N) = {(b, n)} for tokens {tuple(tokens.shape)}"
+            )
         allowed = None if key_padding_mask is None else (~key_padding_mask)[:, None, None, :]
         rows = select.flatten().nonzero()[:, 0]  # (K,) flat robot-order indices
         one_block = len(self.dec_blocks) == 1  # the decoder reads the selected representations only

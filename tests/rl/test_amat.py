@@ -217,3 +217,13 @@ def test_score_with_nothing_selected():
     )
     assert logits.shape == (0, 49) and values.shape == (0, 1)
     (logits.sum() + values.sum()).backward()
+
+
+def test_score_refuses_wrong_shapes():
+    m = shaken_model()
+    obs = _obs(2, 3, 15)
+    mask, active = _mask_active(2, 3)
+    tokens = m.embed(obs)
+    acts = torch.zeros(2, 3, dtype=torch.long)
+    with pytest.raises(ValueError, match="must all be \\(B, N\\)"):
+        m.score(tokens, acts, decision_order(active), obs["agent_class"], active[:, :2], mask)
