@@ -208,7 +208,7 @@ def bench_training(model: AMAT, batch: SampleBatch, bf16: bool, steps: int, proc
     def step():
         opt.zero_grad(set_to_none=True)
         if parallel is not None:
-            parallel.backward(model, parts, count, batch)
+            parallel.backward(model, parts, count)
         else:
             with torch.autocast("cpu", dtype=torch.bfloat16, enabled=bf16):
                 loss, _ = ppo_loss(model, batch)

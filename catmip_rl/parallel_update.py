@@ -34,17 +34,13 @@ from catmip_rl.ppo import SampleBatch, accumulate_gradients
 __all__ = ["ParallelGradients"]
 
 
-def _pack(tensors: list[torch.Tensor | None], params: list[torch.Tensor], out: torch.Tensor) -> None:
-    """out (P,) = the tensors (shaped like ``params``; None: zeros) flattened one after another."""
+def _pack(tensors: list[torch.Tensor], out: torch.Tensor) -> None:
+    """out (P,) = the tensors flattened one after another."""
     start = 0
     with torch.no_grad():
-        for t, like in zip(tensors, params):
-            n = like.numel()
-            if t is None:
-                out[start : start + n].zero_()
-            else:
-                out[start : start + n].copy_(t.reshape(-1))
-            start += n
+        for t in tensors:
+            out[start : start + t.numel()].copy_(t.reshape(-1))
+            start += t.numel()
 
 
 def _unpack(flat: torch.Tensor, params: list[torch.Tensor]) -> list[torch.Tensor]:
@@ -83,7 +79,7 @@ def _helper(conn, config: dict[str, Any], params: torch.Tensor, grads: torch.Ten
                         p.copy_(value)
                 model.zero_grad(set_to_none=True)
                 sums = accumulate_gradients(model, batch, parts, count, **loss_kwargs)
-                _pack([p.grad for p in own], own, grads)
+                _pack([torch.zeros_like(p) if p.grad is None else p.grad for p in own], grads)
                 conn.send(("ok", sums))
         except Exception:  # reported to the training process, which raises it
             conn.send(("error", traceback.format_exc()))
@@ -113,6 +109,7 @@ class ParallelGradients:
         self._grads = [torch.zeros(numel).share_memory_() for _ in range(processes - 1)]
         ctx = mp.get_context("spawn")  # not fork: this process runs OpenMP and numba threads
         self._conns, self._procs = [], []
+        self._batch: SampleBatch | None = None
         config = dataclasses.asdict(model.config)
         try:
             for grads in self._grads:
@@ -147,20 +144,22 @@ class ParallelGradients:
 
     def set_batch(self, batch: SampleBatch) -> None:
         """Hand the helpers the iteration's batch: its tensors move to shared memory (no copies later)."""
-        shared = SampleBatch(**{k: v.cpu().share_memory_() for k, v in batch.__dict__.items()})
+        self._batch = SampleBatch(**{k: v.cpu().share_memory_() for k, v in batch.__dict__.items()})
         for conn in self._conns:
-            conn.send(("batch", shared))
+            conn.send(("batch", self._batch))
         self._replies()
 
     def backward(
-        self, model: AMAT, parts: list[torch.Tensor], count: torch.Tensor | float, batch: SampleBatch
+        self, model: AMAT, parts: list[torch.Tensor], count: torch.Tensor | float
     ) -> dict[str, float]:
         """The summed gradient of ``ppo_loss`` over the micro-batches ``parts`` (index tensors into the
-        batch given to ``set_batch``, here ``batch``) into ``model``'s .grad, which must start as None
-        or zero; returns the loss parts summed over the micro-batches. Runs on one torch thread here."""
-        count = float(count)
+        batch given to ``set_batch``) into ``model``'s .grad, which must start as None or zero; returns
+        the loss parts summed over the micro-batches. Runs on one torch thread here."""
+        if self._batch is None:
+            raise RuntimeError("ParallelGradients.backward before set_batch: the helpers hold no batch")
+        batch, count = self._batch, float(count)
         params = list(model.parameters())
-        _pack(params, params, self._params)
+        _pack(params, self._params)
         for i, conn in enumerate(self._conns):
             conn.send(("backward", parts[i + 1 :: self.processes], count))
         threads = torch.get_num_threads()

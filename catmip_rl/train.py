@@ -123,7 +123,7 @@ def ppo_update(
             if parallel is None:
                 sums = accumulate_gradients(model, batch, parts, count, **loss_kwargs(cfg))
             else:
-                sums = parallel.backward(model, parts, count, batch)
+                sums = parallel.backward(model, parts, count)
             grad_norm = torch.nn.utils.clip_grad_norm_(params, cfg.max_grad_norm)
             opt.step()
             stats = sums | {"ppo/grad_norm": float(grad_norm)}

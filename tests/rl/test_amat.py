@@ -206,24 +206,23 @@ def test_score_equals_encode_and_decode_parallel_at_the_selected_robots(config, 
         assert torch.allclose(g_sel, g_full, atol=1e-5) and g_full[~select].abs().sum() > 0
 
 
-def test_score_with_nothing_selected():
+def _score_args():
+    """(model, (tokens, actions, order, agent_class), active, mask) of two worlds of three robots."""
     m = shaken_model()
     obs = _obs(2, 3, 15)
     mask, active = _mask_active(2, 3)
-    tokens = m.embed(obs)
-    select = torch.zeros(2, 3, dtype=torch.bool)
-    logits, values = m.score(
-        tokens, torch.zeros(2, 3, dtype=torch.long), decision_order(active), obs["agent_class"], select, mask
-    )
+    acts = torch.zeros(2, 3, dtype=torch.long)
+    return m, (m.embed(obs), acts, decision_order(active), obs["agent_class"]), active, mask
+
+
+def test_score_with_nothing_selected():
+    m, args, _, mask = _score_args()
+    logits, values = m.score(*args, torch.zeros(2, 3, dtype=torch.bool), mask)
     assert logits.shape == (0, 49) and values.shape == (0, 1)
     (logits.sum() + values.sum()).backward()
 
 
 def test_score_refuses_wrong_shapes():
-    m = shaken_model()
-    obs = _obs(2, 3, 15)
-    mask, active = _mask_active(2, 3)
-    tokens = m.embed(obs)
-    acts = torch.zeros(2, 3, dtype=torch.long)
+    m, args, active, mask = _score_args()
     with pytest.raises(ValueError, match="must all be \\(B, N\\)"):
-        m.score(tokens, acts, decision_order(active), obs["agent_class"], active[:, :2], mask)
+        m.score(*args, active[:, :2], mask)

@@ -52,17 +52,19 @@ def test_errors_are_reported():
         make_train_config("tiny", update_processes=0)
     batch = _batch(worlds=2)
     with ParallelGradients(model, 2, **loss_kwargs(cfg)) as parallel:
+        with pytest.raises(RuntimeError, match="before set_batch"):
+            parallel.backward(model, [torch.arange(2)], 1.0)
         parallel.set_batch(batch)
         bad = [torch.arange(2), torch.tensor([len(batch) + 5])]  # the helper's micro-batch is out of range
         with pytest.raises(RuntimeError, match="gradient helper process 1 failed"):
-            parallel.backward(model, bad, 1.0, batch)
+            parallel.backward(model, bad, 1.0)
         bad_here = [torch.tensor([len(batch) + 5]), torch.arange(2)]  # this process's micro-batch
         with pytest.raises(IndexError):
-            parallel.backward(model, bad_here, 1.0, batch)
+            parallel.backward(model, bad_here, 1.0)
         # the helper survives its error, and the failed calls left no answer in the pipe
         parts = [torch.arange(2), torch.arange(2, 4)]
         model.zero_grad(set_to_none=True)
-        parallel.backward(model, parts, 2.0, batch)
+        parallel.backward(model, parts, 2.0)
         got = [p.grad.clone() for p in model.parameters()]
     model.zero_grad(set_to_none=True)
     accumulate_gradients(model, batch, parts, 2.0, **loss_kwargs(cfg))
