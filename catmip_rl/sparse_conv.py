@@ -32,7 +32,7 @@ from numba import njit
 from catmip_rl.amat import OBS_SCALE
 from catmip_rl.fast_infer import _robot_conv, _shared_base, conv_weights, ones_conv
 
-__all__ = ["global_conv_pool", "GlobalConvPool", "CHUNKS"]
+__all__ = ["global_conv_pool", "global_conv_pool_winners", "GlobalConvPool", "CHUNKS"]
 
 CHUNKS = 8
 """Work split of the parallel loops: fixed, so that results do not depend on the thread count."""
@@ -161,22 +161,27 @@ def _in_chunks(work: Callable[[int, int, int], None], n_items: int) -> None:
         future.result()
 
 
+def _conv_pool(gmap: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor, pool: int):
+    m, n, _, s, s2 = gmap.shape
+    n_out = weight.shape[0]
+    weights = conv_weights(weight.detach().float().cpu().numpy(), bias.detach().float().cpu().numpy())
+    ones = ones_conv(weights.g_w, s, s2)
+    maps = gmap.numpy()
+    pooled = np.empty((m * n, n_out, pool, pool), np.float32)
+    where = np.empty((m * n, n_out, pool, pool), np.int32)
+    scale = np.float32(OBS_SCALE)
+    _in_chunks(lambda lo, hi, _: _forward(weights, maps, scale, ones, pool, pooled, where, lo, hi), m)
+    return pooled, where
+
+
 class GlobalConvPool(torch.autograd.Function):
     """``(gmap (M, N, C, S, S) uint8, weight, bias, pool) -> (M * N, O, pool, pool)``; see the module."""
 
     @staticmethod
     def forward(ctx, gmap: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor, pool: int) -> torch.Tensor:
-        m, n, _, s, s2 = gmap.shape
-        n_out, k = weight.shape[0], weight.shape[-1]
-        weights = conv_weights(weight.detach().float().cpu().numpy(), bias.detach().float().cpu().numpy())
-        ones = ones_conv(weights.g_w, s, s2)
-        maps = gmap.numpy()
-        pooled = np.empty((m * n, n_out, pool, pool), np.float32)
-        where = np.empty((m * n, n_out, pool, pool), np.int32)
-        scale = np.float32(OBS_SCALE)
-        _in_chunks(lambda lo, hi, _: _forward(weights, maps, scale, ones, pool, pooled, where, lo, hi), m)
+        pooled, where = _conv_pool(gmap, weight, bias, pool)
         ctx.save_for_backward(gmap)
-        ctx.where, ctx.k = where, k
+        ctx.where, ctx.k = where, weight.shape[-1]
         return torch.from_numpy(pooled)
 
     @staticmethod
@@ -200,6 +205,11 @@ class GlobalConvPool(torch.autograd.Function):
 
 def global_conv_pool(gmap: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor, pool: int) -> torch.Tensor:
     """Global conv + adaptive max pool of uint8 maps (M, N, C, S, S) on CPU -> (M * N, O, pool, pool)."""
+    _check(gmap, weight)
+    return GlobalConvPool.apply(gmap.contiguous(), weight, bias, pool)
+
+
+def _check(gmap: torch.Tensor, weight: torch.Tensor) -> None:
     if gmap.dtype != torch.uint8 or gmap.dim() != 5 or gmap.device.type != "cpu":
         raise ValueError(
             f"global_conv_pool needs CPU uint8 maps (M, N, C, S, S), got {gmap.dtype} {tuple(gmap.shape)} "
@@ -209,4 +219,16 @@ def global_conv_pool(gmap: torch.Tensor, weight: torch.Tensor, bias: torch.Tenso
         raise ValueError(
             f"maps must be (M, N, {weight.shape[1]}, S, S) for this convolution, got {tuple(gmap.shape)}"
         )
-    return GlobalConvPool.apply(gmap.contiguous(), weight, bias, pool)
+
+
+def global_conv_pool_winners(
+    gmap: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor, pool: int
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """The forward of :func:`global_conv_pool` without autograd, and the winning cell ``y * S + x`` of
+    every (robot, channel, bin) that its backward passes the gradient to: ``(M * N, O, pool, pool)``
+    float32 and int64. A bin whose best cells tie up to float32 rounding may pick another of them than
+    a dense float32 convolution does (the sums run in another order)."""
+    _check(gmap, weight)
+    with torch.no_grad():
+        pooled, where = _conv_pool(gmap.contiguous(), weight, bias, pool)
+    return torch.from_numpy(pooled), torch.from_numpy(where).long()
