@@ -40,7 +40,8 @@ class Rollout:
     ma_return: np.ndarray  # (T, B, N) float64 return of the macro-action that ended at row t
     ma_ticks: np.ndarray  # (T, B, N) int64 its duration
     valid: np.ndarray  # (T, B) bool
-    final_return: np.ndarray  # (B, N) float64 last (unfinished) macro-action's return
+    final_return: np.ndarray  # (B, N) float64 each robot's last macro-action's return
+    terminated: np.ndarray  # (B,) bool the episode ended in a rescue (its last macro-actions are trained)
     stats: dict[str, float]
 
     @property
@@ -98,6 +99,7 @@ class Collector:
             valid=np.zeros((t, b), np.bool_),
         )
         self._final = np.zeros((b, n), np.float64)
+        self._terminated = np.zeros(b, np.bool_)
 
     @torch.no_grad()
     def collect(self, model: AMAT, first_episode: int, generator: torch.Generator | None = None,
@@ -146,6 +148,7 @@ class Collector:
             returns[idx] += ev.rewards[idx]
             ended = idx[(ev.terminated | ev.truncated)[idx]]
             self._final[ended] = ev.ma_rewards[ended]
+            self._terminated[ended] = ev.terminated[ended]
             going = idx[~(ev.terminated | ev.truncated)[idx]]
             s["ma_return"][t + 1, going] = ev.ma_rewards[going]
             s["ma_ticks"][t + 1, going] = ev.ma_ticks[going]
@@ -153,5 +156,6 @@ class Collector:
         return Rollout(
             **{k: v[:t] for k, v in s.items()},
             final_return=self._final.copy(),
+            terminated=self._terminated.copy(),
             stats=episode_stats(eng, returns),
         )

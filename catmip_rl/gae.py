@@ -7,9 +7,11 @@ between, discounted inside the interval by gamma per tick since the activation. 
     delta_k = R_k + gamma^dt_k * V_{k+1} - V_k
     A_k     = delta_k + (gamma^dt_k * lambda) * A_{k+1}
 
-The last macro-action of an episode is unfinished: it is not trained on, and the return stops there
-(no bootstrap at truncation, as at termination): ``A_K = R_K - V_K``. Value targets are the
-lambda-returns ``A_k + V_k``.
+Each robot's last macro-action of an episode gets ``A_K = R_K - V_K`` (the return stops there: no
+bootstrap). A rescue (termination) completes every robot's current macro-action, so after a rescue the
+last one IS trained on: it holds the success reward, and for the rescuer it is the move that reached
+the target. A macro-action cut off by the horizon (truncation) is unfinished and is not trained on.
+Value targets are the lambda-returns ``A_k + V_k``.
 """
 
 from __future__ import annotations
@@ -27,12 +29,14 @@ def async_gae(
     values: np.ndarray,  # (T, B, N) float: V at each decision (denormalised)
     ma_return: np.ndarray,  # (T, B, N) float: return of the macro-action ending at row t (where active)
     ma_ticks: np.ndarray,  # (T, B, N) int: its duration in ticks
-    final_return: np.ndarray,  # (B, N) float: return of each robot's last (unfinished) macro-action
+    final_return: np.ndarray,  # (B, N) float: return of each robot's last macro-action
+    terminated: np.ndarray,  # (B,) bool: the episode ended in a rescue (not at the horizon)
     gamma: float,
     lam: float,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Returns (advantages, lambda-returns, trainable) of shape (T, B, N); trainable marks every
-    activation whose macro-action finished (all but each robot's last one)."""
+    activation whose macro-action finished: all of a rescued world's, all but each robot's last one of
+    a truncated world's."""
     t_max, b_max, n_max = active.shape
     adv = np.zeros(active.shape, np.float64)
     ret = np.zeros(active.shape, np.float64)
@@ -47,11 +51,12 @@ def async_gae(
                     k += 1
             if k == 0:
                 continue
-            # the last, unfinished macro-action: the return stops at the episode's end
+            # the last macro-action: the return stops at the episode's end; a rescue completed it
             last = rows[k - 1]
             a_next = final_return[b, i] - values[last, b, i]
             adv[last, b, i] = a_next
             ret[last, b, i] = a_next + values[last, b, i]
+            trainable[last, b, i] = terminated[b]
             v_next = values[last, b, i]
             for j in range(k - 2, -1, -1):
                 t = rows[j]

@@ -38,7 +38,7 @@ from catmip_rl.config import TrainConfig
 __all__ = ["ShardCollector", "RayRolloutCollector", "import_ray", "RAY_MISSING"]
 
 RAY_MISSING = "--collector ray needs the distributed extra: pip install 'catmip[distributed]'"
-# (T, B, ...) arrays of a Rollout; final_return is (B, N) and stats a dict
+# (T, B, ...) arrays of a Rollout; final_return (B, N), terminated (B,) and stats a dict
 _TIME_MAJOR = (
     "global_map", "local_map", "agent_class", "action_mask", "active", "order", "action", "log_prob",
     "value", "ma_return", "ma_ticks", "valid",
@@ -132,6 +132,7 @@ class ShardCollector(BaseCollector):
             padded[:, :t] = arr.swapaxes(0, 1)
             data[key] = torch.from_numpy(padded)
         data["final_return"] = torch.from_numpy(r.final_return)
+        data["terminated"] = torch.from_numpy(r.terminated)
         data["steps"] = torch.full((b,), t, dtype=torch.int64)
         data["episode"] = torch.arange(first, first + b)
         # worker-level means and what they average over, repeated per world so that batches stack
@@ -259,7 +260,10 @@ class RayRolloutCollector:
         stats = [{k: float(v[i]) for k, v in td["stats"].items()} for i in rows]
         weights = [{k: float(v[i]) for k, v in td["stats_weight"].items()} for i in rows]
         return Rollout(
-            **arrays, final_return=td["final_return"].numpy().copy(), stats=merge_stats(stats, weights)
+            **arrays,
+            final_return=td["final_return"].numpy().copy(),
+            terminated=td["terminated"].numpy().copy(),
+            stats=merge_stats(stats, weights),
         )
 
     def close(self) -> None:

@@ -55,7 +55,15 @@ def build_batch(r: Rollout, value_norm: ValueNorm, gamma: float, lam: float, n_c
     """Async GAE on a rollout and the flat sample batch (rows = valid events)."""
     values = value_norm.denormalize(torch.from_numpy(r.value).double()).numpy()
     adv, ret, trainable = async_gae(
-        r.active, r.valid, values, r.ma_return, r.ma_ticks.astype(np.int64), r.final_return, gamma, lam
+        r.active,
+        r.valid,
+        values,
+        r.ma_return,
+        r.ma_ticks.astype(np.int64),
+        r.final_return,
+        r.terminated,
+        gamma,
+        lam,
     )
     rows = r.valid
     ret_t = torch.from_numpy(ret[rows]).float()

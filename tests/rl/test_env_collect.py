@@ -1,6 +1,7 @@
 """The TorchRL env over the event engine, and the async-aware collector."""
 
 import numpy as np
+import pytest
 import torch
 from torchrl.envs.utils import check_env_specs
 
@@ -72,3 +73,39 @@ def test_collection_is_deterministic():
     b = Collector(cfg, 4, seed=5).collect(model, 8, torch.Generator().manual_seed(1))
     for name in ("action", "log_prob", "active", "ma_return", "valid", "global_map"):
         assert np.array_equal(getattr(a, name), getattr(b, name)), name
+
+
+def test_a_rescued_worlds_last_decisions_are_trained_with_advantage_r_minus_v():
+    """SPEC §6.2: a rescue completes every robot's macro-action; the rescuer's decision that reached
+    the target is in the batch with advantage R - V (normalised with the rest), a truncated world's
+    last decisions are not."""
+    from catmip_rl.gae import async_gae
+    from catmip_rl.ppo import ValueNorm
+    from catmip_rl.train import build_batch
+
+    cfg = make_config("task1", map_size=10, horizon_ticks=100)
+    col = Collector(cfg, 8, seed=0)
+    r = col.collect(AMAT(AmatConfig(embed_dim=32)), 0, torch.Generator().manual_seed(0))
+    st = col.engine.state
+    assert np.array_equal(r.terminated, st.rescue_tick >= 0)
+    assert r.terminated.any() and not r.terminated.all()  # both kinds of endings in this batch
+    norm = ValueNorm()
+    values = norm.denormalize(torch.from_numpy(r.value).double()).numpy()
+    raw, _, trainable = async_gae(
+        r.active, r.valid, values, r.ma_return, r.ma_ticks, r.final_return, r.terminated, 1.0, 0.95
+    )
+    batch, _ = build_batch(r, norm, 1.0, 0.95, cfg.num_classes, torch.device("cpu"))
+    event_row = np.cumsum(r.valid.reshape(-1)).reshape(r.valid.shape) - 1  # (T, B) -> batch row
+    mean, std = raw[trainable].mean(), raw[trainable].std(ddof=1)
+    for b in range(8):
+        for i in range(cfg.num_robots):
+            last = int(np.flatnonzero(r.valid[:, b] & r.active[:, b, i])[-1])
+            row = int(event_row[last, b])
+            assert bool(batch.trainable[row, i]) == bool(r.terminated[b])
+            assert raw[last, b, i] == pytest.approx(r.final_return[b, i] - values[last, b, i])
+            if r.terminated[b]:
+                assert float(batch.advantage[row, i]) == pytest.approx(
+                    (raw[last, b, i] - mean) / std, rel=1e-4
+                )
+                if st.cls[b, i] == 0:  # the rescuer's last macro-action holds the success reward
+                    assert r.final_return[b, i] > 100

@@ -54,6 +54,7 @@ def test_ray_rollout_equals_local_rollout(ray_cluster):
             np.testing.assert_allclose(a.log_prob[v], b.log_prob[v], atol=1e-5)
             np.testing.assert_allclose(a.value[v], b.value[v], atol=1e-5)
             assert np.array_equal(a.final_return, b.final_return)
+            assert np.array_equal(a.terminated, b.terminated)
             assert a.stats.keys() == b.stats.keys()
             for key, value in b.stats.items():
                 assert a.stats[key] == pytest.approx(value, rel=1e-12, nan_ok=True), key
