@@ -1,40 +1,38 @@
-"""Success rate vs wall-clock while training AMAT on Task 1, against the planning baselines.
+"""Success rate vs wall-clock while training AMAT, against the planning baselines on the same maps.
 
-    python benchmarks/learning_curve.py [--minutes 30] [--out benchmarks/results/learning_curve]
+    python benchmarks/learning_curve.py --preset task1 --minutes 40 --run-dir runs/curve-ppo
+    python benchmarks/learning_curve.py --preset task1-warm --minutes 40 --run-dir runs/curve-warm
+    python benchmarks/learning_curve.py --plot runs/curve-ppo runs/curve-warm --out OUT
 
-Trains with the ``small`` preset's PPO settings on the Task-1 world (15x15, rescuer + explorer,
-activation (2, 5) in training) and, every ``--eval-every`` iterations, evaluates the deterministic policy
-on a fixed set of Task-1 maps (evaluation activation (0, 0), horizon 300). The Nearest planner and the
-random floors on the same maps are drawn as horizontal lines. Writes ``.csv`` and ``.png``.
+A training run is ``catmip train`` with a wall-clock budget (``budget_minutes``: the LR decays over it)
+whose periodic evaluation (argmax and sampled actions, evaluation activation (0, 0), the preset's fixed
+maps) is the curve; ``--resume`` continues a run dir. ``--plot`` draws finished runs' curves against
+training minutes (evaluation excluded, the imitation warm start included) with the planners on the
+same maps as horizontal lines, and writes ``OUT.csv`` / ``OUT.png``. The CPU capability is recorded.
 """
 
 from __future__ import annotations
 
 import argparse
 import csv
-import shutil
-import tempfile
-import time
+import json
 from pathlib import Path
 
 import numpy as np
 import torch
 
 from catmip_env.baselines import make_planner
-from catmip_env.events import EventEngine, random_valid_actions
-from catmip_rl.amat import AMAT
-from catmip_rl.collect import Collector
-from catmip_rl.config import make_train_config
-from catmip_rl.gae import async_gae  # noqa: F401  (compiled before the clock starts)
-from catmip_rl.ppo import ValueNorm
-from catmip_rl.train import build_batch, make_optimizer, ppo_update
+from catmip_env.events import EventEngine
+from catmip_rl.cli import parse_set
+from catmip_rl.config import TrainConfig, make_train_config
+from catmip_rl.files import atomic_write_csv, atomic_write_text
 
-EVAL_EPISODES = 64
-EVAL_SEED = 2025
+PLANNER_LINES = ("nearest", "rrt", "random")
 
 
-def planner_success(cfg_env, name: str) -> tuple[float, float]:
-    eng = EventEngine(cfg_env, EVAL_EPISODES, EVAL_SEED, goal_mode="cell")
+def planner_success(cfg: TrainConfig, name: str) -> tuple[float, float]:
+    """(rescued by the horizon, by tick 100) of a planner on the run's evaluation maps."""
+    eng = EventEngine(cfg.eval_env_config(), cfg.eval_episodes, cfg.eval_seed, goal_mode="cell")
     planner = make_planner(name, seed=0)
     eng.reset()
     while not eng.state.done.all():
@@ -43,92 +41,95 @@ def planner_success(cfg_env, name: str) -> tuple[float, float]:
     return float((t >= 0).mean()), float(((t >= 0) & (t <= 100)).mean())
 
 
-def random_window_success(cfg_env) -> tuple[float, float]:
-    eng = EventEngine(cfg_env, EVAL_EPISODES, EVAL_SEED)
-    rng = np.random.default_rng(0)
-    eng.reset()
-    while not eng.state.done.all():
-        eng.step(random_valid_actions(eng.masks, rng))
-    t = eng.state.rescue_tick
-    return float((t >= 0).mean()), float(((t >= 0) & (t <= 100)).mean())
-
-
-def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--minutes", type=float, default=30.0)
-    ap.add_argument("--eval-every", type=int, default=10)
-    ap.add_argument("--out", default="benchmarks/results/learning_curve")
-    args = ap.parse_args()
-    cfg = make_train_config(
-        "small", env_preset="task1", env_overrides={"activation": [2, 5]}, iterations=10_000, eval_every=0
-    )
-    eval_env = cfg.env_config().replace(activation=(0, 0))
-    lines = {
-        "nearest": planner_success(eval_env, "nearest"),
-        "random-frontier": planner_success(eval_env, "random-frontier"),
-        "random window (+rescue rule)": planner_success(eval_env, "random"),
-        "uniform random window": random_window_success(eval_env),
-    }
-    torch.set_num_threads(cfg.threads)
-    torch.manual_seed(cfg.seed)
-    gen = torch.Generator().manual_seed(cfg.seed)
-    model = AMAT(cfg.amat_config())
-    opt = make_optimizer(model, cfg)
-    value_norm = ValueNorm()
-    collector = Collector(cfg.env_config(), cfg.num_worlds, cfg.seed, cfg.gamma)
-    evaluator = Collector(eval_env, EVAL_EPISODES, EVAL_SEED, cfg.gamma)
+def curve_rows(run_dir: Path) -> list[dict]:
+    """The evaluated points of a run: warm-start rounds, then PPO iterations, against minutes."""
     rows = []
-    t0 = time.perf_counter()
-    it, episodes = 0, 0
-    while True:
-        if it % args.eval_every == 0:
-            r = evaluator.collect(model, 0, deterministic=True)
-            t = evaluator.engine.state.rescue_tick
-            rows.append({"iteration": it, "episodes": episodes, "minutes": (time.perf_counter() - t0) / 60,
-                         "success_rate": r.stats["success_rate"],
-                         "success_by_100": float(((t >= 0) & (t <= 100)).mean())})  # fmt: skip
-            print(rows[-1], flush=True)
-        if time.perf_counter() - t0 > args.minutes * 60:
-            break
-        rollout = collector.collect(model, episodes, gen)
-        episodes += cfg.num_worlds
-        batch, _ = build_batch(
-            rollout, value_norm, cfg.gamma, cfg.lam, cfg.env_config().num_classes, torch.device("cpu")
-        )
-        ppo_update(model, opt, batch, cfg, gen)
-        it += 1
-    out = Path(args.out)
+    name = run_dir.name
+    warm = run_dir / "warm_start.csv"
+    if warm.exists():
+        for r in csv.DictReader(warm.open()):
+            if r.get("eval/success_rate"):
+                rows.append({"run": name, "phase": "warm start", "step": int(r["round"]), **_point(r)})
+    for r in csv.DictReader((run_dir / "metrics.csv").open()):
+        if r.get("eval/success_rate"):
+            rows.append({"run": name, "phase": "ppo", "step": int(r["iteration"]), **_point(r)})
+    return rows
+
+
+def _point(r: dict) -> dict:
+    return {
+        "minutes": float(r["time/elapsed_min"]),
+        "success_rate": float(r["eval/success_rate"]),
+        "success_by_100": float(r["eval/success_by_100"]),
+        "sampled_success_rate": float(r["eval/sampled_success_rate"]),
+        "sampled_success_by_100": float(r["eval/sampled_success_by_100"]),
+    }
+
+
+def plot(runs: list[Path], out: Path) -> None:
+    cfg = TrainConfig.from_json((runs[0] / "config.json").read_text())
+    lines = {name: planner_success(cfg, name) for name in PLANNER_LINES}
+    rows = [row for run in runs for row in curve_rows(run)]
     out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp())
-    with (tmp / "curve.csv").open("w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=list(rows[0]))
-        w.writeheader()
-        w.writerows(rows)
-        for name, (succ, by100) in lines.items():
-            f.write(f"# {name}: success_rate {succ:.3f}, success_by_100 {by100:.3f}\n")
-    shutil.move(tmp / "curve.csv", out.with_suffix(".csv"))
+    atomic_write_csv(out.with_suffix(".csv"), rows)
+    meta = {"cpu_capability": torch.backends.cpu.get_cpu_capability(), "eval_episodes": cfg.eval_episodes,
+            "eval_seed": cfg.eval_seed, "planners": {k: {"success_rate": v[0], "success_by_100": v[1]}
+                                                       for k, v in lines.items()},
+            "runs": {run.name: json.loads((run / "config.json").read_text()) for run in runs}}  # fmt: skip
+    atomic_write_text(out.with_suffix(".json"), json.dumps(meta, indent=2))
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, axes = plt.subplots(1, 2, figsize=(11, 4), sharex=True)
-    minutes = [r["minutes"] for r in rows]
-    for ax, key, title in (
-        (axes[0], "success_rate", "rescued by tick 300"),
-        (axes[1], "success_by_100", "rescued by tick 100"),
-    ):
-        ax.plot(minutes, [r[key] for r in rows], "k-o", ms=3, label="AMAT (training)")
-        for (name, vals), colour in zip(lines.items(), ("tab:blue", "tab:green", "tab:orange", "tab:red")):
-            ax.axhline(vals[0 if key == "success_rate" else 1], color=colour, ls="--", lw=1, label=name)
-        ax.set_xlabel("wall-clock minutes (2 CPU threads)")
+    fig, axes = plt.subplots(1, 2, figsize=(12, 4.2), sharex=True)
+    colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    for ax, key, title in ((axes[0], "success_by_100", "rescued by tick 100"),
+                           (axes[1], "success_rate", "rescued by the horizon")):  # fmt: skip
+        for k, run in enumerate(runs):
+            pts = [r for r in rows if r["run"] == run.name]
+            x = [r["minutes"] for r in pts]
+            ax.plot(x, [r[key] for r in pts], "-o", ms=2.5, color=colours[k], label=f"{run.name} (argmax)")
+            sampled = [r[f"sampled_{key}"] for r in pts]
+            ax.plot(x, sampled, ":", color=colours[k], label=f"{run.name} (sampled)")
+        for (name, vals), style in zip(lines.items(), ("--", "-.", (0, (1, 3)))):
+            ax.axhline(vals[0 if key == "success_rate" else 1], color="grey", ls=style, lw=1, label=name)
+        ax.set_xlabel(f"training minutes ({cfg.threads} CPU thread(s), {meta['cpu_capability']})")
         ax.set_ylabel("success rate")
-        ax.set_title(f"Task 1, {EVAL_EPISODES} fixed maps: {title}")
+        ax.set_title(f"{cfg.env_preset}, {cfg.eval_episodes} fixed maps: {title}")
         ax.set_ylim(0, 1.02)
+        ax.grid(alpha=0.3)
     axes[0].legend(fontsize=7, loc="lower right")
     fig.tight_layout()
-    fig.savefig(out.with_suffix(".png"), dpi=110)
-    print(f"wrote {out.with_suffix('.csv')} and {out.with_suffix('.png')}")
+    tmp = out.with_name(out.name + ".tmp.png")
+    fig.savefig(tmp, dpi=110)
+    tmp.replace(out.with_suffix(".png"))
+    print(f"wrote {out.with_suffix('.csv')}, {out.with_suffix('.json')} and {out.with_suffix('.png')}")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--preset", default="task1", help="training preset (catmip_rl.config.TRAIN_PRESETS)")
+    ap.add_argument("--minutes", type=float, default=30.0, help="wall-clock budget of the training run")
+    ap.add_argument("--threads", type=int, default=2, help="torch threads (1 to run two curves side by side)")
+    ap.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE", help="TrainConfig override")
+    ap.add_argument("--run-dir", help="the training run's directory")
+    ap.add_argument("--resume", action="store_true", help="continue the run in --run-dir")
+    ap.add_argument("--plot", nargs="+", type=Path, metavar="RUN_DIR", help="plot finished runs instead")
+    ap.add_argument("--out", default="benchmarks/results/learning_curve", help="OUT.csv / OUT.png (--plot)")
+    args = ap.parse_args()
+    if args.plot:
+        plot(args.plot, Path(args.out))
+        return
+    if not args.run_dir:
+        ap.error("--run-dir is required to train (or pass --plot RUN_DIR ...)")
+    from catmip_rl.train import train
+
+    cfg = make_train_config(args.preset, **parse_set(args.set))
+    # the budget ends the run and the LR decays over it
+    cfg = cfg.replace(budget_minutes=args.minutes, threads=args.threads, iterations=100_000)
+    np.seterr(all="ignore")
+    train(cfg, args.run_dir, resume=args.resume)
 
 
 if __name__ == "__main__":

@@ -12,10 +12,11 @@ import sys
 
 from catmip_rl.config import TRAIN_PRESETS, make_train_config
 
-__all__ = ["main"]
+__all__ = ["main", "parse_set"]
 
 
-def _parse_set(items: list[str]) -> dict:
+def parse_set(items: list[str]) -> dict:
+    """``["field=value", ...]`` -> ``{field: JSON value (or the raw string)}``."""
     out = {}
     for item in items:
         if "=" not in item:
@@ -31,13 +32,15 @@ def _parse_set(items: list[str]) -> dict:
 def _train(args: argparse.Namespace) -> int:
     from catmip_rl.train import train
 
-    overrides = _parse_set(args.set)
+    overrides = parse_set(args.set)
     for name in ("iterations", "num_worlds", "epochs", "minibatches", "micro_batch", "seed", "device",
                  "threads", "update_processes", "eval_every", "eval_episodes", "checkpoint_every", "lr",
-                 "collector", "ray_workers", "ray_address"):  # fmt: skip
+                 "collector", "ray_workers", "ray_address", "warm_start", "target_kl"):  # fmt: skip
         value = getattr(args, name)
         if value is not None:
             overrides[name] = value
+    if args.minutes is not None:
+        overrides["budget_minutes"] = args.minutes
     try:
         cfg = make_train_config(args.preset, **overrides)
     except (TypeError, ValueError) as err:
@@ -86,6 +89,17 @@ def _eval(args: argparse.Namespace) -> int:
         f"{s['method']} on {s['label']}, {s['episodes']} episodes (seed {args.seed}): success "
         f"{s['success_rate']:.2f}, by tick 100 {s['success_by_100']:.2f}, mean rescue tick {rescue}, "
         f"explored {s['mean_explored_fraction']:.2f}"
+    )
+    if "sampled_success_rate" in s:
+        print(
+            f"  with sampled actions on the same maps: success {s['sampled_success_rate']:.2f}, "
+            f"by tick 100 {s['sampled_success_by_100']:.2f}"
+        )
+    stalls = ", ".join(f"{k[len('stall_fraction_'):]} {v:.2f}" for k, v in s.items()
+                       if k.startswith("stall_fraction_") and v == v)  # fmt: skip
+    print(
+        f"  decisions per episode {s['decisions_per_episode']:.1f}, stalls per episode "
+        f"{s['stalls_per_episode']:.1f} (stalled fraction of decisions: {stalls})"
     )
     if s["decisions"] and s["bytes_per_decision_embedding"]:
         print(
@@ -162,6 +176,12 @@ def main(argv: list[str] | None = None) -> int:
         type=int,
         help="CPU processes computing the update's gradients (1 thread each if > 1)",
     )
+    tr.add_argument(
+        "--warm-start", metavar="PLANNER",
+        help="DAgger warm start from a planner's goals projected into the window: nearest, rrt, ...",
+    )  # fmt: skip
+    tr.add_argument("--target-kl", type=float, help="stop an iteration's PPO epochs past this approx-KL")
+    tr.add_argument("--minutes", type=float, help="wall-clock budget: stop after it, decaying the LR over it")
     tr.add_argument("--eval-every", type=int)
     tr.add_argument("--eval-episodes", type=int)
     tr.add_argument("--checkpoint-every", type=int)
@@ -172,7 +192,8 @@ def main(argv: list[str] | None = None) -> int:
     tr.add_argument("--no-progress", action="store_true")
     tr.set_defaults(func=_train)
     methods = (
-        "nearest | utility | rrt | apf | random-frontier | random | amat:PATH (model, checkpoint or run dir)"
+        "nearest | utility | rrt | apf | random-frontier | random | window:PLANNER (its goals projected into "
+        "the 7x7 window) | amat:PATH (model, checkpoint or run dir)"
     )
     ev = sub.add_parser("eval", help="evaluate a method on the paper's protocol (SPEC §8)")
     ev.add_argument("--method", required=True, help=methods)

@@ -18,6 +18,7 @@ import numpy as np
 import torch
 
 from catmip_env import EnvConfig
+from catmip_env.decision_stats import DecisionTracker
 from catmip_env.events import EventEngine
 from catmip_rl.amat import AMAT, decision_order
 
@@ -40,6 +41,7 @@ class Rollout:
     ma_return: np.ndarray  # (T, B, N) float64 return of the macro-action that ended at row t
     ma_ticks: np.ndarray  # (T, B, N) int64 its duration
     valid: np.ndarray  # (T, B) bool
+    label: np.ndarray | None  # (T, B, N) int64 the teacher's window actions (collect(labeler=...))
     final_return: np.ndarray  # (B, N) float64 each robot's last macro-action's return
     terminated: np.ndarray  # (B,) bool the episode ended in a rescue (its last macro-actions are trained)
     stats: dict[str, float]
@@ -53,13 +55,17 @@ class Rollout:
         return int(self.valid.sum())
 
 
-def episode_stats(engine: EventEngine, returns: np.ndarray) -> dict[str, float]:
-    """Success rate, rescue / target-found ticks, explored fraction, return per class."""
+def episode_stats(
+    engine: EventEngine, returns: np.ndarray, tracker: DecisionTracker | None = None
+) -> dict[str, float]:
+    """Success rate (by the horizon and by tick 100), rescue / target-found ticks, explored fraction,
+    return per class, and with ``tracker`` decisions and stalls per episode (and per class)."""
     st = engine.state
     rescued = st.rescue_tick >= 0
     found = st.found_tick >= 0
     out = {
         "success_rate": float(rescued.mean()),
+        "success_by_100": float((rescued & (st.rescue_tick <= 100)).mean()),
         "rescue_tick": float(st.rescue_tick[rescued].mean()) if rescued.any() else float("nan"),
         "target_found_rate": float(found.mean()),
         "target_found_tick": float(st.found_tick[found].mean()) if found.any() else float("nan"),
@@ -69,6 +75,8 @@ def episode_stats(engine: EventEngine, returns: np.ndarray) -> dict[str, float]:
     for k, cls in enumerate(engine.cfg.classes):
         sel = st.cls == k
         out[f"return_{cls.name}"] = float(returns[sel].mean()) if sel.any() else float("nan")
+    if tracker is not None:
+        out |= tracker.summary(st.cls, engine.cfg.classes)
     return out
 
 
@@ -100,15 +108,30 @@ class Collector:
         )
         self._final = np.zeros((b, n), np.float64)
         self._terminated = np.zeros(b, np.bool_)
+        self._label = np.zeros((t, b, n), np.int64)
+        self.tracker = DecisionTracker(b, n)
 
     @torch.no_grad()
-    def collect(self, model: AMAT, first_episode: int, generator: torch.Generator | None = None,
-                deterministic: bool = False) -> Rollout:  # fmt: skip
-        """One episode per world (episode indices ``first_episode + b``); returns the samples."""
+    def collect(
+        self,
+        model: AMAT,
+        first_episode: int,
+        generator: torch.Generator | None = None,
+        deterministic: bool = False,
+        labeler=None,
+        teacher_prob: float = 0.0,
+    ) -> Rollout:
+        """One episode per world (episode indices ``first_episode + b``); returns the samples.
+
+        ``labeler.act(engine)`` (e.g. a :class:`~catmip_env.window_planner.WindowPlanner`), if given,
+        labels every event's active robots with its window actions (``Rollout.label``); each active
+        robot then executes the label instead of the policy's action with probability ``teacher_prob``
+        (DAgger's mixture; drawn from ``generator``)."""
         eng, s = self.engine, self._store
         b_all = eng.num_worlds
         c = eng.cfg.num_classes
         eng.reset(episode_indices=np.arange(first_episode, first_episode + b_all))
+        self.tracker.reset(eng)
         s["valid"][:] = False
         returns = np.zeros((b_all, eng.num_robots))
         t = 0
@@ -140,10 +163,17 @@ class Collector:
             )
             s["order"][t, idx] = order.cpu().numpy()
             s["action"][t, idx] = actions.cpu().numpy()
+            if labeler is not None:
+                self._label[t, idx] = labeler.act(eng)[idx]
+                if teacher_prob > 0:
+                    u = torch.rand(s["action"][t, idx].shape, generator=generator).numpy()
+                    take = (u < teacher_prob) & s["active"][t, idx]
+                    s["action"][t, idx] = np.where(take, self._label[t, idx], s["action"][t, idx])
             s["log_prob"][t, idx] = logp.cpu().numpy()
             s["value"][t, idx] = values[..., 0].cpu().numpy()
             full = np.zeros((b_all, eng.num_robots), np.int64)
             full[idx] = s["action"][t, idx]
+            self.tracker.before_step(eng)
             ev = eng.step(full)
             returns[idx] += ev.rewards[idx]
             ended = idx[(ev.terminated | ev.truncated)[idx]]
@@ -156,6 +186,7 @@ class Collector:
         return Rollout(
             **{k: v[:t] for k, v in s.items()},
             final_return=self._final.copy(),
+            label=self._label[:t].copy() if labeler is not None else None,
             terminated=self._terminated.copy(),
-            stats=episode_stats(eng, returns),
+            stats=episode_stats(eng, returns, self.tracker),
         )

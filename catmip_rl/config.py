@@ -26,7 +26,13 @@ class TrainConfig:
     num_worlds: int = 64
     """Worlds (= episodes) collected per iteration."""
     iterations: int = 62_500
-    """PPO iterations (the LR decays linearly to 0 over them)."""
+    """PPO iterations (the LR decays linearly to 0 over them, or over ``budget_minutes``)."""
+    budget_minutes: float = 0.0
+    """Wall-clock budget of the run in minutes of training (0 = none): training stops once it is spent,
+    and the LR decays linearly to 0 over whichever of the iterations and the budget runs out first."""
+    target_kl: float = 0.0
+    """Step control (0 = off): an iteration's epochs stop at the first minibatch whose approx-KL from
+    the collecting policy exceeds this (measured before that minibatch's step, which is skipped)."""
     epochs: int = 10
     """PPO epochs per iteration."""
     minibatches: int = 1
@@ -56,6 +62,17 @@ class TrainConfig:
     """Processes computing the PPO update's gradients (CPU): 1 = this one, on ``threads`` threads; n > 1 =
     this one and n - 1 helpers, one thread each, sharing every minibatch's micro-batches (data parallel,
     the same update to float32 rounding; ~15 % faster than one process with two threads on 2 cores)."""
+    warm_start: str = ""
+    """Imitation warm start before PPO (catmip_rl.imitation): a planner name ("nearest", "rrt", ...)
+    whose goals, projected into the window, label DAgger rounds; "" = none (the paper's recipe)."""
+    warm_start_rounds: int = 6
+    """DAgger rounds (each collects num_worlds episodes with the current policy, labelled)."""
+    warm_start_steps: int = 150
+    """Cross-entropy gradient steps per DAgger round, on minibatches of warm_start_batch events."""
+    warm_start_batch: int = 256
+    warm_start_lr: float = 1e-3
+    value_warmup_iterations: int = 0
+    """First PPO iterations that train the value head alone (the policy stays as imitated)."""
     eval_every: int = 50
     """Iterations between evaluations (0 = never)."""
     eval_episodes: int = 32
@@ -82,10 +99,24 @@ class TrainConfig:
         for name in positive:
             if not isinstance(getattr(self, name), int) or getattr(self, name) < 1:
                 raise ValueError(f"TrainConfig.{name} must be an int >= 1, got {getattr(self, name)!r}")
-        for name in ("eval_every", "checkpoint_every", "micro_batch"):
+        for name in ("eval_every", "checkpoint_every", "micro_batch", "value_warmup_iterations"):
             if not isinstance(getattr(self, name), int) or getattr(self, name) < 0:
                 raise ValueError(f"TrainConfig.{name} must be an int >= 0, got {getattr(self, name)!r}")
-        for name in ("lr", "adam_eps", "clip", "value_clip", "huber_delta", "max_grad_norm"):
+        for name in ("budget_minutes", "target_kl"):
+            if not isinstance(getattr(self, name), (int, float)) or not getattr(self, name) >= 0:
+                raise ValueError(f"TrainConfig.{name} must be a number >= 0, got {getattr(self, name)!r}")
+        for name in ("warm_start_rounds", "warm_start_steps", "warm_start_batch"):
+            if not isinstance(getattr(self, name), int) or getattr(self, name) < 1:
+                raise ValueError(f"TrainConfig.{name} must be an int >= 1, got {getattr(self, name)!r}")
+        if self.warm_start:
+            from catmip_env.baselines import PLANNERS
+
+            if self.warm_start not in PLANNERS:
+                raise ValueError(
+                    f"TrainConfig.warm_start must be '' or a planner name {sorted(PLANNERS)}, "
+                    f"got {self.warm_start!r}"
+                )
+        for name in ("lr", "adam_eps", "clip", "value_clip", "huber_delta", "max_grad_norm", "warm_start_lr"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"TrainConfig.{name} must be > 0, got {getattr(self, name)!r}")
         if not 0 < self.gamma <= 1 or not 0 <= self.lam <= 1:
@@ -161,8 +192,9 @@ TRAIN_PRESETS: dict[str, TrainConfig] = {
         eval_every=20,
         checkpoint_every=20,
     ),
-    # the README demo's model: the small recipe on the Task-1 world (15x15, rescuer + explorer) with
-    # training activation (2, 5); about 9 iterations a minute on 2 cores
+    # the Task-1 world (15x15, rescuer + explorer) with training activation (2, 5), d = 64; step
+    # control: at most 6 epochs x 4 minibatches, stopped once a minibatch's approx-KL exceeds 0.01
+    # (docs/training.md, "Step control"); about 9 iterations a minute on 2 cores
     "task1": TrainConfig(
         env_preset="task1",
         env_overrides={"activation": [2, 5]},
@@ -171,10 +203,34 @@ TRAIN_PRESETS: dict[str, TrainConfig] = {
         iterations=600,
         epochs=6,
         minibatches=4,
-        lr=5e-4,
+        lr=3e-4,
         clip=0.1,
-        eval_every=50,
+        target_kl=0.01,
+        eval_every=10,
         eval_episodes=64,
+        eval_seed=2025,
+        checkpoint_every=20,
+    ),
+    # task1 after an imitation warm start: DAgger against the window-projected Nearest planner, then
+    # PPO with a value warm-up (the shipped amat_task1.pt and the README demo)
+    "task1-warm": TrainConfig(
+        env_preset="task1",
+        env_overrides={"activation": [2, 5]},
+        amat={"embed_dim": 64},
+        num_worlds=64,
+        iterations=600,
+        epochs=6,
+        minibatches=4,
+        lr=3e-4,
+        clip=0.1,
+        target_kl=0.01,
+        warm_start="nearest",
+        warm_start_rounds=12,
+        warm_start_steps=300,
+        value_warmup_iterations=5,
+        eval_every=10,
+        eval_episodes=64,
+        eval_seed=2025,
         checkpoint_every=20,
     ),
     # a minute-scale smoke run: a small map, two robots, a small AMAT

@@ -29,7 +29,9 @@ import torch
 
 from catmip_env import EnvConfig, make_config
 from catmip_env.baselines import PLANNERS, make_planner
+from catmip_env.decision_stats import DecisionTracker
 from catmip_env.events import EventEngine
+from catmip_env.window_planner import make_window_planner
 from catmip_rl.amat import AMAT, decision_order
 from catmip_rl.checkpoint import load_model
 from catmip_rl.distributed import message_bytes
@@ -107,8 +109,8 @@ def comm_sigma(comm: str | float | None) -> float | None:
 # -- methods ------------------------------------------------------------------------------------
 @dataclass(frozen=True)
 class Method:
-    """``name`` as written on plots; ``kind`` "planner" or "amat"; ``target`` the planner's name or
-    the AMAT checkpoint path."""
+    """``name`` as written on plots; ``kind`` "planner", "window" (a planner projected into the goal
+    window) or "amat"; ``target`` the planner's name or the AMAT checkpoint path."""
 
     name: str
     kind: str
@@ -117,7 +119,8 @@ class Method:
 
 def parse_method(spec: str) -> Method:
     """``nearest`` | ``utility`` | ``rrt`` | ``apf`` | ``random-frontier`` | ``random`` |
-    ``amat:PATH`` | ``NAME=amat:PATH`` (PATH: a model file, a training checkpoint or a run dir)."""
+    ``window:PLANNER`` (the planner's goals projected into the 7x7 window, the imitation teacher) |
+    ``amat:PATH`` | ``NAME=...`` (PATH: a model file, a training checkpoint or a run dir)."""
     spec = spec.strip()
     name = None
     if "=" in spec:
@@ -129,6 +132,11 @@ def parse_method(spec: str) -> Method:
         if not Path(path).exists():
             raise FileNotFoundError(f"AMAT checkpoint {path!r} does not exist")
         return Method(name or "amat", "amat", path)
+    if spec.startswith("window:"):
+        planner = spec[len("window:") :]
+        if planner not in PLANNERS:
+            raise ValueError(f"unknown planner {planner!r} in {spec!r}; choose one of {sorted(PLANNERS)}")
+        return Method(name or spec, "window", planner)
     if spec not in PLANNERS:
         raise ValueError(f"unknown method {spec!r}; choose amat:PATH or one of {sorted(PLANNERS)}")
     return Method(name or spec, "planner", spec)
@@ -231,6 +239,8 @@ def make_policy(method: Method, seed: int, model: AMAT | None = None):
     """(policy with ``act(engine)``, goal mode, window) for ``method``."""
     if method.kind == "planner":
         return make_planner(method.target, seed=seed), "cell", None
+    if method.kind == "window":
+        return make_window_planner(method.target, seed=seed), "window", None
     model = model if model is not None else load_model(method.target)
     return AmatExecutor(model), "window", model.config.window
 
@@ -252,6 +262,8 @@ class EvalResult:
     episodes: list[dict[str, Any]]
     curve: np.ndarray
     summary: dict[str, Any] = field(default_factory=dict)
+    sampled_curve: np.ndarray | None = None
+    """AMAT with sampled actions on the same maps (the curve is argmax, the paper's protocol)."""
 
     def write(self, out: str | Path) -> Path:
         """``episodes.csv``, ``episodes.json``, ``curve.csv``, ``summary.json`` in ``out`` (atomic)."""
@@ -259,9 +271,11 @@ class EvalResult:
         out.mkdir(parents=True, exist_ok=True)
         atomic_write_text(out / "episodes.json", json.dumps(self.episodes, indent=1))
         atomic_write_csv(out / "episodes.csv", self.episodes)
-        atomic_write_csv(
-            out / "curve.csv", [{"tick": t, "success_rate": float(v)} for t, v in enumerate(self.curve)]
-        )
+        curve = [{"tick": t, "success_rate": float(v)} for t, v in enumerate(self.curve)]
+        if self.sampled_curve is not None:
+            for row, v in zip(curve, self.sampled_curve):
+                row["sampled_success_rate"] = float(v)
+        atomic_write_csv(out / "curve.csv", curve)
         atomic_write_text(out / "summary.json", json.dumps(self.summary, indent=2))
         return out
 
@@ -285,38 +299,32 @@ def evaluate(
     model: AMAT | None = None,
     progress: bool = False,
     engine_hook=None,
+    sampled_too: bool = True,
 ) -> EvalResult:
     """Play ``episodes`` maps of ``setting`` (episode indices 0.. of ``seed``) with ``method``.
 
     ``model`` overrides loading the AMAT checkpoint; ``engine_hook(engine)`` is called after every
-    event (for rendering or inspection).
+    event (for rendering or inspection). AMAT plays argmax actions (the paper's protocol: the curve and
+    the plain summary keys) and, with ``sampled_too``, the same maps again with sampled actions
+    (``sampled_curve``, ``sampled_*`` summary keys; a generator seeded by ``seed``).
     """
     method = parse_method(method) if isinstance(method, str) else method
     if not isinstance(episodes, int) or episodes < 1:
         raise ValueError(f"episodes must be an int >= 1, got {episodes!r}")
     policy, goal_mode, window = make_policy(method, seed, model)
     cfg = setting.env_config(window)
-    eng = EventEngine(cfg, num_worlds=episodes, seed=seed, goal_mode=goal_mode)
-    eng.reset(episode_indices=np.arange(episodes))
-    maps = [map_hash(eng, e) for e in range(episodes)]
-    if isinstance(policy, AmatExecutor):
-        policy.reset_counters(episodes)
-    decisions = np.zeros(episodes, np.int64)
-    events = np.zeros(episodes, np.int64)
-    bar = progress_bar(episodes, f"{method.name} {setting.label}", progress)
+    passes = 2 if isinstance(policy, AmatExecutor) and sampled_too else 1
+    bar = progress_bar(episodes * passes, f"{method.name} {setting.label}", progress)
     t0 = time.perf_counter()
-    while not eng.state.done.all():
-        live = ~eng.state.done
-        decisions += (eng.active & live[:, None]).sum(1)
-        events += live
-        eng.step(policy.act(eng))
-        if engine_hook is not None:
-            engine_hook(eng)
-        if bar is not None and int(eng.state.done.sum()) > bar.n:
-            bar.update(int(eng.state.done.sum()) - bar.n)
+    eng, tracker, events, maps = _play(policy, cfg, goal_mode, episodes, seed, bar, engine_hook)
+    seconds = time.perf_counter() - t0
+    sampled = None
+    if isinstance(policy, AmatExecutor) and sampled_too:  # the same maps with sampled actions
+        gen = torch.Generator().manual_seed(seed)
+        sampled = _play(AmatExecutor(policy.model, deterministic=False, generator=gen), cfg, goal_mode,
+                        episodes, seed, bar, None)[0].state.rescue_tick.copy()  # fmt: skip
     if bar is not None:
         bar.close()
-    seconds = time.perf_counter() - t0
     st = eng.state
     explored = eng.world.explored_fraction()
     rows = []
@@ -336,8 +344,11 @@ def evaluate(
             "explored_fraction": float(explored[e]),
             "ticks": int(st.ticks[e]),
             "events": int(events[e]),
-            "decisions": int(decisions[e]),
+            "decisions": int(tracker.decisions[e].sum()),
+            "stalls": int(tracker.stalls[e].sum()),
         }
+        if sampled is not None:
+            row["sampled_rescue_tick"] = int(sampled[e]) if sampled[e] >= 0 else None
         if isinstance(policy, AmatExecutor):
             row.update(
                 messages=int(policy.messages[e]),
@@ -350,6 +361,14 @@ def evaluate(
     curve = success_curve(st.rescue_tick, cfg.horizon_ticks)
     result = EvalResult(method.name, setting, seed, rows, curve)
     result.summary = summarise(rows, curve, cfg.horizon_ticks)
+    result.summary |= tracker.summary(st.cls, cfg.classes)
+    if sampled is not None:
+        result.sampled_curve = success_curve(sampled, cfg.horizon_ticks)
+        result.summary |= {
+            "sampled_success_rate": float(result.sampled_curve[-1]),
+            "sampled_success_by_100": float(result.sampled_curve[min(100, cfg.horizon_ticks)]),
+            "sampled_mean_rescue_tick": float(sampled[sampled >= 0].mean()) if (sampled >= 0).any() else None,
+        }
     result.summary.update(
         method=method.name,
         method_kind=method.kind,
@@ -360,6 +379,29 @@ def evaluate(
         seconds=seconds,
     )
     return result
+
+
+def _play(policy, cfg: EnvConfig, goal_mode: str, episodes: int, seed: int, bar, engine_hook):
+    """One episode on each of the maps 0 .. episodes-1 of ``seed``: (engine, decision tracker, events
+    per episode, map hashes)."""
+    eng = EventEngine(cfg, num_worlds=episodes, seed=seed, goal_mode=goal_mode)
+    eng.reset(episode_indices=np.arange(episodes))
+    maps = [map_hash(eng, e) for e in range(episodes)]
+    if isinstance(policy, AmatExecutor):
+        policy.reset_counters(episodes)
+    tracker = DecisionTracker(episodes, eng.num_robots)
+    tracker.reset(eng)
+    events = np.zeros(episodes, np.int64)
+    done_before = 0 if bar is None else bar.n
+    while not eng.state.done.all():
+        events += ~eng.state.done
+        tracker.before_step(eng)
+        eng.step(policy.act(eng))
+        if engine_hook is not None:
+            engine_hook(eng)
+        if bar is not None and done_before + int(eng.state.done.sum()) > bar.n:
+            bar.update(done_before + int(eng.state.done.sum()) - bar.n)
+    return eng, tracker, events, maps
 
 
 def map_hash(engine: EventEngine, b: int) -> str:

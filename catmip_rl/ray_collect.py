@@ -68,6 +68,7 @@ def _stat_weights(collector: Collector, stats: dict[str, float]) -> dict[str, fl
     w["target_found_tick"] = float((st.found_tick >= 0).sum())
     for k, cls in enumerate(collector.engine.cfg.classes):
         w[f"return_{cls.name}"] = float((st.cls == k).sum())
+        w[f"stall_fraction_{cls.name}"] = float(collector.tracker.decisions[st.cls == k].sum())
     return w
 
 
@@ -261,6 +262,7 @@ class RayRolloutCollector:
         weights = [{k: float(v[i]) for k, v in td["stats_weight"].items()} for i in rows]
         return Rollout(
             **arrays,
+            label=None,
             final_return=td["final_return"].numpy().copy(),
             terminated=td["terminated"].numpy().copy(),
             stats=merge_stats(stats, weights),

@@ -1,11 +1,15 @@
 """Asynchronous centralised training of AMAT with PPO (SPEC §6) — the whole loop in one place.
 
-    build: config -> collector (B worlds) -> AMAT -> Adam + linear LR decay -> value normaliser
-    loop:  collect one episode per world -> async GAE -> PPO epochs -> log -> evaluate -> checkpoint
+    build: config -> collector (B worlds) -> AMAT -> Adam -> value normaliser
+    (warm start: DAgger rounds against a window-projected planner, catmip_rl.imitation)
+    loop:  LR (linear decay over the iterations or the time budget) -> collect one episode per world
+           -> async GAE -> PPO epochs (target-KL stop) -> log -> evaluate -> checkpoint
 
-Everything needed to continue a run exactly (model, optimiser, LR schedule, value normaliser, the
-sampling generator's state, the iteration) is saved atomically in ``RUN_DIR/checkpoints``; the
-resolved config is ``RUN_DIR/config.json``; metrics go to ``RUN_DIR/metrics.csv`` and TensorBoard.
+Everything needed to continue a run exactly (model, optimiser, value normaliser, the sampling
+generator's state, the iteration, the training time so far that a time budget's LR schedule reads) is
+saved atomically in ``RUN_DIR/checkpoints``; the
+resolved config is ``RUN_DIR/config.json``; metrics go to ``RUN_DIR/metrics.csv`` (per-epoch PPO
+statistics to ``ppo_epochs.csv``, DAgger rounds to ``warm_start.csv``) and TensorBoard.
 """
 
 from __future__ import annotations
@@ -33,6 +37,7 @@ __all__ = [
     "build_batch",
     "make_optimizer",
     "ppo_update",
+    "lr_factor",
     "loss_kwargs",
     "evaluate_policy",
     "METRICS",
@@ -40,14 +45,30 @@ __all__ = [
 
 METRICS = [
     "iteration", "episodes", "samples",
-    "rollout/success_rate", "rollout/rescue_tick", "rollout/target_found_rate",
+    "rollout/success_rate", "rollout/success_by_100", "rollout/rescue_tick", "rollout/target_found_rate",
     "rollout/target_found_tick",
     "rollout/explored_fraction", "rollout/episode_ticks", "rollout/return_rescuer", "rollout/return_explorer",
+    "rollout/decisions_per_episode", "rollout/stalls_per_episode", "rollout/stall_fraction_rescuer",
+    "rollout/stall_fraction_explorer",
     "loss/policy", "loss/value", "loss/entropy",
-    "ppo/approx_kl", "ppo/clip_fraction", "ppo/grad_norm", "ppo/lr",
-    "eval/success_rate", "eval/rescue_tick", "eval/target_found_tick", "eval/explored_fraction",
-    "time/collect_s", "time/advantage_s", "time/update_s", "time/iteration_s",
+    "ppo/approx_kl", "ppo/clip_fraction", "ppo/grad_norm", "ppo/lr", "ppo/epochs", "ppo/early_stop",
+    "eval/success_rate", "eval/success_by_100", "eval/rescue_tick", "eval/target_found_tick",
+    "eval/explored_fraction", "eval/decisions_per_episode", "eval/stalls_per_episode",
+    "eval/stall_fraction_rescuer", "eval/stall_fraction_explorer",
+    "eval/sampled_success_rate", "eval/sampled_success_by_100",
+    "time/collect_s", "time/advantage_s", "time/update_s", "time/iteration_s", "time/elapsed_min",
 ]  # fmt: skip
+EPOCH_METRICS = ["iteration", "epoch", "loss/policy", "loss/value", "loss/entropy", "ppo/approx_kl",
+                 "ppo/clip_fraction"]  # fmt: skip
+WARM_START_METRICS = [
+    "round", "episodes", "beta", "buffer_events", "rollout/success_rate", "rollout/success_by_100",
+    "imitation/loss", "imitation/accuracy", "eval/success_rate", "eval/success_by_100",
+    "eval/sampled_success_rate", "eval/sampled_success_by_100", "time/collect_s", "time/update_s",
+    "time/elapsed_min",
+]  # fmt: skip
+EVAL_KEYS = ("success_rate", "success_by_100", "rescue_tick", "target_found_tick", "explored_fraction",
+             "decisions_per_episode", "stalls_per_episode", "stall_fraction_rescuer",
+             "stall_fraction_explorer")  # fmt: skip
 
 
 def build_batch(r: Rollout, value_norm: ValueNorm, gamma: float, lam: float, n_classes: int,
@@ -111,18 +132,29 @@ def ppo_update(
     cfg: TrainConfig,
     gen: torch.Generator,
     parallel: ParallelGradients | None = None,
+    epoch_log: list[dict[str, float]] | None = None,
+    value_only: bool = False,
 ) -> dict[str, float]:
-    """``cfg.epochs`` passes over ``cfg.minibatches`` minibatches of ``batch``, one Adam step each; each
-    minibatch's gradient is accumulated over micro-batches of ``cfg.micro_batch`` events, by this
-    process or, with ``parallel``, shared with its helper processes. Returns the last minibatch's loss
-    parts and gradient norm."""
+    """Up to ``cfg.epochs`` passes over ``cfg.minibatches`` minibatches of ``batch``, one Adam step each;
+    each minibatch's gradient is accumulated over micro-batches of ``cfg.micro_batch`` events, by this
+    process or, with ``parallel``, shared with its helper processes. With ``cfg.target_kl`` the epochs
+    stop at the first minibatch whose approx-KL (before its step) exceeds it, without stepping.
+
+    Returns the last minibatch's loss parts and gradient norm, ``ppo/epochs`` (epochs run, fractional
+    when stopped inside one) and ``ppo/early_stop``; ``epoch_log`` receives one dict per epoch (its
+    minibatches' mean loss parts, approx-KL and clip fraction). ``value_only`` steps the value head
+    alone (the value warm-up after an imitation warm start: the policy is left as it is)."""
     model.train()
     params = [p for p in model.parameters() if p.requires_grad]
+    frozen = [p for n, p in model.named_parameters() if not n.startswith("value_head.")] if value_only else []
     stats: dict[str, float] = {}
     if parallel is not None:
         parallel.set_batch(batch)
-    for _ in range(cfg.epochs):
+    steps, stopped = 0, False
+    for epoch in range(cfg.epochs):
         perm = torch.randperm(len(batch), generator=gen) if cfg.minibatches > 1 else torch.arange(len(batch))
+        epoch_sums: dict[str, float] = {}
+        seen = 0
         for idx in perm.chunk(cfg.minibatches):
             idx = idx.to(batch.action.device)
             count = batch.trainable[idx].sum().clamp_min(1).float()
@@ -132,32 +164,61 @@ def ppo_update(
                 sums = accumulate_gradients(model, batch, parts, count, **loss_kwargs(cfg))
             else:
                 sums = parallel.backward(model, parts, count)
+            seen += 1
+            for k, v in sums.items():
+                epoch_sums[k] = epoch_sums.get(k, 0.0) + v
+            if cfg.target_kl and sums["ppo/approx_kl"] > cfg.target_kl:
+                stopped = True
+                stats = sums | {"ppo/grad_norm": float("nan")}
+                break
+            for p in frozen:
+                p.grad = None  # Adam skips parameters without a gradient
             grad_norm = torch.nn.utils.clip_grad_norm_(params, cfg.max_grad_norm)
             opt.step()
+            steps += 1
             stats = sums | {"ppo/grad_norm": float(grad_norm)}
-    return stats
+        if epoch_log is not None:
+            epoch_log.append({"epoch": epoch + 1} | {k: v / seen for k, v in epoch_sums.items()})
+        if stopped:
+            break
+    opt.zero_grad(set_to_none=True)
+    return stats | {"ppo/epochs": steps / cfg.minibatches, "ppo/early_stop": float(stopped)}
+
+
+def lr_factor(iteration: int, cfg: TrainConfig, elapsed_s: float) -> float:
+    """Linear decay to 0 over the run: over ``cfg.iterations``, or over ``cfg.budget_minutes`` of
+    training if that runs out first (``iteration`` counts from 1; ``elapsed_s`` before it)."""
+    progress = (iteration - 1) / cfg.iterations
+    if cfg.budget_minutes:
+        progress = max(progress, elapsed_s / (60.0 * cfg.budget_minutes))
+    return max(0.0, 1.0 - progress)
 
 
 @torch.no_grad()
 def evaluate_policy(
     model: AMAT, cfg: TrainConfig, device: torch.device, collector: Collector | None = None
 ) -> dict[str, float]:
-    """Deterministic episodes of the training task with evaluation activation on a fixed map set
-    (pass the ``collector`` of a previous call to reuse its storage)."""
+    """Episodes of the training task with evaluation activation on a fixed map set: argmax actions
+    (the paper's protocol; success, ticks, decisions, stalls) and sampled actions (``sampled_*``, from
+    a generator seeded by ``cfg.eval_seed``). Pass the ``collector`` of a previous call to reuse it."""
     if collector is None:
         collector = Collector(cfg.eval_env_config(), cfg.eval_episodes, cfg.eval_seed, cfg.gamma, str(device))
-    return collector.collect(model, first_episode=0, deterministic=True).stats
+    out = dict(collector.collect(model, first_episode=0, deterministic=True).stats)
+    gen = torch.Generator(device=device).manual_seed(cfg.eval_seed)
+    sampled = collector.collect(model, first_episode=0, generator=gen).stats
+    out |= {f"sampled_{k}": sampled[k] for k in ("success_rate", "success_by_100")}
+    return out
 
 
-def _save(path: Path, it: int, episodes: int, model, opt, sched, value_norm, gen, cfg) -> None:
+def _save(path: Path, it: int, episodes: int, elapsed_s: float, model, opt, value_norm, gen, cfg) -> None:
     atomic_torch_save(
         {
             "iteration": it,
             "episodes": episodes,
+            "elapsed_s": elapsed_s,
             "model": model.state_dict(),
             "amat_config": cfg.amat_config().__dict__,
             "optimizer": opt.state_dict(),
-            "scheduler": sched.state_dict(),
             "value_norm": value_norm.state_dict(),
             "generator": gen.get_state(),
             "torch_rng": torch.get_rng_state(),
@@ -167,19 +228,26 @@ def _save(path: Path, it: int, episodes: int, model, opt, sched, value_norm, gen
     )
 
 
-def _open_csv(path: Path, resume_iteration: int | None):
+def _open_csv(path: Path, fields: list[str], resume_iteration: int | None, key: str = "iteration"):
+    """An appending CSV writer; on resume the rows past ``resume_iteration`` (in column ``key``) are
+    dropped first, so that a resumed run's log continues where its checkpoint stopped."""
     rows = []
     if resume_iteration is not None and path.exists():
         with path.open() as f:
-            rows = [r for r in csv.DictReader(f) if int(r["iteration"]) <= resume_iteration]
+            rows = [r for r in csv.DictReader(f) if int(r[key]) <= resume_iteration]
     tmp = path.with_name(path.name + ".tmp")
     with tmp.open("w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=METRICS)
+        w = csv.DictWriter(f, fieldnames=fields, extrasaction="ignore")
         w.writeheader()
         w.writerows(rows)
     tmp.replace(path)
     f = path.open("a", newline="")
-    return f, csv.DictWriter(f, fieldnames=METRICS)
+    return f, csv.DictWriter(f, fieldnames=fields, extrasaction="ignore")
+
+
+def _write_row(writer, file, row: dict) -> None:
+    writer.writerow({k: (v if not (isinstance(v, float) and math.isnan(v)) else "") for k, v in row.items()})
+    file.flush()
 
 
 def _tensorboard(run_dir: Path):
@@ -223,20 +291,18 @@ def train(cfg: TrainConfig, run_dir: str | Path, resume: bool = False, progress:
     env_cfg = cfg.env_config()
     model = AMAT(cfg.amat_config()).to(device)
     opt = make_optimizer(model, cfg)
-    sched = torch.optim.lr_scheduler.LambdaLR(opt, lambda it: max(0.0, 1.0 - it / cfg.iterations))
     value_norm = ValueNorm().to(device)
     evaluator = None
     if cfg.eval_every:
         evaluator = Collector(cfg.eval_env_config(), cfg.eval_episodes, cfg.eval_seed, cfg.gamma, str(device))
-    start, episodes = 0, 0
+    start, episodes, elapsed = 0, 0, 0.0  # elapsed: seconds of training so far (evaluation excluded)
     if resume:
         model.load_state_dict(saved["model"])
         opt.load_state_dict(saved["optimizer"])
-        sched.load_state_dict(saved["scheduler"])
         value_norm.load_state_dict(saved["value_norm"])
         gen.set_state(saved["generator"])
         torch.set_rng_state(saved["torch_rng"])
-        start, episodes = saved["iteration"], saved["episodes"]
+        start, episodes, elapsed = saved["iteration"], saved["episodes"], saved.get("elapsed_s", 0.0)
     if cfg.collector == "ray":  # the same episodes, collected by Ray workers (catmip_rl/ray_collect.py)
         from catmip_rl.ray_collect import RayRolloutCollector
 
@@ -246,55 +312,78 @@ def train(cfg: TrainConfig, run_dir: str | Path, resume: bool = False, progress:
     parallel = None
     if cfg.update_processes > 1:  # data-parallel gradients (catmip_rl/parallel_update.py)
         parallel = ParallelGradients(model, cfg.update_processes, **loss_kwargs(cfg))
-    csv_file, csv_writer = _open_csv(run_dir / "metrics.csv", start if resume else None)
+    csv_file, csv_writer = _open_csv(run_dir / "metrics.csv", METRICS, start if resume else None)
+    epoch_file, epoch_writer = _open_csv(run_dir / "ppo_epochs.csv", EPOCH_METRICS, start if resume else None)
     tb = _tensorboard(run_dir)
-    bar = None
-    if progress:
-        from tqdm import tqdm
 
-        bar = tqdm(total=cfg.iterations, initial=start, desc="train", unit="it")
+    def save(it: int) -> None:
+        _save(latest, it, episodes, elapsed, model, opt, value_norm, gen, cfg)
+        _save(ckpt_dir / f"iter_{it:06d}.pt", it, episodes, elapsed, model, opt, value_norm, gen, cfg)
 
-    # -- the loop ----------------------------------------------------------------------------------------
+    def log_scalars(row: dict, step: int, skip: str) -> None:
+        if tb is not None:
+            for k, v in row.items():
+                if k != skip and isinstance(v, (int, float)) and not math.isnan(v):
+                    tb.add_scalar(k, v, step)
+
     try:
+        # -- imitation warm start (DAgger against a window-projected planner), once, before PPO -------
+        if cfg.warm_start and start == 0:
+            elapsed = _warm_start(
+                cfg, model, collector, evaluator, gen, device, run_dir, progress, log_scalars
+            )
+            episodes = cfg.warm_start_rounds * cfg.num_worlds
+            save(0)
+        bar = None
+        if progress:
+            from tqdm import tqdm
+
+            bar = tqdm(total=cfg.iterations, initial=start, desc="train", unit="it")
+
+        # -- the loop ------------------------------------------------------------------------------------
         for it in range(start + 1, cfg.iterations + 1):
+            if cfg.budget_minutes and elapsed >= 60.0 * cfg.budget_minutes:
+                break
             t0 = time.perf_counter()
+            for group in opt.param_groups:
+                group["lr"] = cfg.lr * lr_factor(it, cfg, elapsed)
             rollout = collector.collect(model, first_episode=episodes, generator=gen)
             episodes += cfg.num_worlds
             t1 = time.perf_counter()
             batch, info = build_batch(rollout, value_norm, cfg.gamma, cfg.lam, env_cfg.num_classes, device)
             t2 = time.perf_counter()
-            stats = ppo_update(model, opt, batch, cfg, gen, parallel)
+            epochs: list[dict[str, float]] = []
+            value_only = it <= cfg.value_warmup_iterations
+            stats = ppo_update(model, opt, batch, cfg, gen, parallel, epochs, value_only=value_only)
             stats["ppo/lr"] = opt.param_groups[0]["lr"]
-            sched.step()
             t3 = time.perf_counter()
+            elapsed += t3 - t0
             row = {"iteration": it, "episodes": episodes, "samples": info["samples"], **stats}
             row |= {f"rollout/{k}": v for k, v in rollout.stats.items() if f"rollout/{k}" in METRICS}
             row |= {"time/collect_s": t1 - t0, "time/advantage_s": t2 - t1, "time/update_s": t3 - t2}
-            if cfg.eval_every and (it % cfg.eval_every == 0 or it == cfg.iterations):
+            row["time/elapsed_min"] = elapsed / 60.0
+            last = it == cfg.iterations or (cfg.budget_minutes and elapsed >= 60.0 * cfg.budget_minutes)
+            if cfg.eval_every and (it % cfg.eval_every == 0 or last):
                 ev = evaluate_policy(model, cfg, device, evaluator)
-                row |= {f"eval/{k}": ev[k] for k in ("success_rate", "rescue_tick", "target_found_tick",
-                                                     "explored_fraction")}  # fmt: skip
+                row |= {f"eval/{k}": v for k, v in ev.items() if f"eval/{k}" in METRICS}
             row["time/iteration_s"] = time.perf_counter() - t0
-            csv_writer.writerow(
-                {k: (v if not (isinstance(v, float) and math.isnan(v)) else "") for k, v in row.items()}
-            )
-            csv_file.flush()
-            if tb is not None:
-                for k, v in row.items():
-                    if k != "iteration" and isinstance(v, (int, float)) and not math.isnan(v):
-                        tb.add_scalar(k, v, it)
-            if cfg.checkpoint_every and (it % cfg.checkpoint_every == 0 or it == cfg.iterations):
-                _save(latest, it, episodes, model, opt, sched, value_norm, gen, cfg)
-                _save(ckpt_dir / f"iter_{it:06d}.pt", it, episodes, model, opt, sched, value_norm, gen, cfg)
+            _write_row(csv_writer, csv_file, row)
+            for e in epochs:
+                _write_row(epoch_writer, epoch_file, {"iteration": it} | e)
+            log_scalars(row, it, "iteration")
+            if cfg.checkpoint_every and (it % cfg.checkpoint_every == 0 or last):
+                save(it)
             if bar is not None:
                 bar.update(1)
                 bar.set_postfix(
-                    success=f"{row.get('rollout/success_rate', 0):.2f}", t=f"{row['time/iteration_s']:.1f}s"
-                )
-    finally:
+                    success=f"{row.get('rollout/success_rate', 0):.2f}", kl=f"{stats['ppo/approx_kl']:.4f}",
+                    t=f"{row['time/iteration_s']:.1f}s",
+                )  # fmt: skip
         if bar is not None:
             bar.close()
+    finally:
         csv_file.close()
+        epoch_file.close()
         if tb is not None:
             tb.close()
         if cfg.collector == "ray":
@@ -302,3 +391,44 @@ def train(cfg: TrainConfig, run_dir: str | Path, resume: bool = False, progress:
         if parallel is not None:
             parallel.close()
     return model
+
+
+def _warm_start(cfg, model, collector, evaluator, gen, device, run_dir, progress, log_scalars) -> float:
+    """DAgger rounds into ``run_dir/warm_start.csv`` (evaluated after each round when the run
+    evaluates); returns the seconds spent (evaluation excluded)."""
+    from catmip_rl.imitation import dagger
+
+    file, writer = _open_csv(run_dir / "warm_start.csv", WARM_START_METRICS, None, key="round")
+    elapsed = 0.0
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=cfg.warm_start_rounds, desc=f"warm start ({cfg.warm_start})", unit="round")
+
+    def on_round(row: dict) -> None:
+        nonlocal elapsed
+        elapsed += row["time/collect_s"] + row["time/update_s"]
+        row["time/elapsed_min"] = elapsed / 60.0
+        if evaluator is not None:
+            ev = evaluate_policy(model, cfg, device, evaluator)
+            row |= {f"eval/{k}": ev[k] for k in ("success_rate", "success_by_100", "sampled_success_rate",
+                                                 "sampled_success_by_100")}  # fmt: skip
+        _write_row(writer, file, row)
+        log_scalars({f"warm_start/{k}": v for k, v in row.items()}, row["round"], "warm_start/round")
+        if bar is not None:
+            bar.update(1)
+            acc, success = row["imitation/accuracy"], row["rollout/success_rate"]
+            bar.set_postfix(acc=f"{acc:.2f}", success=f"{success:.2f}")
+
+    try:
+        dagger(
+            model, collector, cfg.warm_start, cfg.warm_start_rounds, cfg.warm_start_steps,
+            batch_events=cfg.warm_start_batch, lr=cfg.warm_start_lr, generator=gen, seed=cfg.seed,
+            max_grad_norm=cfg.max_grad_norm, on_round=on_round,
+        )  # fmt: skip
+    finally:
+        file.close()
+        if bar is not None:
+            bar.close()
+    return elapsed

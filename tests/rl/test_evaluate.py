@@ -18,6 +18,7 @@ from catmip_rl.evaluate import (
     GOAL_BYTES,
     AmatExecutor,
     EvalSetting,
+    Method,
     evaluate,
     parse_method,
     render_episode,
@@ -53,7 +54,7 @@ def test_every_method_sees_the_same_maps(ckpt, tmp_path):
     small_window = save_model(_sharp_model(window=5), tmp_path / "d5.pt")
     setting = EvalSetting("task2", "4")
     hashes = {}
-    for method in ("nearest", "rrt", "random", f"amat:{ckpt}", f"amat:{small_window}"):
+    for method in ("nearest", "rrt", "random", "window:nearest", f"amat:{ckpt}", f"amat:{small_window}"):
         res = evaluate(method, setting, episodes=3, seed=11)
         hashes[method] = [r["map_hash"] for r in res.episodes]
     assert len({tuple(h) for h in hashes.values()}) == 1
@@ -169,6 +170,9 @@ def test_parse_method_errors(tmp_path):
     assert parse_method("best=nearest").name == "best"
     with pytest.raises(ValueError, match="unknown method"):
         parse_method("astar")
+    assert parse_method("window:rrt") == Method("window:rrt", "window", "rrt")
+    with pytest.raises(ValueError, match="unknown planner 'astar'"):
+        parse_method("window:astar")
     with pytest.raises(FileNotFoundError, match="does not exist"):
         parse_method(f"amat:{tmp_path / 'none.pt'}")
     with pytest.raises(ValueError, match="comm"):
@@ -189,6 +193,11 @@ def test_write_and_cli_eval(ckpt, tmp_path, capsys):
     assert len(rows) == 2 and {"rescue_tick", "target_found_tick", "explored_fraction", "bytes_raw"} <= set(
         rows[0]
     )
+    assert "with sampled actions on the same maps" in out and "stalls per episode" in out
+    assert {"sampled_success_rate", "sampled_success_by_100", "stalls_per_episode", "stall_fraction_rescuer",
+            "decisions_per_episode"} <= set(summary)  # fmt: skip
+    curve = list(csv.DictReader(open(tmp_path / "e" / "curve.csv")))
+    assert float(curve[-1]["sampled_success_rate"]) == summary["sampled_success_rate"]
     assert cli(["eval", "--method", "dijkstra", "--out", str(tmp_path / "x")]) == 2
     assert "unknown method" in capsys.readouterr().err
 
@@ -233,3 +242,15 @@ def test_cli_bench_perf_needs_the_repository(tmp_path, monkeypatch, capsys):
     assert cli(["bench", "perf", "--quick"]) == 2
     assert "benchmarks/run_all.py" in capsys.readouterr().err
     assert cli(["bench", "paper", "--figure", "6", "--all"]) == 2
+
+
+def test_sampled_actions_and_stalls_are_reported_beside_argmax(ckpt):
+    res = evaluate(f"amat:{ckpt}", EvalSetting("task1"), episodes=6, seed=3)
+    again = evaluate(f"amat:{ckpt}", EvalSetting("task1"), episodes=6, seed=3)
+    assert np.array_equal(res.sampled_curve, again.sampled_curve)  # seeded sampling
+    ticks = [r["sampled_rescue_tick"] for r in res.episodes]
+    assert res.summary["sampled_success_rate"] == pytest.approx(np.mean([t is not None for t in ticks]))
+    assert res.summary["stalls_per_episode"] == pytest.approx(np.mean([r["stalls"] for r in res.episodes]))
+    planner = evaluate("window:nearest", EvalSetting("task1"), episodes=6, seed=3)
+    assert planner.sampled_curve is None and "sampled_success_rate" not in planner.summary
+    assert planner.summary["success_rate"] >= 5 / 6

@@ -1,0 +1,61 @@
+"""Per-episode decision statistics shared by training logs and evaluation summaries.
+
+A **stall** is a macro-action that ended without its robot moving: a "stay" goal, a goal the controller
+cannot reach, a goal that became occupied before the robot left. Under evaluation activation (0, 0) a
+deterministic policy that stalls decides again at once on an almost unchanged observation, so stalls
+are what argmax loops look like. Counted at each robot's next activation (a macro-action still running
+when the episode ends is not counted).
+
+>>> tracker = DecisionTracker(engine.num_worlds, engine.num_robots)
+>>> tracker.reset(engine)              # after engine.reset()
+>>> tracker.before_step(engine)        # at every event, before engine.step(...)
+>>> tracker.summary(engine.state.cls, engine.cfg.classes)
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from catmip_env.events import EventEngine
+
+__all__ = ["DecisionTracker"]
+
+
+class DecisionTracker:
+    """Decisions and stalls per (world, robot) over one episode of each world."""
+
+    def __init__(self, num_worlds: int, num_robots: int) -> None:
+        self.decisions = np.zeros((num_worlds, num_robots), np.int64)
+        self.stalls = np.zeros((num_worlds, num_robots), np.int64)
+        self._start = np.zeros((num_worlds, num_robots, 2), np.int64)
+
+    def reset(self, engine: EventEngine, worlds: np.ndarray | None = None) -> None:
+        """Zero the counts of ``worlds`` (default all) at the start of their episodes."""
+        sel = slice(None) if worlds is None else worlds
+        self.decisions[sel] = 0
+        self.stalls[sel] = 0
+        self._start[sel] = engine.state.pos[sel]
+
+    def before_step(self, engine: EventEngine) -> None:
+        """Count the decisions of this event and the stalls of the macro-actions they end."""
+        st = engine.state
+        act = engine.active & ~st.done[:, None]
+        ended = act & (self.decisions > 0)
+        self.stalls += ended & (st.pos == self._start).all(-1)
+        self.decisions += act
+        self._start[act] = st.pos[act]
+
+    def summary(self, cls: np.ndarray, classes) -> dict[str, float]:
+        """Means per episode: ``decisions_per_episode``, ``stalls_per_episode`` and, per class name,
+        ``stalls_per_episode_<name>`` and ``stall_fraction_<name>`` (stalls / decisions)."""
+        n_ep = max(self.decisions.shape[0], 1)
+        out = {
+            "decisions_per_episode": float(self.decisions.sum() / n_ep),
+            "stalls_per_episode": float(self.stalls.sum() / n_ep),
+        }
+        for k, c in enumerate(classes):
+            sel = cls == k
+            d, s = int(self.decisions[sel].sum()), int(self.stalls[sel].sum())
+            out[f"stalls_per_episode_{c.name}"] = s / n_ep
+            out[f"stall_fraction_{c.name}"] = s / d if d else float("nan")
+        return out

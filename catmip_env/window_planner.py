@@ -1,0 +1,137 @@
+"""Planners projected into the goal window: a classical planner's goal as an AMAT window action.
+
+A planner (``catmip_env.baselines``) picks any cell of the map; AMAT picks a goal inside the robot's
+D x D window (SPEC §2.1). :class:`WindowPlanner` runs the planner on a window-mode
+:class:`~catmip_env.events.EventEngine` and turns each active robot's cell goal into a window action:
+
+* the goal itself if it lies inside the window and is allowed by the window mask;
+* otherwise the allowed window cell with the shortest path to the goal (ties: the nearest to the
+  robot), i.e. the most progress towards the goal the window allows; paths on the robot's clean
+  belief as the controller plans them (unknown cells free; known occupied cells, the border and other
+  robots blocked);
+* "stay" (the centre) if the goal is the robot's own cell or unreachable, or no window cell is nearer
+  to it than the robot.
+
+The rescue rule comes with the planner: a rescuer that knows the target heads for the reachable cell
+next to it. This is the teacher of ``catmip train --warm-start`` (imitation) and, as the evaluation
+method ``window:NAME``, a window-level baseline: the ceiling of imitating that planner.
+
+>>> eng = EventEngine(PRESETS["task1"], num_worlds=8, seed=0)      # goal_mode="window"
+>>> teacher = WindowPlanner(make_planner("nearest", seed=0))
+>>> eng.reset()
+>>> while not eng.state.done.all():
+...     eng.step(teacher.act(eng))
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from catmip_env.baselines import Planner, make_planner
+from catmip_env.events import EventEngine
+from catmip_env.macro import action_masks
+from catmip_env.planner import UNREACHED, bfs_from
+from catmip_env.types import OCCUPIED
+
+__all__ = ["WindowPlanner", "make_window_planner", "project_goal"]
+
+@njit(cache=True)
+def project_goal(
+    belief: np.ndarray,  # (H, W) uint8 the robot's belief bits
+    pos: np.ndarray,  # (N, 2) int64 every robot's cell
+    i: int,  # the robot
+    goal_r: int,
+    goal_c: int,
+    window: int,
+    window_mask: np.ndarray,  # (D * D,) allowed window actions of the robot
+    dist: np.ndarray,  # (H * W) int64 scratch
+    queue: np.ndarray,  # (H * W) int64 scratch
+) -> int:
+    """The window action of the allowed window cell with the shortest path to the goal (ties: the one
+    nearest the robot, then row-major), i.e. the most progress towards the goal that the window
+    allows; the goal itself when it is inside and allowed; the centre ("stay") when the goal is the
+    robot's own cell or unreachable, or no window cell is nearer to it than the robot."""
+    h, w = belief.shape
+    half = window // 2
+    stay = half * window + half
+    r0, c0 = pos[i, 0], pos[i, 1]
+    if goal_r == r0 and goal_c == c0:
+        return stay
+    dr, dc = goal_r - r0, goal_c - c0
+    if abs(dr) <= half and abs(dc) <= half and window_mask[(dr + half) * window + dc + half] != 0:
+        return (dr + half) * window + dc + half
+    blocked = (belief & OCCUPIED) != 0
+    blocked[0, :] = True
+    blocked[h - 1, :] = True
+    blocked[:, 0] = True
+    blocked[:, w - 1] = True
+    for j in range(pos.shape[0]):
+        if j != i:
+            blocked[pos[j, 0], pos[j, 1]] = True
+    blocked[r0, c0] = False
+    if bfs_from(blocked, goal_r, goal_c, dist, queue, -1) == 0:
+        return stay
+    to_goal = dist.copy()
+    if to_goal[r0 * w + c0] == UNREACHED:
+        return stay
+    bfs_from(blocked, r0, c0, dist, queue, -1)  # dist: from the robot
+    best, best_g, best_r = stay, to_goal[r0 * w + c0], 0
+    for a in range(window * window):
+        r, c = r0 + a // window - half, c0 + a % window - half
+        if window_mask[a] == 0 or not (0 <= r < h and 0 <= c < w):
+            continue
+        g, d = to_goal[r * w + c], dist[r * w + c]
+        if g == UNREACHED or d == UNREACHED:
+            continue
+        if g < best_g or (g == best_g and best != stay and d < best_r):
+            best, best_g, best_r = a, g, d
+    return best
+
+
+class _CellView:
+    """A window-mode engine seen by a cell-mode planner: the same state, cell-mode masks."""
+
+    goal_mode = "cell"
+
+    def __init__(self, engine: EventEngine, masks: np.ndarray) -> None:
+        self._engine, self.masks = engine, masks
+
+    def __getattr__(self, name: str):
+        return getattr(self._engine, name)
+
+
+class WindowPlanner:
+    """``act(engine)`` -> (B, N) window actions of ``planner``'s goals, projected (see the module)."""
+
+    def __init__(self, planner: Planner) -> None:
+        self.planner = planner
+        self.name = f"window:{planner.name}"
+        self._cell_masks: np.ndarray | None = None
+        self._scratch: tuple[np.ndarray, np.ndarray] | None = None
+
+    def act(self, engine: EventEngine) -> np.ndarray:
+        if engine.goal_mode != "window":
+            raise ValueError(f"{self.name} needs an EventEngine with goal_mode='window'")
+        st = engine.state
+        (b_all, n), (h, w) = st.pos.shape[:2], engine.shape
+        if self._cell_masks is None or self._cell_masks.shape != (b_all, n, h * w):
+            self._cell_masks = np.zeros((b_all, n, h * w), np.int8)
+            self._scratch = (np.empty(h * w, np.int64), np.empty(h * w, np.int64))
+        live = ~st.done
+        cfg, masks = engine.cfg, self._cell_masks
+        action_masks(live, True, cfg.window, st.belief, st.pos, st.comp, st.goal, engine.mstate, masks)
+        cells = self.planner.act(_CellView(engine, self._cell_masks))  # (B, N) flat goal cells
+        out = np.full((b_all, n), engine.stay_action, np.int64)
+        dist, queue = self._scratch
+        for b, i in zip(*np.nonzero(engine.active & live[:, None])):
+            gr, gc = divmod(int(cells[b, i]), w)
+            out[b, i] = project_goal(
+                st.belief[b, i], st.pos[b], int(i), gr, gc, engine.cfg.window, engine.masks[b, i], dist, queue
+            )
+        return out
+
+
+def make_window_planner(name: str, seed: int = 0) -> WindowPlanner:
+    """``make_planner(name, seed)`` projected into the goal window."""
+    return WindowPlanner(make_planner(name, seed=seed))

@@ -1,0 +1,135 @@
+"""Imitation warm start (DAgger) from a classical planner projected into the goal window.
+
+    model = AMAT(cfg.amat_config())
+    log = dagger(model, cfg, collector, teacher="nearest", rounds=6)   # then PPO from this model
+
+Each round rolls out the current policy on ``cfg.num_worlds`` new training episodes while the teacher
+(:class:`~catmip_env.window_planner.WindowPlanner`: the planner's goal, projected into the robot's
+window; the rescue rule for a rescuer that knows the target) labels every active robot's decision; with
+probability ``beta`` (1 in round 0, halving every round) a robot executes the label instead, DAgger's
+mixture. The labelled events are aggregated over the rounds (up to ``buffer_events``, the oldest
+dropped first) and AMAT's decoder is trained by cross-entropy on them, teacher-forced in the decision
+order of PPO (active robots first, each fed the previous robot's label). Busy robots are inputs only.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from catmip_env.window_planner import make_window_planner
+from catmip_rl.amat import AMAT
+from catmip_rl.collect import Collector, Rollout
+
+__all__ = ["DemoBuffer", "imitation_loss", "dagger"]
+
+_KEYS = ("global_map", "local_map", "agent_class", "action_mask", "active", "order", "label")
+
+
+@dataclass
+class DemoBuffer:
+    """Labelled decision events aggregated over DAgger rounds (numpy, rows = events)."""
+
+    max_events: int
+    arrays: dict[str, np.ndarray] | None = None
+
+    def __len__(self) -> int:
+        return 0 if self.arrays is None else len(self.arrays["label"])
+
+    def add(self, r: Rollout) -> None:
+        if r.label is None:
+            raise ValueError("DemoBuffer.add needs a rollout collected with a labeler")
+        rows = r.valid
+        # busy robots keep the stored action as their (unused) label: they are never scored
+        label = np.where(r.active, r.label, r.action)
+        new = {k: np.ascontiguousarray((label if k == "label" else getattr(r, k))[rows]) for k in _KEYS}
+        if self.arrays is not None:
+            new = {k: np.concatenate([self.arrays[k], v]) for k, v in new.items()}
+        self.arrays = {k: v[-self.max_events :] for k, v in new.items()}
+
+    def batch(self, idx: np.ndarray, n_classes: int, device: torch.device) -> dict[str, torch.Tensor]:
+        a = self.arrays
+        out = {k: torch.from_numpy(a[k][idx]) for k in _KEYS if k != "agent_class"}
+        out["agent_class"] = torch.nn.functional.one_hot(torch.from_numpy(a["agent_class"][idx]), n_classes)
+        out["agent_class"] = out["agent_class"].float()
+        return {k: v.to(device) for k, v in out.items()}
+
+
+def imitation_loss(model: AMAT, batch: dict[str, torch.Tensor]) -> tuple[torch.Tensor, dict[str, float]]:
+    """Mean cross-entropy of the active robots' labels under teacher forcing, and its accuracy."""
+    obs = {k: batch[k] for k in ("global_map", "local_map", "agent_class")}
+    sel = batch["active"].bool()
+    logits, _ = model.score(
+        model.embed(obs), batch["label"], batch["order"], batch["agent_class"], sel, batch["action_mask"]
+    )  # (K, A)
+    target = batch["label"][sel]
+    loss = torch.nn.functional.cross_entropy(logits.float(), target)
+    with torch.no_grad():
+        acc = (logits.argmax(-1) == target).float().mean()
+    return loss, {"imitation/loss": float(loss.detach()), "imitation/accuracy": float(acc)}
+
+
+def dagger(
+    model: AMAT,
+    collector: Collector,
+    teacher: str,
+    rounds: int,
+    steps_per_round: int,
+    batch_events: int = 256,
+    lr: float = 1e-3,
+    buffer_events: int = 200_000,
+    first_episode: int = 0,
+    generator: torch.Generator | None = None,
+    seed: int = 0,
+    max_grad_norm: float = 10.0,
+    on_round=None,
+) -> tuple[int, list[dict[str, float]]]:
+    """Train ``model`` by DAgger against the window-projected ``teacher`` planner; returns (episodes
+    used, one log row per round). ``on_round(row)`` is called after each round (logging, progress)."""
+    if rounds < 1 or steps_per_round < 1 or batch_events < 1:
+        raise ValueError("dagger: rounds, steps_per_round and batch_events must be >= 1")
+    gen = generator if generator is not None else torch.Generator().manual_seed(seed)
+    rng = np.random.default_rng(seed)
+    label_teacher = make_window_planner(teacher, seed=seed)
+    buffer = DemoBuffer(buffer_events)
+    device = next(model.parameters()).device
+    n_classes = model.config.n_classes
+    opt = torch.optim.Adam(model.parameters(), lr=lr, eps=1e-5)
+    episodes = first_episode
+    log = []
+    for r in range(rounds):
+        t0 = time.perf_counter()
+        beta = 0.5**r
+        rollout = collector.collect(model, episodes, gen, labeler=label_teacher, teacher_prob=beta)
+        episodes += collector.engine.num_worlds
+        buffer.add(rollout)
+        t1 = time.perf_counter()
+        model.train()
+        sums = {"imitation/loss": 0.0, "imitation/accuracy": 0.0}
+        for _ in range(steps_per_round):
+            idx = rng.integers(0, len(buffer), size=min(batch_events, len(buffer)))
+            loss, stats = imitation_loss(model, buffer.batch(idx, n_classes, device))
+            opt.zero_grad(set_to_none=True)
+            loss.backward()
+            torch.nn.utils.clip_grad_norm_(model.parameters(), max_grad_norm)
+            opt.step()
+            for k in sums:
+                sums[k] += stats[k] / steps_per_round
+        row = {
+            "round": r + 1,
+            "episodes": episodes - first_episode,
+            "beta": beta,
+            "buffer_events": len(buffer),
+            "rollout/success_rate": rollout.stats["success_rate"],
+            "rollout/success_by_100": rollout.stats["success_by_100"],
+            **sums,
+            "time/collect_s": t1 - t0,
+            "time/update_s": time.perf_counter() - t1,
+        }
+        log.append(row)
+        if on_round is not None:
+            on_round(row)
+    return episodes - first_episode, log

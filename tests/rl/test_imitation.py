@@ -1,0 +1,97 @@
+"""Imitation warm start: labels of the window-projected planner, DAgger's mixture, the cross-entropy
+training, and the warm start inside ``train``."""
+
+import csv
+
+import numpy as np
+import torch
+
+from catmip_env import make_config
+from catmip_env.events import EventEngine
+from catmip_env.window_planner import make_window_planner
+from catmip_rl.amat import AMAT, AmatConfig
+from catmip_rl.collect import Collector
+from catmip_rl.config import make_train_config
+from catmip_rl.imitation import DemoBuffer, dagger, imitation_loss
+from catmip_rl.train import train
+
+
+def test_a_pure_teacher_rollout_replays_the_window_planner_and_is_labelled_by_it():
+    cfg = make_config("task1", activation=(2, 5), horizon_ticks=150)
+    col = Collector(cfg, 6, seed=4)
+    r = col.collect(AMAT(AmatConfig(embed_dim=32)), 0, torch.Generator().manual_seed(0),
+                    labeler=make_window_planner("nearest", seed=0), teacher_prob=1.0)  # fmt: skip
+    act = r.active & r.valid[..., None]
+    assert np.array_equal(r.action[act], r.label[act])  # every active robot executed its label
+    eng = EventEngine(cfg, 6, seed=4)
+    teacher = make_window_planner("nearest", seed=0)
+    eng.reset(episode_indices=np.arange(6))
+    while not eng.state.done.all():
+        eng.step(teacher.act(eng))
+    assert np.array_equal(eng.state.rescue_tick, col.engine.state.rescue_tick)
+    assert (eng.state.rescue_tick >= 0).mean() >= 0.8
+
+
+def test_without_the_teacher_the_policy_acts_and_is_still_labelled():
+    cfg = make_config("task1", activation=(2, 5), horizon_ticks=60)
+    col = Collector(cfg, 4, seed=0)
+    r = col.collect(AMAT(AmatConfig(embed_dim=32)), 0, torch.Generator().manual_seed(0),
+                    labeler=make_window_planner("nearest", seed=0), teacher_prob=0.0)  # fmt: skip
+    act = r.active & r.valid[..., None]
+    assert r.label is not None and (r.action[act] != r.label[act]).any()
+    allowed = np.take_along_axis(r.action_mask, r.label[..., None], -1)[..., 0]
+    assert allowed[act].all()  # labels are valid window actions
+
+
+def test_buffer_keeps_the_newest_events():
+    cfg = make_config("task1", horizon_ticks=40)
+    col = Collector(cfg, 2, seed=0)
+    model = AMAT(AmatConfig(embed_dim=32))
+    labeler = make_window_planner("nearest")
+    buf = DemoBuffer(max_events=50)
+    r1 = col.collect(model, 0, labeler=labeler)
+    buf.add(r1)
+    n1 = int(r1.valid.sum())
+    r2 = col.collect(model, 2, labeler=labeler)
+    buf.add(r2)
+    assert len(buf) == min(50, n1 + int(r2.valid.sum()))
+    assert np.array_equal(buf.arrays["global_map"][-1], r2.global_map[r2.valid][-1])
+
+
+def test_dagger_fits_the_teacher():
+    cfg = make_config("task1", activation=(2, 5), horizon_ticks=100)
+    col = Collector(cfg, 8, seed=0)
+    torch.manual_seed(0)
+    model = AMAT(AmatConfig(embed_dim=32))
+    episodes, log = dagger(model, col, "nearest", rounds=3, steps_per_round=40, batch_events=64, seed=0)
+    assert episodes == 24 and [row["round"] for row in log] == [1, 2, 3]
+    assert [row["beta"] for row in log] == [1.0, 0.5, 0.25]
+    assert log[-1]["imitation/accuracy"] > log[0]["imitation/accuracy"] + 0.15
+    assert log[-1]["imitation/loss"] < log[0]["imitation/loss"]
+    # on fresh labelled events the trained model agrees with the teacher far more than chance
+    r = Collector(cfg, 4, seed=9).collect(
+        model, 0, labeler=make_window_planner("nearest"), deterministic=True
+    )
+    buf = DemoBuffer(10_000)
+    buf.add(r)
+    with torch.no_grad():
+        _, stats = imitation_loss(model, buf.batch(np.arange(len(buf)), 2, torch.device("cpu")))
+    act = buf.arrays["active"]
+    chance = float((1.0 / buf.arrays["action_mask"][act].sum(-1)).mean())  # uniform over valid goals
+    assert stats["imitation/accuracy"] > 4 * chance
+
+
+def test_train_warm_starts_once_then_runs_ppo(tmp_path):
+    cfg = make_train_config("tiny", warm_start="nearest", warm_start_rounds=2, warm_start_steps=3,
+                            value_warmup_iterations=1, iterations=2, eval_every=1)  # fmt: skip
+    train(cfg, tmp_path / "run", progress=False)
+    rounds = list(csv.DictReader((tmp_path / "run" / "warm_start.csv").open()))
+    assert [int(r["round"]) for r in rounds] == [1, 2] and rounds[-1]["eval/success_rate"] != ""
+    assert (tmp_path / "run" / "checkpoints" / "iter_000000.pt").exists()
+    saved = torch.load(tmp_path / "run" / "checkpoints" / "latest.pt", weights_only=False)
+    assert saved["iteration"] == 2 and saved["episodes"] == 4 * cfg.num_worlds
+    rows = list(csv.DictReader((tmp_path / "run" / "metrics.csv").open()))
+    assert float(rows[0]["time/elapsed_min"]) > float(rounds[-1]["time/elapsed_min"])
+    # resuming does not imitate again
+    train(cfg.replace(iterations=3), tmp_path / "run", resume=True, progress=False)
+    assert len(list(csv.DictReader((tmp_path / "run" / "warm_start.csv").open()))) == 2

@@ -1,0 +1,92 @@
+"""PPO step control (target-KL stop, LR schedule over iterations or a time budget), the value-only
+warm-up, and the per-epoch log."""
+
+import pytest
+import torch
+
+from catmip_rl.amat import AmatConfig
+from catmip_rl.config import make_train_config
+from catmip_rl.train import lr_factor, make_optimizer, ppo_update
+from tests.rl.helpers import shaken_model
+from tests.rl.test_sparse_conv import _batch
+
+
+def _params(model, value_head: bool):
+    return torch.cat([p.detach().flatten().clone() for n, p in model.named_parameters()
+                      if n.startswith("value_head.") == value_head])  # fmt: skip
+
+
+def _on_policy(batch, model):
+    """The batch with the model's own log-probs of the stored actions: KL 0 before the first step."""
+    obs = {"global_map": batch.global_map, "local_map": batch.local_map, "agent_class": batch.agent_class}
+    sel = batch.trainable
+    with torch.no_grad():
+        logits, _ = model.score(model.embed(obs), batch.action, batch.order, batch.agent_class, sel,
+                                batch.action_mask)  # fmt: skip
+        logp = torch.log_softmax(logits, -1).gather(-1, batch.action[sel][:, None])[:, 0]
+    log_prob = batch.log_prob.clone()
+    log_prob[sel] = logp
+    return type(batch)(**(batch.__dict__ | {"log_prob": log_prob}))
+
+
+def _update(cfg, **kwargs):
+    model = shaken_model(cfg.amat_config()).train()
+    batch = _on_policy(_batch(worlds=3), model)
+    opt = make_optimizer(model, cfg)
+    before = (_params(model, False), _params(model, True))
+    log: list[dict] = []
+    stats = ppo_update(model, opt, batch, cfg, torch.Generator().manual_seed(0), epoch_log=log, **kwargs)
+    return stats, log, before, (_params(model, False), _params(model, True))
+
+
+def test_without_a_target_every_epoch_runs_and_is_logged():
+    cfg = make_train_config("paper", amat={"embed_dim": 32}, epochs=3, minibatches=2, lr=1e-3)
+    stats, log, _, _ = _update(cfg)
+    assert stats["ppo/epochs"] == 3 and stats["ppo/early_stop"] == 0
+    assert [e["epoch"] for e in log] == [1, 2, 3]
+    assert log[0]["ppo/approx_kl"] < log[-1]["ppo/approx_kl"]  # the policy moves away from the old one
+    assert stats["ppo/approx_kl"] > 0
+    assert all({"loss/policy", "ppo/clip_fraction"} <= set(e) for e in log)
+
+
+def test_a_target_kl_stops_the_epochs_before_the_step_that_would_exceed_it():
+    cfg = make_train_config("paper", amat={"embed_dim": 32}, epochs=5, minibatches=2, lr=1e-3)
+    full, full_log, _, _ = _update(cfg)
+    # the first minibatch is the collecting policy itself (KL 0): it always steps
+    target = full_log[1]["ppo/approx_kl"] / 2
+    stats, log, _, _ = _update(cfg.replace(target_kl=target))
+    assert stats["ppo/early_stop"] == 1 and stats["ppo/approx_kl"] > target
+    assert 0 < stats["ppo/epochs"] < 5
+    assert len(log) < 5
+    tiny, _, before, after = _update(cfg.replace(target_kl=1e-12))
+    assert tiny["ppo/epochs"] == 0.5  # one minibatch of the first epoch stepped, the second stopped
+    assert not torch.equal(before[0], after[0])
+
+
+def test_value_only_updates_leave_the_policy_as_it_is():
+    cfg = make_train_config("paper", amat={"embed_dim": 32}, epochs=2, minibatches=2, lr=1e-3)
+    _, _, before, after = _update(cfg, value_only=True)
+    assert torch.equal(before[0], after[0])  # embedder, encoder, decoder, policy head untouched
+    assert not torch.equal(before[1], after[1])  # the value head learns
+
+
+def test_lr_decays_over_the_iterations_or_the_time_budget_whichever_ends_first():
+    cfg = make_train_config("tiny", iterations=100)
+    assert lr_factor(1, cfg, 1e6) == 1.0 and lr_factor(51, cfg, 0.0) == pytest.approx(0.5)
+    assert lr_factor(101, cfg, 0.0) == 0.0
+    timed = cfg.replace(budget_minutes=10.0)
+    assert lr_factor(1, timed, 150.0) == pytest.approx(0.75)  # 2.5 of 10 minutes
+    assert lr_factor(91, timed, 60.0) == pytest.approx(0.1)  # the iterations run out first
+    assert lr_factor(2, timed, 900.0) == 0.0
+
+
+def test_bad_step_control_values_are_refused():
+    with pytest.raises(ValueError, match="target_kl"):
+        make_train_config("tiny", target_kl=-1.0)
+    with pytest.raises(ValueError, match="budget_minutes"):
+        make_train_config("tiny", budget_minutes="ten")
+    with pytest.raises(ValueError, match="warm_start"):
+        make_train_config("tiny", warm_start="dijkstra")
+    with pytest.raises(ValueError, match="value_warmup_iterations"):
+        make_train_config("tiny", value_warmup_iterations=-2)
+    assert AmatConfig(embed_dim=32).embed_dim == 32
