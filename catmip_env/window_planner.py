@@ -36,6 +36,7 @@ from catmip_env.types import OCCUPIED
 
 __all__ = ["WindowPlanner", "make_window_planner", "project_goal"]
 
+
 @njit(cache=True)
 def project_goal(
     belief: np.ndarray,  # (H, W) uint8 the robot's belief bits

@@ -110,28 +110,32 @@ def comm_sigma(comm: str | float | None) -> float | None:
 @dataclass(frozen=True)
 class Method:
     """``name`` as written on plots; ``kind`` "planner", "window" (a planner projected into the goal
-    window) or "amat"; ``target`` the planner's name or the AMAT checkpoint path."""
+    window) or "amat"; ``target`` the planner's name or the AMAT checkpoint path; ``loop_guard`` (AMAT)
+    executes argmax with the loop guard of :class:`AmatExecutor`."""
 
     name: str
     kind: str
     target: str
+    loop_guard: bool = False
 
 
 def parse_method(spec: str) -> Method:
     """``nearest`` | ``utility`` | ``rrt`` | ``apf`` | ``random-frontier`` | ``random`` |
     ``window:PLANNER`` (the planner's goals projected into the 7x7 window, the imitation teacher) |
-    ``amat:PATH`` | ``NAME=...`` (PATH: a model file, a training checkpoint or a run dir)."""
+    ``amat:PATH`` | ``amat-guard:PATH`` (argmax with the loop guard) | ``NAME=...`` (PATH: a model
+    file, a training checkpoint or a run dir)."""
     spec = spec.strip()
     name = None
     if "=" in spec:
         name, spec = (s.strip() for s in spec.split("=", 1))
-    if spec.startswith("amat:"):
-        path = spec[len("amat:") :]
-        if not path:
-            raise ValueError("amat method needs a checkpoint: amat:PATH")
-        if not Path(path).exists():
-            raise FileNotFoundError(f"AMAT checkpoint {path!r} does not exist")
-        return Method(name or "amat", "amat", path)
+    for prefix, guard in (("amat:", False), ("amat-guard:", True)):
+        if spec.startswith(prefix):
+            path = spec[len(prefix) :]
+            if not path:
+                raise ValueError(f"amat method needs a checkpoint: {prefix}PATH")
+            if not Path(path).exists():
+                raise FileNotFoundError(f"AMAT checkpoint {path!r} does not exist")
+            return Method(name or prefix[:-1], "amat", path, loop_guard=guard)
     if spec.startswith("window:"):
         planner = spec[len("window:") :]
         if planner not in PLANNERS:
@@ -153,16 +157,44 @@ class AmatExecutor:
     centralised one exactly.
     """
 
-    def __init__(self, model: AMAT, deterministic: bool = True, generator: torch.Generator | None = None):
+    def __init__(
+        self,
+        model: AMAT,
+        deterministic: bool = True,
+        generator: torch.Generator | None = None,
+        loop_guard: bool = False,
+    ):
         self.model = model.eval()
         self.deterministic = deterministic
         self.generator = generator
+        self.loop_guard = loop_guard
         self.messages = self.bytes_embedding = self.bytes_raw = None
+        self._last_action = self._last_pose = None
 
-    def reset_counters(self, num_worlds: int) -> None:
+    def reset_counters(self, num_worlds: int, num_robots: int = 0) -> None:
+        """Zero the message counters (and the loop guard's memory) for a new batch of episodes."""
         self.messages = np.zeros(num_worlds, np.int64)
         self.bytes_embedding = np.zeros(num_worlds, np.int64)
         self.bytes_raw = np.zeros(num_worlds, np.int64)
+        self._last_action = np.full((num_worlds, num_robots), -1, np.int64)
+        self._last_pose = np.zeros((num_worlds, num_robots, 3), np.int64)
+
+    def _guarded_masks(self, engine: EventEngine, active: np.ndarray) -> np.ndarray:
+        """The loop guard: a robot whose last macro-action left it where it was (same cell, same
+        heading) may not choose that goal again, unless it is its only valid one. Under evaluation
+        activation (0, 0) an argmax policy that stalls would otherwise decide again at once on an almost
+        unchanged observation and repeat itself until something else moves."""
+        st = engine.state
+        pose = np.concatenate([st.pos, st.heading[..., None].astype(st.pos.dtype)], -1)
+        masks = engine.masks
+        stalled = active & (self._last_action >= 0) & (pose == self._last_pose).all(-1)
+        if stalled.any():
+            masks = masks.copy()
+            for b, i in zip(*np.nonzero(stalled)):
+                if masks[b, i].sum() > 1:
+                    masks[b, i, self._last_action[b, i]] = 0
+        self._last_pose[active] = pose[active]
+        return masks
 
     @torch.no_grad()
     def act(self, engine: EventEngine) -> np.ndarray:
@@ -172,12 +204,13 @@ class AmatExecutor:
                 f"AMAT with window {self.model.config.window} needs an EventEngine in window mode with "
                 f"window {self.model.config.window}, got {engine.goal_mode!r} / {engine.cfg.window}"
             )
-        if self.messages is None or self.messages.shape[0] != engine.num_worlds:
-            self.reset_counters(engine.num_worlds)
+        if self.messages is None or self._last_action.shape != (engine.num_worlds, engine.num_robots):
+            self.reset_counters(engine.num_worlds, engine.num_robots)
         st = engine.state
         n = engine.num_robots
-        actions = engine.masks.argmax(-1).astype(np.int64)
         active = engine.active & ~st.done[:, None]
+        masks = self._guarded_masks(engine, active) if self.loop_guard else engine.masks
+        actions = masks.argmax(-1).astype(np.int64)
         if not active.any():
             return actions
         # one row per neighbourhood (= component label, its lowest id) with an active member
@@ -209,7 +242,7 @@ class AmatExecutor:
         act_rows[row_idx, pos] = torch.from_numpy(active[world, robot])
         mask_rows = torch.zeros(r, n, engine.num_actions, dtype=torch.bool)
         mask_rows[:, :, engine.stay_action] = True  # padding slots: any single valid entry
-        mask_rows[row_idx, pos] = torch.from_numpy(engine.masks[world, robot].astype(np.bool_))
+        mask_rows[row_idx, pos] = torch.from_numpy(masks[world, robot].astype(np.bool_))
         cls_rows = torch.zeros(r, n, c)
         cls_rows[row_idx, pos] = cls
         rep, _ = self.model.encode(tok, key_padding_mask=padding)
@@ -221,6 +254,7 @@ class AmatExecutor:
         chosen = a[row_idx, pos].numpy()
         is_active = act_rows[row_idx, pos].numpy()
         actions[world[is_active], robot[is_active]] = chosen[is_active]
+        self._last_action[active] = actions[active]
         self._count(engine, b_of_row, member, active)
         return actions
 
@@ -242,7 +276,7 @@ def make_policy(method: Method, seed: int, model: AMAT | None = None):
     if method.kind == "window":
         return make_window_planner(method.target, seed=seed), "window", None
     model = model if model is not None else load_model(method.target)
-    return AmatExecutor(model), "window", model.config.window
+    return AmatExecutor(model, loop_guard=method.loop_guard), "window", model.config.window
 
 
 # -- results ------------------------------------------------------------------------------------
@@ -321,7 +355,7 @@ def evaluate(
     sampled = None
     if isinstance(policy, AmatExecutor) and sampled_too:  # the same maps with sampled actions
         gen = torch.Generator().manual_seed(seed)
-        sampled = _play(AmatExecutor(policy.model, deterministic=False, generator=gen), cfg, goal_mode,
+        sampled = _play(AmatExecutor(policy.model, False, gen, policy.loop_guard), cfg, goal_mode,
                         episodes, seed, bar, None)[0].state.rescue_tick.copy()  # fmt: skip
     if bar is not None:
         bar.close()
@@ -388,7 +422,7 @@ def _play(policy, cfg: EnvConfig, goal_mode: str, episodes: int, seed: int, bar,
     eng.reset(episode_indices=np.arange(episodes))
     maps = [map_hash(eng, e) for e in range(episodes)]
     if isinstance(policy, AmatExecutor):
-        policy.reset_counters(episodes)
+        policy.reset_counters(episodes, eng.num_robots)
     tracker = DecisionTracker(episodes, eng.num_robots)
     tracker.reset(eng)
     events = np.zeros(episodes, np.int64)

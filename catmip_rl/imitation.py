@@ -85,10 +85,13 @@ def dagger(
     generator: torch.Generator | None = None,
     seed: int = 0,
     max_grad_norm: float = 10.0,
+    deterministic: bool = False,
     on_round=None,
 ) -> tuple[int, list[dict[str, float]]]:
     """Train ``model`` by DAgger against the window-projected ``teacher`` planner; returns (episodes
-    used, one log row per round). ``on_round(row)`` is called after each round (logging, progress)."""
+    used, one log row per round). The policy's own actions in the rollouts are argmax with
+    ``deterministic`` (as it will be evaluated), else sampled. ``on_round(row)`` is called after each
+    round (logging, progress)."""
     if rounds < 1 or steps_per_round < 1 or batch_events < 1:
         raise ValueError("dagger: rounds, steps_per_round and batch_events must be >= 1")
     gen = generator if generator is not None else torch.Generator().manual_seed(seed)
@@ -103,7 +106,9 @@ def dagger(
     for r in range(rounds):
         t0 = time.perf_counter()
         beta = 0.5**r
-        rollout = collector.collect(model, episodes, gen, labeler=label_teacher, teacher_prob=beta)
+        rollout = collector.collect(
+            model, episodes, gen, deterministic=deterministic, labeler=label_teacher, teacher_prob=beta
+        )
         episodes += collector.engine.num_worlds
         buffer.add(rollout)
         t1 = time.perf_counter()

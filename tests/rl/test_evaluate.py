@@ -254,3 +254,19 @@ def test_sampled_actions_and_stalls_are_reported_beside_argmax(ckpt):
     planner = evaluate("window:nearest", EvalSetting("task1"), episodes=6, seed=3)
     assert planner.sampled_curve is None and "sampled_success_rate" not in planner.summary
     assert planner.summary["success_rate"] >= 5 / 6
+
+
+def test_the_loop_guard_breaks_argmax_loops_of_a_policy_that_always_stays(tmp_path):
+    model = AMAT(AmatConfig(embed_dim=32))
+    with torch.no_grad():
+        model.policy_head[-1].bias[model.config.num_actions // 2] = 50.0  # argmax: always "stay"
+    path = save_model(model, tmp_path / "stay.pt")
+    setting = EvalSetting("task1")
+    plain = evaluate(f"amat:{path}", setting, episodes=4, seed=0, sampled_too=False).summary
+    guarded = evaluate(f"amat-guard:{path}", setting, episodes=4, seed=0, sampled_too=False).summary
+    assert plain["stall_fraction_rescuer"] > 0.95 and plain["success_rate"] == 0.0
+    # a stalled robot may not repeat its goal: at most every other macro-action stalls
+    for cls in ("rescuer", "explorer"):
+        assert guarded[f"stall_fraction_{cls}"] <= 0.55
+    assert guarded["mean_explored_fraction"] > plain["mean_explored_fraction"]
+    assert parse_method(f"amat-guard:{path}").loop_guard and not parse_method(f"amat:{path}").loop_guard
