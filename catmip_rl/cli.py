@@ -35,7 +35,8 @@ def _train(args: argparse.Namespace) -> int:
     overrides = parse_set(args.set)
     for name in ("iterations", "num_worlds", "epochs", "minibatches", "micro_batch", "seed", "device",
                  "threads", "update_processes", "eval_every", "eval_episodes", "checkpoint_every", "lr",
-                 "collector", "ray_workers", "ray_address", "warm_start", "target_kl"):  # fmt: skip
+                 "collector", "ray_workers", "ray_address", "warm_start", "target_kl",
+                 "precision"):  # fmt: skip
         value = getattr(args, name)
         if value is not None:
             overrides[name] = value
@@ -181,6 +182,9 @@ def main(argv: list[str] | None = None) -> int:
         help="DAgger warm start from a planner's goals projected into the window: nearest, rrt, ...",
     )  # fmt: skip
     tr.add_argument("--target-kl", type=float, help="stop an iteration's PPO epochs past this approx-KL")
+    tr.add_argument(
+        "--precision", choices=["fp32", "bf16", "auto"], help="PPO update precision (auto: bf16 where native)"
+    )
     tr.add_argument("--minutes", type=float, help="wall-clock budget: stop after it, decaying the LR over it")
     tr.add_argument("--eval-every", type=int)
     tr.add_argument("--eval-episodes", type=int)

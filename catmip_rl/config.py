@@ -58,6 +58,9 @@ class TrainConfig:
     device: str = "cpu"
     threads: int = 2
     """torch CPU threads."""
+    precision: str = "fp32"
+    """PPO update precision: "fp32", "bf16" (bfloat16 autocast) or "auto" (bf16 where the CPU has it
+    natively, catmip_rl.precision; else fp32)."""
     update_processes: int = 1
     """Processes computing the PPO update's gradients (CPU): 1 = this one, on ``threads`` threads; n > 1 =
     this one and n - 1 helpers, one thread each, sharing every minibatch's micro-batches (data parallel,
@@ -128,6 +131,9 @@ class TrainConfig:
                 f"update_processes = {self.update_processes} computes gradients in CPU processes; with "
                 f"device {self.device!r} set update_processes = 1"
             )
+        from catmip_rl.precision import use_bf16
+
+        use_bf16(self.precision, self.device)  # validates
         if self.collector not in ("local", "ray"):
             raise ValueError(f"TrainConfig.collector must be 'local' or 'ray', got {self.collector!r}")
         if not isinstance(self.ray_workers, int) or self.ray_workers < 1:
@@ -212,13 +218,14 @@ TRAIN_PRESETS: dict[str, TrainConfig] = {
         checkpoint_every=20,
     ),
     # task1 after an imitation warm start: DAgger against the window-projected Nearest planner, then
-    # PPO with a value warm-up (the shipped amat_task1.pt and the README demo)
+    # PPO with a value warm-up (the shipped amat_task1.pt and the README demo); iterations stop early
+    # on the KL target, ~1.6 s each on one thread
     "task1-warm": TrainConfig(
         env_preset="task1",
         env_overrides={"activation": [2, 5]},
         amat={"embed_dim": 64},
         num_worlds=64,
-        iterations=600,
+        iterations=2000,
         epochs=6,
         minibatches=4,
         lr=3e-4,
@@ -232,6 +239,25 @@ TRAIN_PRESETS: dict[str, TrainConfig] = {
         eval_episodes=64,
         eval_seed=2025,
         checkpoint_every=20,
+    ),
+    # the paper's training world and AMAT (Table 2, d = 192) with the Task-1 findings: an imitation
+    # warm start, then PPO under step control (docs/training.md); the shipped amat_paper.pt
+    "paper-warm": TrainConfig(
+        num_worlds=64,
+        iterations=3000,
+        epochs=6,
+        minibatches=4,
+        lr=2e-4,
+        clip=0.1,
+        target_kl=0.01,
+        warm_start="nearest",
+        warm_start_rounds=12,
+        warm_start_steps=300,
+        value_warmup_iterations=5,
+        eval_every=25,
+        eval_episodes=64,
+        eval_seed=2025,
+        checkpoint_every=10,
     ),
     # a minute-scale smoke run: a small map, two robots, a small AMAT
     "tiny": TrainConfig(

@@ -79,7 +79,8 @@ def _run_one(args: tuple[Method, EvalSetting, int, int, str, int]) -> dict[str, 
     torch.set_num_threads(threads)
     result = evaluate(method, setting, episodes=episodes, seed=seed)
     result.write(out)
-    return {"out": out, "summary": result.summary, "curve": result.curve.tolist()}
+    sampled = None if result.sampled_curve is None else result.sampled_curve.tolist()
+    return {"out": out, "summary": result.summary, "curve": result.curve.tolist(), "sampled_curve": sampled}
 
 
 def run_figure(
@@ -111,6 +112,20 @@ def run_figure(
         row = {"figure": figure, "panel": panel, "method": method.name}
         summary_rows.append(row | {k: res["summary"][k] for k in SUMMARY_KEYS})
         runs.append((panel, method.name, res["out"]))
+        if res.get("sampled_curve") is not None:  # AMAT: the same maps with sampled actions
+            name = f"{method.name} (sampled)"
+            for t, v in enumerate(res["sampled_curve"]):
+                curve_rows.append(
+                    {"figure": figure, "panel": panel, "method": name, "tick": t, "success_rate": v}
+                )
+            s = res["summary"]
+            sampled = {k: None for k in SUMMARY_KEYS} | {
+                "episodes": s["episodes"],
+                "success_rate": s["sampled_success_rate"],
+                "success_by_100": s["sampled_success_by_100"],
+                "mean_rescue_tick": s["sampled_mean_rescue_tick"],
+            }
+            summary_rows.append({"figure": figure, "panel": panel, "method": name} | sampled)
     fig_dir.mkdir(parents=True, exist_ok=True)
     atomic_write_csv(fig_dir / "curves.csv", curve_rows)
     atomic_write_csv(fig_dir / "summary.csv", summary_rows)

@@ -95,7 +95,8 @@ class ParallelGradients:
     processes : int
         Processes computing gradients, this one included (>= 2).
     **loss_kwargs
-        ``ppo_loss`` keyword arguments (clip, value_clip, huber_delta, entropy_coef, value_coef).
+        ``accumulate_gradients`` keyword arguments (clip, value_clip, huber_delta, entropy_coef,
+        value_coef, bf16).
     """
 
     def __init__(self, model: AMAT, processes: int, **loss_kwargs: Any) -> None:

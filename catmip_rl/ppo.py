@@ -126,14 +126,17 @@ def ppo_loss(
 
 
 def accumulate_gradients(
-    model: AMAT, batch: SampleBatch, parts, count: torch.Tensor | float, **loss_kwargs
+    model: AMAT, batch: SampleBatch, parts, count: torch.Tensor | float, bf16: bool = False, **loss_kwargs
 ) -> dict[str, float]:
     """Backward of ``ppo_loss`` over the micro-batches ``parts`` (index tensors into ``batch``), each
     averaged with the minibatch's ``count``, into the model's .grad (added to what is there); returns
-    the loss parts summed over the micro-batches."""
+    the loss parts summed over the micro-batches. ``bf16`` runs the forward under bfloat16 autocast
+    (``catmip_rl.precision``)."""
     sums: dict[str, float] = {}
+    device = batch.action.device.type
     for part in parts:
-        loss, stats = ppo_loss(model, batch.index(part), **loss_kwargs, count=count)
+        with torch.autocast(device, dtype=torch.bfloat16, enabled=bf16):
+            loss, stats = ppo_loss(model, batch.index(part), **loss_kwargs, count=count)
         loss.backward()
         for k, v in stats.items():
             sums[k] = sums.get(k, 0.0) + float(v)

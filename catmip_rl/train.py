@@ -31,6 +31,7 @@ from catmip_rl.gae import async_gae
 from catmip_rl.heap import keep_freed_memory
 from catmip_rl.parallel_update import ParallelGradients
 from catmip_rl.ppo import SampleBatch, ValueNorm, accumulate_gradients
+from catmip_rl.precision import use_bf16
 
 __all__ = [
     "train",
@@ -52,6 +53,7 @@ METRICS = [
     "rollout/stall_fraction_explorer",
     "loss/policy", "loss/value", "loss/entropy",
     "ppo/approx_kl", "ppo/clip_fraction", "ppo/grad_norm", "ppo/lr", "ppo/epochs", "ppo/early_stop",
+    "ppo/bf16",
     "eval/success_rate", "eval/success_by_100", "eval/rescue_tick", "eval/target_found_tick",
     "eval/explored_fraction", "eval/decisions_per_episode", "eval/stalls_per_episode",
     "eval/stall_fraction_rescuer", "eval/stall_fraction_explorer",
@@ -118,10 +120,12 @@ def make_optimizer(model: AMAT, cfg: TrainConfig) -> torch.optim.Adam:
 
 
 def loss_kwargs(cfg: TrainConfig) -> dict[str, float]:
-    """The config's ``ppo_loss`` coefficients."""
+    """The config's ``accumulate_gradients`` arguments: ``ppo_loss`` coefficients and bf16 autocast
+    (``cfg.precision`` resolved on this machine)."""
     return {
         "clip": cfg.clip, "value_clip": cfg.value_clip, "huber_delta": cfg.huber_delta,
         "entropy_coef": cfg.entropy_coef, "value_coef": cfg.value_coef,
+        "bf16": use_bf16(cfg.precision, cfg.device),
     }  # fmt: skip
 
 
@@ -356,6 +360,7 @@ def train(cfg: TrainConfig, run_dir: str | Path, resume: bool = False, progress:
             value_only = it <= cfg.value_warmup_iterations
             stats = ppo_update(model, opt, batch, cfg, gen, parallel, epochs, value_only=value_only)
             stats["ppo/lr"] = opt.param_groups[0]["lr"]
+            stats["ppo/bf16"] = float(use_bf16(cfg.precision, cfg.device))
             t3 = time.perf_counter()
             elapsed += t3 - t0
             row = {"iteration": it, "episodes": episodes, "samples": info["samples"], **stats}

@@ -90,3 +90,23 @@ def test_bad_step_control_values_are_refused():
     with pytest.raises(ValueError, match="value_warmup_iterations"):
         make_train_config("tiny", value_warmup_iterations=-2)
     assert AmatConfig(embed_dim=32).embed_dim == 32
+
+
+def test_precision_auto_follows_the_cpu_and_bf16_reaches_every_gradient(monkeypatch):
+    from catmip_rl import precision
+
+    monkeypatch.setattr(precision, "native_bf16", lambda: True)
+    assert precision.use_bf16("auto", "cpu") and not precision.use_bf16("fp32", "cpu")
+    monkeypatch.setattr(precision, "native_bf16", lambda: False)
+    assert not precision.use_bf16("auto", "cpu") and precision.use_bf16("bf16", "cpu")
+    assert not precision.use_bf16("auto", "cuda")
+    with pytest.raises(ValueError, match="precision"):
+        make_train_config("tiny", precision="fp16")
+    cfg = make_train_config("paper", amat={"embed_dim": 32}, epochs=1, minibatches=1, lr=1e-3)
+    fp32, _, before, after32 = _update(cfg)
+    bf16, _, _, after16 = _update(cfg.replace(precision="bf16"))
+    # bf16 autocast moves the same parameters by about the same amount (not bitwise: bf16 rounding)
+    step32, step16 = after32[0] - before[0], after16[0] - before[0]
+    assert torch.isfinite(step16).all() and step16.abs().sum() > 0
+    assert torch.nn.functional.cosine_similarity(step32, step16, dim=0) > 0.9
+    assert bf16["loss/value"] == pytest.approx(fp32["loss/value"], rel=0.05)
