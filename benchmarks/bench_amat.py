@@ -42,6 +42,7 @@ from catmip_rl.fast_infer import FastAmat
 from catmip_rl.heap import keep_freed_memory
 from catmip_rl.parallel_update import ParallelGradients
 from catmip_rl.ppo import SampleBatch, ppo_loss
+from catmip_rl.precision import native_bf16
 from catmip_rl.train import loss_kwargs, make_optimizer
 
 TOKEN_INPUTS = ("global_map", "local_map", "agent_class")
@@ -315,6 +316,7 @@ def main() -> None:
             "python": platform.python_version(),
             "torch": torch.__version__,
             "cpu_capability": torch.backends.cpu.get_cpu_capability(),
+            "native_bf16": native_bf16(),
         },
         "latency": bench_latency(model, args.repeats),
         "acting": bench_acting(model),

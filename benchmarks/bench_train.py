@@ -29,6 +29,7 @@ from common import write_json
 import catmip_rl.ppo as ppo_module
 import catmip_rl.train as train_module
 from catmip_rl.config import make_train_config
+from catmip_rl.precision import native_bf16
 from catmip_rl.train import train
 
 
@@ -124,6 +125,7 @@ def main() -> None:
             "python": platform.python_version(),
             "torch": torch.__version__,
             "cpu_capability": torch.backends.cpu.get_cpu_capability(),
+            "native_bf16": native_bf16(),
         },  # fmt: skip
         "runs": runs,
     }

@@ -26,6 +26,7 @@ from catmip_env.events import EventEngine
 from catmip_rl.cli import parse_set
 from catmip_rl.config import TrainConfig, make_train_config
 from catmip_rl.files import atomic_write_csv, atomic_write_text
+from catmip_rl.precision import native_bf16
 
 PLANNER_LINES = ("nearest", "rrt", "random")
 
@@ -72,7 +73,8 @@ def plot(runs: list[Path], out: Path) -> None:
     rows = [row for run in runs for row in curve_rows(run)]
     out.parent.mkdir(parents=True, exist_ok=True)
     atomic_write_csv(out.with_suffix(".csv"), rows)
-    meta = {"cpu_capability": torch.backends.cpu.get_cpu_capability(), "eval_episodes": cfg.eval_episodes,
+    meta = {"cpu_capability": torch.backends.cpu.get_cpu_capability(), "native_bf16": native_bf16(),
+            "eval_episodes": cfg.eval_episodes,
             "eval_seed": cfg.eval_seed, "planners": {k: {"success_rate": v[0], "success_by_100": v[1]}
                                                        for k, v in lines.items()},
             "runs": {run.name: json.loads((run / "config.json").read_text()) for run in runs}}  # fmt: skip

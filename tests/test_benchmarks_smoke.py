@@ -118,3 +118,23 @@ def test_run_all_quick_scaling(tmp_path):
     for png in ("scaling.png", "summary.png"):
         assert (tmp_path / png).stat().st_size > 10_000
     assert not list(tmp_path.glob("*.tmp*"))  # atomic writes leave no temporaries
+
+
+def test_learning_curve_trains_on_a_budget_and_plots(tmp_path):
+    """A few seconds of the tiny preset with a warm start, then the plot of its evaluations."""
+    run = tmp_path / "tiny-warm"
+    script = str(BENCH / "learning_curve.py")
+    env = {"PYTHONPATH": str(ROOT), "PATH": "/usr/bin:/bin"}
+    train = [sys.executable, script, "--preset", "tiny", "--minutes", "0.05", "--threads", "1",
+             "--set", "warm_start=nearest", "--set", "warm_start_rounds=1", "--set", "warm_start_steps=2",
+             "--run-dir", str(run)]  # fmt: skip
+    subprocess.run(train, check=True, env=env, cwd=tmp_path, capture_output=True)
+    out = tmp_path / "curve"
+    subprocess.run([sys.executable, script, "--plot", str(run), "--out", str(out)], check=True, env=env,
+                   cwd=tmp_path, capture_output=True)  # fmt: skip
+    rows = (out.with_suffix(".csv")).read_text().splitlines()
+    assert rows[0].startswith("run,phase,step,minutes,success_rate,success_by_100")
+    assert any(",warm start," in r for r in rows) and any(",ppo," in r for r in rows)
+    meta = json.loads(out.with_suffix(".json").read_text())
+    assert {"nearest", "rrt", "random"} <= set(meta["planners"]) and meta["cpu_capability"]
+    assert out.with_suffix(".png").stat().st_size > 10_000
