@@ -179,6 +179,26 @@ class TrainConfig:
         return cls().replace(**json.loads(text))
 
 
+# the Task-1 world (15x15, rescuer + explorer) with training activation (2, 5), d = 64; step control:
+# at most 6 epochs x 4 minibatches, stopped once a minibatch's approx-KL exceeds 0.01 (docs/training.md,
+# "Step control"); about 9 iterations a minute on 2 cores
+_TASK1 = TrainConfig(
+    env_preset="task1",
+    env_overrides={"activation": [2, 5]},
+    amat={"embed_dim": 64},
+    num_worlds=64,
+    iterations=600,
+    epochs=6,
+    minibatches=4,
+    lr=3e-4,
+    clip=0.1,
+    target_kl=0.01,
+    eval_every=10,
+    eval_episodes=64,
+    eval_seed=2025,
+    checkpoint_every=20,
+)
+
 TRAIN_PRESETS: dict[str, TrainConfig] = {
     # the paper's recipe; on CPU the update's gradients come from two single-threaded processes
     "paper": TrainConfig(update_processes=2),
@@ -198,48 +218,17 @@ TRAIN_PRESETS: dict[str, TrainConfig] = {
         eval_every=20,
         checkpoint_every=20,
     ),
-    # the Task-1 world (15x15, rescuer + explorer) with training activation (2, 5), d = 64; step
-    # control: at most 6 epochs x 4 minibatches, stopped once a minibatch's approx-KL exceeds 0.01
-    # (docs/training.md, "Step control"); about 9 iterations a minute on 2 cores
-    "task1": TrainConfig(
-        env_preset="task1",
-        env_overrides={"activation": [2, 5]},
-        amat={"embed_dim": 64},
-        num_worlds=64,
-        iterations=600,
-        epochs=6,
-        minibatches=4,
-        lr=3e-4,
-        clip=0.1,
-        target_kl=0.01,
-        eval_every=10,
-        eval_episodes=64,
-        eval_seed=2025,
-        checkpoint_every=20,
-    ),
+    "task1": _TASK1,
     # task1 after an imitation warm start: DAgger against the window-projected Nearest planner, then
     # PPO with a value warm-up (the shipped amat_task1.pt and the README demo); iterations stop early
     # on the KL target, ~1.6 s each on one thread
-    "task1-warm": TrainConfig(
-        env_preset="task1",
-        env_overrides={"activation": [2, 5]},
-        amat={"embed_dim": 64},
-        num_worlds=64,
+    "task1-warm": _TASK1.replace(
         iterations=2000,
-        epochs=6,
-        minibatches=4,
-        lr=3e-4,
-        clip=0.1,
-        target_kl=0.01,
         warm_start="nearest",
         warm_start_rounds=12,
         warm_start_steps=300,
         value_warmup_iterations=5,
-        eval_every=10,
-        eval_episodes=64,
-        eval_seed=2025,
-        checkpoint_every=20,
-    ),
+    ),  # fmt: skip
     # the paper's training world and AMAT (Table 2, d = 192) with the Task-1 findings: an imitation
     # warm start, then PPO under step control (docs/training.md); the shipped amat_paper.pt
     "paper-warm": TrainConfig(
