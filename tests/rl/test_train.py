@@ -66,3 +66,15 @@ def test_errors(tmp_path):
         train(cfg, tmp_path / "empty", resume=True, progress=False)
     assert cli(["train", "--preset", "tiny", "--run-dir", str(tmp_path / "x"), "--set", "gamma=2"]) == 2
     assert json.loads(cfg.to_json())["iterations"] == 1
+
+
+def test_a_time_budget_stops_the_run_and_checkpoints_its_last_iteration(tmp_path):
+    cfg = make_train_config("tiny", iterations=50, eval_every=0, checkpoint_every=20, budget_minutes=1e-4)
+    train(cfg, tmp_path / "run", progress=False)
+    rows = list(csv.DictReader((tmp_path / "run" / "metrics.csv").open()))
+    assert len(rows) == 1  # 6 ms of budget: spent by the first iteration
+    assert float(rows[0]["time/elapsed_min"]) >= 1e-4 and float(rows[0]["ppo/lr"]) == cfg.lr
+    saved = torch.load(tmp_path / "run" / "checkpoints" / "latest.pt", weights_only=False)
+    assert saved["iteration"] == 1 and saved["elapsed_s"] >= 6e-3
+    epochs = list(csv.DictReader((tmp_path / "run" / "ppo_epochs.csv").open()))
+    assert [int(e["epoch"]) for e in epochs] == [1, 2]  # tiny: 2 epochs, no KL target
