@@ -15,6 +15,7 @@ statistics to ``ppo_epochs.csv``, DAgger rounds to ``warm_start.csv``) and Tenso
 from __future__ import annotations
 
 import csv
+import json
 import math
 import time
 from pathlib import Path
@@ -31,7 +32,7 @@ from catmip_rl.gae import async_gae
 from catmip_rl.heap import keep_freed_memory
 from catmip_rl.parallel_update import ParallelGradients
 from catmip_rl.ppo import SampleBatch, ValueNorm, accumulate_gradients
-from catmip_rl.precision import use_bf16
+from catmip_rl.precision import choose_bf16, use_bf16
 
 __all__ = [
     "train",
@@ -119,13 +120,13 @@ def make_optimizer(model: AMAT, cfg: TrainConfig) -> torch.optim.Adam:
     return torch.optim.Adam(model.parameters(), lr=cfg.lr, eps=cfg.adam_eps, fused=True)
 
 
-def loss_kwargs(cfg: TrainConfig) -> dict[str, float]:
+def loss_kwargs(cfg: TrainConfig, bf16: bool | None = None) -> dict[str, float]:
     """The config's ``accumulate_gradients`` arguments: ``ppo_loss`` coefficients and bf16 autocast
-    (``cfg.precision`` resolved on this machine)."""
+    (``bf16``, or ``cfg.precision`` resolved by the CPU's flags; ``train`` measures "auto")."""
     return {
         "clip": cfg.clip, "value_clip": cfg.value_clip, "huber_delta": cfg.huber_delta,
         "entropy_coef": cfg.entropy_coef, "value_coef": cfg.value_coef,
-        "bf16": use_bf16(cfg.precision, cfg.device),
+        "bf16": use_bf16(cfg.precision, cfg.device) if bf16 is None else bf16,
     }  # fmt: skip
 
 
@@ -138,6 +139,7 @@ def ppo_update(
     parallel: ParallelGradients | None = None,
     epoch_log: list[dict[str, float]] | None = None,
     value_only: bool = False,
+    bf16: bool | None = None,
 ) -> dict[str, float]:
     """Up to ``cfg.epochs`` passes over ``cfg.minibatches`` minibatches of ``batch``, one Adam step each;
     each minibatch's gradient is accumulated over micro-batches of ``cfg.micro_batch`` events, by this
@@ -147,7 +149,8 @@ def ppo_update(
     Returns the last minibatch's loss parts and gradient norm, ``ppo/epochs`` (epochs run, fractional
     when stopped inside one) and ``ppo/early_stop``; ``epoch_log`` receives one dict per epoch (its
     minibatches' mean loss parts, approx-KL and clip fraction). ``value_only`` steps the value head
-    alone (the value warm-up after an imitation warm start: the policy is left as it is)."""
+    alone (the value warm-up after an imitation warm start: the policy is left as it is). ``bf16``
+    overrides the precision the config resolves to (see :func:`loss_kwargs`)."""
     model.train()
     params = [p for p in model.parameters() if p.requires_grad]
     frozen = [p for n, p in model.named_parameters() if not n.startswith("value_head.")] if value_only else []
@@ -165,7 +168,7 @@ def ppo_update(
             opt.zero_grad(set_to_none=True)
             parts = list(idx.split(cfg.micro_batch)) if cfg.micro_batch else [idx]
             if parallel is None:
-                sums = accumulate_gradients(model, batch, parts, count, **loss_kwargs(cfg))
+                sums = accumulate_gradients(model, batch, parts, count, **loss_kwargs(cfg, bf16))
             else:
                 sums = parallel.backward(model, parts, count)
             seen += 1
@@ -313,9 +316,7 @@ def train(cfg: TrainConfig, run_dir: str | Path, resume: bool = False, progress:
         collector = RayRolloutCollector(cfg, model)
     else:
         collector = Collector(env_cfg, cfg.num_worlds, cfg.seed, cfg.gamma, str(device))
-    parallel = None
-    if cfg.update_processes > 1:  # data-parallel gradients (catmip_rl/parallel_update.py)
-        parallel = ParallelGradients(model, cfg.update_processes, **loss_kwargs(cfg))
+    parallel, bf16 = None, None  # both set at the first PPO batch (bf16 "auto" measures on it)
     csv_file, csv_writer = _open_csv(run_dir / "metrics.csv", METRICS, start if resume else None)
     epoch_file, epoch_writer = _open_csv(run_dir / "ppo_epochs.csv", EPOCH_METRICS, start if resume else None)
     tb = _tensorboard(run_dir)
@@ -356,11 +357,18 @@ def train(cfg: TrainConfig, run_dir: str | Path, resume: bool = False, progress:
             t1 = time.perf_counter()
             batch, info = build_batch(rollout, value_norm, cfg.gamma, cfg.lam, env_cfg.num_classes, device)
             t2 = time.perf_counter()
+            if bf16 is None:
+                bf16, decision = choose_bf16(
+                    cfg.precision, cfg.device, model, batch, loss_kwargs(cfg, False), cfg.micro_batch or 512
+                )
+                atomic_write_text(run_dir / "precision.json", json.dumps(decision, indent=2))
+                if cfg.update_processes > 1:  # data-parallel gradients (catmip_rl/parallel_update.py)
+                    parallel = ParallelGradients(model, cfg.update_processes, **loss_kwargs(cfg, bf16))
             epochs: list[dict[str, float]] = []
             value_only = it <= cfg.value_warmup_iterations
-            stats = ppo_update(model, opt, batch, cfg, gen, parallel, epochs, value_only=value_only)
+            stats = ppo_update(model, opt, batch, cfg, gen, parallel, epochs, value_only, bf16)
             stats["ppo/lr"] = opt.param_groups[0]["lr"]
-            stats["ppo/bf16"] = float(use_bf16(cfg.precision, cfg.device))
+            stats["ppo/bf16"] = float(bf16)
             t3 = time.perf_counter()
             elapsed += t3 - t0
             row = {"iteration": it, "episodes": episodes, "samples": info["samples"], **stats}

@@ -110,3 +110,30 @@ def test_precision_auto_follows_the_cpu_and_bf16_reaches_every_gradient(monkeypa
     assert torch.isfinite(step16).all() and step16.abs().sum() > 0
     assert torch.nn.functional.cosine_similarity(step32, step16, dim=0) > 0.9
     assert bf16["loss/value"] == pytest.approx(fp32["loss/value"], rel=0.05)
+
+
+def test_auto_precision_measures_and_takes_bf16_only_when_clearly_faster(monkeypatch, tmp_path):
+    import json
+
+    from catmip_rl import precision
+    from catmip_rl.train import loss_kwargs, train
+
+    model = shaken_model(AmatConfig(embed_dim=32)).train()
+    batch = _batch(worlds=2)
+    kw = loss_kwargs(make_train_config("tiny"), False)
+    timing = precision.measure_bf16(model, batch, kw, events=8, repeats=1)
+    assert timing["fp32_s"] > 0 and timing["bf16_s"] > 0
+    assert all(p.grad is None for p in model.parameters())
+    monkeypatch.setattr(precision, "native_bf16", lambda: True)
+    for fp32_s, bf16_s, expected in ((1.0, 0.5, True), (1.0, 0.95, False)):
+        monkeypatch.setattr(precision, "measure_bf16", lambda *a, t=(fp32_s, bf16_s), **k: dict(
+            fp32_s=t[0], bf16_s=t[1]))  # fmt: skip
+        assert precision.choose_bf16("auto", "cpu", model, batch, kw)[0] is expected
+    assert precision.choose_bf16("fp32", "cpu", model, batch, kw)[0] is False
+    train(
+        make_train_config("tiny", precision="auto", iterations=1, eval_every=0),
+        tmp_path / "r",
+        progress=False,
+    )
+    decision = json.loads((tmp_path / "r" / "precision.json").read_text())
+    assert decision["bf16"] is False and decision["fp32_s"] == 1.0  # the patched measurement decided
