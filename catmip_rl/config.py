@@ -232,6 +232,7 @@ TRAIN_PRESETS: dict[str, TrainConfig] = {
     # the paper's training world and AMAT (Table 2, d = 192) with the Task-1 findings: an imitation
     # warm start, then PPO under step control (docs/training.md); the shipped amat_paper.pt
     "paper-warm": TrainConfig(
+        precision="auto",  # bf16 where it measures faster: 1.6x for d = 192 on AVX-512-BF16
         num_worlds=64,
         iterations=3000,
         epochs=6,
