@@ -333,7 +333,8 @@ def train(cfg: TrainConfig, run_dir: str | Path, resume: bool = False, progress:
 
     try:
         # -- imitation warm start (DAgger against a window-projected planner), once, before PPO -------
-        if cfg.warm_start and start == 0:
+        # (every checkpoint, iter_000000.pt included, is written after it: a resumed run never repeats it)
+        if cfg.warm_start and not resume:
             elapsed = _warm_start(
                 cfg, model, collector, evaluator, gen, device, run_dir, progress, log_scalars
             )

@@ -92,6 +92,13 @@ def test_train_warm_starts_once_then_runs_ppo(tmp_path):
     assert saved["iteration"] == 2 and saved["episodes"] == 4 * cfg.num_worlds
     rows = list(csv.DictReader((tmp_path / "run" / "metrics.csv").open()))
     assert float(rows[0]["time/elapsed_min"]) > float(rounds[-1]["time/elapsed_min"])
-    # resuming does not imitate again
+    # resuming does not imitate again, not even from the checkpoint written right after the warm start
     train(cfg.replace(iterations=3), tmp_path / "run", resume=True, progress=False)
     assert len(list(csv.DictReader((tmp_path / "run" / "warm_start.csv").open()))) == 2
+    ckpts = tmp_path / "run" / "checkpoints"
+    (ckpts / "latest.pt").write_bytes((ckpts / "iter_000000.pt").read_bytes())
+    before = (tmp_path / "run" / "warm_start.csv").read_text()
+    train(cfg, tmp_path / "run", resume=True, progress=False)
+    assert (tmp_path / "run" / "warm_start.csv").read_text() == before
+    rows = list(csv.DictReader((tmp_path / "run" / "metrics.csv").open()))
+    assert [int(r["iteration"]) for r in rows] == [1, 2]
