@@ -78,3 +78,22 @@ def test_a_time_budget_stops_the_run_and_checkpoints_its_last_iteration(tmp_path
     assert saved["iteration"] == 1 and saved["elapsed_s"] >= 6e-3
     epochs = list(csv.DictReader((tmp_path / "run" / "ppo_epochs.csv").open()))
     assert [int(e["epoch"]) for e in epochs] == [1, 2]  # tiny: 2 epochs, no KL target
+
+
+def test_cli_step_control_warm_start_and_precision_flags(tmp_path, capsys):
+    run = tmp_path / "run"
+    args = ["train", "--preset", "tiny", "--run-dir", str(run), "--no-progress", "--warm-start", "nearest",
+            "--target-kl", "0.02", "--minutes", "5", "--precision", "fp32", "--set", "warm_start_rounds=1",
+            "--set", "warm_start_steps=1"]  # fmt: skip
+    assert cli(args) == 0
+    cfg = TrainConfig.from_json((run / "config.json").read_text())
+    assert (cfg.warm_start, cfg.target_kl, cfg.budget_minutes, cfg.precision) == (
+        "nearest",
+        0.02,
+        5.0,
+        "fp32",
+    )
+    assert (run / "warm_start.csv").exists() and (run / "precision.json").exists()
+    bad = ["train", "--preset", "tiny", "--run-dir", str(tmp_path / "bad"), "--warm-start", "dijkstra"]
+    assert cli(bad) == 2 and "warm_start" in capsys.readouterr().err
+    assert cli(["train", "--preset", "tiny", "--run-dir", str(tmp_path / "b2"), "--target-kl", "-1"]) == 2
