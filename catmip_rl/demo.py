@@ -2,9 +2,9 @@
 
     python -m catmip_rl.demo [--iterations 60] [--episodes 64] [--out out/demo]
 
-1. ``catmip train --preset task1-warm`` shortened: 6 DAgger rounds against the window-projected Nearest
-   planner, then ``--iterations`` PPO iterations (a few minutes on 2 cores) into ``OUT/train`` (config,
-   metrics.csv, warm_start.csv, TensorBoard, checkpoints);
+1. ``catmip train --preset task1-warm`` shortened: its 12 DAgger rounds against the window-projected
+   Nearest planner, then ``--iterations`` PPO iterations (a few minutes on 2 cores) into ``OUT/train``
+   (config, metrics.csv, warm_start.csv, TensorBoard, checkpoints);
 2. the evaluation protocol (SPEC §8) on ``--episodes`` fixed Task-1 maps: the model just trained, the
    shipped model (``catmip_rl/models/amat_task1.pt``, the same recipe trained longer), the planning
    baselines and the imitation teacher (``window:nearest``), all on the same maps;
@@ -59,7 +59,7 @@ def main(argv: list[str] | None = None) -> list[dict]:
 
         shutil.rmtree(run_dir)
     cfg = make_train_config("task1-warm", iterations=args.iterations, threads=args.threads, eval_every=0,
-                            checkpoint_every=args.iterations, warm_start_rounds=6)  # fmt: skip
+                            checkpoint_every=args.iterations)  # fmt: skip
     print(
         f"[1/3] training AMAT on Task 1: {cfg.warm_start_rounds} imitation rounds, then {args.iterations} "
         f"PPO iterations x {cfg.num_worlds} episodes, {run_dir}"
