@@ -127,9 +127,11 @@ def main() -> None:
         ap.error("--run-dir is required to train (or pass --plot RUN_DIR ...)")
     from catmip_rl.train import train
 
-    cfg = make_train_config(args.preset, **parse_set(args.set))
-    # the budget ends the run and the LR decays over it
-    cfg = cfg.replace(budget_minutes=args.minutes, threads=args.threads, iterations=100_000)
+    overrides = parse_set(args.set)
+    # the budget ends the run and the LR decays over it (unless --set iterations=N runs out first)
+    overrides.setdefault("iterations", 100_000)
+    cfg = make_train_config(args.preset, **overrides)
+    cfg = cfg.replace(budget_minutes=args.minutes, threads=args.threads)
     np.seterr(all="ignore")
     train(cfg, args.run_dir, resume=args.resume)
 

@@ -49,7 +49,8 @@ class DecisionTracker:
 
     def summary(self, cls: np.ndarray, classes) -> dict[str, float]:
         """Means per episode: ``decisions_per_episode``, ``stalls_per_episode`` and, per class name,
-        ``stalls_per_episode_<name>`` and ``stall_fraction_<name>`` (stalls / decisions)."""
+        ``stalls_per_episode_<name>`` and ``stall_fraction_<name>`` (stalls / completed macro-actions:
+        every decision but each robot's last, which no later activation has ended)."""
         n_ep = max(self.decisions.shape[0], 1)
         out = {
             "decisions_per_episode": float(self.decisions.sum() / n_ep),
@@ -57,9 +58,10 @@ class DecisionTracker:
         }
         for k, c in enumerate(classes):
             sel = cls == k
-            d, s = int(self.decisions[sel].sum()), int(self.stalls[sel].sum())
+            ended = int((self.decisions[sel] - (self.decisions[sel] > 0)).sum())
+            s = int(self.stalls[sel].sum())
             out[f"stalls_per_episode_{c.name}"] = s / n_ep
-            out[f"stall_fraction_{c.name}"] = s / d if d else float("nan")
+            out[f"stall_fraction_{c.name}"] = s / ended if ended else float("nan")
         return out
 
 

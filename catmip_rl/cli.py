@@ -100,7 +100,7 @@ def _eval(args: argparse.Namespace) -> int:
                        if k.startswith("stall_fraction_") and v == v)  # fmt: skip
     print(
         f"  decisions per episode {s['decisions_per_episode']:.1f}, stalls per episode "
-        f"{s['stalls_per_episode']:.1f} (stalled fraction of decisions: {stalls})"
+        f"{s['stalls_per_episode']:.1f} (stalled fraction of ended macro-actions: {stalls})"
     )
     if s["decisions"] and s["bytes_per_decision_embedding"]:
         print(

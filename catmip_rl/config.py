@@ -114,6 +114,12 @@ class TrainConfig:
         if self.warm_start:
             from catmip_env.baselines import PLANNERS
 
+            if self.collector != "local":
+                raise ValueError(
+                    "TrainConfig.warm_start needs collector 'local' (DAgger labels decisions with a planner "
+                    "in this process); warm-start locally, then --resume with --collector ray "
+                    "--set warm_start=''"
+                )
             if self.warm_start not in PLANNERS:
                 raise ValueError(
                     f"TrainConfig.warm_start must be '' or a planner name {sorted(PLANNERS)}, "
@@ -181,7 +187,7 @@ class TrainConfig:
 
 # the Task-1 world (15x15, rescuer + explorer) with training activation (2, 5), d = 64; step control:
 # at most 6 epochs x 4 minibatches, stopped once a minibatch's approx-KL exceeds 0.01 (docs/training.md,
-# "Step control"); about 9 iterations a minute on 2 cores
+# "Step control"); ~2 s an iteration on one thread (~1 s once a warm start makes the KL target stop it)
 _TASK1 = TrainConfig(
     env_preset="task1",
     env_overrides={"activation": [2, 5]},
@@ -220,8 +226,8 @@ TRAIN_PRESETS: dict[str, TrainConfig] = {
     ),
     "task1": _TASK1,
     # task1 after an imitation warm start: DAgger against the window-projected Nearest planner, then
-    # PPO with a value warm-up (the shipped amat_task1.pt and the README demo); iterations stop early
-    # on the KL target, ~1.6 s each on one thread
+    # PPO with a value warm-up (the README demo; the shipped amat_task1.pt is this recipe with a 40-minute
+    # budget); iterations stop early on the KL target, ~1 s each on one thread
     "task1-warm": _TASK1.replace(
         iterations=2000,
         warm_start="nearest",
@@ -230,7 +236,7 @@ TRAIN_PRESETS: dict[str, TrainConfig] = {
         value_warmup_iterations=5,
     ),  # fmt: skip
     # the paper's training world and AMAT (Table 2, d = 192) with the Task-1 findings: an imitation
-    # warm start, then PPO under step control (docs/training.md); the shipped amat_paper.pt
+    # warm start, then PPO under step control (docs/training.md); to ship as amat_paper.pt
     "paper-warm": TrainConfig(
         precision="auto",  # bf16 where it measures faster: 1.6x for d = 192 on AVX-512-BF16
         num_worlds=64,

@@ -1,7 +1,8 @@
 """Imitation warm start (DAgger) from a classical planner projected into the goal window.
 
     model = AMAT(cfg.amat_config())
-    log = dagger(model, cfg, collector, teacher="nearest", rounds=6)   # then PPO from this model
+    collector = Collector(cfg.env_config(), cfg.num_worlds, seed=0)
+    episodes, log = dagger(model, collector, "nearest", rounds=6, steps_per_round=300)  # then PPO
 
 Each round rolls out the current policy on ``cfg.num_worlds`` new training episodes while the teacher
 (:class:`~catmip_env.window_planner.WindowPlanner`: the planner's goal, projected into the robot's

@@ -68,7 +68,8 @@ def _stat_weights(collector: Collector, stats: dict[str, float]) -> dict[str, fl
     w["target_found_tick"] = float((st.found_tick >= 0).sum())
     for k, cls in enumerate(collector.engine.cfg.classes):
         w[f"return_{cls.name}"] = float((st.cls == k).sum())
-        w[f"stall_fraction_{cls.name}"] = float(collector.tracker.decisions[st.cls == k].sum())
+        d = collector.tracker.decisions[st.cls == k]
+        w[f"stall_fraction_{cls.name}"] = float((d - (d > 0)).sum())  # its denominator: ended macro-actions
     return w
 
 

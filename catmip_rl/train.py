@@ -217,12 +217,15 @@ def evaluate_policy(
     return out
 
 
-def _save(path: Path, it: int, episodes: int, elapsed_s: float, model, opt, value_norm, gen, cfg) -> None:
+def _save(
+    path: Path, it: int, episodes: int, elapsed_s: float, bf16, model, opt, value_norm, gen, cfg
+) -> None:
     atomic_torch_save(
         {
             "iteration": it,
             "episodes": episodes,
             "elapsed_s": elapsed_s,
+            "bf16": bf16,  # the precision "auto" chose (None: not chosen yet); a resumed run keeps it
             "model": model.state_dict(),
             "amat_config": cfg.amat_config().__dict__,
             "optimizer": opt.state_dict(),
@@ -303,6 +306,7 @@ def train(cfg: TrainConfig, run_dir: str | Path, resume: bool = False, progress:
     if cfg.eval_every:
         evaluator = Collector(cfg.eval_env_config(), cfg.eval_episodes, cfg.eval_seed, cfg.gamma, str(device))
     start, episodes, elapsed = 0, 0, 0.0  # elapsed: seconds of training so far (evaluation excluded)
+    chosen_bf16 = None
     if resume:
         model.load_state_dict(saved["model"])
         opt.load_state_dict(saved["optimizer"])
@@ -310,20 +314,21 @@ def train(cfg: TrainConfig, run_dir: str | Path, resume: bool = False, progress:
         gen.set_state(saved["generator"])
         torch.set_rng_state(saved["torch_rng"])
         start, episodes, elapsed = saved["iteration"], saved["episodes"], saved.get("elapsed_s", 0.0)
+        chosen_bf16 = saved.get("bf16") if saved_cfg.precision == cfg.precision else None
     if cfg.collector == "ray":  # the same episodes, collected by Ray workers (catmip_rl/ray_collect.py)
         from catmip_rl.ray_collect import RayRolloutCollector
 
         collector = RayRolloutCollector(cfg, model)
     else:
         collector = Collector(env_cfg, cfg.num_worlds, cfg.seed, cfg.gamma, str(device))
-    parallel, bf16 = None, None  # both set at the first PPO batch (bf16 "auto" measures on it)
+    parallel, bf16 = None, chosen_bf16  # set at the first PPO batch (bf16 "auto" measures on it), once a run
     csv_file, csv_writer = _open_csv(run_dir / "metrics.csv", METRICS, start if resume else None)
     epoch_file, epoch_writer = _open_csv(run_dir / "ppo_epochs.csv", EPOCH_METRICS, start if resume else None)
     tb = _tensorboard(run_dir)
 
     def save(it: int) -> None:
-        _save(latest, it, episodes, elapsed, model, opt, value_norm, gen, cfg)
-        _save(ckpt_dir / f"iter_{it:06d}.pt", it, episodes, elapsed, model, opt, value_norm, gen, cfg)
+        _save(latest, it, episodes, elapsed, bf16, model, opt, value_norm, gen, cfg)
+        _save(ckpt_dir / f"iter_{it:06d}.pt", it, episodes, elapsed, bf16, model, opt, value_norm, gen, cfg)
 
     def log_scalars(row: dict, step: int, skip: str) -> None:
         if tb is not None:
@@ -363,8 +368,8 @@ def train(cfg: TrainConfig, run_dir: str | Path, resume: bool = False, progress:
                     cfg.precision, cfg.device, model, batch, loss_kwargs(cfg, False), cfg.micro_batch or 512
                 )
                 atomic_write_text(run_dir / "precision.json", json.dumps(decision, indent=2))
-                if cfg.update_processes > 1:  # data-parallel gradients (catmip_rl/parallel_update.py)
-                    parallel = ParallelGradients(model, cfg.update_processes, **loss_kwargs(cfg, bf16))
+            if parallel is None and cfg.update_processes > 1:  # data-parallel gradients (parallel_update.py)
+                parallel = ParallelGradients(model, cfg.update_processes, **loss_kwargs(cfg, bf16))
             epochs: list[dict[str, float]] = []
             value_only = it <= cfg.value_warmup_iterations
             stats = ppo_update(model, opt, batch, cfg, gen, parallel, epochs, value_only, bf16)

@@ -121,13 +121,14 @@ def test_run_all_quick_scaling(tmp_path):
 
 
 def test_learning_curve_trains_on_a_budget_and_plots(tmp_path):
-    """A few seconds of the tiny preset with a warm start, then the plot of its evaluations."""
+    """Two iterations of the tiny preset after a warm start (the budget is not what ends it), then the
+    plot of its evaluations."""
     run = tmp_path / "tiny-warm"
     script = str(BENCH / "learning_curve.py")
     env = {"PYTHONPATH": str(ROOT), "PATH": "/usr/bin:/bin"}
-    train = [sys.executable, script, "--preset", "tiny", "--minutes", "0.05", "--threads", "1",
+    train = [sys.executable, script, "--preset", "tiny", "--minutes", "30", "--threads", "1",
              "--set", "warm_start=nearest", "--set", "warm_start_rounds=1", "--set", "warm_start_steps=2",
-             "--run-dir", str(run)]  # fmt: skip
+             "--set", "iterations=2", "--run-dir", str(run)]  # fmt: skip
     subprocess.run(train, check=True, env=env, cwd=tmp_path, capture_output=True)
     out = tmp_path / "curve"
     subprocess.run([sys.executable, script, "--plot", str(run), "--out", str(out)], check=True, env=env,

@@ -89,7 +89,8 @@ def test_bad_step_control_values_are_refused():
         make_train_config("tiny", warm_start="dijkstra")
     with pytest.raises(ValueError, match="value_warmup_iterations"):
         make_train_config("tiny", value_warmup_iterations=-2)
-    assert AmatConfig(embed_dim=32).embed_dim == 32
+    with pytest.raises(ValueError, match="collector 'local'"):
+        make_train_config("tiny", warm_start="nearest", collector="ray")
 
 
 def test_precision_auto_follows_the_cpu_and_bf16_reaches_every_gradient(monkeypatch):
@@ -137,3 +138,22 @@ def test_auto_precision_measures_and_takes_bf16_only_when_clearly_faster(monkeyp
     )
     decision = json.loads((tmp_path / "r" / "precision.json").read_text())
     assert decision["bf16"] is False and decision["fp32_s"] == 1.0  # the patched measurement decided
+
+
+def test_a_resumed_run_keeps_the_precision_auto_chose(monkeypatch, tmp_path):
+    import json
+
+    from catmip_rl import precision
+    from catmip_rl.train import train
+
+    monkeypatch.setattr(precision, "native_bf16", lambda: True)
+    monkeypatch.setattr(precision, "measure_bf16", lambda *a, **k: {"fp32_s": 1.0, "bf16_s": 0.5})
+    cfg = make_train_config("tiny", precision="auto", iterations=1, eval_every=0)
+    train(cfg, tmp_path / "r", progress=False)
+    saved = torch.load(tmp_path / "r" / "checkpoints" / "latest.pt", weights_only=False)
+    assert saved["bf16"] is True
+    # the machine now measures the other way: the resumed run does not measure again, nor switch
+    monkeypatch.setattr(precision, "measure_bf16", lambda *a, **k: {"fp32_s": 0.5, "bf16_s": 1.0})
+    train(cfg.replace(iterations=2), tmp_path / "r", resume=True, progress=False)
+    assert torch.load(tmp_path / "r" / "checkpoints" / "latest.pt", weights_only=False)["bf16"] is True
+    assert json.loads((tmp_path / "r" / "precision.json").read_text())["bf16"] is True
