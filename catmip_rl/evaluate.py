@@ -32,15 +32,16 @@ from catmip_env.baselines import PLANNERS, make_planner
 from catmip_env.decision_stats import DecisionTracker
 from catmip_env.events import EventEngine
 from catmip_env.window_planner import make_window_planner
-from catmip_rl.amat import AMAT, decision_order
+from catmip_rl.amat import AMAT
 from catmip_rl.checkpoint import load_model
-from catmip_rl.distributed import message_bytes
+from catmip_rl.distributed import GOAL_BYTES, AmatExecutor
 from catmip_rl.files import atomic_write_csv, atomic_write_text
 
 __all__ = [
     "EvalSetting",
     "EvalResult",
     "AmatExecutor",
+    "GOAL_BYTES",
     "Method",
     "parse_method",
     "evaluate",
@@ -53,8 +54,6 @@ __all__ = [
 
 TASKS = ("task1", "task2", "task3")
 COMM_SETTINGS = {"full": None, "4": 4.0, "2": 2.0}
-GOAL_BYTES = 2
-"""A goal message: the window index (D^2 <= 65,536) as an unsigned 16-bit integer."""
 
 
 @dataclass(frozen=True)
@@ -144,129 +143,6 @@ def parse_method(spec: str) -> Method:
     if spec not in PLANNERS:
         raise ValueError(f"unknown method {spec!r}; choose amat:PATH or one of {sorted(PLANNERS)}")
     return Method(name or spec, "planner", spec)
-
-
-class AmatExecutor:
-    """Distributed execution of an AMAT policy over a batch of worlds of an :class:`EventEngine`
-    (window goal mode), with message accounting.
-
-    At an event, every robot of a live world embeds its own macro-observation (one batched call). For
-    every neighbourhood with an active robot, its members' tokens (ascending id) form one row of a
-    padded batch; encoder and decoder run on each row with the other rows' robots invisible (padding
-    masked). With full communication there is one neighbourhood per world and the decision equals the
-    centralised one exactly.
-    """
-
-    def __init__(
-        self,
-        model: AMAT,
-        deterministic: bool = True,
-        generator: torch.Generator | None = None,
-        loop_guard: bool = False,
-    ):
-        self.model = model.eval()
-        self.deterministic = deterministic
-        self.generator = generator
-        self.loop_guard = loop_guard
-        self.messages = self.bytes_embedding = self.bytes_raw = None
-        self._last_action = self._last_pose = None
-
-    def reset_counters(self, num_worlds: int, num_robots: int = 0) -> None:
-        """Zero the message counters (and the loop guard's memory) for a new batch of episodes."""
-        self.messages = np.zeros(num_worlds, np.int64)
-        self.bytes_embedding = np.zeros(num_worlds, np.int64)
-        self.bytes_raw = np.zeros(num_worlds, np.int64)
-        self._last_action = np.full((num_worlds, num_robots), -1, np.int64)
-        self._last_pose = np.zeros((num_worlds, num_robots, 3), np.int64)
-
-    def _guarded_masks(self, engine: EventEngine, active: np.ndarray) -> np.ndarray:
-        """The loop guard: a robot whose last macro-action left it where it was (same cell, same
-        heading) may not choose that goal again, unless it is its only valid one. Under evaluation
-        activation (0, 0) an argmax policy that stalls would otherwise decide again at once on an almost
-        unchanged observation and repeat itself until something else moves."""
-        st = engine.state
-        pose = np.concatenate([st.pos, st.heading[..., None].astype(st.pos.dtype)], -1)
-        masks = engine.masks
-        stalled = active & (self._last_action >= 0) & (pose == self._last_pose).all(-1)
-        if stalled.any():
-            masks = masks.copy()
-            for b, i in zip(*np.nonzero(stalled)):
-                if masks[b, i].sum() > 1:
-                    masks[b, i, self._last_action[b, i]] = 0
-        self._last_pose[active] = pose[active]
-        return masks
-
-    @torch.no_grad()
-    def act(self, engine: EventEngine) -> np.ndarray:
-        """Goal actions (B, N) of the active robots of live worlds (others: anything valid)."""
-        if engine.goal_mode != "window" or engine.cfg.window != self.model.config.window:
-            raise ValueError(
-                f"AMAT with window {self.model.config.window} needs an EventEngine in window mode with "
-                f"window {self.model.config.window}, got {engine.goal_mode!r} / {engine.cfg.window}"
-            )
-        if self.messages is None or self._last_action.shape != (engine.num_worlds, engine.num_robots):
-            self.reset_counters(engine.num_worlds, engine.num_robots)
-        st = engine.state
-        n = engine.num_robots
-        active = engine.active & ~st.done[:, None]
-        masks = self._guarded_masks(engine, active) if self.loop_guard else engine.masks
-        actions = masks.argmax(-1).astype(np.int64)
-        if not active.any():
-            return actions
-        # one row per neighbourhood (= component label, its lowest id) with an active member
-        bb, ii = np.nonzero(active)
-        has_active = np.zeros((engine.num_worlds, n), np.bool_)
-        has_active[bb, st.comp[bb, ii]] = True
-        b_of_row, label = np.nonzero(has_active)
-        member = st.comp[b_of_row] == label[:, None]  # (R, N), members in ascending id
-        r = len(b_of_row)
-        slot = np.cumsum(member, axis=1) - 1  # position of each member inside its row
-        row_idx, robot = np.nonzero(member)
-        pos = slot[row_idx, robot]
-        world = b_of_row[row_idx]
-        # every member embeds its own macro-observation (robots of other neighbourhoods need not)
-        c = engine.cfg.num_classes
-        cls = torch.nn.functional.one_hot(torch.from_numpy(st.cls[world, robot]), c).float()
-        tokens = self.model.embed(
-            {
-                "global_map": torch.from_numpy(engine.obs_global[world, robot])[None],
-                "local_map": torch.from_numpy(engine.obs_local[world, robot])[None],
-                "agent_class": cls[None],
-            }
-        )[0]  # (K, d)
-        tok = tokens.new_zeros(r, n, tokens.shape[-1])
-        tok[row_idx, pos] = tokens
-        padding = torch.ones(r, n, dtype=torch.bool)
-        padding[row_idx, pos] = False
-        act_rows = torch.zeros(r, n, dtype=torch.bool)
-        act_rows[row_idx, pos] = torch.from_numpy(active[world, robot])
-        mask_rows = torch.zeros(r, n, engine.num_actions, dtype=torch.bool)
-        mask_rows[:, :, engine.stay_action] = True  # padding slots: any single valid entry
-        mask_rows[row_idx, pos] = torch.from_numpy(masks[world, robot].astype(np.bool_))
-        cls_rows = torch.zeros(r, n, c)
-        cls_rows[row_idx, pos] = cls
-        rep, _ = self.model.encode(tok, key_padding_mask=padding)
-        order = decision_order(act_rows, padding)
-        a, _ = self.model.decode_autoregressive(
-            rep, mask_rows, order, act_rows, cls_rows, deterministic=self.deterministic,
-            generator=self.generator,
-        )  # fmt: skip
-        chosen = a[row_idx, pos].numpy()
-        is_active = act_rows[row_idx, pos].numpy()
-        actions[world[is_active], robot[is_active]] = chosen[is_active]
-        self._last_action[active] = actions[active]
-        self._count(engine, b_of_row, member, active)
-        return actions
-
-    def _count(self, engine: EventEngine, b_of_row: np.ndarray, member: np.ndarray, active: np.ndarray):
-        sizes = message_bytes(self.model.config, engine.shape)
-        for k, b in enumerate(b_of_row):
-            ids = np.flatnonzero(member[k])
-            others = ids[1:]  # the coordinator is the lowest id
-            n_goals = int(active[b, others].sum())
-            self.messages[b] += len(others) + n_goals
-            self.bytes_embedding[b] += len(others) * sizes["embedding"] + n_goals * GOAL_BYTES
-            self.bytes_raw[b] += len(others) * sizes["raw_float32"] + n_goals * GOAL_BYTES
 
 
 def make_policy(method: Method, seed: int, model: AMAT | None = None):

@@ -11,6 +11,8 @@ probability ``beta`` (1 in round 0, halving every round) a robot executes the la
 mixture. The labelled events are aggregated over the rounds (up to ``buffer_events``, the oldest
 dropped first) and AMAT's decoder is trained by cross-entropy on them, teacher-forced in the decision
 order of PPO (active robots first, each fed the previous robot's label). Busy robots are inputs only.
+:func:`warm_start` runs these rounds for ``catmip train --warm-start``, logging each round to
+``RUN_DIR/warm_start.csv``.
 """
 
 from __future__ import annotations
@@ -24,9 +26,16 @@ import torch
 from catmip_env.window_planner import make_window_planner
 from catmip_rl.amat import AMAT
 from catmip_rl.collect import Collector, Rollout
+from catmip_rl.files import open_csv_log, write_csv_row
 
-__all__ = ["DemoBuffer", "imitation_loss", "dagger"]
+__all__ = ["DemoBuffer", "imitation_loss", "dagger", "warm_start", "WARM_START_METRICS"]
 
+WARM_START_METRICS = [
+    "round", "episodes", "beta", "buffer_events", "rollout/success_rate", "rollout/success_by_100",
+    "imitation/loss", "imitation/accuracy", "eval/success_rate", "eval/success_by_100",
+    "eval/sampled_success_rate", "eval/sampled_success_by_100", "time/collect_s", "time/update_s",
+    "time/elapsed_min",
+]  # fmt: skip
 _KEYS = ("global_map", "local_map", "agent_class", "action_mask", "active", "order", "label")
 
 
@@ -139,3 +148,45 @@ def dagger(
         if on_round is not None:
             on_round(row)
     return episodes - first_episode, log
+
+
+def warm_start(cfg, model, collector, gen, run_dir, progress: bool, evaluate=None, log_scalars=None) -> float:
+    """The DAgger rounds of a training run (``cfg.warm_start*`` fields) into ``run_dir/warm_start.csv``,
+    with ``evaluate()`` (a dict with success_rate, success_by_100 and their sampled_ forms) after each
+    round if given and ``log_scalars(row, step, skip)`` for TensorBoard; returns the seconds spent
+    (evaluation excluded)."""
+    file, writer = open_csv_log(run_dir / "warm_start.csv", WARM_START_METRICS, None, key="round")
+    elapsed = 0.0
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=cfg.warm_start_rounds, desc=f"warm start ({cfg.warm_start})", unit="round")
+
+    def on_round(row: dict) -> None:
+        nonlocal elapsed
+        elapsed += row["time/collect_s"] + row["time/update_s"]
+        row["time/elapsed_min"] = elapsed / 60.0
+        if evaluate is not None:
+            ev = evaluate()
+            row |= {f"eval/{k}": ev[k] for k in ("success_rate", "success_by_100", "sampled_success_rate",
+                                                 "sampled_success_by_100")}  # fmt: skip
+        write_csv_row(writer, file, row)
+        if log_scalars is not None:
+            log_scalars({f"warm_start/{k}": v for k, v in row.items()}, row["round"], "warm_start/round")
+        if bar is not None:
+            bar.update(1)
+            acc, success = row["imitation/accuracy"], row["rollout/success_rate"]
+            bar.set_postfix(acc=f"{acc:.2f}", success=f"{success:.2f}")
+
+    try:
+        dagger(
+            model, collector, cfg.warm_start, cfg.warm_start_rounds, cfg.warm_start_steps,
+            batch_events=cfg.warm_start_batch, lr=cfg.warm_start_lr, generator=gen, seed=cfg.seed,
+            max_grad_norm=cfg.max_grad_norm, on_round=on_round,
+        )  # fmt: skip
+    finally:
+        file.close()
+        if bar is not None:
+            bar.close()
+    return elapsed

@@ -14,7 +14,6 @@ statistics to ``ppo_epochs.csv``, DAgger rounds to ``warm_start.csv``) and Tenso
 
 from __future__ import annotations
 
-import csv
 import json
 import math
 import time
@@ -27,9 +26,10 @@ from catmip_rl.amat import AMAT
 from catmip_rl.checkpoint import atomic_torch_save
 from catmip_rl.collect import Collector, Rollout
 from catmip_rl.config import TrainConfig
-from catmip_rl.files import atomic_write_text
+from catmip_rl.files import atomic_write_text, open_csv_log, write_csv_row
 from catmip_rl.gae import async_gae
 from catmip_rl.heap import keep_freed_memory
+from catmip_rl.imitation import warm_start
 from catmip_rl.parallel_update import ParallelGradients
 from catmip_rl.ppo import SampleBatch, ValueNorm, accumulate_gradients
 from catmip_rl.precision import choose_bf16, use_bf16
@@ -63,12 +63,6 @@ METRICS = [
 ]  # fmt: skip
 EPOCH_METRICS = ["iteration", "epoch", "loss/policy", "loss/value", "loss/entropy", "ppo/approx_kl",
                  "ppo/clip_fraction"]  # fmt: skip
-WARM_START_METRICS = [
-    "round", "episodes", "beta", "buffer_events", "rollout/success_rate", "rollout/success_by_100",
-    "imitation/loss", "imitation/accuracy", "eval/success_rate", "eval/success_by_100",
-    "eval/sampled_success_rate", "eval/sampled_success_by_100", "time/collect_s", "time/update_s",
-    "time/elapsed_min",
-]  # fmt: skip
 EVAL_KEYS = ("success_rate", "success_by_100", "rescue_tick", "target_found_tick", "explored_fraction",
              "decisions_per_episode", "stalls_per_episode", "stall_fraction_rescuer",
              "stall_fraction_explorer")  # fmt: skip
@@ -238,28 +232,6 @@ def _save(
     )
 
 
-def _open_csv(path: Path, fields: list[str], resume_iteration: int | None, key: str = "iteration"):
-    """An appending CSV writer; on resume the rows past ``resume_iteration`` (in column ``key``) are
-    dropped first, so that a resumed run's log continues where its checkpoint stopped."""
-    rows = []
-    if resume_iteration is not None and path.exists():
-        with path.open() as f:
-            rows = [r for r in csv.DictReader(f) if int(r[key]) <= resume_iteration]
-    tmp = path.with_name(path.name + ".tmp")
-    with tmp.open("w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=fields, extrasaction="ignore")
-        w.writeheader()
-        w.writerows(rows)
-    tmp.replace(path)
-    f = path.open("a", newline="")
-    return f, csv.DictWriter(f, fieldnames=fields, extrasaction="ignore")
-
-
-def _write_row(writer, file, row: dict) -> None:
-    writer.writerow({k: (v if not (isinstance(v, float) and math.isnan(v)) else "") for k, v in row.items()})
-    file.flush()
-
-
 def _tensorboard(run_dir: Path):
     try:
         from torch.utils.tensorboard import SummaryWriter
@@ -322,8 +294,10 @@ def train(cfg: TrainConfig, run_dir: str | Path, resume: bool = False, progress:
     else:
         collector = Collector(env_cfg, cfg.num_worlds, cfg.seed, cfg.gamma, str(device))
     parallel, bf16 = None, chosen_bf16  # set at the first PPO batch (bf16 "auto" measures on it), once a run
-    csv_file, csv_writer = _open_csv(run_dir / "metrics.csv", METRICS, start if resume else None)
-    epoch_file, epoch_writer = _open_csv(run_dir / "ppo_epochs.csv", EPOCH_METRICS, start if resume else None)
+    csv_file, csv_writer = open_csv_log(run_dir / "metrics.csv", METRICS, start if resume else None)
+    epoch_file, epoch_writer = open_csv_log(
+        run_dir / "ppo_epochs.csv", EPOCH_METRICS, start if resume else None
+    )
     tb = _tensorboard(run_dir)
 
     def save(it: int) -> None:
@@ -340,9 +314,8 @@ def train(cfg: TrainConfig, run_dir: str | Path, resume: bool = False, progress:
         # -- imitation warm start (DAgger against a window-projected planner), once, before PPO -------
         # (every checkpoint, iter_000000.pt included, is written after it: a resumed run never repeats it)
         if cfg.warm_start and not resume:
-            elapsed = _warm_start(
-                cfg, model, collector, evaluator, gen, device, run_dir, progress, log_scalars
-            )
+            evaluate = (lambda: evaluate_policy(model, cfg, device, evaluator)) if evaluator else None
+            elapsed = warm_start(cfg, model, collector, gen, run_dir, progress, evaluate, log_scalars)
             episodes = cfg.warm_start_rounds * cfg.num_worlds
             save(0)
         bar = None
@@ -386,9 +359,9 @@ def train(cfg: TrainConfig, run_dir: str | Path, resume: bool = False, progress:
                 ev = evaluate_policy(model, cfg, device, evaluator)
                 row |= {f"eval/{k}": v for k, v in ev.items() if f"eval/{k}" in METRICS}
             row["time/iteration_s"] = time.perf_counter() - t0
-            _write_row(csv_writer, csv_file, row)
+            write_csv_row(csv_writer, csv_file, row)
             for e in epochs:
-                _write_row(epoch_writer, epoch_file, {"iteration": it} | e)
+                write_csv_row(epoch_writer, epoch_file, {"iteration": it} | e)
             log_scalars(row, it, "iteration")
             if cfg.checkpoint_every and (it % cfg.checkpoint_every == 0 or last):
                 save(it)
@@ -410,44 +383,3 @@ def train(cfg: TrainConfig, run_dir: str | Path, resume: bool = False, progress:
         if parallel is not None:
             parallel.close()
     return model
-
-
-def _warm_start(cfg, model, collector, evaluator, gen, device, run_dir, progress, log_scalars) -> float:
-    """DAgger rounds into ``run_dir/warm_start.csv`` (evaluated after each round when the run
-    evaluates); returns the seconds spent (evaluation excluded)."""
-    from catmip_rl.imitation import dagger
-
-    file, writer = _open_csv(run_dir / "warm_start.csv", WARM_START_METRICS, None, key="round")
-    elapsed = 0.0
-    bar = None
-    if progress:
-        from tqdm import tqdm
-
-        bar = tqdm(total=cfg.warm_start_rounds, desc=f"warm start ({cfg.warm_start})", unit="round")
-
-    def on_round(row: dict) -> None:
-        nonlocal elapsed
-        elapsed += row["time/collect_s"] + row["time/update_s"]
-        row["time/elapsed_min"] = elapsed / 60.0
-        if evaluator is not None:
-            ev = evaluate_policy(model, cfg, device, evaluator)
-            row |= {f"eval/{k}": ev[k] for k in ("success_rate", "success_by_100", "sampled_success_rate",
-                                                 "sampled_success_by_100")}  # fmt: skip
-        _write_row(writer, file, row)
-        log_scalars({f"warm_start/{k}": v for k, v in row.items()}, row["round"], "warm_start/round")
-        if bar is not None:
-            bar.update(1)
-            acc, success = row["imitation/accuracy"], row["rollout/success_rate"]
-            bar.set_postfix(acc=f"{acc:.2f}", success=f"{success:.2f}")
-
-    try:
-        dagger(
-            model, collector, cfg.warm_start, cfg.warm_start_rounds, cfg.warm_start_steps,
-            batch_events=cfg.warm_start_batch, lr=cfg.warm_start_lr, generator=gen, seed=cfg.seed,
-            max_grad_norm=cfg.max_grad_norm, on_round=on_round,
-        )  # fmt: skip
-    finally:
-        file.close()
-        if bar is not None:
-            bar.close()
-    return elapsed
