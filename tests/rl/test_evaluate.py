@@ -206,10 +206,11 @@ def test_figure_runs_on_a_tiny_budget(ckpt, tmp_path):
     fig_dir = run_figure(11, ["nearest", f"learned=amat:{ckpt}"], episodes=2, out=tmp_path, progress=False)
     assert (fig_dir / "fig11.png").stat().st_size > 1000
     assert "| learned |" in (fig_dir / "summary.md").read_text()
+    assert "| learned (sampled) |" in (fig_dir / "summary.md").read_text()  # AMAT: sampled beside argmax
     with open(fig_dir / "curves.csv") as f:
         rows = list(csv.DictReader(f))
     assert {r["panel"] for r in rows} == {p for p, _ in FIGURES[11][1]}
-    assert {r["method"] for r in rows} == {"nearest", "learned"}
+    assert {r["method"] for r in rows} == {"nearest", "learned", "learned (sampled)"}
     # the plotted curve is the per-episode data
     for panel, setting in FIGURES[11][1]:
         episodes = json.loads((fig_dir / setting.label / "nearest" / "episodes.json").read_text())
