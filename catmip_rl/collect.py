@@ -126,7 +126,8 @@ class Collector:
         ``labeler.act(engine)`` (e.g. a :class:`~catmip_env.window_planner.WindowPlanner`), if given,
         labels every event's active robots with its window actions (``Rollout.label``); each active
         robot then executes the label instead of the policy's action with probability ``teacher_prob``
-        (DAgger's mixture; drawn from ``generator``)."""
+        (DAgger's mixture; drawn from ``generator``). Log-probs stay the policy's: a rollout with
+        ``teacher_prob > 0`` is for imitation, not for PPO."""
         eng, s = self.engine, self._store
         b_all = eng.num_worlds
         c = eng.cfg.num_classes
