@@ -188,21 +188,23 @@ class TrainConfig:
 # the Task-1 world (15x15, rescuer + explorer) with training activation (2, 5), d = 64; step control:
 # at most 6 epochs x 4 minibatches, stopped once a minibatch's approx-KL exceeds 0.01 (docs/training.md,
 # "Step control"); ~2 s an iteration on one thread (~1 s once a warm start makes the KL target stop it)
+# what the Task-1 experiments found (docs/training.md, "Does it learn?"): step control, and the warm start
+_STEP_CONTROL = {"epochs": 6, "minibatches": 4, "clip": 0.1, "target_kl": 0.01}
+_WARM_START = {"warm_start": "nearest", "warm_start_rounds": 12, "warm_start_steps": 300,
+               "value_warmup_iterations": 5}  # fmt: skip
+_EVAL_64 = {"eval_episodes": 64, "eval_seed": 2025}
+
 _TASK1 = TrainConfig(
     env_preset="task1",
     env_overrides={"activation": [2, 5]},
     amat={"embed_dim": 64},
     num_worlds=64,
     iterations=600,
-    epochs=6,
-    minibatches=4,
     lr=3e-4,
-    clip=0.1,
-    target_kl=0.01,
     eval_every=10,
-    eval_episodes=64,
-    eval_seed=2025,
     checkpoint_every=20,
+    **_STEP_CONTROL,
+    **_EVAL_64,
 )
 
 TRAIN_PRESETS: dict[str, TrainConfig] = {
@@ -228,32 +230,19 @@ TRAIN_PRESETS: dict[str, TrainConfig] = {
     # task1 after an imitation warm start: DAgger against the window-projected Nearest planner, then
     # PPO with a value warm-up (the README demo; the shipped amat_task1.pt is this recipe with a 40-minute
     # budget); iterations stop early on the KL target, ~1 s each on one thread
-    "task1-warm": _TASK1.replace(
-        iterations=2000,
-        warm_start="nearest",
-        warm_start_rounds=12,
-        warm_start_steps=300,
-        value_warmup_iterations=5,
-    ),  # fmt: skip
+    "task1-warm": _TASK1.replace(iterations=2000, **_WARM_START),
     # the paper's training world and AMAT (Table 2, d = 192) with the Task-1 findings: an imitation
     # warm start, then PPO under step control (docs/training.md); to ship as amat_paper.pt
     "paper-warm": TrainConfig(
         precision="auto",  # bf16 where it measures faster: 1.6x for d = 192 on AVX-512-BF16
         num_worlds=64,
         iterations=3000,
-        epochs=6,
-        minibatches=4,
         lr=2e-4,
-        clip=0.1,
-        target_kl=0.01,
-        warm_start="nearest",
-        warm_start_rounds=12,
-        warm_start_steps=300,
-        value_warmup_iterations=5,
         eval_every=25,
-        eval_episodes=64,
-        eval_seed=2025,
         checkpoint_every=10,
+        **_STEP_CONTROL,
+        **_WARM_START,
+        **_EVAL_64,
     ),
     # a minute-scale smoke run: a small map, two robots, a small AMAT
     "tiny": TrainConfig(

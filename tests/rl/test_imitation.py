@@ -16,11 +16,17 @@ from catmip_rl.imitation import DemoBuffer, dagger, imitation_loss
 from catmip_rl.train import train
 
 
-def test_a_pure_teacher_rollout_replays_the_window_planner_and_is_labelled_by_it():
-    cfg = make_config("task1", activation=(2, 5), horizon_ticks=150)
-    col = Collector(cfg, 6, seed=4)
+def _labelled(horizon: int, worlds: int, seed: int, teacher_prob: float):
+    """(config, collector, rollout) of an untrained AMAT labelled by window:nearest."""
+    cfg = make_config("task1", activation=(2, 5), horizon_ticks=horizon)
+    col = Collector(cfg, worlds, seed=seed)
     r = col.collect(AMAT(AmatConfig(embed_dim=32)), 0, torch.Generator().manual_seed(0),
-                    labeler=make_window_planner("nearest", seed=0), teacher_prob=1.0)  # fmt: skip
+                    labeler=make_window_planner("nearest", seed=0), teacher_prob=teacher_prob)  # fmt: skip
+    return cfg, col, r
+
+
+def test_a_pure_teacher_rollout_replays_the_window_planner_and_is_labelled_by_it():
+    cfg, col, r = _labelled(horizon=150, worlds=6, seed=4, teacher_prob=1.0)
     act = r.active & r.valid[..., None]
     assert np.array_equal(r.action[act], r.label[act])  # every active robot executed its label
     eng = EventEngine(cfg, 6, seed=4)
@@ -33,10 +39,7 @@ def test_a_pure_teacher_rollout_replays_the_window_planner_and_is_labelled_by_it
 
 
 def test_without_the_teacher_the_policy_acts_and_is_still_labelled():
-    cfg = make_config("task1", activation=(2, 5), horizon_ticks=60)
-    col = Collector(cfg, 4, seed=0)
-    r = col.collect(AMAT(AmatConfig(embed_dim=32)), 0, torch.Generator().manual_seed(0),
-                    labeler=make_window_planner("nearest", seed=0), teacher_prob=0.0)  # fmt: skip
+    _, _, r = _labelled(horizon=60, worlds=4, seed=0, teacher_prob=0.0)
     act = r.active & r.valid[..., None]
     assert r.label is not None and (r.action[act] != r.label[act]).any()
     allowed = np.take_along_axis(r.action_mask, r.label[..., None], -1)[..., 0]
