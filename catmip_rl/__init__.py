@@ -8,7 +8,8 @@
 
 from __future__ import annotations
 
+from catmip_env import __version__  # one version for the whole distribution (pyproject reads it there)
 from catmip_rl.amat import AMAT, AmatConfig, decision_order
 from catmip_rl.checkpoint import load_model, save_model
 
-__all__ = ["AMAT", "AmatConfig", "decision_order", "load_model", "save_model"]
+__all__ = ["AMAT", "AmatConfig", "__version__", "decision_order", "load_model", "save_model"]
