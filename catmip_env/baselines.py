@@ -1,4 +1,6 @@
-"""Classical planning baselines (SPEC §7), choosing goals in cell mode for the active robots.
+"""Classical planning baselines, choosing goals in cell mode for the active robots.
+
+The rules: docs/design.md#planning-baselines.
 
 All planners share the low-level controller and activation rules of the env; they differ only in
 which goal an active robot picks from its own clean belief:

@@ -49,7 +49,7 @@ RESCUER = RobotClass("rescuer", ticks_per_action=2, can_rescue=True)
 
 @dataclass(frozen=True)
 class EnvConfig:
-    """One task of the search-and-rescue world (SPEC §1-§4). Frozen and validated on creation."""
+    """One task of the search-and-rescue world (docs/design.md#world-rules). Frozen, validated on creation."""
 
     map_size: int = 20
     """Side S of the square generated map, outer wall ring included (S >= 10)."""

@@ -1,4 +1,4 @@
-"""Per-tick world dynamics as numba kernels over a batch of worlds (SPEC §1.2-§1.5).
+"""Per-tick world dynamics as numba kernels over a batch of worlds (docs/design.md#world-rules).
 
 One call of :func:`tick` advances every live world by one tick:
 

@@ -1,5 +1,6 @@
-"""Macro-action layer as numba kernels (SPEC §2): the low-level controller, macro-action ends,
-asynchronous / synchronous activation, goal assignment and invalid-action masks.
+"""Macro-action layer as numba kernels (docs/design.md#macro-actions-and-activation): the low-level
+controller, macro-action ends, asynchronous / synchronous activation, goal assignment and invalid-action
+masks.
 
 Per-robot macro state lives in one int64 array ``mstate (B, N, M_FIELDS)`` with the columns below.
 :func:`advance` runs each live world tick by tick (controller → move → perceive → bookkeeping) until
@@ -323,8 +324,8 @@ def action_masks(
     mstate: np.ndarray,
     masks: np.ndarray,  # (B, N, A) int8 out
 ) -> None:
-    """Invalid-action masks from the clean beliefs (SPEC §2.1) for active robots; a busy robot's mask
-    allows only its keep-goal action (window: the centre; cell: its current goal cell)."""
+    """Invalid-action masks from the clean beliefs (docs/design.md#goals-and-masks) for active robots; a
+    busy robot's mask allows only its keep-goal action (window: the centre; cell: its current goal cell)."""
     h, w = belief.shape[2], belief.shape[3]
     half = window // 2
     for b in range(worlds.shape[0]):

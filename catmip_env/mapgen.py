@@ -1,4 +1,6 @@
-"""Map generation (SPEC §1.1): rooms with doorways, spawn corner, obstacles, a reachable target, clues.
+"""Map generation: rooms with doorways, spawn corner, obstacles, a reachable target, clues.
+
+The rules: docs/design.md#maps-and-episodes.
 
 ``generate(cfg, rng)`` draws everything of one episode from the episode's own map stream (a
 ``numpy.random.Generator`` seeded by ``(seed, episode_index)``), so every method evaluated with the same

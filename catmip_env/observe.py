@@ -1,4 +1,4 @@
-"""Macro-observation builder (SPEC §3), shared by the primitive and the macro level.
+"""Macro-observation builder (docs/design.md#observations), shared by the primitive and the macro level.
 
 Per robot, from its own merged belief, as uint8 with ``float = uint8 * OBS_SCALE`` (1.0 -> 4,
 clue 0.25 -> 1):

@@ -1,4 +1,6 @@
-"""Shortest paths on belief maps (SPEC §2.2): BFS on a 4-connected grid with unit costs.
+"""Shortest paths on belief maps: BFS on a 4-connected grid with unit costs.
+
+The controller that uses them: docs/design.md#low-level-controller.
 
 Unknown cells count as free; cells whose used occupancy is set and cells with another robot are
 blocked. BFS gives the same path lengths as A* with the Manhattan heuristic. Scratch buffers are

@@ -1,7 +1,7 @@
 """Planners projected into the goal window: a classical planner's goal as an AMAT window action.
 
 A planner (``catmip_env.baselines``) picks any cell of the map; AMAT picks a goal inside the robot's
-D x D window (SPEC §2.1). :class:`WindowPlanner` runs the planner on a window-mode
+D x D window (docs/design.md#goals-and-masks). :class:`WindowPlanner` runs the planner on a window-mode
 :class:`~catmip_env.events.EventEngine` and turns each active robot's cell goal into a window action:
 
 * the goal itself if it lies inside the window and is allowed by the window mask;

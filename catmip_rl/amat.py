@@ -1,4 +1,4 @@
-"""AMAT — the Asynchronous Multi-Agent Transformer (SPEC §5), a plain ``torch.nn.Module``.
+"""AMAT — the Asynchronous Multi-Agent Transformer (docs/design.md#amat), a plain ``torch.nn.Module``.
 
 Shapes legend: ``B`` batch (worlds or samples), ``N`` robots (tokens), ``d`` embedding, ``A`` actions
 (D*D window goals), ``C`` robot classes, ``S`` map side, ``L`` local map side, ``G`` pooled grid.

@@ -1,7 +1,7 @@
 """Asynchronous-aware collection: one iteration = one episode in each of B worlds of the event engine.
 
 At every step each live world sits at its own decision event; the policy runs once on the batch of
-live worlds and only active robots' goals are applied. Samples (SPEC §6.2) go into preallocated
+live worlds and only active robots' goals are applied. Samples (docs/design.md#samples) go into preallocated
 ``(T, B, ...)`` storage: the joint macro-observations of all robots, action masks, active flags,
 decision order, actions, log-probs, values, and per robot the return and duration of the macro-action
 that ended at that event. Episode statistics are recorded when each world finishes.

@@ -15,7 +15,7 @@ __all__ = ["TrainConfig", "TRAIN_PRESETS", "make_train_config"]
 
 @dataclass(frozen=True)
 class TrainConfig:
-    """The paper's recipe (SPEC §6.1) by default."""
+    """The paper's recipe (docs/design.md#ppo-recipe) by default."""
 
     env_preset: str = "train"
     """catmip_env preset the training worlds come from."""

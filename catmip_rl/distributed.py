@@ -1,5 +1,6 @@
-"""Distributed execution (SPEC §8): :class:`AmatExecutor` runs AMAT over a batch of worlds as the
-robots would, with message accounting; the helpers below do one neighbourhood by hand. In both, every
+"""Distributed execution (docs/design.md#distributed-execution): :class:`AmatExecutor` runs AMAT over a
+batch of worlds as the robots would, with message accounting; the helpers below do one neighbourhood by
+hand. In both, every
 robot embeds its own macro-observation and sends a d-float token; the coordinator of each neighbourhood
 (its lowest id) runs encoder + decoder on the members' tokens only and sends each active member its
 goal.

@@ -1,4 +1,6 @@
-"""Asynchronous GAE (SPEC §6.2): advantages along each robot's own sequence of activations.
+"""Asynchronous GAE: advantages along each robot's own sequence of activations.
+
+The design: docs/design.md#asynchronous-gae.
 
 Robot i's k-th macro-action starts at its k-th activation (event row ``t_k``) and lasts ``dt_k`` ticks,
 until its next activation (or the end of the episode); its reward ``R_k`` is everything it collected in

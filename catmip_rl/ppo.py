@@ -1,5 +1,5 @@
-"""PPO for AMAT (SPEC §6): clipped policy loss over active robots, clipped Huber value loss on
-normalised values, entropy bonus, advantage normalisation.
+"""PPO for AMAT (docs/design.md#ppo-recipe): clipped policy loss over active robots, clipped Huber value
+loss on normalised values, entropy bonus, advantage normalisation.
 
 The loss is a few lines on purpose (``ppo_loss``); ``tests/rl/test_ppo.py`` checks that its policy term
 equals TorchRL's ``ClipPPOLoss`` with the :class:`~catmip_rl.actor.AmatActor` on the same batch.

@@ -1,4 +1,4 @@
-"""Attention over the few tokens of a decision event, for training on CPU (SPEC §5).
+"""Attention over the few tokens of a decision event, for training on CPU (docs/design.md#amat).
 
 AMAT attends over one event's robots: sequences of N <= 12 tokens. ``scaled_dot_product_attention`` on
 CPU spends ~1 ms forward and ~2 ms backward per call on a 256-event Task-2 batch (N = 3, d = 192) in

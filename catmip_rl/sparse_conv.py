@@ -1,5 +1,5 @@
 """The global CNN of AMAT's embedder for training on CPU: convolution + adaptive max pool, forward and
-backward, on the sparse uint8 global maps (SPEC §3, §5).
+backward, on the sparse uint8 global maps (docs/design.md#observations, #amat).
 
 ``global_conv_pool(gmap, weight, bias, pool)`` equals
 ``adaptive_max_pool2d(conv2d(gmap * 0.25, weight, bias, padding=k // 2), pool)`` with its gradients for

@@ -1,4 +1,7 @@
-"""Planning baselines: they finish Task 1 episodes and beat the random-window floor (SPEC §7)."""
+"""Planning baselines: they finish Task 1 episodes and beat the random-window floor.
+
+The rules: docs/design.md#planning-baselines.
+"""
 
 import numpy as np
 import pytest

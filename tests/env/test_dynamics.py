@@ -1,4 +1,7 @@
-"""World dynamics on hand-drawn maps: movement, speeds, communication, rewards, success (SPEC §1)."""
+"""World dynamics on hand-drawn maps: movement, speeds, communication, rewards, success.
+
+The rules: docs/design.md#world-rules.
+"""
 
 import numpy as np
 import pytest

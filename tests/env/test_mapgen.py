@@ -1,4 +1,4 @@
-"""Map generator properties over many seeds (SPEC §1.1)."""
+"""Map generator properties over many seeds (docs/design.md#maps-and-episodes)."""
 
 import numpy as np
 import pytest

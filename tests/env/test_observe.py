@@ -1,4 +1,4 @@
-"""Macro-observation channels (SPEC §3) are crops and stamps of the robot's own belief."""
+"""Macro-observation channels (docs/design.md#observations) are crops and stamps of the robot's own belief."""
 
 import numpy as np
 
