@@ -1,4 +1,4 @@
-"""The batched event engine: B worlds, each advancing to its own next decision event (SPEC §2-§3).
+"""Batched event engine: B worlds, each advancing to its own next decision event (docs/design.md#activation).
 
 >>> eng = EventEngine(PRESETS["train"], num_worlds=64, seed=0)     # goal_mode="window"
 >>> ev = eng.reset()                       # t = 0: every robot of every world is active
@@ -59,9 +59,10 @@ class EventEngine:
     ``goal_mode="window"``: action ``a`` in ``[0, D*D)`` is the goal offset
     ``(a // D - D//2, a % D - D//2)`` from the robot (row-major; the centre means stay here).
     ``goal_mode="cell"``: action ``r * W + c`` is the goal cell ``(r, c)`` (for planners).
-    ``invalid_action="raise"`` rejects masked or out-of-range actions of active robots with a
-    ``ValueError``; ``"stay"`` replaces them with the robot's own cell. ``gamma`` discounts
-    ``ma_rewards`` per elapsed tick.
+    ``invalid_action="raise"`` (the default: the trainer's policies are masked, so an invalid action
+    is a bug) rejects masked or out-of-range actions of active robots with a ``ValueError``;
+    ``"stay"`` replaces them with the robot's own cell and flags them in ``invalid`` (B, N) for the
+    last ``step``. ``gamma`` discounts ``ma_rewards`` per elapsed tick.
     """
 
     def __init__(
@@ -92,6 +93,7 @@ class EventEngine:
         self.stay_action = (cfg.window**2) // 2 if goal_mode == "window" else -1
         self.mstate = np.zeros((b, n, M_FIELDS), np.int64)
         self.masks = np.zeros((b, n, self.num_actions), np.int8)
+        self.invalid = np.zeros((b, n), np.bool_)  # actions replaced by "stay" at the last step
         self._prim = np.zeros((b, n), np.int64)
         self._tick_rewards = np.zeros((b, n), np.float64)
         self._event_rewards = np.zeros((b, n), np.float64)
@@ -162,6 +164,7 @@ class EventEngine:
         self._event_ticks[idx] = 0
         self._terminated[idx] = False
         self._truncated[idx] = False
+        self.invalid[idx] = False
         self._masks(mask)
         return self._result()
 
@@ -248,14 +251,19 @@ class EventEngine:
         if bad.any():
             if self.invalid_action == "raise":
                 b, i = (int(x) for x in np.argwhere(bad)[0])
-                what = "out of range" if not in_range[b, i] else "masked (invalid)"
+                v = int(actions[b, i])
+                if in_range[b, i]:
+                    what = f"masked: its goal cell {self.action_to_cell(b, i, v)} is not allowed by the mask"
+                else:
+                    what = f"out of range: {self.goal_mode} actions are 0..{self.num_actions - 1}"
                 raise ValueError(
-                    f"action {int(actions[b, i])} of robot_{i} (world {b}) is {what}: "
-                    f"{self.goal_mode} actions are 0..{self.num_actions - 1} and must be allowed by the mask"
+                    f"action {v} of robot_{i} (world {b}) is {what} "
+                    f"(invalid_action='stay' would replace it with 'stay here')"
                 )
             pos = self.state.pos
             stay = pos[..., 0] * self.shape[1] + pos[..., 1] if self.goal_mode == "cell" else self.stay_action
             a = np.where(bad, stay, a)
+        self.invalid[:] = bad
         st = self.state
         if self.goal_mode == "cell":
             self._goal_cells[..., 0], self._goal_cells[..., 1] = np.divmod(a, self.shape[1])

@@ -5,11 +5,14 @@ Use :func:`parallel_env` (or :func:`env` for the AEC API through ``parallel_to_a
     from catmip_env import search_rescue_v0
     env = search_rescue_v0.parallel_env(preset="task2", level="macro", comm_sigma=4.0)
     obs, infos = env.reset(seed=0)
+
+``obs_format="flat"`` gives every robot one float32 ``Box`` vector (what SuperSuit's wrappers and
+vector-env converters take) with the action mask in ``infos[robot]["action_mask"]``.
 """
 
 from __future__ import annotations
 
-import functools
+import math
 import warnings
 from typing import Any
 
@@ -24,9 +27,27 @@ from catmip_env.events import GOAL_MODES, INVALID_ACTION_MODES, EventEngine
 from catmip_env.render import render_ansi, render_world
 from catmip_env.types import OBS_SCALE, PRIMITIVE_ACTIONS, global_channels, local_channels
 
-__all__ = ["SearchRescueEnv", "parallel_env", "env", "raw_env", "LEVELS"]
+__all__ = ["SearchRescueEnv", "parallel_env", "env", "raw_env", "LEVELS", "OBS_FORMATS"]
 
 LEVELS = ("macro", "primitive")
+OBS_FORMATS = ("dict", "flat")
+STAY = PRIMITIVE_ACTIONS.index("stay")
+
+
+def integer_action(agent: str, action: Any) -> int:
+    """``action`` as an int. Python and numpy integers (0-d arrays too) and integral floats (``2.0``)
+    are accepted; anything else — ``2.5``, a bool, a string, ``None``, an array with a shape — is a type
+    error, not an invalid choice, and raises ``ValueError`` whatever ``invalid_action`` says."""
+    if isinstance(action, (int, np.integer)) and not isinstance(action, bool):
+        return int(action)  # the common case first: this runs for every robot at every step
+    value = action.item() if isinstance(action, (np.ndarray, np.generic)) and np.ndim(action) == 0 else action
+    integral = isinstance(value, int) or (isinstance(value, float) and value.is_integer())
+    if isinstance(value, bool) or not integral:
+        raise ValueError(
+            f"action of {agent} must be an integer (Discrete action), got {action!r} of type "
+            f"{type(action).__name__}"
+        )
+    return int(value)
 
 
 class SearchRescueEnv(ParallelEnv):
@@ -55,12 +76,19 @@ class SearchRescueEnv(ParallelEnv):
     action ``a`` = goal offset ``(a // D - D//2, a % D - D//2)`` (row, col) from the robot, the centre
     = stay. ``goal_mode="cell"``: ``Discrete(H*W)``, action ``r * W + c`` = goal cell. Only *active*
     robots' actions are applied; a busy robot's mask allows exactly one action (window: the centre;
-    cell: its current goal), meaning "keep your goal", and its action may be omitted. An active robot's
-    out-of-range or masked action raises ``ValueError`` (``invalid_action="stay"`` substitutes "stay
-    here"). Primitive: 0 turn left, 1 turn right, 2 forward, 3 stay; a slow robot executes an action
-    only on ticks where ``info["can_act"] == 1``.
+    cell: its current goal), meaning "keep your goal", and its action may be omitted. Primitive: 0 turn
+    left, 1 turn right, 2 forward, 3 stay; a slow robot executes an action only on ticks where
+    ``info["can_act"] == 1``.
 
-    **Observation** (``Dict``; ``compact_obs=True`` gives the maps as uint8, float = value * 0.25):
+    **Invalid actions.** An applied action that is out of range or masked is replaced by "stay"
+    (macro: a goal on the robot's own cell; primitive: action 3) and flagged in that robot's info
+    (``invalid_action`` = 1 in the infos of that step, ``invalid_actions`` counts them per episode),
+    so that any sampler — PettingZoo's test battery samples without the mask — can drive the env.
+    ``invalid_action="raise"`` is the strict mode: a ``ValueError`` names the robot, the action and
+    why. A non-integer action (``2.5``, a bool, a string, an array) raises ``ValueError`` in both modes.
+
+    **Observation** (``obs_format="dict"``, a ``Dict``; ``compact_obs=True`` gives the maps as uint8,
+    float = value * 0.25):
 
     ========================= ============== ======= =================================================
     key                       shape          dtype   meaning
@@ -74,6 +102,10 @@ class SearchRescueEnv(ParallelEnv):
     observation/heading       (4,)           float32 heading one-hot E, S, W, N (primitive only)
     action_mask               (A,)           int8    1 = allowed (A = D*D, H*W, or 4)
     ========================= ============== ======= =================================================
+
+    ``obs_format="flat"``: one ``Box(0, 1, (F,), float32)`` per robot, the parts above (without the
+    mask) raveled in C order and concatenated in table order; ``flat_layout[key]`` = (slice, shape).
+    The mask is then ``info["action_mask"]`` (PettingZoo's and TorchRL's other place for it).
 
     Invalid goals (from the robot's clean belief): outside the interior, known occupied (wall,
     obstacle, target), another neighbourhood member's cell, or a cell whose in-bounds 4-neighbours are
@@ -93,16 +125,18 @@ class SearchRescueEnv(ParallelEnv):
     **Info** (fixed numeric keys). Macro: ``active`` (1 = must choose now), ``agent_class``,
     ``event_ticks`` (ticks since the previous event), ``tick``, ``neighbourhood`` (component label =
     lowest member id). Primitive: ``agent_class``, ``tick``, ``neighbourhood``, ``can_act``,
-    ``knows_target``.
+    ``knows_target``. Both: ``invalid_action``, ``invalid_actions``; flat format: ``action_mask``.
 
     **Arguments.** ``preset`` (``task1``, ``task2``, ``task3``, ``train``) or an ``EnvConfig``; any
     ``EnvConfig`` field as keyword (``comm_sigma``, ``slam_noise``, ``horizon_ticks``, ``max_ma_ticks``,
     ``activation``, ``synchronous``, ``window``, ``layout`` ...); ``level``; ``goal_mode``;
-    ``invalid_action``; ``render_mode`` (``rgb_array``, ``human``, ``ansi``); ``compact_obs``;
-    ``max_cycles`` (primitive: sets ``horizon_ticks``; macro: at most this many steps).
+    ``invalid_action`` (``stay``, ``raise``); ``obs_format`` (``dict``, ``flat``); ``render_mode``
+    (``rgb_array``, ``human``, ``ansi``); ``compact_obs`` (dict format only); ``max_cycles``
+    (primitive: sets ``horizon_ticks``; macro: at most this many steps).
     ``reset(options={"episode_index": k})`` replays episode k of the current seed.
 
-    **Version history.** v0: primitive and macro levels, window and cell goal modes.
+    **Version history.** v0: primitive and macro levels, window and cell goal modes; invalid actions
+    become "stay" by default (``invalid_action="raise"`` is strict); the flat observation format.
     """
 
     metadata = {
@@ -117,28 +151,30 @@ class SearchRescueEnv(ParallelEnv):
         config: EnvConfig,
         level: str = "macro",
         goal_mode: str = "window",
-        invalid_action: str = "raise",
+        invalid_action: str = "stay",
         render_mode: str | None = None,
         compact_obs: bool = False,
         max_cycles: int | None = None,
+        obs_format: str = "dict",
     ) -> None:
-        if level not in LEVELS:
-            raise ValueError(f"unknown level {level!r}; supported levels: {list(LEVELS)}")
-        if goal_mode not in GOAL_MODES:
-            raise ValueError(f"unknown goal_mode {goal_mode!r}; choose one of {list(GOAL_MODES)}")
-        if invalid_action not in INVALID_ACTION_MODES:
-            raise ValueError(
-                f"unknown invalid_action {invalid_action!r}; choose one of {list(INVALID_ACTION_MODES)}"
-            )
-        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
-            raise ValueError(
-                f"unknown render_mode {render_mode!r}; supported: {self.metadata['render_modes']}"
-            )
+        for name, value, allowed in (
+            ("level", level, LEVELS),
+            ("goal_mode", goal_mode, GOAL_MODES),
+            ("invalid_action", invalid_action, INVALID_ACTION_MODES),
+            ("obs_format", obs_format, OBS_FORMATS),
+            ("render_mode", render_mode, (None, *self.metadata["render_modes"])),
+        ):
+            if value not in allowed:
+                raise ValueError(f"unknown {name} {value!r}; choose one of {list(allowed)}")
+        if compact_obs and obs_format == "flat":
+            raise ValueError("compact_obs=True applies to obs_format='dict' only; the flat format is float32")
         if max_cycles is not None and max_cycles < 1:
             raise ValueError(f"max_cycles must be >= 1, got {max_cycles!r}")
         self.config = config
         self.level = level
         self.goal_mode = goal_mode
+        self.invalid_action = invalid_action
+        self.obs_format = obs_format
         self.render_mode = render_mode
         self.compact_obs = compact_obs
         self.max_cycles = max_cycles if level == "macro" else None
@@ -149,46 +185,57 @@ class SearchRescueEnv(ParallelEnv):
         else:
             self.engine = self.world = BatchedEngine(config, num_worlds=1, seed=None)
             self.num_actions = len(PRIMITIVE_ACTIONS)
-        self.possible_agents = [f"robot_{i}" for i in range(config.num_robots)]
+        n = config.num_robots
+        self.possible_agents = [f"robot_{i}" for i in range(n)]
         self.agent_name_mapping = {a: i for i, a in enumerate(self.possible_agents)}
         self.agents: list[str] = []
         self._n_cls = config.num_classes
         self._eye_cls = np.eye(self._n_cls, dtype=np.float32)
         self._eye_head = np.eye(4, dtype=np.float32)
-        self._ones_mask = np.ones(self.num_actions, np.int8)
-        self._actions = np.zeros((1, config.num_robots), np.int64)
+        self._actions = np.zeros((1, n), np.int64)
+        self._invalid = np.zeros(n, np.bool_)  # actions replaced by "stay" at the last step
+        self._invalid_count = np.zeros(n, np.int64)  # ... and since reset
         self._steps = 0
         self._fig = None
         h, w = config.map_shape
         self.state_space = spaces.Box(0.0, 1.0, (4 + self._n_cls, h, w), np.float32)
+        self.flat_layout: dict[str, tuple[slice, tuple[int, ...]]] = {}  # part -> (slice, shape)
+        self._flat_size = 0
+        for key, box in self._part_spaces().items():
+            size = math.prod(box.shape)
+            self.flat_layout[key] = (slice(self._flat_size, self._flat_size + size), box.shape)
+            self._flat_size += size
+        # one space object per robot (PettingZoo seeds each robot's space on its own)
+        self.observation_spaces = {a: self._observation_space() for a in self.possible_agents}
+        self.action_spaces = {a: spaces.Discrete(self.num_actions) for a in self.possible_agents}
 
     # -- spaces --------------------------------------------------------------------------------
-    @functools.cache  # noqa: B019 - one space object per agent, as PettingZoo asks
-    def observation_space(self, agent: str) -> spaces.Dict:
-        self._index(agent)
+    def _part_spaces(self) -> dict[str, spaces.Box]:
+        """The observation parts, in table (and flat-layout) order."""
         cfg, c = self.config, self._n_cls
-        h, w = cfg.map_shape
-        big = 4 if self.compact_obs else 1.0
-        dt = np.uint8 if self.compact_obs else np.float32
-
-        def box(shape: tuple[int, ...]) -> spaces.Box:
-            return spaces.Box(0, big, shape, dt)
-
-        inner = {
-            "global_map": box((global_channels(c), h, w)),
-            "local_map": box((local_channels(c), cfg.local_size, cfg.local_size)),
+        big, dt = (4, np.uint8) if self.compact_obs else (1.0, np.float32)
+        parts = {
+            "global_map": spaces.Box(0, big, (global_channels(c), *cfg.map_shape), dt),
+            "local_map": spaces.Box(0, big, (local_channels(c), cfg.local_size, cfg.local_size), dt),
             "agent_class": spaces.Box(0.0, 1.0, (c,), np.float32),
         }
         if self.level == "primitive":
-            inner["heading"] = spaces.Box(0.0, 1.0, (4,), np.float32)
-        return spaces.Dict(
-            {"observation": spaces.Dict(inner), "action_mask": spaces.Box(0, 1, (self.num_actions,), np.int8)}
-        )
+            parts["heading"] = spaces.Box(0.0, 1.0, (4,), np.float32)
+        return parts
 
-    @functools.cache  # noqa: B019
+    def _observation_space(self) -> spaces.Space:
+        if self.obs_format == "flat":
+            return spaces.Box(0.0, 1.0, (self._flat_size,), np.float32)
+        mask = spaces.Box(0, 1, (self.num_actions,), np.int8)
+        return spaces.Dict({"observation": spaces.Dict(self._part_spaces()), "action_mask": mask})
+
+    def observation_space(self, agent: str) -> spaces.Space:
+        self._index(agent)  # a clear error for unknown ids
+        return self.observation_spaces[agent]
+
     def action_space(self, agent: str) -> spaces.Discrete:
         self._index(agent)
-        return spaces.Discrete(self.num_actions)
+        return self.action_spaces[agent]
 
     def _index(self, agent: str) -> int:
         try:
@@ -206,32 +253,35 @@ class SearchRescueEnv(ParallelEnv):
         self.engine.reset(episode_indices=episode)
         self.agents = self.possible_agents[:]
         self._steps = 0
+        self._invalid[:] = False
+        self._invalid_count[:] = 0
         if self.render_mode == "human":
             self.render()
-        return self._observations(), self._infos(event_ticks=0)
+        obs, masks = self._observations()
+        return obs, self._infos(event_ticks=0, masks=masks)
 
     def step(self, actions: dict[str, Any]):
         if not self.agents:
             raise RuntimeError("step() called after the episode ended; call reset() first")
         a = self._parse_actions(actions)
         if self.level == "macro":
-            ev = self.engine.step(a)
-            rewards_arr, term, trunc, ticks = (
-                ev.rewards[0],
-                ev.terminated[0],
-                ev.truncated[0],
-                ev.event_ticks[0],
-            )
+            ev = self.engine.step(a)  # raises on, or replaces, invalid goals of active robots
+            self._invalid[:] = self.engine.invalid[0]
+            rewards_arr, term, trunc = ev.rewards[0], ev.terminated[0], ev.truncated[0]
+            ticks = int(ev.event_ticks[0])
         else:
+            self._invalid[:] = self._replace_invalid_primitives(a[0])
             res = self.engine.step(a)
             rewards_arr, term, trunc, ticks = res.rewards[0], res.terminated[0], res.truncated[0], 1
+        self._invalid_count += self._invalid
         self._steps += 1
         term = bool(term)
         trunc = bool(trunc) or (not term and self.max_cycles is not None and self._steps >= self.max_cycles)
         rewards = {ag: float(rewards_arr[i]) for i, ag in enumerate(self.possible_agents)}
         terms = dict.fromkeys(self.possible_agents, term)
         truncs = dict.fromkeys(self.possible_agents, trunc)
-        obs, infos = self._observations(), self._infos(event_ticks=int(ticks))
+        obs, masks = self._observations()
+        infos = self._infos(event_ticks=ticks, masks=masks)
         if term or trunc:
             self.agents = []
         if self.render_mode == "human":
@@ -239,83 +289,86 @@ class SearchRescueEnv(ParallelEnv):
         return obs, rewards, terms, truncs, infos
 
     def _parse_actions(self, actions: dict[str, Any]) -> np.ndarray:
+        """The (1, N) int64 action array; unknown ids, non-integers and missing robots raise."""
         a = self._actions
-        a[:] = 0
-        given = set()
+        a[:] = 0  # omitted busy robots: ignored by the engine
         for agent, action in actions.items():
-            i = self._index(agent)
-            try:
-                v = int(action)
-            except (TypeError, ValueError):
-                raise ValueError(f"action of {agent} must be an int, got {action!r}") from None
-            if self.level == "primitive" and (v != action or not 0 <= v < self.num_actions):
-                raise ValueError(
-                    f"action {action!r} of {agent} is out of range: primitive actions are "
-                    f"0..{self.num_actions - 1} {PRIMITIVE_ACTIONS}"
-                )
-            a[0, i] = v
-            given.add(agent)
-        if self.level == "macro":
-            needed = {ag for i, ag in enumerate(self.possible_agents) if self.engine.active[0, i]}
-            for i, ag in enumerate(self.possible_agents):
-                if ag in needed and ag in given and not 0 <= a[0, i] < self.num_actions:
-                    raise ValueError(
-                        f"action {a[0, i]} of {ag} is out of range: {self.goal_mode} actions are "
-                        f"0..{self.num_actions - 1}"
-                    )
-            missing = sorted(needed - given)
-            if missing:
-                raise ValueError(f"missing actions for active robots {missing}")
-        else:
-            missing = sorted(set(self.agents) - given)
-            if missing:
-                raise ValueError(f"missing actions for robots {missing}")
+            a[0, self._index(agent)] = integer_action(agent, action)
+        macro = self.level == "macro"
+        needed = [ag for i, ag in enumerate(self.possible_agents) if not macro or self.engine.active[0, i]]
+        missing = sorted(set(needed) - set(actions))
+        if missing:
+            raise ValueError(f"missing actions for {'active ' if macro else ''}robots {missing}")
         return a
 
-    def _observations(self) -> dict[str, dict[str, Any]]:
+    def _replace_invalid_primitives(self, a: np.ndarray) -> np.ndarray:
+        """Apply the invalid-action policy to primitive actions ``a`` (N,) in place; (N,) bool replaced."""
+        bad = (a < 0) | (a >= self.num_actions)
+        if not bad.any():
+            return bad
+        if self.invalid_action == "raise":
+            i = int(np.flatnonzero(bad)[0])
+            raise ValueError(
+                f"action {a[i]} of {self.possible_agents[i]} is out of range: primitive actions are "
+                f"0..{self.num_actions - 1} {PRIMITIVE_ACTIONS} (invalid_action='stay' would replace it "
+                f"with 'stay')"
+            )
+        a[bad] = STAY
+        return bad
+
+    def _observations(self) -> tuple[dict[str, Any], np.ndarray]:
+        """Every robot's observation, and the (N, A) int8 action masks."""
         world, st = self.world, self.world.state
-        g, l = world.obs_global[0], world.obs_local[0]
+        g, l = world.obs_global[0], world.obs_local[0]  # (N, ...) uint8, value * OBS_SCALE = float
         if self.compact_obs:
             g, l = g.copy(), l.copy()
         else:
             g = g.astype(np.float32) * np.float32(OBS_SCALE)
             l = l.astype(np.float32) * np.float32(OBS_SCALE)
-        macro = self.level == "macro"
-        out = {}
-        for i, agent in enumerate(self.possible_agents):
-            inner = {"global_map": g[i], "local_map": l[i], "agent_class": self._eye_cls[st.cls[0, i]].copy()}
-            if not macro:
-                inner["heading"] = self._eye_head[st.heading[0, i]].copy()
-            mask = self.engine.masks[0, i].copy() if macro else self._ones_mask.copy()
-            out[agent] = {"observation": inner, "action_mask": mask}
-        return out
+        parts = {"global_map": g, "local_map": l, "agent_class": self._eye_cls[st.cls[0]]}
+        if self.level == "primitive":
+            parts["heading"] = self._eye_head[st.heading[0]]
+        n = len(self.possible_agents)
+        if self.level == "macro":
+            masks = self.engine.masks[0].copy()
+        else:
+            masks = np.ones((n, self.num_actions), np.int8)  # every primitive is legal
+        if self.obs_format == "flat":
+            flat = np.concatenate([p.reshape(n, -1) for p in parts.values()], axis=1)
+            return {agent: flat[i] for i, agent in enumerate(self.possible_agents)}, masks
+        return {
+            agent: {"observation": {k: p[i] for k, p in parts.items()}, "action_mask": masks[i]}
+            for i, agent in enumerate(self.possible_agents)
+        }, masks
 
-    def _infos(self, event_ticks: int) -> dict[str, dict[str, int]]:
+    def _infos(self, event_ticks: int, masks: np.ndarray) -> dict[str, dict[str, Any]]:
         st = self.world.state
         t = int(st.ticks[0])
-        if self.level == "macro":
-            active = self.engine.active[0]
-            return {
-                agent: {
-                    "active": int(active[i]),
+        knows = self.world.knows_target()[0] if self.level == "primitive" else None
+        infos = {}
+        for i, agent in enumerate(self.possible_agents):
+            if self.level == "macro":
+                info = {
+                    "active": int(self.engine.active[0, i]),
                     "agent_class": int(st.cls[0, i]),
                     "event_ticks": event_ticks,
                     "tick": t,
                     "neighbourhood": int(st.comp[0, i]),
                 }
-                for i, agent in enumerate(self.possible_agents)
-            }
-        knows = self.world.knows_target()[0]
-        return {
-            agent: {
-                "agent_class": int(st.cls[0, i]),
-                "tick": t,
-                "neighbourhood": int(st.comp[0, i]),
-                "can_act": int(t % st.speed[0, i] == 0),
-                "knows_target": int(knows[i]),
-            }
-            for i, agent in enumerate(self.possible_agents)
-        }
+            else:
+                info = {
+                    "agent_class": int(st.cls[0, i]),
+                    "tick": t,
+                    "neighbourhood": int(st.comp[0, i]),
+                    "can_act": int(t % st.speed[0, i] == 0),
+                    "knows_target": int(knows[i]),
+                }
+            info["invalid_action"] = int(self._invalid[i])
+            info["invalid_actions"] = int(self._invalid_count[i])
+            if self.obs_format == "flat":
+                info["action_mask"] = masks[i]
+            infos[agent] = info
+        return infos
 
     def state(self) -> np.ndarray:
         return self.world.ground_truth(0)
@@ -353,10 +406,11 @@ def parallel_env(
     preset: str | EnvConfig = "task2",
     level: str = "macro",
     goal_mode: str = "window",
-    invalid_action: str = "raise",
+    invalid_action: str = "stay",
     render_mode: str | None = None,
     compact_obs: bool = False,
     max_cycles: int | None = None,
+    obs_format: str = "dict",
     **overrides: Any,
 ) -> SearchRescueEnv:
     """The Parallel env for a preset (or config) with ``EnvConfig`` field overrides.
@@ -376,6 +430,7 @@ def parallel_env(
         render_mode=render_mode,
         compact_obs=compact_obs,
         max_cycles=max_cycles,
+        obs_format=obs_format,
     )
 
 

@@ -1,4 +1,7 @@
-"""Macro-action layer on hand-built scenarios: ends, activation rules, speeds, masks (SPEC §2)."""
+"""Macro-action layer on hand-built scenarios: ends, activation rules, speeds, masks.
+
+The rules: docs/design.md#macro-actions-and-activation.
+"""
 
 import numpy as np
 import pytest
@@ -167,7 +170,7 @@ def test_synchronous_mode():
 
 
 def _reference_mask(bel, pos, i, d=7):
-    """The masking rule of SPEC §2.1 written out in plain Python."""
+    """The masking rule of docs/design.md#goals-and-masks written out in plain Python."""
     h, w = bel.shape
     occ = (bel & 2) != 0
     out = np.zeros(d * d, np.int8)
@@ -242,12 +245,16 @@ def test_invalid_actions_raise_or_become_stay():
         step(eng, window(0, 0), window(-3, 0))  # outside the map
     with pytest.raises(ValueError, match="shape"):
         eng.step(np.zeros((1, 3), np.int64))
+    assert not eng.invalid.any()
     cfg = eng.cfg
     lenient = EventEngine(cfg, 1, seed=0, invalid_action="stay")
     lenient.reset()
     ev = lenient.step(np.array([[window(-3, 0), window(0, 3)]]))
     assert ev.event_ticks[0] == 1 and ev.active[0, 0]  # robot_0 stayed
     assert lenient.state.goal[0, 0].tolist() == [1, 1]
+    assert lenient.invalid.tolist() == [[True, False]]  # flagged for this step only
+    lenient.step(np.array([[window(0, 0), window(0, 0)]]))
+    assert not lenient.invalid.any()
 
 
 def test_layout_walls_are_walls():

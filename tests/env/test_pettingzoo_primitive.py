@@ -3,46 +3,36 @@
 import functools
 import subprocess
 import sys
-from types import SimpleNamespace
 
 import numpy as np
 import pettingzoo
 import pytest
-from pettingzoo.test import (
-    api_test,
-    max_cycles_test,
-    parallel_api_test,
-    parallel_seed_test,
-    render_test,
-    seed_test,
-)
+from pettingzoo.test import performance_benchmark, render_test
 
 import catmip_env
-from catmip_env import search_rescue_v0
+from catmip_env import PRESETS, search_rescue_v0
 
-PRESETS = ["task1", "task2", "task3", "train"]
+from .helpers import COMM_NOISE, INVALID_FLAGS, NOT_INTEGERS, pettingzoo_battery
+
 prim_parallel_env = functools.partial(search_rescue_v0.parallel_env, level="primitive")
 prim_env = functools.partial(search_rescue_v0.env, level="primitive")
-PRIMITIVE = SimpleNamespace(parallel_env=prim_parallel_env, env=prim_env)
-VARIANTS = [{}, {"comm_sigma": 2.0, "slam_noise": 0.05}]
 
 
-@pytest.mark.parametrize("preset", PRESETS)
-@pytest.mark.parametrize("kw", VARIANTS, ids=["full", "partial+noise"])
-def test_parallel_api_and_seed(preset, kw):
-    parallel_api_test(prim_parallel_env(preset=preset, **kw), num_cycles=500)
-    parallel_seed_test(lambda: prim_parallel_env(preset=preset, **kw), num_cycles=300)
+@pytest.mark.parametrize("preset", sorted(PRESETS))
+@pytest.mark.parametrize("variant", list(COMM_NOISE))
+@pytest.mark.parametrize("obs_format", ["dict", "flat"])
+def test_pettingzoo_battery(preset, variant, obs_format):
+    pettingzoo_battery(level="primitive", preset=preset, obs_format=obs_format, **COMM_NOISE[variant])
 
 
-@pytest.mark.parametrize("preset", PRESETS)
-def test_aec_api_and_seed(preset):
-    api_test(prim_env(preset=preset), num_cycles=200)
-    seed_test(lambda: prim_env(preset=preset, comm_sigma=4.0), num_cycles=200)
+@pytest.mark.parametrize("obs_format", ["dict", "flat"])
+def test_render(obs_format):
+    render_test(lambda render_mode=None: prim_env(render_mode=render_mode, obs_format=obs_format))
 
 
-def test_max_cycles_and_render():
-    max_cycles_test(PRIMITIVE)
-    render_test(lambda render_mode=None: prim_env(preset="task1", render_mode=render_mode))
+@pytest.mark.slow
+def test_performance_benchmark_runs():
+    performance_benchmark(prim_env())  # 5 s of random play; prints turns per second
 
 
 def test_full_episode_determinism():
@@ -105,13 +95,9 @@ def test_observation_contract():
         assert o["action_mask"].dtype == np.int8 and o["action_mask"].tolist() == [1, 1, 1, 1]
         cls = infos[agent]["agent_class"]
         assert o["observation"]["agent_class"].tolist() == np.eye(c)[cls].tolist()
-        assert set(infos[agent]) == {
-            "agent_class",
-            "tick",
-            "neighbourhood",
-            "can_act",
-            "knows_target",
-        }
+        assert set(infos[agent]) == {"agent_class", "tick", "neighbourhood", "can_act", "knows_target"} | (
+            INVALID_FLAGS
+        )
     assert env.state().shape == env.state_space.shape
     compact = prim_parallel_env(preset="task3", compact_obs=True)
     co, _ = compact.reset(seed=0)
@@ -131,12 +117,35 @@ def test_rescuer_can_act_flag():
     assert infos["robot_1"]["can_act"] == 1
 
 
+def test_out_of_range_actions_become_stay_and_are_flagged():
+    lenient, reference = prim_parallel_env(preset="task1"), prim_parallel_env(preset="task1")
+    lenient.reset(seed=0)
+    reference.reset(seed=0)
+    o1, r1, _, _, i1 = lenient.step({"robot_0": -1, "robot_1": 4})
+    o2, r2, _, _, i2 = reference.step({"robot_0": 3, "robot_1": 3})
+    _assert_same(o1, o2)
+    assert r1 == r2 and np.array_equal(lenient.state(), reference.state())
+    assert [i1[a]["invalid_action"] for a in lenient.agents] == [1, 1]
+    assert [i2[a]["invalid_action"] for a in reference.agents] == [0, 0]
+    _, _, _, _, i1 = lenient.step({"robot_0": 2, "robot_1": 7})
+    assert [(i1[a]["invalid_action"], i1[a]["invalid_actions"]) for a in lenient.agents] == [(0, 1), (1, 2)]
+
+
+@pytest.mark.parametrize("invalid_action", ["stay", "raise"])
+@pytest.mark.parametrize("action", NOT_INTEGERS)
+def test_non_integer_actions_raise_in_both_modes(invalid_action, action):
+    env = prim_parallel_env(preset="task1", invalid_action=invalid_action)
+    env.reset(seed=0)
+    with pytest.raises(ValueError, match="action of robot_1 must be an integer"):
+        env.step({"robot_0": 3, "robot_1": action})
+
+
 def test_bad_input_raises_clear_errors():
-    env = prim_parallel_env(preset="task1", horizon_ticks=3)
+    env = prim_parallel_env(preset="task1", horizon_ticks=3, invalid_action="raise")
     env.reset(seed=0)
     with pytest.raises(ValueError, match="unknown robot id 'robot_7'"):
         env.step({"robot_0": 0, "robot_1": 0, "robot_7": 0})
-    with pytest.raises(ValueError, match="action 9 of robot_1 is out of range"):
+    with pytest.raises(ValueError, match=r"action 9 of robot_1 is out of range: primitive actions are 0..3"):
         env.step({"robot_0": 0, "robot_1": 9})
     with pytest.raises(ValueError, match=r"missing actions for robots \['robot_1'\]"):
         env.step({"robot_0": 0})
