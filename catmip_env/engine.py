@@ -328,16 +328,17 @@ class BatchedEngine:
         inner = self.state.belief[:, :, 1:-1, 1:-1] & EXPLORED
         return inner.any(axis=1).mean(axis=(1, 2))
 
-    def ground_truth(self, b: int = 0) -> np.ndarray:
-        """(4 + C, H, W) float32 ground truth of world b: occupied (walls, obstacles), target, clues,
-        explored by any robot, then one channel per class with that class's robot cells."""
+    def ground_truth(self, b: int | None = 0) -> np.ndarray:
+        """(4 + C, H, W) float32 ground truth of world b — or (B, 4 + C, H, W) of every world for
+        ``b=None`` — in {0, 1}: occupied (walls, obstacles), target, clues, explored by any robot, then
+        one channel per class with that class's robot cells."""
         st = self.state
-        c = self.cfg.num_classes
-        out = np.zeros((4 + c,) + self.shape, np.float32)
-        g = st.grid[b]
-        out[0] = (g == WALL) | (g == OBSTACLE)
-        out[1] = g == TARGET
-        out[2] = g == CLUE
-        out[3] = (st.belief[b] & EXPLORED).any(axis=0)
-        out[4 + st.cls[b], st.pos[b, :, 0], st.pos[b, :, 1]] = 1.0
-        return out
+        worlds = slice(None) if b is None else [b]
+        g, cls, pos = st.grid[worlds], st.cls[worlds], st.pos[worlds]
+        out = np.zeros((len(g), 4 + self.cfg.num_classes) + self.shape, np.float32)
+        out[:, 0] = (g == WALL) | (g == OBSTACLE)
+        out[:, 1] = g == TARGET
+        out[:, 2] = g == CLUE
+        out[:, 3] = (st.belief[worlds] & EXPLORED).any(axis=1)
+        out[np.arange(len(g))[:, None], 4 + cls, pos[..., 0], pos[..., 1]] = 1.0
+        return out if b is None else out[0]

@@ -1,29 +1,88 @@
-"""A native TorchRL env over the batched event engine: batch size [B], one step = one decision event
-in every world (each world advances to its *own* next event).
+"""A native TorchRL multi-agent env over the batched event engine, and the float-observation transform.
 
-Per world and robot the tensordict carries (keys of :mod:`catmip_rl.keys`): the compact uint8
-macro-observations, the action mask, the active flag, the class one-hot; after a step also the
-per-event reward ``("robots", "reward")`` (B, N, 1), the ticks the step took ``event_ticks`` (B, 1) and
-the done flags (B, 1). Finished worlds are reset through TorchRL's ``"_reset"`` mechanism.
+:class:`CatmipEnv` is the recommended TorchRL entry point (its docstring is its documentation page);
+:func:`float_observation_transform` turns its uint8 maps into float32 for networks of your own.
 """
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
 import torch
-from tensordict import TensorDict, TensorDictBase
+from tensordict import NestedKey, TensorDict, TensorDictBase
 from torchrl.data import Binary, Bounded, Categorical, Composite, Unbounded
-from torchrl.envs import EnvBase
+from torchrl.envs import ActionMask, Compose, DTypeCastTransform, EnvBase, ObservationNorm
 
 from catmip_env import EnvConfig, make_config
 from catmip_env.events import EventEngine
-from catmip_env.types import OBS_ONE
+from catmip_env.types import OBS_ONE, OBS_SCALE
+from catmip_rl import keys as K
 
-__all__ = ["CatmipEnv"]
+__all__ = ["CatmipEnv", "float_observation_transform"]
+
+_DONE_NAMES = ("done", "terminated", "truncated")
 
 
 class CatmipEnv(EnvBase):
-    """``CatmipEnv(preset="train", num_worlds=64, seed=0, **EnvConfig_overrides)``."""
+    """CATMiP search and rescue as a batched TorchRL multi-agent env: ``B`` independent worlds, one
+    step = one decision **event** in every world (each world advances to its *own* next event).
+
+    ``CatmipEnv(preset="train", num_worlds=1, seed=0, goal_mode="window", **EnvConfig_overrides)``
+
+    The recommended TorchRL entry point. TorchRL's ``PettingZooWrapper`` over
+    ``catmip_env.search_rescue_v0`` works too (it passes ``check_env_specs``), but it steps one world
+    and, because the PettingZoo observation is itself a dict ``{"observation": {...}, "action_mask":
+    ...}``, its keys come out double-nested: ``("robot", "observation", "observation", "global_map")``
+    (group ``"robot"``; ``"agents"`` under ``MarlGroupMapType.ALL_IN_ONE_GROUP``), float32 maps and
+    the active flags as float32 ``("robot", "info", "active")``.
+
+    **Robots** — one group, ``"robots"`` (``group_map = {"robots": ["robot_0", …, "robot_{N-1}"]}``),
+    of the preset's team: rescuers (2 ticks per primitive action, can rescue) and explorers (1 tick).
+
+    **Action** ``("robots", "action")`` (B, N) int64: a goal in the robot's D×D window (``goal_mode=
+    "window"``, D² actions, the centre = stay) or any cell (``"cell"``, H·W actions). Only the
+    *active* robots' actions are used; a busy robot's mask allows exactly one action ("keep your
+    goal"), so a masked policy can act for every robot every step.
+
+    **Observation** (batch dims (B,) at the root, (B, N) under ``"robots"``):
+
+    ============================  ===================  =======  ============================================
+    key                           shape                dtype    meaning
+    ============================  ===================  =======  ============================================
+    ``("robots","global_map")``   (B, N, 5 + C, H, W)  uint8    robot's belief map (float = value × 0.25)
+    ``("robots","local_map")``    (B, N, 4 + C, L, L)  uint8    the same channels around the robot
+    ``("robots","agent_class")``  (B, N, C)            float32  class one-hot
+    ``("robots","action_mask")``  (B, N, A)            bool     allowed actions
+    ``("robots","active")``       (B, N)               bool     robots that choose a goal now
+    ``"state"``                   (B, 4 + C, H, W)     float32  ground truth in {0, 1} (below)
+    ``"event_ticks"``             (B, 1)               int64    ticks the last step ran (0 at reset)
+    ============================  ===================  =======  ============================================
+
+    ``"state"`` is the world's ground truth, the same array as the PettingZoo env's ``state()``:
+    occupied (walls, obstacles), target, clues, explored by any robot, then one channel per class with
+    that class's robot cells. It is privileged (it shows the unknown target): a centralised critic's
+    input during training, never a policy's. :func:`float_observation_transform` converts the uint8 maps
+    (channel layout: docs/environment.md) to float32.
+
+    **Reward** ``("robots", "reward")`` (B, N, 1) float32: each robot's primitive rewards summed since
+    the previous event — −0.05 per forward move, ``collision_penalty`` per blocked move, and to every
+    robot ``100 (1 − 0.9 t/h)`` when the target is first known, ``300 (1 − 0.9 t/h)`` on success.
+
+    **Termination**: success (a rescuer that knows the target stands next to it) terminates the world,
+    ``horizon_ticks`` truncates it. ``"done"`` / ``"terminated"`` / ``"truncated"`` are (B, 1) at the root
+    and repeated per robot under ``"robots"`` (B, N, 1), as in TorchRL's MARL envs, so that ``GAE`` and
+    ``ClipPPOLoss`` read the group's done flags beside its reward and values. Finished worlds are reset
+    through ``"_reset"`` (the root one, or ``("robots", "_reset")`` of any of its robots).
+
+    **Arguments**: ``preset`` (a ``catmip_env.PRESETS`` name or an ``EnvConfig``), ``num_worlds`` B,
+    ``seed`` (episode ``k`` of a seed always has the same map), ``goal_mode``, ``invalid_action``
+    (``"raise"`` or ``"stay"``), ``gamma`` (the engine's per-tick discount of macro-action returns;
+    the per-event reward above is undiscounted), ``device``, and any ``EnvConfig`` field as a keyword.
+
+    **Versions**: 1 — group-level done flags, ``"state"``, ``group_map``; 0 — the macro-observations,
+    mask, active flags, per-robot reward, ``event_ticks`` and root done flags (all unchanged since).
+    """
 
     batch_locked = True
 
@@ -44,6 +103,7 @@ class CatmipEnv(EnvBase):
         self.engine = EventEngine(
             cfg, num_worlds, seed, goal_mode=goal_mode, invalid_action=invalid_action, gamma=gamma
         )
+        self.group_map = {K.ROBOTS: [f"robot_{i}" for i in range(self.engine.num_robots)]}
         self._make_specs()
 
     # -- specs ------------------------------------------------------------------------------------
@@ -56,6 +116,9 @@ class CatmipEnv(EnvBase):
         def robots(**specs):
             return Composite(specs, shape=(b, n), device=dev)
 
+        def flag(*shape):
+            return Categorical(2, shape, dtype=torch.bool, device=dev)
+
         self.observation_spec = Composite(
             robots=robots(
                 global_map=Bounded(0, OBS_ONE, (b, n, 5 + c, h, w), dtype=torch.uint8, device=dev),
@@ -64,6 +127,7 @@ class CatmipEnv(EnvBase):
                 action_mask=Binary(n=a, shape=(b, n, a), dtype=torch.bool, device=dev),
                 active=Binary(n=n, shape=(b, n), dtype=torch.bool, device=dev),
             ),
+            state=Bounded(0.0, 1.0, (b, 4 + c, h, w), dtype=torch.float32, device=dev),
             event_ticks=Unbounded((b, 1), dtype=torch.int64, device=dev),
             shape=(b,),
             device=dev,
@@ -79,9 +143,8 @@ class CatmipEnv(EnvBase):
             device=dev,
         )
         self.done_spec = Composite(
-            done=Categorical(2, (b, 1), dtype=torch.bool, device=dev),
-            terminated=Categorical(2, (b, 1), dtype=torch.bool, device=dev),
-            truncated=Categorical(2, (b, 1), dtype=torch.bool, device=dev),
+            robots=robots(**{name: flag(b, n, 1) for name in _DONE_NAMES}),
+            **{name: flag(b, 1) for name in _DONE_NAMES},
             shape=(b,),
             device=dev,
         )
@@ -93,7 +156,7 @@ class CatmipEnv(EnvBase):
         c = self.cfg.num_classes
         dev = self.device
         mask = torch.from_numpy(eng.masks.astype(np.bool_))
-        self.action_spec["robots", "action"].update_mask(mask.to(dev))
+        self.action_spec[K.ACTION].update_mask(mask.to(dev))
         robots = TensorDict(
             {
                 "global_map": torch.from_numpy(eng.obs_global.copy()),
@@ -104,37 +167,75 @@ class CatmipEnv(EnvBase):
             },
             batch_size=(eng.num_worlds, eng.num_robots),
         )
-        return TensorDict({"robots": robots}, batch_size=self.batch_size).to(dev)
+        state = torch.from_numpy(eng.world.ground_truth(None))
+        return TensorDict({K.ROBOTS: robots, K.STATE: state}, batch_size=self.batch_size).to(dev)
+
+    def _set_done(self, out: TensorDictBase, terminated: np.ndarray, truncated: np.ndarray) -> None:
+        """Write the (B,) flags as root (B, 1) and group-level (B, N, 1) done / terminated / truncated."""
+        b, n = self.engine.num_worlds, self.engine.num_robots
+        term = torch.from_numpy(terminated.copy()).view(b, 1).to(self.device)
+        trunc = torch.from_numpy(truncated.copy()).view(b, 1).to(self.device)
+        for name, value in zip(_DONE_NAMES, (term | trunc, term, trunc)):
+            out.set(name, value)
+            out.set((K.ROBOTS, name), value[:, None].expand(b, n, 1).clone())
+
+    def _worlds_to_reset(self, tensordict: TensorDictBase | None) -> np.ndarray | None:
+        """(B,) bool of the worlds a partial reset asks for, or None for all of them."""
+        if tensordict is None:
+            return None
+        b = self.engine.num_worlds
+        world = tensordict.get("_reset", None)
+        robots = tensordict.get((K.ROBOTS, "_reset"), None)
+        if world is None and robots is None:
+            return None
+        worlds = torch.zeros(b, dtype=torch.bool)
+        if world is not None:
+            worlds |= world.reshape(b).cpu()
+        if robots is not None:
+            worlds |= robots.reshape(b, -1).any(-1).cpu()
+        return worlds.numpy()
 
     # -- EnvBase API --------------------------------------------------------------------------------
     def _reset(self, tensordict: TensorDictBase | None = None, **kwargs) -> TensorDictBase:
-        worlds = None
-        if tensordict is not None and "_reset" in tensordict.keys():
-            worlds = tensordict.get("_reset").reshape(-1).cpu().numpy()
-        self.engine.reset(worlds=worlds)
+        self.engine.reset(worlds=self._worlds_to_reset(tensordict))
         out = self._observation()
         b = self.engine.num_worlds
-        done = torch.from_numpy(self.engine.state.done.copy()).view(b, 1).to(self.device)
-        out.set("event_ticks", torch.zeros(b, 1, dtype=torch.int64, device=self.device))
-        out.set("done", done)
-        out.set("terminated", done.clone())
-        out.set("truncated", torch.zeros_like(done))
+        out.set(K.EVENT_TICKS, torch.zeros(b, 1, dtype=torch.int64, device=self.device))
+        done = self.engine.state.done
+        self._set_done(out, terminated=done, truncated=np.zeros_like(done))
         return out
 
     def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
-        actions = tensordict.get(("robots", "action")).cpu().numpy()
+        actions = tensordict.get(K.ACTION).cpu().numpy()
         ev = self.engine.step(actions)
         out = self._observation()
         b = self.engine.num_worlds
         dev = self.device
-        out.set(("robots", "reward"), torch.from_numpy(ev.rewards.astype(np.float32))[..., None].to(dev))
-        out.set("event_ticks", torch.from_numpy(ev.event_ticks.copy()).view(b, 1).to(dev))
-        term = torch.from_numpy(ev.terminated.copy()).view(b, 1).to(dev)
-        trunc = torch.from_numpy(ev.truncated.copy()).view(b, 1).to(dev)
-        out.set("terminated", term)
-        out.set("truncated", trunc)
-        out.set("done", term | trunc)
+        out.set(K.REWARD, torch.from_numpy(ev.rewards.astype(np.float32))[..., None].to(dev))
+        out.set(K.EVENT_TICKS, torch.from_numpy(ev.event_ticks.copy()).view(b, 1).to(dev))
+        self._set_done(out, terminated=ev.terminated, truncated=ev.truncated)
         return out
 
     def _set_seed(self, seed: int | None) -> None:
         self.engine.seed(seed)
+
+
+def float_observation_transform(
+    in_keys: Sequence[NestedKey] = (K.GLOBAL_MAP, K.LOCAL_MAP),
+) -> Compose:
+    """``TransformedEnv(CatmipEnv(...), float_observation_transform())``: the uint8 maps become float32
+    in [0, 1] in place (``value × OBS_SCALE``, ``catmip_env.types``: 4 → 1.0, a clue's 1 → 0.25), specs
+    included — TorchRL's ``DTypeCastTransform`` then ``ObservationNorm(loc=0, scale=OBS_SCALE)`` — and
+    TorchRL's ``ActionMask`` keeps the transformed env's action spec masked (a ``TransformedEnv`` holds
+    its own copy of the spec, which ``CatmipEnv`` cannot update), so that its random actions
+    (``rand_action``, ``check_env_specs``, a rollout without a policy) are allowed ones.
+
+    For networks of your own (``examples/mappo_torchrl.py``). ``AmatActor`` reads the raw uint8 maps and
+    scales them itself: do not put this transform in front of it.
+    """
+    keys = list(in_keys)
+    return Compose(
+        DTypeCastTransform(torch.uint8, torch.float32, in_keys=keys),
+        ObservationNorm(loc=0.0, scale=OBS_SCALE, in_keys=keys),
+        ActionMask(K.ACTION, K.ACTION_MASK),
+    )

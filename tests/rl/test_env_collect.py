@@ -3,14 +3,18 @@
 import numpy as np
 import pytest
 import torch
+from tensordict.nn import TensorDictModule
+from torchrl.envs import TransformedEnv
 from torchrl.envs.utils import check_env_specs
+from torchrl.objectives.value import GAE
 
 from catmip_env import make_config
+from catmip_env.types import OBS_SCALE
 from catmip_rl import keys as K
 from catmip_rl.actor import AmatActor
 from catmip_rl.amat import AMAT, AmatConfig
 from catmip_rl.collect import Collector
-from catmip_rl.env import CatmipEnv
+from catmip_rl.env import CatmipEnv, float_observation_transform
 
 
 def test_env_passes_check_env_specs_and_runs_the_actor():
@@ -38,6 +42,86 @@ def test_env_partial_reset():
             td.set("_reset", done)
             td = env.reset(td)
     assert not env.engine.state.done.all()
+
+
+def test_group_level_done_flags_state_and_group_map():
+    env = CatmipEnv("task1", num_worlds=3, seed=1, horizon_ticks=20)
+    assert env.group_map == {"robots": ["robot_0", "robot_1"]}
+    assert {"done", "terminated", "truncated", K.DONE, K.TERMINATED, K.TRUNCATED} <= set(env.done_keys)
+    td = env.rollout(30, break_when_any_done=False)  # several episodes per world (auto-reset)
+    nxt = td["next"]
+    assert nxt[K.DONE].shape == (3, 30, 2, 1) and nxt["done"].any()
+    for name, key in (("done", K.DONE), ("terminated", K.TERMINATED), ("truncated", K.TRUNCATED)):
+        assert torch.equal(nxt[key], nxt[name][:, :, None].expand(3, 30, 2, 1))  # the world's flag per robot
+    assert torch.equal(nxt["done"], nxt["terminated"] | nxt["truncated"])
+    # "state" is the engine's ground truth (the PettingZoo env's state()) of the current event
+    last = env.engine.world.ground_truth(None)
+    assert last.shape == (3, 6, 15, 15) and torch.equal(nxt[K.STATE][:, -1], torch.from_numpy(last))
+    assert td[K.STATE].dtype == torch.float32 and set(td[K.STATE].unique().tolist()) <= {0.0, 1.0}
+
+
+def test_a_group_level_reset_resets_the_world():
+    env = CatmipEnv("task1", num_worlds=2, seed=0)
+    env.reset()
+    episodes = env.engine.state.episode.copy()
+    robots_reset = torch.zeros(2, 2, 1, dtype=torch.bool)
+    robots_reset[1, 0] = True  # one robot's flag asks for its world
+    env.reset(env.full_done_spec.zero().set((K.ROBOTS, "_reset"), robots_reset))
+    assert env.engine.state.episode[0] == episodes[0] and env.engine.state.episode[1] != episodes[1]
+
+
+def test_float_observation_transform():
+    def make():
+        return TransformedEnv(CatmipEnv("train", num_worlds=2, seed=0), float_observation_transform())
+
+    check_env_specs(make(), seed=0)  # float specs, and random actions that respect the mask
+    env, raw = make(), CatmipEnv("train", num_worlds=2, seed=0)
+    spec = env.observation_spec[K.GLOBAL_MAP]
+    assert spec.dtype == torch.float32 and spec.space.low.min() == 0 and spec.space.high.max() == 1
+    td, ref = env.reset(), raw.reset()
+    for _ in range(3):
+        for key in (K.GLOBAL_MAP, K.LOCAL_MAP):
+            assert td[key].dtype == torch.float32 and torch.equal(td[key], ref[key].float() * OBS_SCALE)
+        action = env.rand_action(td)[K.ACTION]  # sampled from the transformed env's masked spec
+        td, ref = env.step(td.set(K.ACTION, action)), raw.step(ref.set(K.ACTION, action))
+        td, ref = env.step_mdp(td), raw.step_mdp(ref)
+    assert set(td[K.GLOBAL_MAP].unique().tolist()) <= {0.0, OBS_SCALE, 1.0}
+
+
+def test_gae_reads_the_group_done_keys():
+    """TorchRL's GAE on the env's own keys, nothing copied: with a zero critic and gamma = lambda = 1
+    the advantage is each robot's reward to go up to the end of its episode."""
+    env = CatmipEnv("task1", num_worlds=2, seed=0, horizon_ticks=40)
+    td = env.rollout(40, break_when_any_done=False)
+    zero = TensorDictModule(
+        lambda m: torch.zeros(*m.shape[:-3], 1), in_keys=[K.GLOBAL_MAP], out_keys=[K.VALUE]
+    )
+    gae = GAE(gamma=1.0, lmbda=1.0, value_network=zero)
+    gae.set_keys(reward=K.REWARD, done=K.DONE, terminated=K.TERMINATED, value=K.VALUE)
+    gae(td)
+    reward, done = td["next", K.REWARD], td["next", K.DONE]
+    to_go = torch.zeros_like(reward[:, 0])
+    expected = torch.zeros_like(reward)
+    for t in reversed(range(td.batch_size[1])):
+        to_go = reward[:, t] + to_go * ~done[:, t]
+        expected[:, t] = to_go
+    assert td["advantage"].shape == (2, 40, 2, 1) and done.any()
+    torch.testing.assert_close(td["advantage"], expected)
+
+
+def test_pettingzoo_wrapper_keys_are_double_nested():
+    """What docs/torchrl.md says about TorchRL's PettingZooWrapper (CatmipEnv is the recommended way)."""
+    from torchrl.envs.libs.pettingzoo import PettingZooWrapper
+
+    from catmip_env import search_rescue_v0
+
+    env = PettingZooWrapper(
+        search_rescue_v0.parallel_env(preset="task1"), use_mask=True, categorical_actions=True
+    )
+    td = env.rollout(3)
+    assert env.group_map == {"robot": ["robot_0", "robot_1"]}
+    assert td["robot", "observation", "observation", "global_map"].dtype == torch.float32
+    assert td["robot", "action_mask"].shape == (3, 2, 49) and ("robot", "info", "active") in td.keys(True)
 
 
 def test_collector_samples_and_bookkeeping():
@@ -76,9 +160,9 @@ def test_collection_is_deterministic():
 
 
 def test_a_rescued_worlds_last_decisions_are_trained_with_advantage_r_minus_v():
-    """SPEC §6.2: a rescue completes every robot's macro-action; the rescuer's decision that reached
-    the target is in the batch with advantage R - V (normalised with the rest), a truncated world's
-    last decisions are not."""
+    """A rescue completes every robot's macro-action (docs/design.md#asynchronous-gae): the rescuer's
+    decision that reached the target is in the batch with advantage R - V (normalised with the rest), a
+    truncated world's last decisions are not."""
     from catmip_rl.gae import async_gae
     from catmip_rl.ppo import ValueNorm
     from catmip_rl.train import build_batch
