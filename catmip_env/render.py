@@ -113,7 +113,8 @@ def render_ansi(engine, b: int = 0) -> str:
 
 
 def save_gif(frames: Sequence[np.ndarray], path: str | Path, fps: int = 8) -> Path:
-    """Write frames to an animated GIF (atomically: a temporary file is renamed into place)."""
+    """Write frames to an animated GIF at ``path`` (must end in ``.gif``; ``fps`` >= 1), atomically: a
+    temporary file is renamed into place, and removed if writing fails."""
     try:
         import imageio.v3 as iio
     except ImportError as err:  # pragma: no cover - depends on the extra
@@ -121,8 +122,17 @@ def save_gif(frames: Sequence[np.ndarray], path: str | Path, fps: int = 8) -> Pa
     if not frames:
         raise ValueError("save_gif needs at least one frame")
     path = Path(path)
+    if path.suffix.lower() != ".gif":
+        raise ValueError(f"{path}: save_gif writes an animated GIF, so the path must end in .gif")
+    if path.is_dir():
+        raise IsADirectoryError(f"{path} is a folder: save_gif needs a file path ending in .gif")
+    if not isinstance(fps, int) or fps < 1:
+        raise ValueError(f"fps must be an int >= 1, got {fps!r}")
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.name + ".tmp.gif")
-    iio.imwrite(tmp, np.stack(frames), duration=1000 / fps, loop=0)
-    tmp.replace(path)
+    tmp = path.with_name(f".{path.stem}.tmp.gif")
+    try:
+        iio.imwrite(tmp, np.stack(frames), duration=1000 / fps, loop=0)
+        tmp.replace(path)
+    finally:
+        tmp.unlink(missing_ok=True)
     return path

@@ -1,10 +1,16 @@
 """Model checkpoints: the state dict and the :class:`AmatConfig` in one file, written atomically, with
-the config also beside it as JSON; loadable on CPU whatever device it was saved on."""
+the config also beside it as JSON; loadable on CPU whatever device it was saved on.
+
+Checkpoints are read with ``torch.load(weights_only=True)`` (:func:`read_checkpoint`): tensors and plain
+containers only, never arbitrary pickled objects; a file that is not one (empty, truncated, corrupted,
+or holding other objects) raises :class:`CheckpointError` naming the file and the problem. Shipped
+models (``catmip_rl/models/amat_NAME.pt``) load by name: ``load_model("task1")``."""
 
 from __future__ import annotations
 
 import json
 import os
+import zipfile
 from dataclasses import asdict
 from pathlib import Path
 from typing import Any
@@ -13,9 +19,18 @@ import torch
 
 from catmip_rl.amat import AMAT, AmatConfig
 
-__all__ = ["save_model", "load_model", "atomic_torch_save"]
+__all__ = [
+    "save_model", "load_model", "atomic_torch_save", "read_checkpoint", "resolve_model", "shipped_models",
+    "CheckpointError", "SHIPPED_DIR", "resume_checkpoint",
+]  # fmt: skip
 
 FORMAT = "catmip-amat-v1"
+SHIPPED_DIR = Path(__file__).parent / "models"
+"""Where the shipped models are: ``amat_NAME.pt`` loads as ``NAME``."""
+
+
+class CheckpointError(ValueError):
+    """A file that cannot be read as a checkpoint (the message names it and says why)."""
 
 
 def atomic_torch_save(obj: Any, path: str | Path) -> Path:
@@ -43,22 +58,110 @@ def save_model(model: AMAT, path: str | Path, extra: dict[str, Any] | None = Non
     return path
 
 
+def read_checkpoint(path: str | Path, map_location: str | torch.device = "cpu") -> Any:
+    """``torch.load(path, weights_only=True)``, or :class:`CheckpointError` (``FileNotFoundError`` when
+    there is no file) saying what is wrong with the file."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"no checkpoint at {path}" + (" (it is a folder)" if path.is_dir() else ""))
+    try:
+        return torch.load(path, map_location=map_location, weights_only=True)
+    except Exception as err:  # torch reports a bad file as any of a dozen types (pickle, zip, OS, key...)
+        raise CheckpointError(f"{path} is not a readable checkpoint: {_diagnose(path, err)}") from None
+
+
+def _diagnose(path: Path, err: Exception) -> str:
+    """Why ``torch.load`` failed on ``path``, in words (torch's own message can advise
+    ``weights_only=False``, which would run any code the file holds: never repeated here)."""
+    size = path.stat().st_size
+    if size == 0:
+        return "the file is empty"
+    with open(path, "rb") as f:
+        head = f.read(4)
+    if head != b"PK\x03\x04":
+        return f"not a torch checkpoint (a {size}-byte file that does not start like one)"
+    if not zipfile.is_zipfile(path):
+        return f"truncated or corrupted (a {size}-byte torch archive without its index)"
+    if "weights only" in str(err).lower():
+        return "it holds pickled objects other than tensors and plain containers (refused: unsafe to load)"
+    return f"corrupted torch archive ({type(err).__name__})"
+
+
+def shipped_models() -> list[str]:
+    """Names of the models shipped in :data:`SHIPPED_DIR` (``amat_task1.pt`` -> ``task1``)."""
+    return sorted(p.stem[len("amat_") :] for p in SHIPPED_DIR.glob("amat_*.pt"))
+
+
+def resolve_model(spec: str | Path) -> Path:
+    """The file or run dir ``spec`` names: an existing path, else a shipped model's name (``task1`` ->
+    ``catmip_rl/models/amat_task1.pt``); neither raises ``FileNotFoundError`` listing the shipped names."""
+    path = Path(spec)
+    if path.exists():
+        return path
+    shipped = SHIPPED_DIR / f"amat_{spec}.pt"
+    if path.name == str(spec) and shipped.is_file():  # a bare name, no folder part
+        return shipped
+    raise FileNotFoundError(
+        f"AMAT model {str(spec)!r} does not exist: not a file or run dir, nor a shipped model (shipped: "
+        f"{', '.join(shipped_models()) or 'none'})"
+    )
+
+
 def load_model(path: str | Path, map_location: str | torch.device = "cpu") -> AMAT:
     """Rebuild the model (on CPU by default) from a file written by :func:`save_model`, a training
-    checkpoint (``RUN_DIR/checkpoints/*.pt``) or a training run dir (its latest checkpoint)."""
-    path = Path(path)
+    checkpoint (``RUN_DIR/checkpoints/*.pt``), a training run dir (its latest checkpoint) or the name
+    of a shipped model (:func:`resolve_model`)."""
+    path = resolve_model(path)
     if path.is_dir():
         path = path / "checkpoints" / "latest.pt"
     if not path.is_file():
         raise FileNotFoundError(f"no AMAT checkpoint at {path}")
-    blob = torch.load(path, map_location=map_location, weights_only=True)
+    blob = read_checkpoint(path, map_location)
     if isinstance(blob, dict) and "model" in blob and "amat_config" in blob:  # a training checkpoint
         blob = {"format": FORMAT, "config": blob["amat_config"], "state_dict": blob["model"]}
     if not isinstance(blob, dict) or blob.get("format") != FORMAT:
         raise ValueError(f"{path} is not an AMAT checkpoint (expected format {FORMAT!r})")
-    model = AMAT(AmatConfig.from_dict(blob["config"]))
+    try:
+        model = AMAT(AmatConfig.from_dict(blob["config"]))
+    except (TypeError, ValueError, KeyError, AttributeError) as err:
+        raise CheckpointError(f"{path} holds no valid AMAT config: {err}") from None
     try:
         model.load_state_dict(blob["state_dict"])
-    except RuntimeError as err:
+    except (RuntimeError, KeyError, TypeError, AttributeError) as err:
         raise ValueError(f"checkpoint {path} does not fit the AMAT its config describes: {err}") from None
     return model.to(map_location)
+
+
+# what a training checkpoint holds (catmip_rl.train); a file without these keys cannot be resumed
+_RESUME_KEYS = ("iteration", "episodes", "model", "optimizer", "value_norm", "generator", "torch_rng",
+                "config")  # fmt: skip
+
+
+def _read_training_checkpoint(path: Path) -> dict:
+    saved = read_checkpoint(path)
+    missing = [k for k in _RESUME_KEYS if not isinstance(saved, dict) or k not in saved]
+    if missing:
+        raise CheckpointError(f"{path} is not a training checkpoint (it has no {', '.join(missing)})")
+    return saved
+
+
+def resume_checkpoint(run_dir: str | Path) -> dict:
+    """The checkpoint ``--resume`` continues from, ``RUN_DIR/checkpoints/latest.pt``. When it is missing
+    or unreadable the error names the newest readable ``iter_*.pt`` and how to resume from it (nothing
+    is chosen silently)."""
+    latest = Path(run_dir) / "checkpoints" / "latest.pt"
+    try:
+        return _read_training_checkpoint(latest)
+    except (FileNotFoundError, CheckpointError) as err:
+        hint = ""
+        for path in sorted(latest.parent.glob("iter_*.pt"), reverse=True):  # newest first
+            try:
+                it = _read_training_checkpoint(path)["iteration"]
+            except (OSError, CheckpointError):
+                continue
+            hint = (
+                f"; the newest readable checkpoint is {path} (iteration {it}): to continue from it, "
+                f"copy it over {latest} and --resume again"
+            )
+            break
+        raise type(err)(f"cannot resume {run_dir}: {err}{hint}") from None

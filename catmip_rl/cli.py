@@ -2,56 +2,168 @@
 
 ``train`` flags map onto :class:`~catmip_rl.config.TrainConfig` fields; ``--set field=value`` reaches any
 field (values are JSON: ``--set env_overrides='{"comm_sigma": 4.0}'``).
+
+Bad input never starts work and never shows a traceback: argparse types check every value (one line
+naming the flag), each command checks its paths before running (checkpoints are read with
+``weights_only=True``; outputs are never overwritten without ``--force``), and :func:`main` turns the
+remaining user errors (``ValueError``, ``OSError``, ``ImportError``) into one line on stderr and exit
+code 2 (``CATMIP_DEBUG=1`` re-raises them, with the traceback).
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import math
+import os
+import re
 import sys
+from pathlib import Path
+from typing import Any
 
-from catmip_rl.config import TRAIN_PRESETS, make_train_config
+from catmip_rl.config import TRAIN_PRESETS, TrainConfig
 
-__all__ = ["main", "parse_set"]
+__all__ = ["main", "parse_set", "DEFAULT_PRESET"]
+
+DEFAULT_PRESET = "task1-warm"
+"""``catmip train`` without ``--preset``: the Task-1 recipe (~40 minutes on 2 cores), not the paper's
+62,500 iterations (days)."""
+USER_ERRORS = (ValueError, OSError, ImportError)
+"""What bad input raises (a bad value, path, or missing extra): one line and exit code 2."""
+
+
+# -- argparse types: each names the expected value; argparse names the flag ------------------------------
+def _number(kind: type, low: float, strict: bool = False, below: float | None = None):
+    """An argparse type: ``kind(text)``, finite, ``>= low`` (``> low`` if ``strict``), ``< below``."""
+    bound = f"{'>' if strict else '>='} {low:g}" + ("" if below is None else f" and < {below:g}")
+    noun = "an int" if kind is int else "a number"
+
+    def parse(text: str):
+        try:
+            value = kind(text)
+        except ValueError:
+            value = None
+        finite = value is not None and (kind is int or math.isfinite(value))  # huge ints: no float
+        ok = finite and (value > low if strict else value >= low)
+        if not ok or (below is not None and value >= below):
+            raise argparse.ArgumentTypeError(f"expected {noun} {bound}, got {text!r}")
+        return value
+
+    parse.__name__ = f"{noun} {bound}"
+    return parse
+
+
+POSITIVE_INT = _number(int, 1)
+NON_NEGATIVE_INT = _number(int, 0)
+POSITIVE_FLOAT = _number(float, 0, strict=True)
+NON_NEGATIVE_FLOAT = _number(float, 0)
+PROBABILITY = _number(float, 0, below=1)
+
+
+def _checked(validate):
+    """An argparse type: the text itself once ``validate(text)`` accepts it; its message otherwise."""
+
+    def parse(text: str) -> str:
+        try:
+            validate(text)
+        except USER_ERRORS as err:
+            raise argparse.ArgumentTypeError(str(err)) from None
+        return text
+
+    parse.__name__ = validate.__name__
+    return parse
+
+
+def _device(text: str) -> None:
+    if re.fullmatch(r"cpu|cuda(:\d+)?", text) is None:
+        raise ValueError(f"expected cpu, cuda or cuda:N, got {text!r}")
+
+
+def _comm(text: str) -> None:
+    from catmip_rl.evaluate import comm_sigma
+
+    comm_sigma(text)
+
+
+def _method(text: str) -> None:
+    from catmip_rl.evaluate import parse_method
+
+    parse_method(text)
+
+
+def _methods(text: str) -> None:
+    for spec in text.split(","):
+        if spec.strip():
+            _method(spec)
+
+
+def _set_item(text: str) -> tuple[str, Any]:
+    """``"field=value"`` -> ``(field, JSON value or the raw string)``."""
+    key, sep, raw = text.partition("=")
+    if not sep or not key.strip():
+        raise argparse.ArgumentTypeError(f"expected FIELD=VALUE, got {text!r}")
+    try:
+        return key.strip(), json.loads(raw)
+    except json.JSONDecodeError:
+        return key.strip(), raw
 
 
 def parse_set(items: list[str]) -> dict:
-    """``["field=value", ...]`` -> ``{field: JSON value (or the raw string)}``."""
-    out = {}
-    for item in items:
-        if "=" not in item:
-            raise SystemExit(f"--set expects field=value, got {item!r}")
-        key, raw = item.split("=", 1)
-        try:
-            out[key] = json.loads(raw)
-        except json.JSONDecodeError:
-            out[key] = raw
-    return out
+    """``["field=value", ...]`` -> ``{field: JSON value (or the raw string)}``; ValueError on an item
+    without ``=``."""
+    try:
+        return dict(_set_item(item) for item in items)
+    except argparse.ArgumentTypeError as err:
+        raise ValueError(f"--set {err}") from None
+
+
+# -- the commands ----------------------------------------------------------------------------------------
+_TRAIN_FLAGS = ("iterations", "num_worlds", "epochs", "minibatches", "micro_batch", "seed", "device",
+                "threads", "update_processes", "eval_every", "eval_episodes", "checkpoint_every", "lr",
+                "collector", "ray_workers", "ray_address", "warm_start", "target_kl",
+                "precision")  # fmt: skip
+
+
+def _config(base: TrainConfig, overrides: dict[str, Any]) -> TrainConfig:
+    """``base`` with ``overrides``; a ValueError naming the field for any bad value."""
+    try:
+        return base.replace(**overrides)
+    except ValueError as err:  # the config's own checks name the field
+        raise ValueError(f"bad configuration: {err}") from None
+    except (TypeError, KeyError, AttributeError) as err:  # a --set value of the wrong shape
+        culprit = ""
+        for key, value in overrides.items():
+            try:
+                base.replace(**{key: value})
+            except (TypeError, KeyError, AttributeError):
+                culprit = f"{key} = {json.dumps(value)}: "
+                break
+            except ValueError:
+                continue
+        raise ValueError(f"bad configuration: {culprit}{type(err).__name__}: {err}") from None
 
 
 def _train(args: argparse.Namespace) -> int:
+    from catmip_rl.checkpoint import resume_checkpoint
     from catmip_rl.train import train
 
-    overrides = parse_set(args.set)
-    for name in ("iterations", "num_worlds", "epochs", "minibatches", "micro_batch", "seed", "device",
-                 "threads", "update_processes", "eval_every", "eval_episodes", "checkpoint_every", "lr",
-                 "collector", "ray_workers", "ray_address", "warm_start", "target_kl",
-                 "precision"):  # fmt: skip
-        value = getattr(args, name)
-        if value is not None:
-            overrides[name] = value
+    overrides = dict(args.set)
+    overrides |= {name: getattr(args, name) for name in _TRAIN_FLAGS if getattr(args, name) is not None}
     if args.minutes is not None:
         overrides["budget_minutes"] = args.minutes
-    try:
-        cfg = make_train_config(args.preset, **overrides)
-    except (TypeError, ValueError) as err:
-        print(f"catmip train: bad configuration: {err}", file=sys.stderr)
-        return 2
-    try:
-        train(cfg, args.run_dir, resume=args.resume, progress=not args.no_progress)
-    except (FileExistsError, FileNotFoundError, ValueError, RuntimeError) as err:
-        print(f"catmip train: {err}", file=sys.stderr)
-        return 2
+    if args.preset is None and args.resume:  # continue the run with its own config
+        base = TrainConfig.from_json(resume_checkpoint(args.run_dir)["config"])
+    else:
+        base = TRAIN_PRESETS[args.preset or DEFAULT_PRESET]
+    cfg = _config(base, overrides)
+    if cfg.collector == "ray":
+        from catmip_rl.ray_collect import import_ray
+
+        try:
+            import_ray()
+        except RuntimeError as err:  # the distributed extra is missing
+            raise ImportError(str(err)) from None
+    train(cfg, args.run_dir, resume=args.resume, progress=not args.no_progress)
     print(f"run written to {args.run_dir} (config.json, metrics.csv, tensorboard/, checkpoints/)")
     return 0
 
@@ -62,27 +174,15 @@ def _setting(args: argparse.Namespace):
     return EvalSetting(args.task, args.comm, args.noise, args.max_ma_ticks)
 
 
-def _add_setting_flags(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--task", default="task1", choices=["task1", "task2", "task3"])
-    p.add_argument("--comm", default="full", help="full | 4 | 2 (link range sigma in cells)")
-    p.add_argument("--noise", type=float, default=0.0, help="SLAM noise: per-tick cell flip probability")
-    p.add_argument("--max-ma-ticks", type=int, default=10, help="longest macro-action (5 | 10 | 20)")
-    p.add_argument("--seed", type=int, default=0, help="map set: episode k plays map k of this seed")
-    p.add_argument("--threads", type=int, default=2, help="torch CPU threads")
-
-
 def _eval(args: argparse.Namespace) -> int:
     import torch
 
     from catmip_rl.evaluate import evaluate
+    from catmip_rl.files import check_new_dir
 
+    check_new_dir(args.out, "--out", force=args.force)
     torch.set_num_threads(args.threads)
-    try:
-        setting = _setting(args)
-        result = evaluate(args.method, setting, args.episodes, args.seed, progress=not args.no_progress)
-    except (ValueError, FileNotFoundError) as err:
-        print(f"catmip eval: {err}", file=sys.stderr)
-        return 2
+    result = evaluate(args.method, _setting(args), args.episodes, args.seed, progress=not args.no_progress)
     out = result.write(args.out)
     s = result.summary
     rescue = "-" if s["mean_rescue_tick"] is None else f"{s['mean_rescue_tick']:.1f}"
@@ -115,13 +215,11 @@ def _render(args: argparse.Namespace) -> int:
     import torch
 
     from catmip_rl.evaluate import render_episode
+    from catmip_rl.files import check_new_file
 
+    check_new_file(args.out, "--out", force=args.force, suffixes=(".gif",))
     torch.set_num_threads(args.threads)
-    try:
-        path = render_episode(args.method, _setting(args), args.out, args.episode, args.seed, args.fps)
-    except (ValueError, FileNotFoundError, ImportError) as err:
-        print(f"catmip render: {err}", file=sys.stderr)
-        return 2
+    path = render_episode(args.method, _setting(args), args.out, args.episode, args.seed, args.fps)
     print(f"wrote {path}")
     return 0
 
@@ -129,106 +227,219 @@ def _render(args: argparse.Namespace) -> int:
 def _bench(args: argparse.Namespace) -> int:
     if args.suite == "perf":
         import subprocess
-        from pathlib import Path
 
         script = Path.cwd() / "benchmarks" / "run_all.py"
         if not script.exists():
-            print(
-                "catmip bench perf runs benchmarks/run_all.py: call it from the repository root",
-                file=sys.stderr,
+            raise FileNotFoundError(
+                "catmip bench perf runs benchmarks/run_all.py: call it from the repository root"
             )
-            return 2
         return subprocess.call([sys.executable, str(script), *(["--quick"] if args.quick else [])])
+    from catmip_rl.files import check_new_dir
     from catmip_rl.paper import FIGURES, run_figure
 
     if args.all == (args.figure is not None):
-        print("catmip bench paper: give --figure N or --all", file=sys.stderr)
-        return 2
+        raise ValueError("give --figure N or --all (one of them)")
     figures = sorted(FIGURES) if args.all else [args.figure]
+    for fig in figures:  # every figure's folder, before the first run starts
+        check_new_dir(Path(args.out) / f"fig{fig}", "--out", force=args.force)
     methods = [m for m in args.methods.split(",") if m.strip()] + list(args.method)
-    try:
-        for fig in figures:
-            out = run_figure(fig, methods, args.episodes, args.seed, args.out, args.jobs)
-            print(f"figure {fig}: {out}/fig{fig}.png, curves.csv, summary.csv, marl_eval.json")
-    except (ValueError, FileNotFoundError) as err:
-        print(f"catmip bench paper: {err}", file=sys.stderr)
-        return 2
+    for fig in figures:
+        out = run_figure(fig, methods, args.episodes, args.seed, args.out, args.jobs)
+        print(f"figure {fig}: {out}/fig{fig}.png, curves.csv, summary.csv, marl_eval.json")
     return 0
 
 
-def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="catmip", description="CATMiP: train, evaluate and benchmark AMAT")
-    sub = ap.add_subparsers(dest="command", required=True)
-    tr = sub.add_parser("train", help="PPO training of AMAT (SPEC §6)")
-    tr.add_argument("--preset", default="paper", choices=sorted(TRAIN_PRESETS))
-    tr.add_argument("--run-dir", required=True, help="where config, logs and checkpoints go")
-    tr.add_argument("--resume", action="store_true", help="continue the run in --run-dir exactly")
-    tr.add_argument("--iterations", type=int)
-    tr.add_argument("--num-worlds", type=int)
-    tr.add_argument("--epochs", type=int)
-    tr.add_argument("--minibatches", type=int)
-    tr.add_argument("--micro-batch", type=int, help="events per forward/backward pass (0 = whole minibatch)")
-    tr.add_argument("--lr", type=float)
-    tr.add_argument("--seed", type=int)
-    tr.add_argument("--device", help="cpu | cuda | cuda:N")
-    tr.add_argument("--threads", type=int)
+# -- the parser ------------------------------------------------------------------------------------------
+class _Parser(argparse.ArgumentParser):
+    """Errors as one line: ``catmip eval: error: argument --threads: expected an int >= 1, got '0'``."""
+
+    def error(self, message: str):
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
+class _Formatter(argparse.ArgumentDefaultsHelpFormatter):
+    """Defaults shown where there is one (not for switches, nor flags that default to the preset's)."""
+
+    def _get_help_string(self, action: argparse.Action) -> str:
+        default = action.default
+        if default is None or default is False or default == [] or default is argparse.SUPPRESS:
+            return action.help or ""
+        return super()._get_help_string(action)
+
+
+def _version() -> str:
+    import catmip_rl
+
+    version = getattr(catmip_rl, "__version__", None)
+    if version is None:
+        from importlib.metadata import PackageNotFoundError
+        from importlib.metadata import version as dist_version
+
+        try:
+            version = dist_version("catmip")
+        except PackageNotFoundError:
+            version = "unknown"
+    return version
+
+
+def _add_train(sub) -> None:
+    tr = sub.add_parser("train", help="PPO training of AMAT", formatter_class=_Formatter,
+                        description="PPO training of AMAT into --run-dir (config.json, metrics.csv, "
+                        "tensorboard/, checkpoints/). A new run needs a new or empty --run-dir.")  # fmt: skip
     tr.add_argument(
-        "--update-processes",
-        type=int,
-        help="CPU processes computing the update's gradients (1 thread each if > 1)",
-    )
-    tr.add_argument(
-        "--warm-start", metavar="PLANNER",
-        help="DAgger warm start from a planner's goals projected into the window: nearest, rrt, ...",
+        "--preset", choices=sorted(TRAIN_PRESETS),
+        help=f"training recipe (catmip_rl.config.TRAIN_PRESETS); default {DEFAULT_PRESET} (the Task-1 world, "
+        "~40 min on 2 cores), or with --resume the run's own config. tiny: a smoke run (seconds); small: "
+        "minutes; paper, paper-sync, paper-smallma: the paper's recipe (62,500 iterations: days on a CPU); "
+        "paper-warm: the paper's world after a warm start",
     )  # fmt: skip
-    tr.add_argument("--target-kl", type=float, help="stop an iteration's PPO epochs past this approx-KL")
+    tr.add_argument("--run-dir", required=True, help="where config.json, logs and checkpoints go")
     tr.add_argument(
-        "--precision", choices=["fp32", "bf16", "auto"], help="PPO update precision (auto: bf16 where native)"
+        "--resume", action="store_true",
+        help="continue the run in --run-dir exactly, from checkpoints/latest.pt; if that is unreadable the "
+        "error names the newest readable checkpoints/iter_*.pt (copy it over latest.pt to continue from it)",
+    )  # fmt: skip
+    g = tr.add_argument_group("overrides of the preset (default: the preset's value)")
+    g.add_argument("--iterations", type=POSITIVE_INT, help="PPO iterations (the LR decays to 0 over them)")
+    g.add_argument("--num-worlds", type=POSITIVE_INT, help="worlds (= episodes) collected per iteration")
+    g.add_argument("--epochs", type=POSITIVE_INT, help="PPO epochs per iteration")
+    g.add_argument("--minibatches", type=POSITIVE_INT, help="minibatches per epoch (1 = full batch)")
+    g.add_argument(
+        "--micro-batch", type=NON_NEGATIVE_INT, help="events per forward/backward pass (0 = whole)"
     )
-    tr.add_argument("--minutes", type=float, help="wall-clock budget: stop after it, decaying the LR over it")
-    tr.add_argument("--eval-every", type=int)
-    tr.add_argument("--eval-episodes", type=int)
-    tr.add_argument("--checkpoint-every", type=int)
-    tr.add_argument("--collector", choices=["local", "ray"], help="collect here or on Ray workers")
-    tr.add_argument("--ray-workers", type=int, help="Ray workers (each collects num_worlds / N worlds)")
-    tr.add_argument("--ray-address", help="Ray cluster to join: auto | HOST:PORT | ray://HOST:PORT")
-    tr.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE", help="any TrainConfig field")
-    tr.add_argument("--no-progress", action="store_true")
-    tr.set_defaults(func=_train)
-    methods = (
-        "nearest | utility | rrt | apf | random-frontier | random | window:PLANNER (its goals projected into "
-        "the 7x7 window) | amat:PATH (model, checkpoint or run dir)"
+    g.add_argument("--lr", type=POSITIVE_FLOAT, help="Adam learning rate (decays linearly to 0)")
+    g.add_argument("--seed", type=NON_NEGATIVE_INT, help="seed of the training worlds and the sampling")
+    g.add_argument("--device", type=_checked(_device), help="cpu | cuda | cuda:N")
+    g.add_argument("--threads", type=POSITIVE_INT, help="torch CPU threads")
+    g.add_argument("--update-processes", type=POSITIVE_INT,
+                   help="CPU processes computing the update's gradients (1 thread each if > 1)")  # fmt: skip
+    g.add_argument(
+        "--warm-start",
+        metavar="PLANNER",
+        help="DAgger warm start from a planner's goals (projected into the window): nearest, rrt...",
     )
-    ev = sub.add_parser("eval", help="evaluate a method on the paper's protocol (SPEC §8)")
-    ev.add_argument("--method", required=True, help=methods)
+    g.add_argument("--target-kl", type=NON_NEGATIVE_FLOAT,
+                   help="stop an iteration's PPO epochs past this approx-KL (0 = never)")  # fmt: skip
+    g.add_argument("--precision", choices=["fp32", "bf16", "auto"],
+                   help="PPO update precision (auto: bf16 where the CPU has it natively)")  # fmt: skip
+    g.add_argument("--minutes", type=NON_NEGATIVE_FLOAT,
+                   help="wall-clock budget: stop after it, decaying the LR over it (0 = none)")  # fmt: skip
+    g.add_argument("--eval-every", type=NON_NEGATIVE_INT, help="iterations between evaluations (0 = never)")
+    g.add_argument("--eval-episodes", type=POSITIVE_INT, help="episodes (fixed maps) of each evaluation")
+    g.add_argument("--checkpoint-every", type=NON_NEGATIVE_INT, help="iterations between checkpoints")
+    g.add_argument("--collector", choices=["local", "ray"], help="collect here or on Ray workers")
+    g.add_argument(
+        "--ray-workers", type=POSITIVE_INT, help="Ray workers (each collects num_worlds / N worlds)"
+    )
+    g.add_argument("--ray-address", help="Ray cluster to join: auto | HOST:PORT | ray://HOST:PORT")
+    g.add_argument("--set", action="append", default=[], type=_set_item, metavar="FIELD=VALUE",
+                   help="any TrainConfig field, value as JSON (repeatable)")  # fmt: skip
+    tr.add_argument("--no-progress", action="store_true", help="no progress bar")
+    tr.set_defaults(func=_train, name="train")
+
+
+def _add_setting_flags(p: argparse.ArgumentParser) -> None:
+    from catmip_rl.checkpoint import shipped_models
+    from catmip_rl.evaluate import TASKS
+
+    shipped = ", ".join(shipped_models()) or "none"
+    p.add_argument(
+        "--method", required=True, type=_checked(_method),
+        help="nearest | utility | rrt | apf | random-frontier | random | window:PLANNER (its goals projected "
+        "into the 7x7 window) | amat:PATH (a model file, checkpoint or run dir) | amat:NAME (a shipped "
+        f"model: {shipped}) | amat-guard:PATH (argmax with the loop guard)",
+    )  # fmt: skip
+    p.add_argument("--task", default="task1", choices=TASKS, help="evaluation task")
+    p.add_argument(
+        "--comm", default="full", type=_checked(_comm), help="full | 4 | 2 (link range sigma in cells)"
+    )
+    p.add_argument(
+        "--noise", type=PROBABILITY, default=0.0, help="SLAM noise: per-tick cell flip probability"
+    )
+    p.add_argument("--max-ma-ticks", type=POSITIVE_INT, default=10, help="longest macro-action (5 | 10 | 20)")
+    p.add_argument(
+        "--seed", type=NON_NEGATIVE_INT, default=0, help="map set: episode k plays map k of this seed"
+    )
+    p.add_argument("--threads", type=POSITIVE_INT, default=2, help="torch CPU threads")
+
+
+def _add_eval_render(sub) -> None:
+    from catmip_env.search_rescue_v0 import SearchRescueEnv
+
+    ev = sub.add_parser("eval", help="evaluate a method on the paper's protocol", formatter_class=_Formatter)
     _add_setting_flags(ev)
-    ev.add_argument("--episodes", type=int, default=100)
-    ev.add_argument("--out", required=True, help="folder for episodes.csv/json, curve.csv, summary.json")
-    ev.add_argument("--no-progress", action="store_true")
-    ev.set_defaults(func=_eval)
-    rd = sub.add_parser("render", help="an animated GIF of one evaluation episode")
-    rd.add_argument("--method", required=True, help=methods)
-    _add_setting_flags(rd)
-    rd.add_argument("--episode", type=int, default=0, help="which map of the seed's map set")
-    rd.add_argument("--fps", type=int, default=6)
-    rd.add_argument("--out", required=True, help="GIF path")
-    rd.set_defaults(func=_render)
-    be = sub.add_parser("bench", help="paper figures (success vs time) or the performance benchmarks")
-    be.add_argument("suite", choices=["paper", "perf"])
-    be.add_argument("--figure", type=int, help="paper figure 6 | 7 | 8 | 9 | 10 | 11")
-    be.add_argument("--all", action="store_true", help="every paper figure")
-    be.add_argument(
-        "--methods", default="nearest,utility,rrt,apf", help="comma list of methods (NAME=amat:PATH allowed)"
+    ev.add_argument("--episodes", type=POSITIVE_INT, default=100, help="maps 0 .. N-1 of the seed")
+    ev.add_argument("--out", required=True, help="new or empty folder for episodes.csv/json, curve.csv, "
+                    "summary.json")  # fmt: skip
+    ev.add_argument(
+        "--force", action="store_true", help="write into a non-empty --out (overwriting its files)"
     )
-    be.add_argument("--method", action="append", default=[], help="one more method (repeatable)")
-    be.add_argument("--episodes", type=int, default=100)
-    be.add_argument("--seed", type=int, default=0)
-    be.add_argument("--jobs", type=int, default=2, help="parallel processes")
-    be.add_argument("--out", default="out/paper")
+    ev.add_argument("--no-progress", action="store_true", help="no progress bar")
+    ev.set_defaults(func=_eval, name="eval")
+    rd = sub.add_parser(
+        "render", help="an animated GIF of one evaluation episode", formatter_class=_Formatter
+    )
+    _add_setting_flags(rd)
+    rd.add_argument("--episode", type=NON_NEGATIVE_INT, default=0, help="which map of the seed's map set")
+    rd.add_argument("--fps", type=POSITIVE_INT, default=SearchRescueEnv.metadata["render_fps"],
+                    help="frames (ticks) per second (the env's metadata render_fps)")  # fmt: skip
+    rd.add_argument("--out", required=True, help="path of the GIF to write (ending in .gif)")
+    rd.add_argument("--force", action="store_true", help="overwrite an existing --out")
+    rd.set_defaults(func=_render, name="render")
+
+
+def _add_bench(sub) -> None:
+    from catmip_rl.paper import DEFAULT_METHODS, FIGURES
+
+    be = sub.add_parser("bench", help="paper figures (success vs time) or the performance benchmarks",
+                        formatter_class=_Formatter)  # fmt: skip
+    be.add_argument("suite", choices=["paper", "perf"], help="paper: the paper's figures; perf: benchmarks/")
+    be.add_argument("--figure", type=int, choices=sorted(FIGURES), help="paper figure")
+    be.add_argument("--all", action="store_true", help="every paper figure")
+    be.add_argument("--methods", default=",".join(DEFAULT_METHODS), type=_checked(_methods),
+                    help="comma list of methods (NAME=amat:PATH allowed; see catmip eval -h)")  # fmt: skip
+    be.add_argument("--method", action="append", default=[], type=_checked(_method),
+                    help="one more method (repeatable)")  # fmt: skip
+    be.add_argument("--episodes", type=POSITIVE_INT, default=100, help="maps per (panel, method)")
+    be.add_argument("--seed", type=NON_NEGATIVE_INT, default=0, help="map set")
+    be.add_argument("--jobs", type=POSITIVE_INT, default=2, help="parallel processes")
+    be.add_argument("--out", default="out/paper", help="figures go to OUT/fig{N}/ (new or empty)")
+    be.add_argument("--force", action="store_true", help="write into non-empty OUT/fig{N}/ folders")
     be.add_argument("--quick", action="store_true", help="perf: short settings")
-    be.set_defaults(func=_bench)
-    args = ap.parse_args(argv)
-    return args.func(args)
+    be.set_defaults(func=_bench, name="bench")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    ap = _Parser(
+        prog="catmip",
+        description="CATMiP: train, evaluate and benchmark AMAT",
+        epilog="Bad input exits with code 2 and one line on stderr, before any work starts; "
+        "CATMIP_DEBUG=1 shows the traceback instead.",
+    )
+    ap.add_argument("--version", action="version", version=f"catmip {_version()}")
+    sub = ap.add_subparsers(dest="command", required=True, metavar="{train,eval,render,bench}")
+    _add_train(sub)
+    _add_eval_render(sub)
+    _add_bench(sub)
+    return ap
+
+
+def main(argv: list[str] | None = None) -> int:
+    try:
+        args = build_parser().parse_args(argv)
+    except SystemExit as done:  # --help, --version, or a bad flag (argparse printed one line)
+        return done.code if isinstance(done.code, int) else (0 if done.code is None else 2)
+    name = f"catmip {args.name}" + (f" {args.suite}" if args.name == "bench" else "")
+    try:
+        return args.func(args)
+    except USER_ERRORS as err:
+        if os.environ.get("CATMIP_DEBUG"):
+            raise
+        print(f"{name}: {' '.join(str(err).split()) or type(err).__name__}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"{name}: interrupted", file=sys.stderr)
+        return 130
 
 
 if __name__ == "__main__":

@@ -5,9 +5,10 @@
 1. ``catmip train --preset task1-warm`` shortened: its 12 DAgger rounds against the window-projected
    Nearest planner, then ``--iterations`` PPO iterations (a few minutes on 2 cores) into ``OUT/train``
    (config, metrics.csv, warm_start.csv, TensorBoard, checkpoints);
-2. the evaluation protocol (SPEC §8) on ``--episodes`` fixed Task-1 maps: the model just trained, the
-   shipped model (``catmip_rl/models/amat_task1.pt``, the same recipe trained longer), the planning
-   baselines and the imitation teacher (``window:nearest``), all on the same maps;
+2. the evaluation protocol (docs/design.md#evaluation-protocol) on ``--episodes`` fixed Task-1 maps:
+   the model just trained, the shipped model (``catmip_rl/models/amat_task1.pt``, the same recipe
+   trained longer), the planning baselines and the imitation teacher (``window:nearest``), all on the
+   same maps;
 3. ``OUT/results.csv`` + ``results.md`` (table), ``OUT/success.png`` (success rate vs mission time),
    ``OUT/episode.gif`` (the shipped model on episode 0), per-method folders with per-episode results.
 """
@@ -54,7 +55,7 @@ def main(argv: list[str] | None = None) -> list[dict]:
     from catmip_rl.train import train
 
     run_dir = out / "train"
-    if (run_dir / "checkpoints").exists():
+    if run_dir.exists():  # a new run needs a new or empty run dir
         import shutil
 
         shutil.rmtree(run_dir)

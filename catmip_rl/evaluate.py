@@ -1,4 +1,6 @@
-"""Evaluation protocol of the paper's Section 7 (SPEC §8): one setting, one method, N episodes.
+"""Evaluation protocol of the paper's Section 7: one setting, one method, N episodes.
+
+The protocol: docs/design.md#evaluation-protocol.
 
     setting = EvalSetting("task2", comm="4", noise=0.05, max_ma_ticks=10)
     result = evaluate("amat:runs/a/checkpoints/latest.pt", setting, episodes=100, seed=0)
@@ -33,7 +35,7 @@ from catmip_env.decision_stats import DecisionTracker
 from catmip_env.events import EventEngine
 from catmip_env.window_planner import make_window_planner
 from catmip_rl.amat import AMAT
-from catmip_rl.checkpoint import load_model
+from catmip_rl.checkpoint import load_model, resolve_model
 from catmip_rl.distributed import GOAL_BYTES, AmatExecutor
 from catmip_rl.files import atomic_write_csv, atomic_write_text
 
@@ -122,7 +124,7 @@ def parse_method(spec: str) -> Method:
     """``nearest`` | ``utility`` | ``rrt`` | ``apf`` | ``random-frontier`` | ``random`` |
     ``window:PLANNER`` (the planner's goals projected into the 7x7 window, the imitation teacher) |
     ``amat:PATH`` | ``amat-guard:PATH`` (argmax with the loop guard) | ``NAME=...`` (PATH: a model
-    file, a training checkpoint or a run dir)."""
+    file, a training checkpoint, a run dir or a shipped model's name, ``amat:task1``)."""
     spec = spec.strip()
     name = None
     if "=" in spec:
@@ -132,9 +134,7 @@ def parse_method(spec: str) -> Method:
             path = spec[len(prefix) :]
             if not path:
                 raise ValueError(f"amat method needs a checkpoint: {prefix}PATH")
-            if not Path(path).exists():
-                raise FileNotFoundError(f"AMAT checkpoint {path!r} does not exist")
-            return Method(name or prefix[:-1], "amat", path, loop_guard=guard)
+            return Method(name or prefix[:-1], "amat", str(resolve_model(path)), loop_guard=guard)
     if spec.startswith("window:"):
         planner = spec[len("window:") :]
         if planner not in PLANNERS:
@@ -350,13 +350,15 @@ def render_episode(
     path: str | Path,
     episode: int = 0,
     seed: int = 0,
-    fps: int = 6,
+    fps: int | None = None,
     max_frames: int = 600,
     model: AMAT | None = None,
 ) -> Path:
     """GIF of one evaluation episode (the map of ``episode`` of ``seed``, as in :func:`evaluate`),
-    one frame per tick: robots, their goals, explored area, communication links."""
+    one frame per tick: robots, their goals, explored area, communication links; ``fps`` defaults to
+    the env's ``metadata["render_fps"]``."""
     from catmip_env.render import render_world, save_gif
+    from catmip_env.search_rescue_v0 import SearchRescueEnv
 
     method = parse_method(method) if isinstance(method, str) else method
     policy, goal_mode, window = make_policy(method, seed, model)
@@ -366,4 +368,4 @@ def render_episode(
     while not eng.state.done[0] and len(frames) < max_frames:
         eng.step(policy.act(eng), max_ticks=1)  # pause after every tick to draw it
         frames.append(render_world(eng.world, 0))
-    return save_gif(frames, path, fps=fps)
+    return save_gif(frames, path, fps=SearchRescueEnv.metadata["render_fps"] if fps is None else fps)

@@ -8,9 +8,9 @@ to a process pool. Written per figure under ``out/fig{N}/``: ``curves.csv`` (fig
 success_rate), ``summary.csv`` (one row per run), ``summary.md``, ``fig{N}.png``, per-run folders with
 the per-episode results of :mod:`catmip_rl.evaluate`, and ``marl_eval.json`` (see :func:`marl_eval_json`).
 
-Figure layout (SPEC §8): 6-8 = Tasks 1-3, panels = communication {full, sigma 4, sigma 2};
-9 = SLAM noise 5 % with full communication, panels = Tasks 1-3; 10 = noise 5 % with sigma = 2, panels =
-Tasks 1-3; 11 = Task 2, panels = longest macro-action 5 / 10 / 20 ticks.
+Figure layout (docs/design.md#evaluation-protocol): 6-8 = Tasks 1-3, panels = communication {full,
+sigma 4, sigma 2}; 9 = SLAM noise 5 % with full communication, panels = Tasks 1-3; 10 = noise 5 % with
+sigma = 2, panels = Tasks 1-3; 11 = Task 2, panels = longest macro-action 5 / 10 / 20 ticks.
 """
 
 from __future__ import annotations
@@ -26,6 +26,7 @@ from typing import Any
 
 import numpy as np
 
+from catmip_rl.checkpoint import load_model
 from catmip_rl.evaluate import EvalSetting, Method, evaluate, parse_method, progress_bar
 from catmip_rl.files import atomic_write_csv, atomic_write_text
 
@@ -92,12 +93,20 @@ def run_figure(
     jobs: int = 1,
     progress: bool = True,
 ) -> Path:
-    """Run every (panel, method) of ``figure``; returns the figure's folder."""
+    """Run every (panel, method) of ``figure``; returns the figure's folder. Bad arguments (figure,
+    methods, an unreadable AMAT checkpoint, episodes, seed, jobs) raise before any run starts."""
+    _matplotlib()  # fail now rather than after the evaluations
     panels = figure_settings(figure)
     parsed: list[Method] = [parse_method(m) for m in (methods or DEFAULT_METHODS)]
     names = [m.name for m in parsed]
     if len(set(names)) != len(names):
         raise ValueError(f"method names must be unique (use NAME=amat:PATH), got {names}")
+    for what, value, low in (("episodes", episodes, 1), ("seed", seed, 0), ("jobs", jobs, 1)):
+        if not isinstance(value, int) or value < low:
+            raise ValueError(f"{what} must be an int >= {low}, got {value!r}")
+    for m in parsed:
+        if m.kind == "amat":
+            load_model(m.target)  # an unreadable checkpoint fails here, not in every run
     fig_dir = Path(out) / f"fig{figure}"
     grid = [(panel, setting, method) for panel, setting in panels for method in parsed]
     threads = 1 if jobs > 1 else 2
@@ -207,10 +216,19 @@ def marl_eval_json(runs: list[tuple[str, str, str]], figure: int) -> dict[str, A
     return data
 
 
+def _matplotlib():
+    """The matplotlib module, or an ImportError that names the extra providing it."""
+    try:
+        import matplotlib
+    except ImportError as err:
+        msg = "catmip bench paper draws figures with matplotlib: pip install 'catmip[rl]'"
+        raise ImportError(msg) from err
+    return matplotlib
+
+
 def plot_figure(curves_csv: str | Path, png: str | Path, title: str = "") -> Path:
     """Success rate vs mission time, one panel per setting, one line per method (paper layout)."""
-    import matplotlib
-
+    matplotlib = _matplotlib()
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 

@@ -1,4 +1,4 @@
-"""Asynchronous centralised training of AMAT with PPO (SPEC §6) — the whole loop in one place.
+"""Asynchronous centralised training of AMAT with PPO (docs/design.md#training) — the whole loop in one place.
 
     build: config -> collector (B worlds) -> AMAT -> Adam -> value normaliser
     (warm start: DAgger rounds against a window-projected planner, catmip_rl.imitation)
@@ -8,7 +8,8 @@
 Everything needed to continue a run exactly (model, optimiser, value normaliser, the sampling
 generator's state, the iteration, the training time so far that a time budget's LR schedule reads) is
 saved atomically in ``RUN_DIR/checkpoints``; the
-resolved config is ``RUN_DIR/config.json``; metrics go to ``RUN_DIR/metrics.csv`` (per-epoch PPO
+resolved config is ``RUN_DIR/config.json`` (written once every check has passed and the parts are built:
+a refused run leaves nothing behind); metrics go to ``RUN_DIR/metrics.csv`` (per-epoch PPO
 statistics to ``ppo_epochs.csv``, DAgger rounds to ``warm_start.csv``) and TensorBoard.
 """
 
@@ -23,10 +24,10 @@ import numpy as np
 import torch
 
 from catmip_rl.amat import AMAT
-from catmip_rl.checkpoint import atomic_torch_save
+from catmip_rl.checkpoint import atomic_torch_save, resume_checkpoint
 from catmip_rl.collect import Collector, Rollout
 from catmip_rl.config import TrainConfig
-from catmip_rl.files import atomic_write_text, open_csv_log, write_csv_row
+from catmip_rl.files import atomic_write_text, check_new_dir, open_csv_log, write_csv_row
 from catmip_rl.gae import async_gae
 from catmip_rl.heap import keep_freed_memory
 from catmip_rl.imitation import warm_start
@@ -232,6 +233,38 @@ def _save(
     )
 
 
+def _check_run(cfg: TrainConfig, run_dir: Path, resume: bool) -> dict | None:
+    """Every refusal, before anything is built or written: the checkpoint to continue (``resume``) must
+    be readable and of the same model and task; a new run needs a new or empty run dir. Also the
+    device and, for ``collector="ray"``, the ray package. Returns the checkpoint (None for a new run)."""
+    saved = None
+    if resume:
+        saved = resume_checkpoint(run_dir)
+        saved_cfg = TrainConfig.from_json(saved["config"])
+        if saved_cfg.amat_config() != cfg.amat_config() or saved_cfg.env_config() != cfg.env_config():
+            raise ValueError(
+                f"--resume: the checkpoint in {run_dir} was trained with another model or task "
+                f"({saved_cfg.amat_config()} on {saved_cfg.env_preset}); start a new run dir instead"
+            )
+    elif (run_dir / "checkpoints" / "latest.pt").exists():
+        raise FileExistsError(
+            f"{run_dir} already holds a run; pass --resume to continue it or pick a new dir"
+        )
+    else:
+        check_new_dir(run_dir, "run dir", advice="pick a new run dir (or empty this one)")
+    try:
+        cuda = torch.device(cfg.device).type == "cuda"
+    except RuntimeError:
+        raise ValueError(f"device must be cpu, cuda or cuda:N, got {cfg.device!r}") from None
+    if cuda and not torch.cuda.is_available():
+        raise ValueError(f"device {cfg.device!r} requested but torch sees no CUDA device")
+    if cfg.collector == "ray":
+        from catmip_rl.ray_collect import import_ray
+
+        import_ray()  # RuntimeError naming the extra to install
+    return saved
+
+
 def _tensorboard(run_dir: Path):
     try:
         from torch.utils.tensorboard import SummaryWriter
@@ -241,33 +274,17 @@ def _tensorboard(run_dir: Path):
 
 
 def train(cfg: TrainConfig, run_dir: str | Path, resume: bool = False, progress: bool = True) -> AMAT:
-    """Run (or continue, with ``resume``) a training run in ``run_dir``; returns the model."""
+    """Run (or continue, with ``resume``) a training run in ``run_dir``; returns the model. Refusals
+    (see ``_check_run``) come before anything is built or written."""
     run_dir = Path(run_dir)
     ckpt_dir = run_dir / "checkpoints"
     latest = ckpt_dir / "latest.pt"
-    if resume:
-        if not latest.exists():
-            raise FileNotFoundError(f"--resume: no checkpoint at {latest}")
-        saved = torch.load(latest, map_location="cpu", weights_only=False)
-        saved_cfg = TrainConfig.from_json(saved["config"])
-        if saved_cfg.amat_config() != cfg.amat_config() or saved_cfg.env_config() != cfg.env_config():
-            raise ValueError(
-                f"--resume: the checkpoint in {run_dir} was trained with another model or task "
-                f"({saved_cfg.amat_config()} on {saved_cfg.env_preset}); start a new run dir instead"
-            )
-    elif latest.exists():
-        raise FileExistsError(
-            f"{run_dir} already holds a run; pass --resume to continue it or pick a new dir"
-        )
-    run_dir.mkdir(parents=True, exist_ok=True)
-    atomic_write_text(run_dir / "config.json", cfg.to_json())
+    saved = _check_run(cfg, run_dir, resume)
 
     # -- build the parts -------------------------------------------------------------------------------
     torch.set_num_threads(cfg.threads)
     keep_freed_memory()  # reuse the step's large activations' pages (catmip_rl.heap)
     device = torch.device(cfg.device)
-    if device.type == "cuda" and not torch.cuda.is_available():
-        raise RuntimeError("--device cuda requested but torch sees no CUDA device")
     torch.manual_seed(cfg.seed)
     gen = torch.Generator().manual_seed(cfg.seed)
     env_cfg = cfg.env_config()
@@ -286,7 +303,8 @@ def train(cfg: TrainConfig, run_dir: str | Path, resume: bool = False, progress:
         gen.set_state(saved["generator"])
         torch.set_rng_state(saved["torch_rng"])
         start, episodes, elapsed = saved["iteration"], saved["episodes"], saved.get("elapsed_s", 0.0)
-        chosen_bf16 = saved.get("bf16") if saved_cfg.precision == cfg.precision else None
+        same_precision = TrainConfig.from_json(saved["config"]).precision == cfg.precision
+        chosen_bf16 = saved.get("bf16") if same_precision else None
     if cfg.collector == "ray":  # the same episodes, collected by Ray workers (catmip_rl/ray_collect.py)
         from catmip_rl.ray_collect import RayRolloutCollector
 
@@ -294,6 +312,8 @@ def train(cfg: TrainConfig, run_dir: str | Path, resume: bool = False, progress:
     else:
         collector = Collector(env_cfg, cfg.num_worlds, cfg.seed, cfg.gamma, str(device))
     parallel, bf16 = None, chosen_bf16  # set at the first PPO batch (bf16 "auto" measures on it), once a run
+    run_dir.mkdir(parents=True, exist_ok=True)
+    atomic_write_text(run_dir / "config.json", cfg.to_json())
     csv_file, csv_writer = open_csv_log(run_dir / "metrics.csv", METRICS, start if resume else None)
     epoch_file, epoch_writer = open_csv_log(
         run_dir / "ppo_epochs.csv", EPOCH_METRICS, start if resume else None
