@@ -9,10 +9,14 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
+import numbers
 from dataclasses import dataclass
 from typing import Any
 
-__all__ = ["EnvConfig", "RobotClass", "PRESETS", "EXPLORER", "RESCUER", "make_config"]
+import numpy as np
+
+__all__ = ["EnvConfig", "RobotClass", "PRESETS", "EXPLORER", "RESCUER", "make_config", "MAX_MAP_SIZE"]
 
 #: Spawn box side: robots start on free cells of the 4x4 box just inside a map corner.
 SPAWN_BOX = 4
@@ -20,6 +24,33 @@ SPAWN_BOX = 4
 TARGET_EXCLUSION_BOX = 8
 #: Side of the square sensor window (own row plus ``VIEW_SIZE - 1`` rows ahead).
 VIEW_SIZE = 7
+#: Largest generated map side: beliefs, observations and planner buffers grow as S^2 per robot and
+#: world (a 512 x 512 world's observations are ~2 MB per robot), so larger maps only exhaust memory.
+MAX_MAP_SIZE = 512
+
+
+def _is_int(v: Any) -> bool:
+    return isinstance(v, int) and not isinstance(v, bool)
+
+
+def _is_bool(v: Any) -> bool:
+    return isinstance(v, (bool, np.bool_))
+
+
+def _is_number(v: Any) -> bool:
+    """A finite real number (ints too; not a bool)."""
+    return isinstance(v, numbers.Real) and not isinstance(v, bool) and math.isfinite(v)
+
+
+_LISTS = {"team": "class names", "random_classes": "class names", "activation": "two ints [t_min, t_max]",
+          "classes": "robot classes"}  # fmt: skip
+
+
+def _as_tuple(name: str, value: Any) -> tuple:
+    """A list or tuple field value as a tuple; anything else (a string too) raises naming the field."""
+    if not isinstance(value, (list, tuple)):
+        raise ValueError(f"EnvConfig: {name} must be a list of {_LISTS[name]}, got {value!r}")
+    return tuple(value)
 
 
 @dataclass(frozen=True)
@@ -36,11 +67,30 @@ class RobotClass:
     def __post_init__(self) -> None:
         if not isinstance(self.name, str) or not self.name:
             raise ValueError(f"RobotClass.name must be a non-empty string, got {self.name!r}")
-        if not isinstance(self.ticks_per_action, int) or self.ticks_per_action < 1:
+        if not _is_int(self.ticks_per_action) or self.ticks_per_action < 1:
             raise ValueError(
                 f"RobotClass {self.name!r}: ticks_per_action must be an int >= 1, "
                 f"got {self.ticks_per_action!r}"
             )
+        if not _is_bool(self.can_rescue):
+            raise ValueError(
+                f"RobotClass {self.name!r}: can_rescue must be true or false, got {self.can_rescue!r}"
+            )
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> RobotClass:
+        """A class from ``{"name": ..., "ticks_per_action": ..., "can_rescue": ...}`` (JSON configs)."""
+        if not isinstance(data, dict):
+            raise ValueError(
+                f"a robot class must be a RobotClass or a JSON object of its fields, got {data!r}"
+            )
+        unknown = sorted(set(data) - {f.name for f in dataclasses.fields(cls)})
+        if unknown or "name" not in data:
+            raise ValueError(
+                f"robot class {data!r}: fields are name (required), ticks_per_action, can_rescue"
+                + (f"; unknown: {unknown}" if unknown else "")
+            )
+        return cls(**data)
 
 
 EXPLORER = RobotClass("explorer", ticks_per_action=1, can_rescue=False)
@@ -52,7 +102,7 @@ class EnvConfig:
     """One task of the search-and-rescue world (docs/design.md#world-rules). Frozen, validated on creation."""
 
     map_size: int = 20
-    """Side S of the square generated map, outer wall ring included (S >= 10)."""
+    """Side S of the square generated map, outer wall ring included (10 <= S <= MAX_MAP_SIZE = 512)."""
     team: tuple[str, ...] = ("rescuer", "explorer", "explorer")
     """Class name of each robot ``robot_i``; the entry ``"random"`` draws a class per episode."""
     random_classes: tuple[str, ...] = ("rescuer", "explorer")
@@ -130,16 +180,16 @@ class EnvConfig:
         unknown = sorted(set(overrides) - names)
         if unknown:
             raise ValueError(f"unknown EnvConfig field(s) {unknown}; valid fields: {sorted(names)}")
-        if "team" in overrides:
-            overrides["team"] = tuple(overrides["team"])
-        if "random_classes" in overrides:
-            overrides["random_classes"] = tuple(overrides["random_classes"])
-        if "activation" in overrides:
-            overrides["activation"] = tuple(overrides["activation"])
+        for name in _LISTS:  # JSON lists -> tuples
+            if name in overrides:
+                overrides[name] = _as_tuple(name, overrides[name])
         if "classes" in overrides:
-            overrides["classes"] = tuple(
-                c if isinstance(c, RobotClass) else RobotClass(**c) for c in overrides["classes"]
-            )
+            try:
+                overrides["classes"] = tuple(
+                    c if isinstance(c, RobotClass) else RobotClass.from_dict(c) for c in overrides["classes"]
+                )
+            except ValueError as err:
+                raise ValueError(f"EnvConfig: classes: {err}") from None
         return dataclasses.replace(self, **overrides)
 
     def to_dict(self) -> dict[str, Any]:
@@ -150,15 +200,56 @@ class EnvConfig:
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> EnvConfig:
+        if not isinstance(data, dict):
+            raise ValueError(f"EnvConfig fields must be a JSON object {{field: value}}, got {data!r}")
         return cls().replace(**data)
+
+
+def _check_types(cfg: EnvConfig, fail) -> None:
+    """Each field of its type, before any range check compares values (a string where a number belongs
+    is named here, not met as a TypeError)."""
+    for name in ("map_size", "horizon_ticks", "local_size", "window", "max_ma_ticks"):
+        if not _is_int(getattr(cfg, name)):
+            fail(f"{name} must be an int, got {getattr(cfg, name)!r}")
+    for name in (
+        "wall_prob",
+        "slam_noise",
+        "step_reward",
+        "collision_penalty",
+        "find_reward",
+        "rescue_reward",
+    ):
+        if not _is_number(getattr(cfg, name)):
+            fail(f"{name} must be a finite number, got {getattr(cfg, name)!r}")
+    if cfg.comm_sigma is not None and not _is_number(cfg.comm_sigma):
+        fail(f"comm_sigma must be None (full communication) or a finite number > 0, got {cfg.comm_sigma!r}")
+    if cfg.num_obstacles is not None and not _is_int(cfg.num_obstacles):
+        fail(f"num_obstacles must be None or an int >= 0, got {cfg.num_obstacles!r}")
+    for name in ("team", "random_classes"):
+        v = getattr(cfg, name)
+        if not isinstance(v, (list, tuple)) or not all(isinstance(x, str) for x in v):
+            fail(f"{name} must be a list of class names, got {v!r}")
+    if not isinstance(cfg.classes, (list, tuple)) or not all(isinstance(c, RobotClass) for c in cfg.classes):
+        fail(f"classes must be a list of RobotClass, got {cfg.classes!r}")
+    if cfg.layout is not None and not isinstance(cfg.layout, str):
+        fail(
+            "layout must be None or one string holding the ASCII map (rows separated by newlines), "
+            f"got a value of type {type(cfg.layout).__name__}"
+        )
+    if not _is_bool(cfg.synchronous):
+        fail(f"synchronous must be true or false, got {cfg.synchronous!r}")
+    act = cfg.activation
+    if not isinstance(act, (list, tuple)) or len(act) != 2 or not all(_is_int(x) for x in act):
+        fail(f"activation must be (t_min, t_max) ints with 0 <= t_min <= t_max, got {act!r}")
 
 
 def _validate(cfg: EnvConfig) -> None:
     def fail(msg: str) -> None:
         raise ValueError(f"EnvConfig: {msg}")
 
-    if not isinstance(cfg.map_size, int) or cfg.map_size < 10:
-        fail(f"map_size must be an int >= 10, got {cfg.map_size!r}")
+    _check_types(cfg, fail)
+    if not 10 <= cfg.map_size <= MAX_MAP_SIZE:
+        fail(f"map_size must be an int in [10, {MAX_MAP_SIZE}], got {cfg.map_size!r}")
     if not cfg.classes:
         fail("classes must name at least one RobotClass")
     names = [c.name for c in cfg.classes]
@@ -182,9 +273,9 @@ def _validate(cfg: EnvConfig) -> None:
             f"{cfg.num_robots} robots do not fit the {SPAWN_BOX}x{SPAWN_BOX} spawn box "
             f"({SPAWN_BOX * SPAWN_BOX} cells)"
         )
-    if not isinstance(cfg.horizon_ticks, int) or cfg.horizon_ticks < 1:
+    if cfg.horizon_ticks < 1:
         fail(f"horizon_ticks must be an int >= 1, got {cfg.horizon_ticks!r}")
-    if cfg.num_obstacles is not None and (not isinstance(cfg.num_obstacles, int) or cfg.num_obstacles < 0):
+    if cfg.num_obstacles is not None and cfg.num_obstacles < 0:
         fail(f"num_obstacles must be None or an int >= 0, got {cfg.num_obstacles!r}")
     if cfg.layout is None and cfg.obstacles > (cfg.map_size - 2) ** 2 // 4:
         fail(f"num_obstacles={cfg.obstacles} is too many for a {cfg.map_size}x{cfg.map_size} map")
@@ -196,15 +287,15 @@ def _validate(cfg: EnvConfig) -> None:
         fail(f"slam_noise must be a probability in [0, 1], got {cfg.slam_noise!r}")
     for name in ("local_size", "window"):
         v = getattr(cfg, name)
-        if not isinstance(v, int) or v < 1 or v % 2 == 0:
+        if v < 1 or v % 2 == 0:
             fail(f"{name} must be an odd int >= 1, got {v!r}")
     for name in ("find_reward", "rescue_reward"):
         if getattr(cfg, name) < 0:
             fail(f"{name} must be >= 0, got {getattr(cfg, name)!r}")
-    if not isinstance(cfg.max_ma_ticks, int) or cfg.max_ma_ticks < 1:
+    if cfg.max_ma_ticks < 1:
         fail(f"max_ma_ticks must be an int >= 1, got {cfg.max_ma_ticks!r}")
     act = cfg.activation
-    if len(act) != 2 or not all(isinstance(x, int) for x in act) or act[0] < 0 or act[1] < act[0]:
+    if act[0] < 0 or act[1] < act[0]:
         fail(f"activation must be (t_min, t_max) ints with 0 <= t_min <= t_max, got {act!r}")
     if cfg.layout is not None:
         from catmip_env.layout import parse_layout

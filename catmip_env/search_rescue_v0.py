@@ -32,6 +32,7 @@ __all__ = ["SearchRescueEnv", "parallel_env", "env", "raw_env", "LEVELS", "OBS_F
 LEVELS = ("macro", "primitive")
 OBS_FORMATS = ("dict", "flat")
 STAY = PRIMITIVE_ACTIONS.index("stay")
+_INT64 = np.iinfo(np.int64)
 
 
 def integer_action(agent: str, action: Any) -> int:
@@ -85,7 +86,8 @@ class SearchRescueEnv(ParallelEnv):
     (``invalid_action`` = 1 in the infos of that step, ``invalid_actions`` counts them per episode),
     so that any sampler — PettingZoo's test battery samples without the mask — can drive the env.
     ``invalid_action="raise"`` is the strict mode: a ``ValueError`` names the robot, the action and
-    why. A non-integer action (``2.5``, a bool, a string, an array) raises ``ValueError`` in both modes.
+    why. Any integer counts, however large (``2**63`` is out of range, not an overflow). A non-integer
+    action (``2.5``, a bool, a string, an array) raises ``ValueError`` in both modes.
 
     **Observation** (``obs_format="dict"``, a ``Dict``; ``compact_obs=True`` gives the maps as uint8,
     float = value * 0.25):
@@ -289,12 +291,24 @@ class SearchRescueEnv(ParallelEnv):
         return obs, rewards, terms, truncs, infos
 
     def _parse_actions(self, actions: dict[str, Any]) -> np.ndarray:
-        """The (1, N) int64 action array; unknown ids, non-integers and missing robots raise."""
+        """The (1, N) int64 action array; unknown ids, non-integers and missing robots raise. An integer
+        no int64 holds (``2**63``) is out of range like ``-1``: strict mode raises naming it (for a
+        robot whose action applies), else it is stored as -1 and replaced and flagged (or ignored, for
+        a busy robot) with the other out-of-range actions."""
         a = self._actions
         a[:] = 0  # omitted busy robots: ignored by the engine
-        for agent, action in actions.items():
-            a[0, self._index(agent)] = integer_action(agent, action)
         macro = self.level == "macro"
+        for agent, action in actions.items():
+            i, value = self._index(agent), integer_action(agent, action)
+            if not _INT64.min <= value <= _INT64.max:
+                if self.invalid_action == "raise" and (not macro or self.engine.active[0, i]):
+                    kind = self.goal_mode if macro else "primitive"
+                    raise ValueError(
+                        f"action {value} of {agent} is out of range: {kind} actions are "
+                        f"0..{self.num_actions - 1} (invalid_action='stay' would replace it with 'stay')"
+                    )
+                value = -1
+            a[0, i] = value
         needed = [ag for i, ag in enumerate(self.possible_agents) if not macro or self.engine.active[0, i]]
         missing = sorted(set(needed) - set(actions))
         if missing:

@@ -52,14 +52,10 @@ class AmatConfig:
     """C: robot classes (the class one-hot size)."""
 
     def __post_init__(self) -> None:
-        for name in ("window", "local_size"):
-            v = getattr(self, name)
-            if not isinstance(v, int) or v < 1 or v % 2 == 0:
-                raise ValueError(f"AmatConfig.{name} must be an odd int >= 1, got {v!r}")
-        for name in ("pool", "embed_dim", "n_heads", "n_blocks", "n_classes"):
-            v = getattr(self, name)
-            if not isinstance(v, int) or v < 1:
-                raise ValueError(f"AmatConfig.{name} must be an int >= 1, got {v!r}")
+        for name in ("window", "local_size", "pool", "embed_dim", "n_heads", "n_blocks", "n_classes"):
+            v, odd = getattr(self, name), name in ("window", "local_size")
+            if not isinstance(v, int) or isinstance(v, bool) or v < 1 or (odd and v % 2 == 0):
+                raise ValueError(f"AmatConfig.{name} must be an {'odd ' * odd}int >= 1, got {v!r}")
         if self.embed_dim % self.n_heads:
             raise ValueError(f"embed_dim {self.embed_dim} is not divisible by n_heads {self.n_heads}")
 
@@ -80,6 +76,8 @@ class AmatConfig:
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> AmatConfig:
+        if not isinstance(data, dict):
+            raise ValueError(f"AmatConfig fields must be a JSON object {{field: value}}, got {data!r}")
         unknown = set(data) - set(cls.__dataclass_fields__)
         if unknown:
             raise ValueError(f"unknown AmatConfig field(s) {sorted(unknown)}")

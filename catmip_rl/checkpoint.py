@@ -107,15 +107,25 @@ def resolve_model(spec: str | Path) -> Path:
     )
 
 
+def _model_file(path: Path) -> Path:
+    """The checkpoint file ``path`` names: itself, or a folder's latest checkpoint (a run dir's
+    ``checkpoints/latest.pt``, or a checkpoints folder's ``latest.pt``)."""
+    if not path.is_dir():
+        return path
+    for latest in (path / "checkpoints" / "latest.pt", path / "latest.pt"):
+        if latest.is_file():
+            return latest
+    raise FileNotFoundError(
+        f"no AMAT checkpoint in the folder {path}: give a training run dir (holding checkpoints/latest.pt), "
+        "its checkpoints/ folder, or a .pt file"
+    )
+
+
 def load_model(path: str | Path, map_location: str | torch.device = "cpu") -> AMAT:
     """Rebuild the model (on CPU by default) from a file written by :func:`save_model`, a training
-    checkpoint (``RUN_DIR/checkpoints/*.pt``), a training run dir (its latest checkpoint) or the name
-    of a shipped model (:func:`resolve_model`)."""
-    path = resolve_model(path)
-    if path.is_dir():
-        path = path / "checkpoints" / "latest.pt"
-    if not path.is_file():
-        raise FileNotFoundError(f"no AMAT checkpoint at {path}")
+    checkpoint (``RUN_DIR/checkpoints/*.pt``), a training run dir or its ``checkpoints/`` folder (the
+    latest checkpoint) or the name of a shipped model (:func:`resolve_model`)."""
+    path = _model_file(resolve_model(path))
     blob = read_checkpoint(path, map_location)
     if isinstance(blob, dict) and "model" in blob and "amat_config" in blob:  # a training checkpoint
         blob = {"format": FORMAT, "config": blob["amat_config"], "state_dict": blob["model"]}
@@ -125,11 +135,38 @@ def load_model(path: str | Path, map_location: str | torch.device = "cpu") -> AM
         model = AMAT(AmatConfig.from_dict(blob["config"]))
     except (TypeError, ValueError, KeyError, AttributeError) as err:
         raise CheckpointError(f"{path} holds no valid AMAT config: {err}") from None
-    try:
-        model.load_state_dict(blob["state_dict"])
-    except (RuntimeError, KeyError, TypeError, AttributeError) as err:
-        raise ValueError(f"checkpoint {path} does not fit the AMAT its config describes: {err}") from None
+    state = blob.get("state_dict")
+    reason = _state_mismatch(state, model.state_dict())  # short: torch's message lists every key
+    if not reason:
+        try:
+            model.load_state_dict(state)
+        except (RuntimeError, KeyError, TypeError, AttributeError) as err:
+            reason = " ".join(str(err).split())
+            reason = reason if len(reason) <= 300 else reason[:300] + " ..."
+    if reason:
+        raise ValueError(f"checkpoint {path} does not fit the AMAT its config describes: {reason}")
     return model.to(map_location)
+
+
+def _state_mismatch(state: Any, expected: dict[str, torch.Tensor], shown: int = 3) -> str:
+    """How ``state`` differs from the model's ``expected`` state dict, in one short line (the first
+    ``shown`` keys of each kind and their counts; torch's own message lists every key); "" if it fits
+    by keys and shapes."""
+    if not isinstance(state, dict):
+        return f"its state_dict is a {type(state).__name__}, not a dict of tensors"
+
+    def some(keys: list[str]) -> str:
+        return ", ".join(keys[:shown]) + (f", ... ({len(keys)} in all)" if len(keys) > shown else "")
+
+    missing = [k for k in expected if k not in state]
+    unexpected = [k for k in state if k not in expected]
+    resized = [
+        f"{k} {tuple(state[k].shape)} vs {tuple(v.shape)}"
+        for k, v in expected.items()
+        if k in state and getattr(state[k], "shape", None) is not None and state[k].shape != v.shape
+    ]
+    kinds = {"missing keys": missing, "unexpected keys": unexpected, "shape mismatch": resized}
+    return "; ".join(f"{what}: {some(keys)}" for what, keys in kinds.items() if keys)
 
 
 # what a training checkpoint holds (catmip_rl.train); a file without these keys cannot be resumed
@@ -148,13 +185,14 @@ def _read_training_checkpoint(path: Path) -> dict:
 def resume_checkpoint(run_dir: str | Path) -> dict:
     """The checkpoint ``--resume`` continues from, ``RUN_DIR/checkpoints/latest.pt``. When it is missing
     or unreadable the error names the newest readable ``iter_*.pt`` and how to resume from it (nothing
-    is chosen silently)."""
+    is chosen silently), or says that none is readable."""
     latest = Path(run_dir) / "checkpoints" / "latest.pt"
     try:
         return _read_training_checkpoint(latest)
     except (FileNotFoundError, CheckpointError) as err:
-        hint = ""
-        for path in sorted(latest.parent.glob("iter_*.pt"), reverse=True):  # newest first
+        others = sorted(latest.parent.glob("iter_*.pt"), reverse=True)  # newest first
+        hint = f"; no checkpoints/iter_*.pt is readable either ({len(others)} tried)" if others else ""
+        for path in others:
             try:
                 it = _read_training_checkpoint(path)["iteration"]
             except (OSError, CheckpointError):

@@ -6,8 +6,10 @@ field (values are JSON: ``--set env_overrides='{"comm_sigma": 4.0}'``).
 Bad input never starts work and never shows a traceback: argparse types check every value (one line
 naming the flag), each command checks its paths before running (checkpoints are read with
 ``weights_only=True``; outputs are never overwritten without ``--force``), and :func:`main` turns the
-remaining user errors (``ValueError``, ``OSError``, ``ImportError``) into one line on stderr and exit
-code 2 (``CATMIP_DEBUG=1`` re-raises them, with the traceback).
+remaining user errors (``ValueError``, ``OSError``, ``ImportError``, ``MemoryError``) into one line on
+stderr and exit code 2 (``CATMIP_DEBUG=1`` re-raises them, with the traceback); Ctrl-C is one line and
+exit code 130. A training run stopped before its first checkpoint says in that line that it removed
+what it wrote.
 """
 
 from __future__ import annotations
@@ -26,16 +28,17 @@ from catmip_rl.config import TRAIN_PRESETS, TrainConfig
 __all__ = ["main", "parse_set", "DEFAULT_PRESET"]
 
 DEFAULT_PRESET = "task1-warm"
-"""``catmip train`` without ``--preset``: the Task-1 recipe (~40 minutes on 2 cores), not the paper's
-62,500 iterations (days)."""
+"""``catmip train`` without ``--preset``: the Task-1 recipe (~40 minutes on one CPU thread, as the shipped
+model was trained), not the paper's 62,500 iterations (days)."""
 USER_ERRORS = (ValueError, OSError, ImportError)
 """What bad input raises (a bad value, path, or missing extra): one line and exit code 2."""
 
 
 # -- argparse types: each names the expected value; argparse names the flag ------------------------------
-def _number(kind: type, low: float, strict: bool = False, below: float | None = None):
-    """An argparse type: ``kind(text)``, finite, ``>= low`` (``> low`` if ``strict``), ``< below``."""
-    bound = f"{'>' if strict else '>='} {low:g}" + ("" if below is None else f" and < {below:g}")
+def _number(kind: type, low: float, strict: bool = False, below: float | None = None, bound: str = ""):
+    """An argparse type: ``kind(text)``, finite, ``>= low`` (``> low`` if ``strict``), ``< below``;
+    ``bound`` words the range in messages instead."""
+    bound = bound or f"{'>' if strict else '>='} {low:g}" + ("" if below is None else f" and < {below:g}")
     noun = "an int" if kind is int else "a number"
 
     def parse(text: str):
@@ -58,6 +61,9 @@ NON_NEGATIVE_INT = _number(int, 0)
 POSITIVE_FLOAT = _number(float, 0, strict=True)
 NON_NEGATIVE_FLOAT = _number(float, 0)
 PROBABILITY = _number(float, 0, below=1)
+CPUS = os.cpu_count() or 1
+"""This machine's CPU count: flags that start threads or processes take at most this many."""
+UP_TO_CPUS = _number(int, 1, below=CPUS + 1, bound=f"from 1 to {CPUS} (this machine's CPU count)")
 
 
 def _checked(validate):
@@ -92,9 +98,11 @@ def _method(text: str) -> None:
 
 
 def _methods(text: str) -> None:
-    for spec in text.split(","):
-        if spec.strip():
-            _method(spec)
+    specs = [spec for spec in text.split(",") if spec.strip()]
+    if not specs:
+        raise ValueError(f"expected a comma list of methods, got {text!r}")
+    for spec in specs:
+        _method(spec)
 
 
 def _set_item(text: str) -> tuple[str, Any]:
@@ -156,6 +164,11 @@ def _train(args: argparse.Namespace) -> int:
     else:
         base = TRAIN_PRESETS[args.preset or DEFAULT_PRESET]
     cfg = _config(base, overrides)
+    for name in ("threads", "update_processes"):  # asked for here (a preset's or resumed run's value is kept)
+        if name in overrides and getattr(cfg, name) > CPUS:
+            raise ValueError(
+                f"{name} = {getattr(cfg, name)} is more than this machine's {CPUS} CPUs; use at most {CPUS}"
+            )
     if cfg.collector == "ray":
         from catmip_rl.ray_collect import import_ray
 
@@ -256,6 +269,14 @@ class _Parser(argparse.ArgumentParser):
     def error(self, message: str):
         self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
 
+    def parse_known_args(self, args=None, namespace=None):
+        """Strict in every subcommand too: a flag that ``catmip bench perf`` does not take is refused by it,
+        with its usage (argparse otherwise hands it to the top parser as an unknown argument)."""
+        namespace, extras = super().parse_known_args(args, namespace)
+        if extras:
+            self.error(f"unrecognized arguments: {' '.join(extras)}")
+        return namespace, extras
+
 
 class _Formatter(argparse.ArgumentDefaultsHelpFormatter):
     """Defaults shown where there is one (not for switches, nor flags that default to the preset's)."""
@@ -288,9 +309,11 @@ def _add_train(sub) -> None:
                         "tensorboard/, checkpoints/). A new run needs a new or empty --run-dir.")  # fmt: skip
     tr.add_argument(
         "--preset", choices=sorted(TRAIN_PRESETS),
-        help=f"training recipe (catmip_rl.config.TRAIN_PRESETS); default {DEFAULT_PRESET} (the Task-1 world, "
-        "~40 min on 2 cores), or with --resume the run's own config. tiny: a smoke run (seconds); small: "
-        "minutes; paper, paper-sync, paper-smallma: the paper's recipe (62,500 iterations: days on a CPU); "
+        help=f"training recipe (catmip_rl.config.TRAIN_PRESETS); default {DEFAULT_PRESET} (the Task-1 "
+        "world: 12 DAgger rounds, then 2,000 PPO iterations, ~40 min on one CPU thread as the shipped model "
+        "was trained; the preset itself runs 2 threads), or with --resume the run's own config. tiny: a "
+        "smoke run (seconds); small: minutes; paper, paper-sync, paper-smallma: the paper's recipe (62,500 "
+        "iterations: days on a CPU); "
         "paper-warm: the paper's world after a warm start",
     )  # fmt: skip
     tr.add_argument("--run-dir", required=True, help="where config.json, logs and checkpoints go")
@@ -299,7 +322,9 @@ def _add_train(sub) -> None:
         help="continue the run in --run-dir exactly, from checkpoints/latest.pt; if that is unreadable the "
         "error names the newest readable checkpoints/iter_*.pt (copy it over latest.pt to continue from it)",
     )  # fmt: skip
-    g = tr.add_argument_group("overrides of the preset (default: the preset's value)")
+    g = tr.add_argument_group(
+        f"overrides of the preset (default: the preset's value; {DEFAULT_PRESET}'s shown)"
+    )
     g.add_argument("--iterations", type=POSITIVE_INT, help="PPO iterations (the LR decays to 0 over them)")
     g.add_argument("--num-worlds", type=POSITIVE_INT, help="worlds (= episodes) collected per iteration")
     g.add_argument("--epochs", type=POSITIVE_INT, help="PPO epochs per iteration")
@@ -310,8 +335,8 @@ def _add_train(sub) -> None:
     g.add_argument("--lr", type=POSITIVE_FLOAT, help="Adam learning rate (decays linearly to 0)")
     g.add_argument("--seed", type=NON_NEGATIVE_INT, help="seed of the training worlds and the sampling")
     g.add_argument("--device", type=_checked(_device), help="cpu | cuda | cuda:N")
-    g.add_argument("--threads", type=POSITIVE_INT, help="torch CPU threads")
-    g.add_argument("--update-processes", type=POSITIVE_INT,
+    g.add_argument("--threads", type=UP_TO_CPUS, help="torch CPU threads")
+    g.add_argument("--update-processes", type=UP_TO_CPUS,
                    help="CPU processes computing the update's gradients (1 thread each if > 1)")  # fmt: skip
     g.add_argument(
         "--warm-start",
@@ -334,6 +359,12 @@ def _add_train(sub) -> None:
     g.add_argument("--ray-address", help="Ray cluster to join: auto | HOST:PORT | ray://HOST:PORT")
     g.add_argument("--set", action="append", default=[], type=_set_item, metavar="FIELD=VALUE",
                    help="any TrainConfig field, value as JSON (repeatable)")  # fmt: skip
+    preset = TRAIN_PRESETS[DEFAULT_PRESET]
+    for action in g._group_actions:  # each flag's value in the default preset
+        field = "budget_minutes" if action.dest == "minutes" else action.dest
+        if action.dest != "set":
+            value = getattr(preset, field)
+            action.help += f" ({DEFAULT_PRESET}: {'none' if value in (None, '') else value})"
     tr.add_argument("--no-progress", action="store_true", help="no progress bar")
     tr.set_defaults(func=_train, name="train")
 
@@ -356,17 +387,24 @@ def _add_setting_flags(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--noise", type=PROBABILITY, default=0.0, help="SLAM noise: per-tick cell flip probability"
     )
-    p.add_argument("--max-ma-ticks", type=POSITIVE_INT, default=10, help="longest macro-action (5 | 10 | 20)")
+    p.add_argument(
+        "--max-ma-ticks", type=POSITIVE_INT, default=10,
+        help="longest macro-action in ticks: a positive int (the paper uses 5, 10, 20)",
+    )  # fmt: skip
     p.add_argument(
         "--seed", type=NON_NEGATIVE_INT, default=0, help="map set: episode k plays map k of this seed"
     )
-    p.add_argument("--threads", type=POSITIVE_INT, default=2, help="torch CPU threads")
+    p.add_argument("--threads", type=UP_TO_CPUS, default=min(2, CPUS), help="torch CPU threads")
 
 
 def _add_eval_render(sub) -> None:
     from catmip_env.search_rescue_v0 import SearchRescueEnv
 
-    ev = sub.add_parser("eval", help="evaluate a method on the paper's protocol", formatter_class=_Formatter)
+    ev = sub.add_parser(
+        "eval", help="evaluate a method on the paper's protocol", formatter_class=_Formatter,
+        description="Evaluate a method on the paper's protocol (maps 0 .. N-1 of --seed, argmax actions for "
+        "AMAT) and write episodes.csv/json, curve.csv and summary.json into --out.",
+    )  # fmt: skip
     _add_setting_flags(ev)
     ev.add_argument("--episodes", type=POSITIVE_INT, default=100, help="maps 0 .. N-1 of the seed")
     ev.add_argument("--out", required=True, help="new or empty folder for episodes.csv/json, curve.csv, "
@@ -377,8 +415,10 @@ def _add_eval_render(sub) -> None:
     ev.add_argument("--no-progress", action="store_true", help="no progress bar")
     ev.set_defaults(func=_eval, name="eval")
     rd = sub.add_parser(
-        "render", help="an animated GIF of one evaluation episode", formatter_class=_Formatter
-    )
+        "render", help="an animated GIF of one evaluation episode", formatter_class=_Formatter,
+        description="Play one evaluation episode (map --episode of --seed) with a method and write it as an "
+        "animated GIF (one frame per tick).",
+    )  # fmt: skip
     _add_setting_flags(rd)
     rd.add_argument("--episode", type=NON_NEGATIVE_INT, default=0, help="which map of the seed's map set")
     rd.add_argument("--fps", type=POSITIVE_INT, default=SearchRescueEnv.metadata["render_fps"],
@@ -392,21 +432,33 @@ def _add_bench(sub) -> None:
     from catmip_rl.paper import DEFAULT_METHODS, FIGURES
 
     be = sub.add_parser("bench", help="paper figures (success vs time) or the performance benchmarks",
-                        formatter_class=_Formatter)  # fmt: skip
-    be.add_argument("suite", choices=["paper", "perf"], help="paper: the paper's figures; perf: benchmarks/")
-    be.add_argument("--figure", type=int, choices=sorted(FIGURES), help="paper figure")
-    be.add_argument("--all", action="store_true", help="every paper figure")
-    be.add_argument("--methods", default=",".join(DEFAULT_METHODS), type=_checked(_methods),
+                        description="catmip bench paper: the paper's figures; catmip bench perf: the "
+                        "performance benchmarks of benchmarks/.")  # fmt: skip
+    suites = be.add_subparsers(dest="suite", required=True, metavar="{paper,perf}")
+    pa = suites.add_parser(
+        "paper", help="the paper's figures: success rate vs mission time", formatter_class=_Formatter,
+        description="Evaluate methods on the settings of a paper figure (--figure N) or of all of them "
+        "(--all) and draw success vs mission time into OUT/fig{N}/.",
+    )  # fmt: skip
+    pa.add_argument("--figure", type=int, choices=sorted(FIGURES), help="paper figure")
+    pa.add_argument("--all", action="store_true", help="every paper figure")
+    pa.add_argument("--methods", default=",".join(DEFAULT_METHODS), type=_checked(_methods),
                     help="comma list of methods (NAME=amat:PATH allowed; see catmip eval -h)")  # fmt: skip
-    be.add_argument("--method", action="append", default=[], type=_checked(_method),
+    pa.add_argument("--method", action="append", default=[], type=_checked(_method),
                     help="one more method (repeatable)")  # fmt: skip
-    be.add_argument("--episodes", type=POSITIVE_INT, default=100, help="maps per (panel, method)")
-    be.add_argument("--seed", type=NON_NEGATIVE_INT, default=0, help="map set")
-    be.add_argument("--jobs", type=POSITIVE_INT, default=2, help="parallel processes")
-    be.add_argument("--out", default="out/paper", help="figures go to OUT/fig{N}/ (new or empty)")
-    be.add_argument("--force", action="store_true", help="write into non-empty OUT/fig{N}/ folders")
-    be.add_argument("--quick", action="store_true", help="perf: short settings")
-    be.set_defaults(func=_bench, name="bench")
+    pa.add_argument("--episodes", type=POSITIVE_INT, default=100, help="maps per (panel, method)")
+    pa.add_argument("--seed", type=NON_NEGATIVE_INT, default=0, help="map set")
+    pa.add_argument("--jobs", type=UP_TO_CPUS, default=min(2, CPUS), help="parallel processes")
+    pa.add_argument("--out", default="out/paper", help="figures go to OUT/fig{N}/ (new or empty)")
+    pa.add_argument("--force", action="store_true", help="write into non-empty OUT/fig{N}/ folders")
+    pa.set_defaults(func=_bench, name="bench")
+    pe = suites.add_parser(
+        "perf", help="the performance benchmarks (benchmarks/run_all.py)", formatter_class=_Formatter,
+        description="Run benchmarks/run_all.py (from the repository root): JSON/CSV results and plots of "
+        "the env, collection and training speed.",
+    )  # fmt: skip
+    pe.add_argument("--quick", action="store_true", help="short settings")
+    pe.set_defaults(func=_bench, name="bench")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -432,14 +484,22 @@ def main(argv: list[str] | None = None) -> int:
     name = f"catmip {args.name}" + (f" {args.suite}" if args.name == "bench" else "")
     try:
         return args.func(args)
-    except USER_ERRORS as err:
+    except (*USER_ERRORS, MemoryError) as err:
         if os.environ.get("CATMIP_DEBUG"):
             raise
-        print(f"{name}: {' '.join(str(err).split()) or type(err).__name__}", file=sys.stderr)
+        what = str(err) or type(err).__name__
+        if isinstance(err, MemoryError):
+            what = f"out of memory ({what}): use a smaller map_size, num_worlds or micro_batch"
+        print(f"{name}: {_one_line(what, err)}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
-        print(f"{name}: interrupted", file=sys.stderr)
+    except KeyboardInterrupt as err:
+        print(f"{name}: {_one_line('interrupted', err)}", file=sys.stderr)
         return 130
+
+
+def _one_line(message: str, err: BaseException) -> str:
+    """``message`` and the exception's notes (what a stopped training run left behind) on one line."""
+    return " ".join("; ".join([message, *getattr(err, "__notes__", ())]).split())
 
 
 if __name__ == "__main__":

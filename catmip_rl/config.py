@@ -4,6 +4,9 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
+import numbers
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -11,6 +14,50 @@ from catmip_env import EnvConfig, make_config
 from catmip_rl.amat import AmatConfig
 
 __all__ = ["TrainConfig", "TRAIN_PRESETS", "make_train_config"]
+
+
+def _is_int(v: Any) -> bool:
+    return isinstance(v, int) and not isinstance(v, bool)
+
+
+def _is_number(v: Any) -> bool:
+    return isinstance(v, numbers.Real) and not isinstance(v, bool) and math.isfinite(v)
+
+
+# what each annotated type admits (annotations are strings: from __future__ import annotations)
+_TYPES: dict[str, tuple[str, Callable[[Any], bool]]] = {
+    "int": ("an int", _is_int),
+    "float": ("a finite number", _is_number),
+    "str": ("a string", lambda v: isinstance(v, str)),
+    "str | None": ("a string or null", lambda v: v is None or isinstance(v, str)),
+    "dict[str, Any]": ("a JSON object {field: value}", lambda v: isinstance(v, dict)),
+}
+# and each numeric field's range (seeds: torch's generators take 64-bit seeds)
+_RANGES: dict[str, tuple[str, Callable[[Any], bool]]] = {
+    **dict.fromkeys(("num_worlds", "iterations", "epochs", "minibatches", "threads", "update_processes",
+                     "eval_episodes", "warm_start_rounds", "warm_start_steps", "warm_start_batch",
+                     "ray_workers"), (">= 1", lambda v: v >= 1)),
+    **dict.fromkeys(("micro_batch", "eval_every", "checkpoint_every", "value_warmup_iterations",
+                     "budget_minutes", "target_kl", "entropy_coef", "value_coef"),
+                    (">= 0", lambda v: v >= 0)),
+    **dict.fromkeys(("lr", "adam_eps", "clip", "value_clip", "huber_delta", "max_grad_norm", "warm_start_lr"),
+                    ("> 0", lambda v: v > 0)),
+    **dict.fromkeys(("seed", "eval_seed"), (">= 0 and < 2**64", lambda v: 0 <= v < 2**64)),
+    "gamma": ("in (0, 1]", lambda v: 0 < v <= 1),
+    "lam": ("in [0, 1]", lambda v: 0 <= v <= 1),
+}  # fmt: skip
+
+
+def _check_fields(cfg: TrainConfig) -> None:
+    """Each field of its annotated type (an int field a real int, never a bool; a float field a finite
+    number) and in its range, or a ValueError naming the field: "TrainConfig.eval_seed must be an int
+    >= 0 and < 2**64, got 1.5"."""
+    for f in dataclasses.fields(cfg):
+        v = getattr(cfg, f.name)
+        noun, is_type = _TYPES[f.type]
+        bound, within = _RANGES.get(f.name, ("", None))
+        if not is_type(v) or (within is not None and not within(v)):
+            raise ValueError(f"TrainConfig.{f.name} must be {noun}{' ' * bool(bound)}{bound}, got {v!r}")
 
 
 @dataclass(frozen=True)
@@ -90,27 +137,7 @@ class TrainConfig:
     """Ray cluster to join ("auto", "host:port", "ray://host:port"); None starts a local one on loopback."""
 
     def __post_init__(self) -> None:
-        positive = (
-            "num_worlds",
-            "iterations",
-            "epochs",
-            "minibatches",
-            "threads",
-            "eval_episodes",
-            "update_processes",
-        )
-        for name in positive:
-            if not isinstance(getattr(self, name), int) or getattr(self, name) < 1:
-                raise ValueError(f"TrainConfig.{name} must be an int >= 1, got {getattr(self, name)!r}")
-        for name in ("eval_every", "checkpoint_every", "micro_batch", "value_warmup_iterations"):
-            if not isinstance(getattr(self, name), int) or getattr(self, name) < 0:
-                raise ValueError(f"TrainConfig.{name} must be an int >= 0, got {getattr(self, name)!r}")
-        for name in ("budget_minutes", "target_kl"):
-            if not isinstance(getattr(self, name), (int, float)) or not getattr(self, name) >= 0:
-                raise ValueError(f"TrainConfig.{name} must be a number >= 0, got {getattr(self, name)!r}")
-        for name in ("warm_start_rounds", "warm_start_steps", "warm_start_batch"):
-            if not isinstance(getattr(self, name), int) or getattr(self, name) < 1:
-                raise ValueError(f"TrainConfig.{name} must be an int >= 1, got {getattr(self, name)!r}")
+        _check_fields(self)
         if self.warm_start:
             from catmip_env.baselines import PLANNERS
 
@@ -125,11 +152,6 @@ class TrainConfig:
                     f"TrainConfig.warm_start must be '' or a planner name {sorted(PLANNERS)}, "
                     f"got {self.warm_start!r}"
                 )
-        for name in ("lr", "adam_eps", "clip", "value_clip", "huber_delta", "max_grad_norm", "warm_start_lr"):
-            if not getattr(self, name) > 0:
-                raise ValueError(f"TrainConfig.{name} must be > 0, got {getattr(self, name)!r}")
-        if not 0 < self.gamma <= 1 or not 0 <= self.lam <= 1:
-            raise ValueError(f"gamma must be in (0, 1] and lam in [0, 1], got {self.gamma}, {self.lam}")
         if self.device not in ("cpu", "cuda") and not self.device.startswith("cuda:"):
             raise ValueError(f"device must be cpu or cuda[:i], got {self.device!r}")
         if self.update_processes > 1 and self.device != "cpu":
@@ -142,14 +164,12 @@ class TrainConfig:
         use_bf16(self.precision, self.device)  # validates
         if self.collector not in ("local", "ray"):
             raise ValueError(f"TrainConfig.collector must be 'local' or 'ray', got {self.collector!r}")
-        if not isinstance(self.ray_workers, int) or self.ray_workers < 1:
-            raise ValueError(f"TrainConfig.ray_workers must be an int >= 1, got {self.ray_workers!r}")
         if self.collector == "ray" and self.num_worlds % self.ray_workers:
             raise ValueError(
                 f"num_worlds ({self.num_worlds}) must be divisible by ray_workers ({self.ray_workers}): "
                 "each Ray worker collects an equal share of the worlds"
             )
-        if self.ray_address is not None and (not isinstance(self.ray_address, str) or not self.ray_address):
+        if self.ray_address == "":
             raise ValueError(
                 f"TrainConfig.ray_address must be None, 'auto', 'host:port' or 'ray://host:port', "
                 f"got {self.ray_address!r}"

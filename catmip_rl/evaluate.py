@@ -20,6 +20,7 @@ macro-observations instead of embeddings.
 from __future__ import annotations
 
 import json
+import math
 import time
 import zlib
 from dataclasses import asdict, dataclass, field
@@ -64,7 +65,7 @@ class EvalSetting:
 
     task: str = "task1"
     comm: str = "full"
-    """"full" or the link range sigma in cells ("4", "2", any positive number)."""
+    """"full" or the link range sigma in cells ("4", "2", any positive finite number)."""
     noise: float = 0.0
     max_ma_ticks: int = 10
 
@@ -101,9 +102,9 @@ def comm_sigma(comm: str | float | None) -> float | None:
     try:
         sigma = float(comm)
     except (TypeError, ValueError):
-        raise ValueError(f"comm must be 'full' or a positive range sigma, got {comm!r}") from None
-    if not sigma > 0:
-        raise ValueError(f"comm must be 'full' or a positive range sigma, got {comm!r}")
+        raise ValueError(f"comm must be 'full' or a positive, finite range sigma, got {comm!r}") from None
+    if not (sigma > 0 and math.isfinite(sigma)):
+        raise ValueError(f"comm must be 'full' or a positive, finite range sigma, got {comm!r}")
     return sigma
 
 
@@ -129,6 +130,8 @@ def parse_method(spec: str) -> Method:
     name = None
     if "=" in spec:
         name, spec = (s.strip() for s in spec.split("=", 1))
+        if not name:
+            raise ValueError(f"method {spec!r} has an empty name: write NAME={spec} or just {spec}")
     for prefix, guard in (("amat:", False), ("amat-guard:", True)):
         if spec.startswith(prefix):
             path = spec[len(prefix) :]

@@ -71,6 +71,7 @@ def check_new_dir(path: str | Path, what: str, force: bool = False, advice: str 
     the path in messages (a flag: ``--out``); ``advice`` replaces the default "pick a new folder or pass
     --force" hint."""
     path = Path(path)
+    _check_not_dangling(path, what)
     if path.exists() and not path.is_dir():
         raise FileExistsError(f"{what} {path} is a file, not a folder")
     if path.is_dir() and not force:
@@ -91,8 +92,9 @@ def check_new_file(path: str | Path, what: str, force: bool = False, suffixes: t
         raise IsADirectoryError(f"{what} {path} is a folder; give a file path")
     if suffixes and path.suffix.lower() not in suffixes:
         raise ValueError(f"{what} {path}: the file name must end in {' or '.join(suffixes)}")
-    if path.exists() and not force:
-        raise FileExistsError(f"{what} {path} exists; pick a new name, or pass --force to overwrite it")
+    if os.path.lexists(path) and not force:  # a dangling symbolic link too
+        link = f" (a symbolic link to {os.readlink(path)})" if path.is_symlink() else ""
+        raise FileExistsError(f"{what} {path} exists{link}; pick a new name, or pass --force to overwrite it")
     _check_creatable(path.parent, what)
     return path
 
@@ -101,8 +103,18 @@ def _check_creatable(folder: Path, what: str) -> None:
     """``folder`` exists or can be created: its nearest existing ancestor is a folder we may write in."""
     p = folder.absolute()
     while not p.exists():
+        _check_not_dangling(p, what)
         p = p.parent
     if not p.is_dir():
         raise NotADirectoryError(f"{what} {folder}: {p} is a file, so the folder cannot be created")
     if not os.access(p, os.W_OK | os.X_OK):
         raise PermissionError(f"{what} {folder}: no permission to write in {p}")
+
+
+def _check_not_dangling(path: Path, what: str) -> None:
+    """A symbolic link to nothing cannot become a folder (mkdir meets the link): refuse it up front."""
+    if path.is_symlink() and not path.exists():
+        raise FileExistsError(
+            f"{what} {path} is a symbolic link to {os.readlink(path)}, which does not exist; remove the link "
+            "or pick another path"
+        )

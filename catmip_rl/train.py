@@ -7,16 +7,18 @@
 
 Everything needed to continue a run exactly (model, optimiser, value normaliser, the sampling
 generator's state, the iteration, the training time so far that a time budget's LR schedule reads) is
-saved atomically in ``RUN_DIR/checkpoints``; the
-resolved config is ``RUN_DIR/config.json`` (written once every check has passed and the parts are built:
-a refused run leaves nothing behind); metrics go to ``RUN_DIR/metrics.csv`` (per-epoch PPO
-statistics to ``ppo_epochs.csv``, DAgger rounds to ``warm_start.csv``) and TensorBoard.
+saved atomically in ``RUN_DIR/checkpoints``; the resolved config is ``RUN_DIR/config.json`` (written
+once every check has passed and the parts are built: a refused run leaves nothing behind, and a new run
+stopped by an error or Ctrl-C before its first checkpoint removes what it wrote, so that its run dir can
+be used again); metrics go to ``RUN_DIR/metrics.csv`` (per-epoch PPO statistics to ``ppo_epochs.csv``,
+DAgger rounds to ``warm_start.csv``) and TensorBoard.
 """
 
 from __future__ import annotations
 
 import json
 import math
+import shutil
 import time
 from pathlib import Path
 
@@ -312,13 +314,9 @@ def train(cfg: TrainConfig, run_dir: str | Path, resume: bool = False, progress:
     else:
         collector = Collector(env_cfg, cfg.num_worlds, cfg.seed, cfg.gamma, str(device))
     parallel, bf16 = None, chosen_bf16  # set at the first PPO batch (bf16 "auto" measures on it), once a run
-    run_dir.mkdir(parents=True, exist_ok=True)
-    atomic_write_text(run_dir / "config.json", cfg.to_json())
-    csv_file, csv_writer = open_csv_log(run_dir / "metrics.csv", METRICS, start if resume else None)
-    epoch_file, epoch_writer = open_csv_log(
-        run_dir / "ppo_epochs.csv", EPOCH_METRICS, start if resume else None
-    )
-    tb = _tensorboard(run_dir)
+    created = _first_missing(run_dir)  # a new run stopped before its first checkpoint removes its files
+    csv_file = epoch_file = tb = None
+    finished = False
 
     def save(it: int) -> None:
         _save(latest, it, episodes, elapsed, bf16, model, opt, value_norm, gen, cfg)
@@ -331,6 +329,14 @@ def train(cfg: TrainConfig, run_dir: str | Path, resume: bool = False, progress:
                     tb.add_scalar(k, v, step)
 
     try:
+        run_dir.mkdir(parents=True, exist_ok=True)
+        atomic_write_text(run_dir / "config.json", cfg.to_json())
+        csv_file, csv_writer = open_csv_log(run_dir / "metrics.csv", METRICS, start if resume else None)
+        epoch_file, epoch_writer = open_csv_log(
+            run_dir / "ppo_epochs.csv", EPOCH_METRICS, start if resume else None
+        )
+        tb = _tensorboard(run_dir)
+
         # -- imitation warm start (DAgger against a window-projected planner), once, before PPO -------
         # (every checkpoint, iter_000000.pt included, is written after it: a resumed run never repeats it)
         if cfg.warm_start and not resume:
@@ -393,13 +399,50 @@ def train(cfg: TrainConfig, run_dir: str | Path, resume: bool = False, progress:
                 )  # fmt: skip
         if bar is not None:
             bar.close()
+        finished = True
+    except BaseException as err:  # an error or Ctrl-C: the message says what is left of the run
+        err.add_note(_stopped_note(run_dir, resume, created))
+        raise
     finally:
-        csv_file.close()
-        epoch_file.close()
-        if tb is not None:
-            tb.close()
+        for log in (csv_file, epoch_file, tb):
+            if log is not None:
+                log.close()
         if cfg.collector == "ray":
             collector.close()  # stops the workers, and Ray if this run started it
         if parallel is not None:
             parallel.close()
+        if not (finished or resume or latest.exists()):  # nothing to resume: leave the dir as it was
+            _remove_run_files(run_dir, created)
     return model
+
+
+def _first_missing(path: Path) -> Path | None:
+    """The outermost folder of ``path`` (itself included) that does not exist yet: what ``mkdir(parents=
+    True)`` creates; None if ``path`` exists."""
+    missing = None
+    for p in (path, *path.parents):
+        if p.exists():
+            break
+        missing = p
+    return missing
+
+
+def _remove_run_files(run_dir: Path, created: Path | None) -> None:
+    """Undo a new run that stopped before its first checkpoint: remove the folders it created, or (its
+    run dir was empty before, ``_check_run``) everything it wrote in the run dir."""
+    if created is not None:
+        shutil.rmtree(created, ignore_errors=True)
+        return
+    for entry in run_dir.iterdir():
+        if entry.is_dir() and not entry.is_symlink():
+            shutil.rmtree(entry, ignore_errors=True)
+        else:
+            entry.unlink(missing_ok=True)
+
+
+def _stopped_note(run_dir: Path, resume: bool, created: Path | None) -> str:
+    """What a stopped run leaves, for the one-line message (added to the exception as a note)."""
+    if resume or (run_dir / "checkpoints" / "latest.pt").exists():
+        return f"its checkpoints are kept: continue with catmip train --run-dir {run_dir} --resume"
+    what = "removed" if created is not None else "emptied"
+    return f"stopped before its first checkpoint, so {run_dir} was {what} (nothing to resume; start it again)"

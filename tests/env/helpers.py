@@ -28,6 +28,8 @@ COMM_NOISE = {
 INVALID_FLAGS = {"invalid_action", "invalid_actions"}
 #: Actions that are not integers: a type error whatever the invalid-action mode.
 NOT_INTEGERS = [2.5, float("nan"), True, np.bool_(False), "3", None, np.array([3, 4]), [24]]
+# integers no int64 holds: out of range (stay + flag, or ValueError in strict mode), never an OverflowError
+HUGE_INTEGERS = [2**63, np.uint64(2**64 - 1), -(2**63) - 1, 10**30, 1e30]
 
 # A non-square map: two rooms joined by a doorway, a few obstacles, the target in the right room.
 TWO_ROOMS = """

@@ -1,5 +1,6 @@
 import json
 
+import numpy as np
 import pytest
 
 from catmip_env import PRESETS, EnvConfig, RobotClass, make_config
@@ -41,11 +42,54 @@ def test_default_classes():
         ({"window": 4}, "window"),
         ({"team": ()}, "at least one robot"),
         ({"team": ("random",), "random_classes": ("ghost",)}, "random_classes"),
+        # values of the wrong type (JSON from the CLI's --set) are named, never a TypeError
+        ({"map_size": 100_000}, r"map_size must be an int in \[10, 512\]"),
+        ({"map_size": 15.0}, "map_size must be an int"),
+        ({"window": True}, "window must be an int"),
+        ({"team": "rescuer"}, "team must be a list of class names, got 'rescuer'"),
+        ({"team": [1, 2]}, "team must be a list of class names"),
+        ({"random_classes": "rescuer"}, "random_classes must be a list"),
+        ({"layout": ["#####", "#...#", "#####"]}, "layout must be None or one string"),
+        ({"layout": 5}, "layout must be None or one string"),
+        ({"comm_sigma": "abc"}, "comm_sigma must be None .* finite number"),
+        ({"comm_sigma": float("inf")}, "comm_sigma"),
+        ({"wall_prob": "x"}, "wall_prob must be a finite number"),
+        ({"slam_noise": float("nan")}, "slam_noise must be a finite number"),
+        ({"step_reward": "x"}, "step_reward must be a finite number"),
+        ({"find_reward": True}, "find_reward must be a finite number"),
+        ({"synchronous": "yes"}, "synchronous must be true or false"),
+        ({"num_obstacles": 1.5}, "num_obstacles must be None or an int"),
+        ({"activation": 5}, "activation must be a list of two ints"),
+        ({"activation": [1, "a"]}, "activation must be"),
+        ({"classes": 5}, "classes must be a list of robot classes"),
+        ({"classes": [5]}, "classes: a robot class must be"),
+        ({"classes": [{"nom": "x"}]}, r"classes: .*unknown: \['nom'\]"),
+        (
+            {"classes": [{"name": "x", "can_rescue": "yes"}], "team": ["x"]},
+            "can_rescue must be true or false",
+        ),
     ],
 )
 def test_bad_config_values_raise_clear_errors(overrides, needle):
     with pytest.raises(ValueError, match=needle):
         EnvConfig().replace(**overrides)
+
+
+def test_valid_values_of_any_spelling_still_work():
+    """JSON ints for floats, lists for tuples, numpy floats, dicts for classes: accepted as before."""
+    classes = [{"name": "rescuer", "ticks_per_action": 2, "can_rescue": True}, {"name": "explorer"}]
+    cfg = EnvConfig().replace(
+        comm_sigma=4,
+        slam_noise=np.float64(0.05),
+        team=["rescuer", "explorer"],
+        activation=[2, 5],
+        classes=classes,
+    )
+    assert cfg.team == ("rescuer", "explorer") and cfg.activation == (2, 5) and cfg.comm_sigma == 4
+    assert cfg.classes == EnvConfig().classes and EnvConfig.from_dict(json.loads(cfg.to_json())) == cfg
+    assert EnvConfig().replace(map_size=512).map_size == 512
+    with pytest.raises(ValueError, match="JSON object"):
+        EnvConfig.from_dict(None)
 
 
 def test_bad_robot_class_and_unknown_fields():

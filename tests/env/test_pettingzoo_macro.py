@@ -15,7 +15,14 @@ from pettingzoo.test import (
 
 from catmip_env import PRESETS, search_rescue_v0
 
-from .helpers import COMM_NOISE, INVALID_FLAGS, NOT_INTEGERS, masked_random_action, pettingzoo_battery
+from .helpers import (
+    COMM_NOISE,
+    HUGE_INTEGERS,
+    INVALID_FLAGS,
+    NOT_INTEGERS,
+    masked_random_action,
+    pettingzoo_battery,
+)
 
 
 def test_default_env_passes_pettingzoo_tests_unmodified():
@@ -163,16 +170,17 @@ def test_invalid_actions_become_stay_and_are_flagged():
     assert all(infos[a]["invalid_actions"] == 0 for a in lenient.possible_agents)  # counted per episode
 
 
-def test_busy_robots_actions_are_ignored_not_flagged():
-    env = search_rescue_v0.parallel_env(preset="train")
+@pytest.mark.parametrize("invalid_action", ["stay", "raise"])
+def test_busy_robots_actions_are_ignored_not_flagged(invalid_action):
+    env = search_rescue_v0.parallel_env(preset="train", invalid_action=invalid_action)
     obs, infos = env.reset(seed=3)
     rng = np.random.default_rng(0)
     checked = 0
     while env.agents:
         acts = {a: masked_random_action(rng, obs[a]["action_mask"]) for a in env.agents}
         busy = [a for a in env.agents if not infos[a]["active"]]
-        for a in busy:
-            acts[a] = _first_masked(obs[a]["action_mask"])
+        for k, a in enumerate(busy):  # masked, out of range, or too large for an int64: all ignored
+            acts[a] = [_first_masked(obs[a]["action_mask"]), -1, 2**63][(checked + k) % 3]
         obs, _, _, _, infos = env.step(acts)
         checked += len(busy)
         assert all(infos[a]["invalid_actions"] == 0 for a in env.possible_agents)
@@ -186,6 +194,23 @@ def test_non_integer_actions_raise_in_both_modes(invalid_action, action):
     env.reset(seed=0)
     with pytest.raises(ValueError, match="action of robot_1 must be an integer"):
         env.step({"robot_0": 24, "robot_1": action})
+
+
+@pytest.mark.parametrize("action", HUGE_INTEGERS)
+def test_huge_integer_actions_are_out_of_range_in_both_modes(action):
+    lenient, reference = (search_rescue_v0.parallel_env(preset="task1") for _ in range(2))
+    lenient.reset(seed=0)
+    reference.reset(seed=0)
+    o1, r1, _, _, i1 = lenient.step({"robot_0": action, "robot_1": 24})
+    o2, r2, _, _, i2 = reference.step({"robot_0": 24, "robot_1": 24})
+    _assert_same(o1, o2)
+    assert r1 == r2 and [i1[a]["invalid_action"] for a in lenient.agents] == [1, 0]
+    strict = search_rescue_v0.parallel_env(preset="task1", invalid_action="raise")
+    strict.reset(seed=0)
+    with pytest.raises(ValueError, match=rf"action {int(action)} of robot_0 is out of range: window actions"):
+        strict.step({"robot_0": action, "robot_1": 24})
+    _, _, _, _, infos = strict.step({"robot_0": 24, "robot_1": 24})  # the error left the env untouched
+    assert infos["robot_0"]["invalid_actions"] == 0
 
 
 @pytest.mark.parametrize("action", [24, np.int32(24), np.uint8(24), np.array(24), 24.0, np.float32(24.0)])

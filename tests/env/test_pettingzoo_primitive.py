@@ -12,7 +12,7 @@ from pettingzoo.test import performance_benchmark, render_test
 import catmip_env
 from catmip_env import PRESETS, search_rescue_v0
 
-from .helpers import COMM_NOISE, INVALID_FLAGS, NOT_INTEGERS, pettingzoo_battery
+from .helpers import COMM_NOISE, HUGE_INTEGERS, INVALID_FLAGS, NOT_INTEGERS, pettingzoo_battery
 
 prim_parallel_env = functools.partial(search_rescue_v0.parallel_env, level="primitive")
 prim_env = functools.partial(search_rescue_v0.env, level="primitive")
@@ -129,6 +129,24 @@ def test_out_of_range_actions_become_stay_and_are_flagged():
     assert [i2[a]["invalid_action"] for a in reference.agents] == [0, 0]
     _, _, _, _, i1 = lenient.step({"robot_0": 2, "robot_1": 7})
     assert [(i1[a]["invalid_action"], i1[a]["invalid_actions"]) for a in lenient.agents] == [(0, 1), (1, 2)]
+
+
+@pytest.mark.parametrize("action", HUGE_INTEGERS)
+def test_huge_integer_actions_are_out_of_range_in_both_modes(action):
+    lenient, reference = prim_parallel_env(preset="task1"), prim_parallel_env(preset="task1")
+    lenient.reset(seed=0)
+    reference.reset(seed=0)
+    o1, r1, _, _, i1 = lenient.step({"robot_0": 2, "robot_1": action})
+    o2, r2, _, _, i2 = reference.step({"robot_0": 2, "robot_1": 3})
+    _assert_same(o1, o2)
+    assert r1 == r2 and np.array_equal(lenient.state(), reference.state())
+    assert [i1[a]["invalid_action"] for a in lenient.agents] == [0, 1]
+    strict = prim_parallel_env(preset="task1", invalid_action="raise")
+    strict.reset(seed=0)
+    with pytest.raises(
+        ValueError, match=rf"action {int(action)} of robot_1 is out of range: primitive actions"
+    ):
+        strict.step({"robot_0": 2, "robot_1": action})
 
 
 @pytest.mark.parametrize("invalid_action", ["stay", "raise"])

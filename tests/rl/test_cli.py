@@ -15,14 +15,16 @@ from hypothesis import HealthCheck, event, given, settings
 from hypothesis import strategies as st
 
 import catmip_rl
+import catmip_rl.collect
 import catmip_rl.evaluate
 import catmip_rl.paper
 import catmip_rl.train
 from catmip_env.search_rescue_v0 import SearchRescueEnv
 from catmip_rl.checkpoint import SHIPPED_DIR, CheckpointError, load_model, read_checkpoint, resume_checkpoint
-from catmip_rl.cli import DEFAULT_PRESET, build_parser, main
-from catmip_rl.config import make_train_config
+from catmip_rl.cli import CPUS, DEFAULT_PRESET, build_parser, main
+from catmip_rl.config import TRAIN_PRESETS, make_train_config
 from catmip_rl.evaluate import parse_method
+from catmip_rl.files import open_csv_log
 
 SHIPPED = SHIPPED_DIR / "amat_task1.pt"
 
@@ -30,7 +32,9 @@ SHIPPED = SHIPPED_DIR / "amat_task1.pt"
 @pytest.fixture(scope="module")
 def files(tmp_path_factory) -> dict[str, Path]:
     """Bad checkpoints of every kind, a non-empty folder, an existing file, a training run whose
-    latest.pt is truncated (iter_000001.pt readable, iter_000002.pt not)."""
+    latest.pt is truncated (iter_000001.pt readable, iter_000002.pt not), one whose checkpoints are all
+    unreadable, symbolic links to nothing (``dangling``, ``dangling.gif``), a model file whose state
+    dict does not fit its config."""
     d = tmp_path_factory.mktemp("cli")
     out = {
         "random": d / "random.pt",
@@ -40,6 +44,9 @@ def files(tmp_path_factory) -> dict[str, Path]:
         "nonempty": d / "nonempty",
         "file": d / "file.txt",
         "run": d / "run",
+        "dangling": d / "dangling",
+        "badsd": d / "badsd.pt",
+        "corrupt_run": d / "corrupt_run",
     }
     out["random"].write_bytes(os.urandom(4096))
     out["text"].write_text("not a checkpoint\n")
@@ -54,6 +61,13 @@ def files(tmp_path_factory) -> dict[str, Path]:
     torch.save(_training_checkpoint(1), ckpts / "iter_000001.pt")
     (ckpts / "iter_000002.pt").write_bytes(b"junk")
     (ckpts / "latest.pt").write_bytes((ckpts / "iter_000001.pt").read_bytes()[:3000])
+    out["dangling"].symlink_to(d / "nowhere")
+    (d / "dangling.gif").symlink_to(d / "nowhere.gif")
+    blob = read_checkpoint(SHIPPED)
+    torch.save(blob | {"state_dict": {"x": torch.zeros(1)}}, out["badsd"])  # every key missing
+    (out["corrupt_run"] / "checkpoints").mkdir(parents=True)
+    for name in ("latest.pt", "iter_000001.pt", "iter_000002.pt"):
+        (out["corrupt_run"] / "checkpoints" / name).write_bytes(b"junk")
     return out
 
 
@@ -126,9 +140,22 @@ RENDER = ["render", "--method", "nearest"]
 BENCH = ["bench", "paper", "--figure", "6", "--methods", "nearest", "--episodes", "1", "--jobs", "1"]
 TRAIN = ["train", "--preset", "tiny"]
 
+
+def _set(item: str) -> list[str]:
+    return [*TRAIN, "--set", item, "--run-dir", "{out}"]
+
+
 # (argv with {out} / {nonempty} / {file} / {run} placeholders, words the one line must hold)
 CASES = {
-    "eval --threads 0": ([*EVAL, "--threads", "0", "--out", "{out}"], ["--threads", "int >= 1"]),
+    "eval --threads 0": ([*EVAL, "--threads", "0", "--out", "{out}"], ["--threads", "int from 1"]),
+    "eval --threads > CPUs": ([*EVAL, "--threads", "{cpus1}", "--out", "{out}"], ["--threads", "CPU count"]),
+    "eval --comm inf": ([*EVAL, "--comm", "inf", "--out", "{out}"], ["--comm", "finite"]),
+    "eval --out a dangling link": ([*EVAL, "--out", "{dangling}"], ["--out", "symbolic link", "nowhere"]),
+    "eval --out under a dangling link": ([*EVAL, "--out", "{dangling}/sub"], ["symbolic link"]),
+    "eval a folder without a model": (["eval", "--method", "amat:{nonempty}", "--out", "{out}"],
+                                      ["no AMAT checkpoint in the folder", "a .pt file"]),
+    "eval amat: state dict does not fit": (["eval", "--method", "amat:{badsd}", "--out", "{out}"],
+                                           ["does not fit", "missing keys", "in all)", "unexpected keys: x"]),
     "eval --episodes 0": ([*EVAL, "--episodes", "0", "--out", "{out}"], ["--episodes"]),
     "eval --seed -1": ([*EVAL, "--seed", "-1", "--out", "{out}"], ["--seed", "int >= 0"]),
     "eval --noise 1": ([*EVAL, "--noise", "1", "--out", "{out}"], ["--noise"]),
@@ -147,12 +174,18 @@ CASES = {
     "render --out a folder": ([*RENDER, "--out", "{nonempty}"], ["--out", "is a folder"]),
     "render --out png": ([*RENDER, "--out", "{out}.png"], ["--out", ".gif"]),
     "render --out existing": ([*RENDER, "--out", "{nonempty}/old.gif"], ["exists", "--force"]),
+    "render --out a dangling link": ([*RENDER, "--out", "{dangling}.gif"], ["exists", "symbolic link"]),
     "bench --episodes -1": ([*BENCH, "--episodes", "-1", "--out", "{out}"], ["--episodes", "int >= 1"]),
     "bench --seed -1": ([*BENCH, "--seed", "-1", "--out", "{out}"], ["--seed", "int >= 0"]),
     "bench --jobs 0": ([*BENCH, "--jobs", "0", "--out", "{out}"], ["--jobs"]),
     "bench --figure 5": ([*BENCH, "--figure", "5", "--out", "{out}"], ["--figure", "invalid choice"]),
     "bench no figure": (["bench", "paper", "--out", "{out}"], ["--figure N or --all"]),
     "bench bad methods": ([*BENCH, "--methods", "nearest,astar", "--out", "{out}"], ["--methods", "astar"]),
+    "bench --methods ,": ([*BENCH, "--methods", ",", "--out", "{out}"], ["--methods", "comma list"]),
+    "bench --method =M": ([*BENCH, "--method", "=amat:task1", "--out", "{out}"], ["--method", "empty name"]),
+    "bench --jobs > CPUs": ([*BENCH, "--jobs", "{cpus1}", "--out", "{out}"], ["--jobs", "CPU count"]),
+    "bench perf --figure": (["bench", "perf", "--figure", "6"], ["bench perf: error", "--figure"]),
+    "bench perf --episodes": (["bench", "perf", "--episodes", "1"], ["bench perf: error", "--episodes"]),
     "bench fig dir not empty": ([*BENCH, "--out", "{figs}"], ["fig6 is not empty", "--force"]),
     "train --iterations 0": ([*TRAIN, "--iterations", "0", "--run-dir", "{out}"], ["--iterations"]),
     "train --lr -1": ([*TRAIN, "--lr", "-1", "--run-dir", "{out}"], ["--lr", "> 0"]),
@@ -161,12 +194,35 @@ CASES = {
     "train --device tpu": ([*TRAIN, "--device", "tpu", "--run-dir", "{out}"], ["--device"]),
     "train --set no =": ([*TRAIN, "--set", "gamma", "--run-dir", "{out}"], ["--set", "FIELD=VALUE"]),
     "train --set bad value": ([*TRAIN, "--set", "gamma=2", "--run-dir", "{out}"], ["bad config", "gamma"]),
-    "train --set bad shape": ([*TRAIN, "--set", "amat=5", "--run-dir", "{out}"], ["bad config", "amat = 5"]),
+    "train --set bad shape": (_set("amat=5"), ["bad config", "TrainConfig.amat", "got 5"]),
     "train --set unknown": ([*TRAIN, "--set", "foo=1", "--run-dir", "{out}"], ["unknown TrainConfig field"]),
+    "train --set seed=1.5": (_set("seed=1.5"), ["TrainConfig.seed", "int"]),
+    "train --set eval_seed=1.5": (_set("eval_seed=1.5"), ["TrainConfig.eval_seed must be an int >= 0"]),
+    "train --set seed=2**64": (_set(f"seed={2**64}"), ["seed", "2**64"]),
+    "train --set iterations=true": (_set("iterations=true"), ["TrainConfig.iterations must be", "got True"]),
+    "train --set lr=Infinity": (_set("lr=Infinity"), ["TrainConfig.lr", "finite"]),
+    "train --set entropy_coef=NaN": (_set("entropy_coef=NaN"), ["TrainConfig.entropy_coef", "finite"]),
+    "train --set amat=null": (_set("amat=null"), ["TrainConfig.amat", "JSON object"]),
+    "train --set amat bool": (_set('amat={{"embed_dim": true}}'), ["AmatConfig.embed_dim", "int"]),
+    "train --set env layout list": (_set('env_overrides={{"layout": ["#####", "#...#", "#####"]}}'),
+                                    ["EnvConfig: layout", "one string"]),
+    "train --set env team str": (_set('env_overrides={{"team": "rescuer"}}'),
+                                 ["EnvConfig: team must be a list of class names, got 'rescuer'"]),
+    "train --set env comm str": (_set('env_overrides={{"comm_sigma": "abc"}}'), ["comm_sigma", "finite"]),
+    "train --set env sync str": (_set('env_overrides={{"synchronous": "yes"}}'), ["EnvConfig: synchronous"]),
+    "train --set env classes": (_set('env_overrides={{"classes": [5]}}'), ["EnvConfig: classes"]),
+    "train --set env map_size": (_set('env_overrides={{"map_size": 100000}}'), ["map_size", "[10, 512]"]),
+    "train --threads > CPUs": ([*TRAIN, "--threads", "{cpus1}", "--run-dir", "{out}"], ["--threads", "CPU"]),
+    "train --update-processes > CPUs": ([*TRAIN, "--update-processes", "{cpus1}", "--run-dir", "{out}"],
+                                        ["--update-processes", "CPU count"]),
+    "train --set threads > CPUs": (_set("threads={cpus1}"), ["threads = ", f"{CPUS} CPUs"]),
+    "train --run-dir a dangling link": ([*TRAIN, "--run-dir", "{dangling}"], ["run dir", "symbolic link"]),
     "train --preset bad": (["train", "--preset", "huge", "--run-dir", "{out}"], ["--preset", "invalid"]),
     "train into a non-empty dir": ([*TRAIN, "--run-dir", "{nonempty}"], ["not empty"]),
     "train into a run": ([*TRAIN, "--run-dir", "{run}"], ["already holds a run", "--resume"]),
     "train --resume nothing": ([*TRAIN, "--run-dir", "{out}", "--resume"], ["no checkpoint at"]),
+    "train --resume all corrupt": ([*TRAIN, "--run-dir", "{corrupt_run}", "--resume"],
+                                   ["latest.pt", "no checkpoints/iter_*.pt is readable either (2 tried)"]),
     "no command": ([], ["required"]),
 }  # fmt: skip
 
@@ -175,9 +231,10 @@ CASES = {
 def test_bad_input_gets_one_line_and_exit_code_2_before_any_work(case, files, tmp_path, capsys):
     (tmp_path / "figs" / "fig6").mkdir(parents=True)
     (tmp_path / "figs" / "fig6" / "summary.csv").write_text("precious")
-    where = {k: files[k] for k in ("nonempty", "file", "run")} | {
+    where = {k: files[k] for k in ("nonempty", "file", "run", "dangling", "badsd", "corrupt_run")} | {
         "out": tmp_path / "out",
         "figs": tmp_path / "figs",
+        "cpus1": CPUS + 1,
     }
     argv, needles = CASES[case]
     before = {p: p.read_bytes() for p in [*files["nonempty"].iterdir(), files["file"]]}
@@ -195,6 +252,111 @@ def test_a_refused_training_run_leaves_no_run_dir(tmp_path, capsys, monkeypatch)
     monkeypatch.setattr(torch.cuda, "is_available", lambda: False)
     _fails(capsys, [*TRAIN, "--device", "cuda", "--run-dir", str(tmp_path / "r")], "no CUDA device")
     assert not (tmp_path / "r").exists()
+
+
+# -- a run stopped before its first checkpoint leaves its run dir as it found it --------------------------
+TINY_RUN = [*TRAIN, "--set", "iterations=1", "--no-progress"]
+
+
+def _raises(err: BaseException):
+    def stop(*args, **kwargs):
+        raise err
+
+    return stop
+
+
+def _warm_start_then(err: BaseException):
+    """A warm start that opens its log (warm_start.csv), then stops with ``err`` (Ctrl-C, say)."""
+
+    def warm_start(cfg, model, collector, gen, run_dir, *args, **kwargs):
+        f, _ = open_csv_log(run_dir / "warm_start.csv", ["round"], None, key="round")
+        f.close()
+        raise err
+
+    return warm_start
+
+
+def _accepts_a_new_run(run_dir: Path, monkeypatch) -> bool:
+    """``catmip train --run-dir run_dir`` gets past every check (to building the model)."""
+    with monkeypatch.context() as m:
+        m.setattr(catmip_rl.train, "AMAT", _work_started)
+        with pytest.raises(_WorkStarted):
+            main([*TINY_RUN, "--run-dir", str(run_dir)])
+    return True
+
+
+@pytest.mark.parametrize("where", ["new", "nested", "empty"])
+@pytest.mark.parametrize(
+    "when, error, code, needle",
+    [
+        ("collect", (KeyboardInterrupt,), 130, "interrupted; stopped before its first checkpoint"),
+        ("collect", (ValueError, "bad episode"), 2, "bad episode; stopped before its first checkpoint"),
+        ("collect", (MemoryError, "Unable to allocate 74 TiB"), 2, "out of memory (Unable to allocate 74"),
+        ("warm start", (KeyboardInterrupt,), 130, "interrupted; stopped before its first checkpoint"),
+    ],
+)  # fmt: skip
+def test_a_run_stopped_before_its_first_checkpoint_removes_what_it_wrote(
+    tmp_path, capsys, monkeypatch, where, when, error, code, needle
+):
+    run = {"new": tmp_path / "run", "nested": tmp_path / "a" / "b" / "run", "empty": tmp_path / "run"}[where]
+    if where == "empty":
+        run.mkdir()
+    kind, *message = error
+    threads = torch.get_num_threads()
+    with monkeypatch.context() as m:
+        if (
+            when == "collect"
+        ):  # the first iteration's collection fails (config.json, logs, tensorboard/ written)
+            m.setattr(catmip_rl.collect.Collector, "collect", _raises(kind(*message)))
+            argv = [*TINY_RUN, "--run-dir", str(run)]
+        else:  # Ctrl-C during the warm start, after its log was opened
+            m.setattr(catmip_rl.train, "warm_start", _warm_start_then(kind(*message)))
+            argv = [*TINY_RUN, "--warm-start", "nearest", "--run-dir", str(run)]
+        try:
+            assert main(argv) == code
+        finally:
+            torch.set_num_threads(threads)
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1 and needle in err, err
+    assert f"{run} was {'emptied' if where == 'empty' else 'removed'}" in err
+    assert list(tmp_path.iterdir()) == ([run] if where == "empty" else [])  # nothing else left behind
+    assert where != "empty" or not list(run.iterdir())
+    assert _accepts_a_new_run(run, monkeypatch)
+
+
+def test_an_unexpected_error_removes_the_run_too_and_says_so_in_a_note(tmp_path, monkeypatch):
+    threads = torch.get_num_threads()
+    with monkeypatch.context() as m:
+        m.setattr(catmip_rl.collect.Collector, "collect", _raises(RuntimeError("a bug")))
+        try:
+            with pytest.raises(RuntimeError, match="a bug") as info:
+                main([*TINY_RUN, "--run-dir", str(tmp_path / "run")])
+        finally:
+            torch.set_num_threads(threads)
+    assert "stopped before its first checkpoint" in info.value.__notes__[0]
+    assert not (tmp_path / "run").exists()
+
+
+def test_a_run_stopped_after_a_checkpoint_keeps_everything_for_resume(tmp_path, capsys, monkeypatch):
+    """The warm start's checkpoint (iter_000000.pt) is written; Ctrl-C in the first PPO iteration."""
+    run = tmp_path / "run"
+    threads = torch.get_num_threads()
+    with monkeypatch.context() as m:
+        m.setattr(catmip_rl.train, "warm_start", lambda *args, **kwargs: 0.0)  # no rounds: 0 s
+        m.setattr(catmip_rl.collect.Collector, "collect", _raises(KeyboardInterrupt()))
+        try:
+            assert main([*TINY_RUN, "--warm-start", "nearest", "--run-dir", str(run)]) == 130
+        finally:
+            torch.set_num_threads(threads)
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1 and "interrupted; its checkpoints are kept" in err, err
+    assert f"catmip train --run-dir {run} --resume" in err
+    assert {p.name for p in run.iterdir()} >= {"config.json", "metrics.csv", "checkpoints"}
+    assert resume_checkpoint(run)["iteration"] == 0
+    with monkeypatch.context() as m:  # and --resume accepts it
+        m.setattr(catmip_rl.train, "AMAT", _work_started)
+        with pytest.raises(_WorkStarted):
+            main(["train", "--run-dir", str(run), "--resume", "--no-progress"])
 
 
 def test_force_writes_into_a_non_empty_folder_and_keeps_other_files(tmp_path, capsys):
@@ -244,13 +406,50 @@ def test_every_flag_has_help_and_train_defaults_to_a_short_preset(capsys):
             else:
                 yield parser.prog, action
 
+    def parsers(parser: argparse.ArgumentParser):
+        yield parser
+        for action in parser._actions:
+            if isinstance(action, argparse._SubParsersAction):
+                for sub in action.choices.values():
+                    yield from parsers(sub)
+
     missing = [(prog, a.dest) for prog, a in walk(build_parser()) if not a.help]
     assert not missing
+    assert [p.prog for p in parsers(build_parser()) if not p.description] == []
     assert main(["train", "--help"]) == 0
     text = " ".join(capsys.readouterr().out.split())
     assert f"default {DEFAULT_PRESET}" in text and "62,500 iterations" in text
+    preset = TRAIN_PRESETS[DEFAULT_PRESET]  # each override flag shows the default preset's value
+    for flag, value in (("--iterations", preset.iterations), ("--epochs", preset.epochs),
+                        ("--lr", preset.lr), ("--warm-start", preset.warm_start),
+                        ("--minutes", preset.budget_minutes)):  # fmt: skip
+        shown = text[text.index(f"{flag} ", text.index("overrides of the preset")) :]
+        assert f"({DEFAULT_PRESET}: {value})" in shown[: shown.index(" --", 3)], flag
     assert main(["eval", "--help"]) == 0
-    assert "(default: 100)" in capsys.readouterr().out
+    text = capsys.readouterr().out
+    assert "(default: 100)" in text and "the paper uses 5, 10, 20" in " ".join(text.split())
+    assert main(["bench", "perf", "--help"]) == 0
+    text = capsys.readouterr().out
+    assert "--quick" in text and "--figure" not in text and "--episodes" not in text
+
+
+def test_a_model_loads_from_a_run_dir_or_its_checkpoints_folder(tmp_path):
+    (tmp_path / "run" / "checkpoints").mkdir(parents=True)
+    (tmp_path / "run" / "checkpoints" / "latest.pt").write_bytes(SHIPPED.read_bytes())
+    shipped = load_model(SHIPPED).config
+    assert (
+        load_model(tmp_path / "run").config == load_model(tmp_path / "run" / "checkpoints").config == shipped
+    )
+    with pytest.raises(
+        FileNotFoundError, match="give a training run dir .* its checkpoints/ folder, or a .pt"
+    ):
+        load_model(tmp_path)
+
+
+def test_a_state_dict_that_does_not_fit_is_summed_up_in_a_short_line(files, tmp_path, capsys):
+    err = _fails(capsys, ["eval", "--method", f"amat:{files['badsd']}", "--out", str(tmp_path / "out")])
+    assert "missing keys: global_conv.weight, global_conv.bias, global_ln.weight, ... (" in err
+    assert len(err) < 400, len(err)
 
 
 # -- through the installed entry point: no traceback reaches the user ------------------------------------
@@ -300,21 +499,29 @@ FLAGS = {
               "--target-kl": ["0", "0.01"], "--precision": ["fp32", "auto"], "--minutes": ["0", "0.5"],
               "--eval-every": _INT, "--eval-episodes": _INT, "--checkpoint-every": _INT,
               "--collector": ["local", "ray"], "--ray-workers": ["1", "2"], "--ray-address": ["auto", ""],
-              "--set": ["gamma=0.9", "amat={{}}", "env_overrides={{}}", "amat={{\"embed_dim\": 8}}"],
+              "--set": ["gamma=0.9", "amat={{}}", "env_overrides={{}}", "amat={{\"embed_dim\": 8}}", "seed=3",
+                        "eval_seed=7", "env_overrides={{\"comm_sigma\": 4}}"],
               "--resume": []},
     "eval": _SETTING | {"--episodes": ["1", "2"], "--out": ["{new}", "{nonempty}"]},
     "render": _SETTING | {"--episode": _INT, "--fps": ["8"], "--out": ["{new}.gif", "{nonempty}/old.gif"]},
     "bench paper": {"--figure": ["6", "11"], "--all": [], "--methods": ["nearest,rrt", "a=amat:task1,apf"],
                     "--method": _METHOD, "--episodes": ["1"], "--seed": _INT, "--jobs": ["1", "2"],
                     "--out": ["{new}", "{nonempty}"], "--force": []},
+    "bench perf": {"--quick": [], "--figure": ["6"], "--episodes": ["1"]},  # the last two: not perf flags
 }  # fmt: skip
 # ... and values no flag should take (most flags)
 GARBAGE = ["0", "-1", "0.5", "-0.5", "1e999", "nan", "inf", "", "abc", "-", "--", "cuda:x", "amat:nope",
            "amat:{random}", "amat:{text}", "amat:{truncated}", "amat:{empty}", "x=y", "gamma=2", "amat=5",
-           "env_overrides=[1]", "iterations=0", "{file}", "{new}.png", "{file}/sub", "{random}"]  # fmt: skip
+           "env_overrides=[1]", "iterations=0", "{file}", "{new}.png", "{file}/sub", "{random}",
+           "seed=1.5", "eval_seed=1.5", "iterations=true", "lr=Infinity", "entropy_coef=NaN", "amat=null",
+           "env_overrides=null", 'env_overrides={{"layout": ["#"]}}', 'env_overrides={{"team": "rescuer"}}',
+           'env_overrides={{"comm_sigma": "abc"}}', 'env_overrides={{"map_size": 100000}}',
+           "threads=100000", "update_processes=1000", "100000", "=amat:task1", ",", "{dangling}",
+           "{dangling}.gif", "{dangling}/sub", "amat:{badsd}", "amat:{nonempty}",
+           "{corrupt_run}"]  # fmt: skip
 REQUIRED = {"train": ["--run-dir", "{new}"], "eval": ["--method", "nearest", "--out", "{new}"],
             "render": ["--method", "nearest", "--out", "{new}.gif"],
-            "bench paper": ["--figure", "6"]}  # fmt: skip
+            "bench paper": ["--figure", "6"], "bench perf": []}  # fmt: skip
 
 
 # ~3 s for the default 300 examples; CATMIP_FUZZ_EXAMPLES=4000 for a longer hunt (~50 s, passed)
@@ -343,6 +550,7 @@ def test_fuzz_random_arguments_exit_0_or_2_without_a_traceback(
         m.setattr(catmip_rl.evaluate, "EventEngine", _work_started)
         m.setattr(catmip_rl.paper, "_map", _work_started)
         m.setattr(catmip_rl.train, "AMAT", _work_started)
+        m.setattr(subprocess, "call", _work_started)  # bench perf's benchmarks
         threads = torch.get_num_threads()
         try:
             code = main(argv)

@@ -175,8 +175,11 @@ def test_parse_method_errors(tmp_path):
         parse_method("window:astar")
     with pytest.raises(FileNotFoundError, match="does not exist"):
         parse_method(f"amat:{tmp_path / 'none.pt'}")
-    with pytest.raises(ValueError, match="comm"):
-        EvalSetting("task1", "far")
+    with pytest.raises(ValueError, match="empty name"):
+        parse_method("=nearest")
+    for comm in ("far", "inf", "nan", "-4"):
+        with pytest.raises(ValueError, match="comm must be 'full' or a positive, finite range sigma"):
+            EvalSetting("task1", comm)
     with pytest.raises(ValueError, match="unknown task"):
         EvalSetting("task9")
 

@@ -71,10 +71,13 @@ def test_dagger_fits_the_teacher():
     assert [row["beta"] for row in log] == [1.0, 0.5, 0.25]
     assert log[-1]["imitation/accuracy"] > log[0]["imitation/accuracy"] + 0.15
     assert log[-1]["imitation/loss"] < log[0]["imitation/loss"]
-    # on fresh labelled events the trained model agrees with the teacher far more than chance
-    r = Collector(cfg, 4, seed=9).collect(
-        model, 0, labeler=make_window_planner("nearest"), deterministic=True
-    )
+    # on fresh events of the teacher's own episodes the trained model agrees with it far more than chance
+    # (the teacher's states, not the model's argmax rollouts: whether those loop depends on float rounding,
+    # i.e. on the CPU and torch's thread count, and swings this check from 2.6x to 7x chance)
+    r = Collector(cfg, 8, seed=9).collect(
+        model, 0, torch.Generator().manual_seed(0), deterministic=True,
+        labeler=make_window_planner("nearest"), teacher_prob=1.0,
+    )  # fmt: skip
     buf = DemoBuffer(10_000)
     buf.add(r)
     with torch.no_grad():
