@@ -16,13 +16,28 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import os
-import re
 import sys
 from pathlib import Path
 from typing import Any
 
+from catmip_rl.cli_args import (
+    CPUS,
+    NON_NEGATIVE_FLOAT,
+    NON_NEGATIVE_INT,
+    POSITIVE_FLOAT,
+    POSITIVE_INT,
+    PROBABILITY,
+    UP_TO_CPUS,
+    USER_ERRORS,
+    check_comm,
+    check_device,
+    check_method,
+    check_methods,
+    checked,
+    parse_set,
+    set_item,
+)  # fmt: skip
 from catmip_rl.config import TRAIN_PRESETS, TrainConfig
 
 __all__ = ["main", "parse_set", "DEFAULT_PRESET"]
@@ -30,99 +45,6 @@ __all__ = ["main", "parse_set", "DEFAULT_PRESET"]
 DEFAULT_PRESET = "task1-warm"
 """``catmip train`` without ``--preset``: the Task-1 recipe (~40 minutes on one CPU thread, as the shipped
 model was trained), not the paper's 62,500 iterations (days)."""
-USER_ERRORS = (ValueError, OSError, ImportError)
-"""What bad input raises (a bad value, path, or missing extra): one line and exit code 2."""
-
-
-# -- argparse types: each names the expected value; argparse names the flag ------------------------------
-def _number(kind: type, low: float, strict: bool = False, below: float | None = None, bound: str = ""):
-    """An argparse type: ``kind(text)``, finite, ``>= low`` (``> low`` if ``strict``), ``< below``;
-    ``bound`` words the range in messages instead."""
-    bound = bound or f"{'>' if strict else '>='} {low:g}" + ("" if below is None else f" and < {below:g}")
-    noun = "an int" if kind is int else "a number"
-
-    def parse(text: str):
-        try:
-            value = kind(text)
-        except ValueError:
-            value = None
-        finite = value is not None and (kind is int or math.isfinite(value))  # huge ints: no float
-        ok = finite and (value > low if strict else value >= low)
-        if not ok or (below is not None and value >= below):
-            raise argparse.ArgumentTypeError(f"expected {noun} {bound}, got {text!r}")
-        return value
-
-    parse.__name__ = f"{noun} {bound}"
-    return parse
-
-
-POSITIVE_INT = _number(int, 1)
-NON_NEGATIVE_INT = _number(int, 0)
-POSITIVE_FLOAT = _number(float, 0, strict=True)
-NON_NEGATIVE_FLOAT = _number(float, 0)
-PROBABILITY = _number(float, 0, below=1)
-CPUS = os.cpu_count() or 1
-"""This machine's CPU count: flags that start threads or processes take at most this many."""
-UP_TO_CPUS = _number(int, 1, below=CPUS + 1, bound=f"from 1 to {CPUS} (this machine's CPU count)")
-
-
-def _checked(validate):
-    """An argparse type: the text itself once ``validate(text)`` accepts it; its message otherwise."""
-
-    def parse(text: str) -> str:
-        try:
-            validate(text)
-        except USER_ERRORS as err:
-            raise argparse.ArgumentTypeError(str(err)) from None
-        return text
-
-    parse.__name__ = validate.__name__
-    return parse
-
-
-def _device(text: str) -> None:
-    if re.fullmatch(r"cpu|cuda(:\d+)?", text) is None:
-        raise ValueError(f"expected cpu, cuda or cuda:N, got {text!r}")
-
-
-def _comm(text: str) -> None:
-    from catmip_rl.evaluate import comm_sigma
-
-    comm_sigma(text)
-
-
-def _method(text: str) -> None:
-    from catmip_rl.evaluate import parse_method
-
-    parse_method(text)
-
-
-def _methods(text: str) -> None:
-    specs = [spec for spec in text.split(",") if spec.strip()]
-    if not specs:
-        raise ValueError(f"expected a comma list of methods, got {text!r}")
-    for spec in specs:
-        _method(spec)
-
-
-def _set_item(text: str) -> tuple[str, Any]:
-    """``"field=value"`` -> ``(field, JSON value or the raw string)``."""
-    key, sep, raw = text.partition("=")
-    if not sep or not key.strip():
-        raise argparse.ArgumentTypeError(f"expected FIELD=VALUE, got {text!r}")
-    try:
-        return key.strip(), json.loads(raw)
-    except json.JSONDecodeError:
-        return key.strip(), raw
-
-
-def parse_set(items: list[str]) -> dict:
-    """``["field=value", ...]`` -> ``{field: JSON value (or the raw string)}``; ValueError on an item
-    without ``=``."""
-    try:
-        return dict(_set_item(item) for item in items)
-    except argparse.ArgumentTypeError as err:
-        raise ValueError(f"--set {err}") from None
 
 
 # -- the commands ----------------------------------------------------------------------------------------
@@ -334,7 +256,7 @@ def _add_train(sub) -> None:
     )
     g.add_argument("--lr", type=POSITIVE_FLOAT, help="Adam learning rate (decays linearly to 0)")
     g.add_argument("--seed", type=NON_NEGATIVE_INT, help="seed of the training worlds and the sampling")
-    g.add_argument("--device", type=_checked(_device), help="cpu | cuda | cuda:N")
+    g.add_argument("--device", type=checked(check_device), help="cpu | cuda | cuda:N")
     g.add_argument("--threads", type=UP_TO_CPUS, help="torch CPU threads")
     g.add_argument("--update-processes", type=UP_TO_CPUS,
                    help="CPU processes computing the update's gradients (1 thread each if > 1)")  # fmt: skip
@@ -357,7 +279,7 @@ def _add_train(sub) -> None:
         "--ray-workers", type=POSITIVE_INT, help="Ray workers (each collects num_worlds / N worlds)"
     )
     g.add_argument("--ray-address", help="Ray cluster to join: auto | HOST:PORT | ray://HOST:PORT")
-    g.add_argument("--set", action="append", default=[], type=_set_item, metavar="FIELD=VALUE",
+    g.add_argument("--set", action="append", default=[], type=set_item, metavar="FIELD=VALUE",
                    help="any TrainConfig field, value as JSON (repeatable)")  # fmt: skip
     preset = TRAIN_PRESETS[DEFAULT_PRESET]
     for action in g._group_actions:  # each flag's value in the default preset
@@ -375,14 +297,14 @@ def _add_setting_flags(p: argparse.ArgumentParser) -> None:
 
     shipped = ", ".join(shipped_models()) or "none"
     p.add_argument(
-        "--method", required=True, type=_checked(_method),
+        "--method", required=True, type=checked(check_method),
         help="nearest | utility | rrt | apf | random-frontier | random | window:PLANNER (its goals projected "
         "into the 7x7 window) | amat:PATH (a model file, checkpoint or run dir) | amat:NAME (a shipped "
         f"model: {shipped}) | amat-guard:PATH (argmax with the loop guard)",
     )  # fmt: skip
     p.add_argument("--task", default="task1", choices=TASKS, help="evaluation task")
     p.add_argument(
-        "--comm", default="full", type=_checked(_comm), help="full | 4 | 2 (link range sigma in cells)"
+        "--comm", default="full", type=checked(check_comm), help="full | 4 | 2 (link range sigma in cells)"
     )
     p.add_argument(
         "--noise", type=PROBABILITY, default=0.0, help="SLAM noise: per-tick cell flip probability"
@@ -442,9 +364,9 @@ def _add_bench(sub) -> None:
     )  # fmt: skip
     pa.add_argument("--figure", type=int, choices=sorted(FIGURES), help="paper figure")
     pa.add_argument("--all", action="store_true", help="every paper figure")
-    pa.add_argument("--methods", default=",".join(DEFAULT_METHODS), type=_checked(_methods),
+    pa.add_argument("--methods", default=",".join(DEFAULT_METHODS), type=checked(check_methods),
                     help="comma list of methods (NAME=amat:PATH allowed; see catmip eval -h)")  # fmt: skip
-    pa.add_argument("--method", action="append", default=[], type=_checked(_method),
+    pa.add_argument("--method", action="append", default=[], type=checked(check_method),
                     help="one more method (repeatable)")  # fmt: skip
     pa.add_argument("--episodes", type=POSITIVE_INT, default=100, help="maps per (panel, method)")
     pa.add_argument("--seed", type=NON_NEGATIVE_INT, default=0, help="map set")

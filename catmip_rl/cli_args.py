@@ -1,0 +1,110 @@
+"""The ``catmip`` command line's argument types: each checks one value and raises with a message that
+names the expected value (argparse adds the flag), so bad input stops before any work."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import re
+from typing import Any
+
+__all__ = [
+    "POSITIVE_INT", "NON_NEGATIVE_INT", "POSITIVE_FLOAT", "NON_NEGATIVE_FLOAT", "PROBABILITY", "CPUS",
+    "UP_TO_CPUS", "checked", "check_device", "check_comm", "check_method", "check_methods", "parse_set",
+    "set_item", "USER_ERRORS",
+]  # fmt: skip
+
+USER_ERRORS = (ValueError, OSError, ImportError)
+"""What bad input raises (a bad value, path, or missing extra): one line and exit code 2."""
+
+
+def _number(kind: type, low: float, strict: bool = False, below: float | None = None, bound: str = ""):
+    """An argparse type: ``kind(text)``, finite, ``>= low`` (``> low`` if ``strict``), ``< below``;
+    ``bound`` words the range in messages instead."""
+    bound = bound or f"{'>' if strict else '>='} {low:g}" + ("" if below is None else f" and < {below:g}")
+    noun = "an int" if kind is int else "a number"
+
+    def parse(text: str):
+        try:
+            value = kind(text)
+        except ValueError:
+            value = None
+        finite = value is not None and (kind is int or math.isfinite(value))  # huge ints: no float
+        ok = finite and (value > low if strict else value >= low)
+        if not ok or (below is not None and value >= below):
+            raise argparse.ArgumentTypeError(f"expected {noun} {bound}, got {text!r}")
+        return value
+
+    parse.__name__ = f"{noun} {bound}"
+    return parse
+
+
+POSITIVE_INT = _number(int, 1)
+NON_NEGATIVE_INT = _number(int, 0)
+POSITIVE_FLOAT = _number(float, 0, strict=True)
+NON_NEGATIVE_FLOAT = _number(float, 0)
+PROBABILITY = _number(float, 0, below=1)
+CPUS = os.cpu_count() or 1
+"""This machine's CPU count: flags that start threads or processes take at most this many."""
+UP_TO_CPUS = _number(int, 1, below=CPUS + 1, bound=f"from 1 to {CPUS} (this machine's CPU count)")
+
+
+def checked(validate):
+    """An argparse type: the text itself once ``validate(text)`` accepts it; its message otherwise."""
+
+    def parse(text: str) -> str:
+        try:
+            validate(text)
+        except USER_ERRORS as err:
+            raise argparse.ArgumentTypeError(str(err)) from None
+        return text
+
+    parse.__name__ = validate.__name__
+    return parse
+
+
+def check_device(text: str) -> None:
+    if re.fullmatch(r"cpu|cuda(:\d+)?", text) is None:
+        raise ValueError(f"expected cpu, cuda or cuda:N, got {text!r}")
+
+
+def check_comm(text: str) -> None:
+    from catmip_rl.evaluate import comm_sigma
+
+    comm_sigma(text)
+
+
+def check_method(text: str) -> None:
+    from catmip_rl.evaluate import parse_method
+
+    parse_method(text)
+
+
+def check_methods(text: str) -> None:
+    specs = [spec for spec in text.split(",") if spec.strip()]
+    if not specs:
+        raise ValueError(f"expected a comma list of methods, got {text!r}")
+    for spec in specs:
+        check_method(spec)
+
+
+def set_item(text: str) -> tuple[str, Any]:
+    """``"field=value"`` -> ``(field, JSON value or the raw string)``."""
+    key, sep, raw = text.partition("=")
+    if not sep or not key.strip():
+        raise argparse.ArgumentTypeError(f"expected FIELD=VALUE, got {text!r}")
+    try:
+        return key.strip(), json.loads(raw)
+    except json.JSONDecodeError:
+        return key.strip(), raw
+
+
+def parse_set(items: list[str]) -> dict:
+    """``["field=value", ...]`` -> ``{field: JSON value (or the raw string)}``; ValueError on an item
+    without ``=``."""
+    try:
+        return dict(set_item(item) for item in items)
+    except argparse.ArgumentTypeError as err:
+        raise ValueError(f"--set {err}") from None
