@@ -6,7 +6,7 @@
   robots autoregressively (argmax). N = 2, 3, 6 robots on the 15, 20, 32 maps of Tasks 1-3 (presets
   task1-3, real observations after 30 random decision events), with all robots active (the joint
   decision at t = 0) and with one active robot (a typical asynchronous event); also the split embed /
-  encode / decode of the torch path, and the numba path ``catmip_rl.fast_infer.FastAmat`` on the same
+  encode / decode of the torch path, and the numba path ``catmip_rl.amat.fast.FastAmat`` on the same
   observations and on random dense maps (its worst case). Median of ``--repeats``.
 * acting — batched decisions (B = 64, 1024 worlds of Task 2, every robot active), one thread,
   agent-decisions per second.
@@ -36,14 +36,14 @@ from common import cpu_times, env_observation, steal_percent, write_json
 
 from catmip_env.config import PRESETS, make_config
 from catmip_env.events import EventEngine, random_valid_actions
-from catmip_rl.amat import AMAT, decision_order
-from catmip_rl.config import make_train_config
-from catmip_rl.fast_infer import FastAmat
-from catmip_rl.heap import keep_freed_memory
-from catmip_rl.parallel_update import ParallelGradients
-from catmip_rl.ppo import SampleBatch, ppo_loss
-from catmip_rl.precision import native_bf16
-from catmip_rl.train import loss_kwargs, make_optimizer
+from catmip_rl.amat.model import AMAT, decision_order
+from catmip_rl.training.config import make_train_config
+from catmip_rl.amat.fast import FastAmat
+from catmip_rl.training.memory import keep_freed_memory
+from catmip_rl.training.parallel_update import ParallelGradients
+from catmip_rl.training.ppo import SampleBatch, ppo_loss
+from catmip_rl.training.precision import native_bf16
+from catmip_rl.training.train import loss_kwargs, make_optimizer
 
 TOKEN_INPUTS = ("global_map", "local_map", "agent_class")
 TASKS = ((2, 15, "task1"), (3, 20, "task2"), (6, 32, "task3"))  # (robots, map side, preset) of Tasks 1-3
@@ -190,11 +190,11 @@ def task2_training_batch(events: int, seed: int = 0) -> SampleBatch:
 
 def bench_training(model: AMAT, batch: SampleBatch, bf16: bool, steps: int, processes: int = 1) -> dict:
     """One PPO minibatch step as training runs it: ``ppo_loss`` forward, backward, grad-norm clip and
-    fused Adam (``catmip_rl.train.make_optimizer``). One process on two threads, or ``processes``
-    single-threaded processes (``catmip_rl.parallel_update``), each with one micro-batch of ``batch``'s
+    fused Adam (``catmip_rl.training.train.make_optimizer``). One process on two threads, or ``processes``
+    single-threaded processes (``catmip_rl.training.parallel_update``), each with one micro-batch of ``batch``'s
     events (so the step covers ``processes`` x as many events)."""
     torch.set_num_threads(2)
-    keep_freed_memory()  # as catmip_rl.train.train does
+    keep_freed_memory()  # as catmip_rl.training.train.train does
     cfg = make_train_config("paper")
     opt = make_optimizer(model, cfg)
     m, n = batch.action.shape

@@ -14,7 +14,7 @@ timed loop, as ``bench_engine.py``), decision events/s of ``EventEngine`` (B = 6
 window goals, whose drawing is timed apart and excluded, as ``bench_events.py``), and the batch-1 AMAT
 decision latency (Table 2 model, every robot active, embed -> encode -> argmax autoregressive decode, as
 ``bench_amat.py``; median over ``--seconds``) on a real observation (world 0 of the event engine after
-10 random decision events, its real action masks). When ``catmip_rl.fast_infer.FastAmat`` imports, its
+10 random decision events, its real action masks). When ``catmip_rl.amat.fast.FastAmat`` imports, its
 batch-1 ``decide`` on the same observation is a second curve (its sparse convolution depends on the map
 content, so random-noise maps would be unrepresentative).
 """
@@ -146,7 +146,7 @@ class AmatTimer:
     def __init__(self) -> None:
         import torch
 
-        from catmip_rl.amat import AMAT
+        from catmip_rl.amat.model import AMAT
 
         self.torch = torch
         torch.set_num_threads(1)
@@ -155,9 +155,9 @@ class AmatTimer:
         self.fast: Any = None
         self.fast_note = ""
         try:
-            from catmip_rl.fast_infer import FastAmat  # written in parallel; optional
+            from catmip_rl.amat.fast import FastAmat  # written in parallel; optional
         except Exception as exc:  # noqa: BLE001 - missing module or a broken import: skip the curve
-            self.fast_note = f"catmip_rl.fast_infer.FastAmat not available ({type(exc).__name__}: {exc})"
+            self.fast_note = f"catmip_rl.amat.fast.FastAmat not available ({type(exc).__name__}: {exc})"
         else:
             try:
                 self.fast = FastAmat.from_model(self.model)
@@ -165,7 +165,7 @@ class AmatTimer:
                 self.fast_note = f"FastAmat.from_model failed ({type(exc).__name__}: {exc})"
 
     def torch_ms(self, x: dict[str, np.ndarray], seconds: float) -> tuple[float, float]:
-        from catmip_rl.amat import decision_order
+        from catmip_rl.amat.model import decision_order
 
         t = {k: self.torch.from_numpy(v)[None] for k, v in x.items()}  # batch of 1
         obs = {k: t[k] for k in ("global_map", "local_map", "agent_class")}

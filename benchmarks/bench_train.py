@@ -26,17 +26,17 @@ from pathlib import Path
 import torch
 from common import write_json
 
-import catmip_rl.ppo as ppo_module
-import catmip_rl.train as train_module
-from catmip_rl.config import make_train_config
-from catmip_rl.precision import native_bf16
-from catmip_rl.train import train
+import catmip_rl.training.ppo as ppo_module
+import catmip_rl.training.train as train_module
+from catmip_rl.training.config import make_train_config
+from catmip_rl.training.precision import native_bf16
+from catmip_rl.training.train import train
 
 
 @contextmanager
 def instrumented(bf16: bool) -> Iterator[list[dict]]:
     """Record each rollout's decision events and world-ticks; with ``bf16``, run the PPO loss under
-    CPU bf16 autocast (in this process). Wraps the names ``catmip_rl.train`` and ``catmip_rl.ppo`` call,
+    CPU bf16 autocast (in this process). Wraps the names ``catmip_rl.training.train`` and ``catmip_rl.training.ppo`` call,
     restored on exit."""
     seen: list[dict] = []
     build_batch, ppo_loss = train_module.build_batch, ppo_module.ppo_loss

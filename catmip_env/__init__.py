@@ -2,16 +2,26 @@
 
 * :class:`EnvConfig`, :class:`RobotClass`, :data:`PRESETS` — task definitions (``task1`` ... ``train``);
 * :class:`BatchedEngine` — B worlds stepped in one call (struct of arrays, numba kernels);
+* :class:`EventEngine` — the same worlds advanced from one decision event to the next (macro-actions);
+* :func:`make_planner` — the classical planning baselines (``nearest``, ``rrt``, ...);
 * :mod:`catmip_env.search_rescue_v0` — the PettingZoo Parallel env (``parallel_env()``, ``env()``).
+
+Layers, lowest first: ``constants`` / ``config`` / ``rng`` → ``state`` → the numba kernels (``mapgen``,
+``sensing``, ``paths``, ``dynamics``, ``macro``, ``observe``) → ``world`` (:class:`BatchedEngine`) →
+``events`` (:class:`EventEngine`) → ``planners`` / ``window_planner`` → ``play`` (the episode loop and
+its metrics) → ``search_rescue_v0`` (PettingZoo), ``render``, ``demo``.
 
 This package never imports torch.
 """
 
 from __future__ import annotations
 
+from catmip_env.compat import ENV_MOVES, install_aliases
 from catmip_env.config import EXPLORER, PRESETS, RESCUER, EnvConfig, RobotClass, make_config
-from catmip_env.engine import BatchedEngine, StepResult, WorldState
+from catmip_env.events import EventEngine
 from catmip_env.layout import Layout, parse_layout
+from catmip_env.planners import make_planner
+from catmip_env.world import BatchedEngine, StepResult, WorldState
 
 __version__ = "0.1.0"
 
@@ -21,11 +31,13 @@ __all__ = [
     "RESCUER",
     "BatchedEngine",
     "EnvConfig",
+    "EventEngine",
     "Layout",
     "RobotClass",
     "StepResult",
     "WorldState",
     "make_config",
+    "make_planner",
     "parse_layout",
 ]
 
@@ -41,3 +53,4 @@ def _register() -> None:
 
 
 _register()
+install_aliases(ENV_MOVES)

@@ -9,7 +9,7 @@ One call of :func:`tick` advances every live world by one tick:
 5. mission   first target knowledge and success (a target-aware rescuer next to the target), rewards;
 6. noise     the occupancy map each robot *uses* this tick is redrawn (if ``slam_noise > 0``).
 
-All arrays are the struct-of-arrays state of :class:`catmip_env.engine.WorldState`.
+All arrays are the struct-of-arrays state of :class:`catmip_env.world.WorldState`.
 """
 
 from __future__ import annotations
@@ -21,7 +21,7 @@ from numba import njit
 
 from catmip_env.rng import uniform
 from catmip_env.sensing import sense_robot
-from catmip_env.types import (
+from catmip_env.constants import (
     CLUE,
     EXPLORED,
     FORWARD,

@@ -18,7 +18,7 @@ from typing import NamedTuple
 import numpy as np
 
 from catmip_env.config import EnvConfig
-from catmip_env.engine import BatchedEngine
+from catmip_env.world import BatchedEngine
 from catmip_env.macro import (
     M_ACTIVE,
     M_ELAPSED,

@@ -19,7 +19,7 @@ from functools import lru_cache
 
 import numpy as np
 
-from catmip_env.types import CLUE, FREE, OBSTACLE, TARGET, WALL
+from catmip_env.constants import CLUE, FREE, OBSTACLE, TARGET, WALL
 
 __all__ = ["Layout", "parse_layout"]
 

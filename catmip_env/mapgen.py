@@ -24,7 +24,7 @@ import numpy as np
 from numba import njit
 
 from catmip_env.config import SPAWN_BOX, TARGET_EXCLUSION_BOX, EnvConfig
-from catmip_env.types import CLUE, FREE, OBSTACLE, TARGET, WALL
+from catmip_env.constants import CLUE, FREE, OBSTACLE, TARGET, WALL
 
 __all__ = ["Episode", "generate", "room_bounds", "reachable_from", "target_exclusion_side"]
 

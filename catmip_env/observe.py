@@ -15,7 +15,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from catmip_env.types import CLUE_BIT, EXPLORED, OBS_CLUE, OBS_ONE, OCCUPIED, TARGET_BIT
+from catmip_env.constants import CLUE_BIT, EXPLORED, OBS_CLUE, OBS_ONE, OCCUPIED, TARGET_BIT
 
 # The branch-free channel loops below turn belief bits into observation values by shifting.
 assert EXPLORED << 2 == OBS_ONE and OCCUPIED << 1 == OBS_ONE and CLUE_BIT >> 2 == OBS_CLUE

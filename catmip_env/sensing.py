@@ -15,7 +15,7 @@ import numpy as np
 from numba import njit
 
 from catmip_env.config import VIEW_SIZE
-from catmip_env.types import (
+from catmip_env.constants import (
     CLUE,
     CLUE_BIT,
     EXPLORED,

@@ -1,6 +1,6 @@
 """Planners projected into the goal window: a classical planner's goal as an AMAT window action.
 
-A planner (``catmip_env.baselines``) picks any cell of the map; AMAT picks a goal inside the robot's
+A planner (``catmip_env.planners``) picks any cell of the map; AMAT picks a goal inside the robot's
 D x D window (docs/design.md#goals-and-masks). :class:`WindowPlanner` runs the planner on a window-mode
 :class:`~catmip_env.events.EventEngine` and turns each active robot's cell goal into a window action:
 
@@ -28,11 +28,11 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from catmip_env.baselines import Planner, make_planner
+from catmip_env.planners import Planner, make_planner
 from catmip_env.events import EventEngine
 from catmip_env.macro import action_masks
-from catmip_env.planner import UNREACHED, bfs_from
-from catmip_env.types import OCCUPIED
+from catmip_env.paths import UNREACHED, bfs_from
+from catmip_env.constants import OCCUPIED
 
 __all__ = ["WindowPlanner", "make_window_planner", "project_goal"]
 

@@ -17,7 +17,7 @@ from typing import Any
 
 import torch
 
-from catmip_rl.amat import AMAT, AmatConfig
+from catmip_rl.amat.model import AMAT, AmatConfig
 
 __all__ = [
     "save_model", "load_model", "atomic_torch_save", "read_checkpoint", "resolve_model", "shipped_models",
@@ -169,7 +169,7 @@ def _state_mismatch(state: Any, expected: dict[str, torch.Tensor], shown: int = 
     return "; ".join(f"{what}: {some(keys)}" for what, keys in kinds.items() if keys)
 
 
-# what a training checkpoint holds (catmip_rl.train); a file without these keys cannot be resumed
+# what a training checkpoint holds (catmip_rl.training.train); a file without these keys cannot be resumed
 _RESUME_KEYS = ("iteration", "episodes", "model", "optimizer", "value_norm", "generator", "torch_rng",
                 "config")  # fmt: skip
 

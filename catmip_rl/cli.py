@@ -1,6 +1,6 @@
 """``catmip`` command line: ``catmip train | eval | render | bench paper | bench perf``.
 
-``train`` flags map onto :class:`~catmip_rl.config.TrainConfig` fields; ``--set field=value`` reaches any
+``train`` flags map onto :class:`~catmip_rl.training.config.TrainConfig` fields; ``--set field=value`` reaches any
 field (values are JSON: ``--set env_overrides='{"comm_sigma": 4.0}'``).
 
 Bad input never starts work and never shows a traceback: argparse types check every value (one line
@@ -38,7 +38,7 @@ from catmip_rl.cli_args import (
     parse_set,
     set_item,
 )  # fmt: skip
-from catmip_rl.config import TRAIN_PRESETS, TrainConfig
+from catmip_rl.training.config import TRAIN_PRESETS, TrainConfig
 
 __all__ = ["main", "parse_set", "DEFAULT_PRESET"]
 
@@ -75,7 +75,7 @@ def _config(base: TrainConfig, overrides: dict[str, Any]) -> TrainConfig:
 
 def _train(args: argparse.Namespace) -> int:
     from catmip_rl.checkpoint import resume_checkpoint
-    from catmip_rl.train import train
+    from catmip_rl.training.train import train
 
     overrides = dict(args.set)
     overrides |= {name: getattr(args, name) for name in _TRAIN_FLAGS if getattr(args, name) is not None}
@@ -92,7 +92,7 @@ def _train(args: argparse.Namespace) -> int:
                 f"{name} = {getattr(cfg, name)} is more than this machine's {CPUS} CPUs; use at most {CPUS}"
             )
     if cfg.collector == "ray":
-        from catmip_rl.ray_collect import import_ray
+        from catmip_rl.adapters.ray_collect import import_ray
 
         try:
             import_ray()
@@ -104,7 +104,7 @@ def _train(args: argparse.Namespace) -> int:
 
 
 def _setting(args: argparse.Namespace):
-    from catmip_rl.evaluate import EvalSetting
+    from catmip_rl.evaluation.evaluate import EvalSetting
 
     return EvalSetting(args.task, args.comm, args.noise, args.max_ma_ticks)
 
@@ -112,7 +112,7 @@ def _setting(args: argparse.Namespace):
 def _eval(args: argparse.Namespace) -> int:
     import torch
 
-    from catmip_rl.evaluate import evaluate
+    from catmip_rl.evaluation.evaluate import evaluate
     from catmip_rl.files import check_new_dir
 
     check_new_dir(args.out, "--out", force=args.force)
@@ -149,7 +149,7 @@ def _eval(args: argparse.Namespace) -> int:
 def _render(args: argparse.Namespace) -> int:
     import torch
 
-    from catmip_rl.evaluate import render_episode
+    from catmip_rl.evaluation.evaluate import render_episode
     from catmip_rl.files import check_new_file
 
     check_new_file(args.out, "--out", force=args.force, suffixes=(".gif",))
@@ -170,7 +170,7 @@ def _bench(args: argparse.Namespace) -> int:
             )
         return subprocess.call([sys.executable, str(script), *(["--quick"] if args.quick else [])])
     from catmip_rl.files import check_new_dir
-    from catmip_rl.paper import FIGURES, run_figure
+    from catmip_rl.evaluation.paper import FIGURES, run_figure
 
     if args.all == (args.figure is not None):
         raise ValueError("give --figure N or --all (one of them)")
@@ -231,7 +231,7 @@ def _add_train(sub) -> None:
                         "tensorboard/, checkpoints/). A new run needs a new or empty --run-dir.")  # fmt: skip
     tr.add_argument(
         "--preset", choices=sorted(TRAIN_PRESETS),
-        help=f"training recipe (catmip_rl.config.TRAIN_PRESETS); default {DEFAULT_PRESET} (the Task-1 "
+        help=f"training recipe (catmip_rl.training.config.TRAIN_PRESETS); default {DEFAULT_PRESET} (the Task-1 "
         "world: 12 DAgger rounds, then 2,000 PPO iterations, ~40 min on one CPU thread as the shipped model "
         "was trained; the preset itself runs 2 threads), or with --resume the run's own config. tiny: a "
         "smoke run (seconds); small: minutes; paper, paper-sync, paper-smallma: the paper's recipe (62,500 "
@@ -293,7 +293,7 @@ def _add_train(sub) -> None:
 
 def _add_setting_flags(p: argparse.ArgumentParser) -> None:
     from catmip_rl.checkpoint import shipped_models
-    from catmip_rl.evaluate import TASKS
+    from catmip_rl.evaluation.evaluate import TASKS
 
     shipped = ", ".join(shipped_models()) or "none"
     p.add_argument(
@@ -351,7 +351,7 @@ def _add_eval_render(sub) -> None:
 
 
 def _add_bench(sub) -> None:
-    from catmip_rl.paper import DEFAULT_METHODS, FIGURES
+    from catmip_rl.evaluation.paper import DEFAULT_METHODS, FIGURES
 
     be = sub.add_parser("bench", help="paper figures (success vs time) or the performance benchmarks",
                         description="catmip bench paper: the paper's figures; catmip bench perf: the "

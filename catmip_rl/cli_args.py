@@ -71,13 +71,13 @@ def check_device(text: str) -> None:
 
 
 def check_comm(text: str) -> None:
-    from catmip_rl.evaluate import comm_sigma
+    from catmip_rl.evaluation.evaluate import comm_sigma
 
     comm_sigma(text)
 
 
 def check_method(text: str) -> None:
-    from catmip_rl.evaluate import parse_method
+    from catmip_rl.evaluation.evaluate import parse_method
 
     parse_method(text)
 

@@ -22,9 +22,9 @@ from pathlib import Path
 
 import torch
 
-from catmip_rl.evaluate import EvalSetting, evaluate, render_episode
+from catmip_rl.evaluation.evaluate import EvalSetting, evaluate, render_episode
 from catmip_rl.files import atomic_write_csv, atomic_write_text
-from catmip_rl.paper import plot_figure
+from catmip_rl.evaluation.paper import plot_figure
 
 SHIPPED = Path(__file__).parent / "models" / "amat_task1.pt"
 PLANNERS = ("nearest", "utility", "rrt", "apf", "random-frontier", "random")
@@ -51,8 +51,8 @@ def main(argv: list[str] | None = None) -> list[dict]:
     torch.set_num_threads(args.threads)
 
     # 1. a short training run (a fresh one every time: the folder is replaced)
-    from catmip_rl.config import make_train_config
-    from catmip_rl.train import train
+    from catmip_rl.training.config import make_train_config
+    from catmip_rl.training.train import train
 
     run_dir = out / "train"
     if run_dir.exists():  # a new run needs a new or empty run dir

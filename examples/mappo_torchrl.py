@@ -1,5 +1,5 @@
 """MAPPO on the native TorchRL env, built from TorchRL's own parts — the recipe of TorchRL's
-``sota-implementations/multiagent/mappo_ippo.py`` on ``catmip_rl.env.CatmipEnv``:
+``sota-implementations/multiagent/mappo_ippo.py`` on ``catmip_rl.adapters.torchrl_env.CatmipEnv``:
 
 * ``TransformedEnv(CatmipEnv, float_observation_transform() + RewardSum + RewardScaling)``;
 * a shared policy (a small CNN over each robot's float maps, parameters shared by all robots) as a
@@ -39,9 +39,9 @@ from torchrl.envs import Compose, RewardScaling, RewardSum, TransformedEnv
 from torchrl.modules import MaskedCategorical, ProbabilisticActor
 from torchrl.objectives import ClipPPOLoss, ValueEstimators
 
-from catmip_rl import keys as K
-from catmip_rl.config import TRAIN_PRESETS
-from catmip_rl.env import CatmipEnv, float_observation_transform
+from catmip_rl.adapters import keys as K
+from catmip_rl.training.config import TRAIN_PRESETS
+from catmip_rl.adapters.torchrl_env import CatmipEnv, float_observation_transform
 
 LOGITS = (K.ROBOTS, "logits")
 EPISODE_REWARD = (K.ROBOTS, "episode_reward")

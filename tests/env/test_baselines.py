@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from catmip_env import EnvConfig, make_config
-from catmip_env.baselines import PLANNERS, make_planner
+from catmip_env.planners import PLANNERS, make_planner
 from catmip_env.events import EventEngine
 
 EPISODES = 24

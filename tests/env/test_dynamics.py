@@ -6,7 +6,7 @@ The rules: docs/design.md#world-rules.
 import numpy as np
 import pytest
 
-from catmip_env.types import (
+from catmip_env.constants import (
     EXPLORED,
     FORWARD,
     OBSTACLE,

@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from catmip_env.types import (
+from catmip_env.constants import (
     CLUE_BIT,
     EXPLORED,
     OBS_CLUE,

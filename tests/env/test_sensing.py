@@ -12,7 +12,7 @@ from catmip_env.sensing import (
     sense_robot,
     to_world,
 )
-from catmip_env.types import EXPLORED, OBSTACLE, WALL
+from catmip_env.constants import EXPLORED, OBSTACLE, WALL
 
 from .helpers import layout_engine
 

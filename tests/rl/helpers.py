@@ -2,7 +2,7 @@
 
 import torch
 
-from catmip_rl.amat import AMAT
+from catmip_rl.amat.model import AMAT
 
 
 def shaken_model(config=None, seed=0):

@@ -4,7 +4,7 @@ import pytest
 import torch
 import torch.nn.functional as F
 
-from catmip_rl.amat import AMAT, AmatConfig, decision_order
+from catmip_rl.amat.model import AMAT, AmatConfig, decision_order
 from tests.rl.helpers import shaken_model
 
 

@@ -15,15 +15,15 @@ from hypothesis import HealthCheck, event, given, settings
 from hypothesis import strategies as st
 
 import catmip_rl
-import catmip_rl.collect
-import catmip_rl.evaluate
-import catmip_rl.paper
-import catmip_rl.train
+import catmip_rl.training.collect
+import catmip_rl.evaluation.evaluate
+import catmip_rl.evaluation.paper
+import catmip_rl.training.train
 from catmip_env.search_rescue_v0 import SearchRescueEnv
 from catmip_rl.checkpoint import SHIPPED_DIR, CheckpointError, load_model, read_checkpoint, resume_checkpoint
 from catmip_rl.cli import CPUS, DEFAULT_PRESET, build_parser, main
-from catmip_rl.config import TRAIN_PRESETS, make_train_config
-from catmip_rl.evaluate import parse_method
+from catmip_rl.training.config import TRAIN_PRESETS, make_train_config
+from catmip_rl.evaluation.evaluate import parse_method
 from catmip_rl.files import open_csv_log
 
 SHIPPED = SHIPPED_DIR / "amat_task1.pt"
@@ -72,7 +72,7 @@ def files(tmp_path_factory) -> dict[str, Path]:
 
 
 def _training_checkpoint(iteration: int, **config) -> dict:
-    """The keys ``--resume`` reads (catmip_rl.train._save), with a tiny config."""
+    """The keys ``--resume`` reads (catmip_rl.training.train._save), with a tiny config."""
     cfg = make_train_config("tiny", **config)
     return {"iteration": iteration, "episodes": 8, "model": {}, "optimizer": {}, "value_norm": {},
             "generator": torch.Generator().get_state(), "torch_rng": torch.get_rng_state(),
@@ -127,7 +127,7 @@ def test_resume_without_a_preset_continues_with_the_runs_own_config(tmp_path, mo
     (tmp_path / "run" / "checkpoints").mkdir(parents=True)
     torch.save(_training_checkpoint(3, iterations=7), tmp_path / "run" / "checkpoints" / "latest.pt")
     seen = {}
-    monkeypatch.setattr(catmip_rl.train, "train", lambda cfg, run_dir, **kw: seen.update(cfg=cfg, **kw))
+    monkeypatch.setattr(catmip_rl.training.train, "train", lambda cfg, run_dir, **kw: seen.update(cfg=cfg, **kw))
     assert main(["train", "--run-dir", str(tmp_path / "run"), "--resume", "--epochs", "3"]) == 0
     assert seen["cfg"] == make_train_config("tiny", iterations=7, epochs=3) and seen["resume"]
     assert main(["train", "--run-dir", str(tmp_path / "new")]) == 0
@@ -279,7 +279,7 @@ def _warm_start_then(err: BaseException):
 def _accepts_a_new_run(run_dir: Path, monkeypatch) -> bool:
     """``catmip train --run-dir run_dir`` gets past every check (to building the model)."""
     with monkeypatch.context() as m:
-        m.setattr(catmip_rl.train, "AMAT", _work_started)
+        m.setattr(catmip_rl.training.train, "AMAT", _work_started)
         with pytest.raises(_WorkStarted):
             main([*TINY_RUN, "--run-dir", str(run_dir)])
     return True
@@ -307,10 +307,10 @@ def test_a_run_stopped_before_its_first_checkpoint_removes_what_it_wrote(
         if (
             when == "collect"
         ):  # the first iteration's collection fails (config.json, logs, tensorboard/ written)
-            m.setattr(catmip_rl.collect.Collector, "collect", _raises(kind(*message)))
+            m.setattr(catmip_rl.training.collect.Collector, "collect", _raises(kind(*message)))
             argv = [*TINY_RUN, "--run-dir", str(run)]
         else:  # Ctrl-C during the warm start, after its log was opened
-            m.setattr(catmip_rl.train, "warm_start", _warm_start_then(kind(*message)))
+            m.setattr(catmip_rl.training.train, "warm_start", _warm_start_then(kind(*message)))
             argv = [*TINY_RUN, "--warm-start", "nearest", "--run-dir", str(run)]
         try:
             assert main(argv) == code
@@ -327,7 +327,7 @@ def test_a_run_stopped_before_its_first_checkpoint_removes_what_it_wrote(
 def test_an_unexpected_error_removes_the_run_too_and_says_so_in_a_note(tmp_path, monkeypatch):
     threads = torch.get_num_threads()
     with monkeypatch.context() as m:
-        m.setattr(catmip_rl.collect.Collector, "collect", _raises(RuntimeError("a bug")))
+        m.setattr(catmip_rl.training.collect.Collector, "collect", _raises(RuntimeError("a bug")))
         try:
             with pytest.raises(RuntimeError, match="a bug") as info:
                 main([*TINY_RUN, "--run-dir", str(tmp_path / "run")])
@@ -342,8 +342,8 @@ def test_a_run_stopped_after_a_checkpoint_keeps_everything_for_resume(tmp_path, 
     run = tmp_path / "run"
     threads = torch.get_num_threads()
     with monkeypatch.context() as m:
-        m.setattr(catmip_rl.train, "warm_start", lambda *args, **kwargs: 0.0)  # no rounds: 0 s
-        m.setattr(catmip_rl.collect.Collector, "collect", _raises(KeyboardInterrupt()))
+        m.setattr(catmip_rl.training.train, "warm_start", lambda *args, **kwargs: 0.0)  # no rounds: 0 s
+        m.setattr(catmip_rl.training.collect.Collector, "collect", _raises(KeyboardInterrupt()))
         try:
             assert main([*TINY_RUN, "--warm-start", "nearest", "--run-dir", str(run)]) == 130
         finally:
@@ -354,7 +354,7 @@ def test_a_run_stopped_after_a_checkpoint_keeps_everything_for_resume(tmp_path, 
     assert {p.name for p in run.iterdir()} >= {"config.json", "metrics.csv", "checkpoints"}
     assert resume_checkpoint(run)["iteration"] == 0
     with monkeypatch.context() as m:  # and --resume accepts it
-        m.setattr(catmip_rl.train, "AMAT", _work_started)
+        m.setattr(catmip_rl.training.train, "AMAT", _work_started)
         with pytest.raises(_WorkStarted):
             main(["train", "--run-dir", str(run), "--resume", "--no-progress"])
 
@@ -547,9 +547,9 @@ def test_fuzz_random_arguments_exit_0_or_2_without_a_traceback(
         argv.append("--help")
     argv = [a.format(**where) for a in argv]
     with monkeypatch.context() as m:  # the first real work of each command raises _WorkStarted
-        m.setattr(catmip_rl.evaluate, "EventEngine", _work_started)
-        m.setattr(catmip_rl.paper, "_map", _work_started)
-        m.setattr(catmip_rl.train, "AMAT", _work_started)
+        m.setattr(catmip_rl.evaluation.evaluate, "EventEngine", _work_started)
+        m.setattr(catmip_rl.evaluation.paper, "_map", _work_started)
+        m.setattr(catmip_rl.training.train, "AMAT", _work_started)
         m.setattr(subprocess, "call", _work_started)  # bench perf's benchmarks
         threads = torch.get_num_threads()
         try:

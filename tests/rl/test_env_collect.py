@@ -9,12 +9,12 @@ from torchrl.envs.utils import check_env_specs
 from torchrl.objectives.value import GAE
 
 from catmip_env import make_config
-from catmip_env.types import OBS_SCALE
-from catmip_rl import keys as K
-from catmip_rl.actor import AmatActor
-from catmip_rl.amat import AMAT, AmatConfig
-from catmip_rl.collect import Collector
-from catmip_rl.env import CatmipEnv, float_observation_transform
+from catmip_env.constants import OBS_SCALE
+from catmip_rl.adapters import keys as K
+from catmip_rl.adapters.torchrl_actor import AmatActor
+from catmip_rl.amat.model import AMAT, AmatConfig
+from catmip_rl.training.collect import Collector
+from catmip_rl.adapters.torchrl_env import CatmipEnv, float_observation_transform
 
 
 def test_env_passes_check_env_specs_and_runs_the_actor():
@@ -163,9 +163,9 @@ def test_a_rescued_worlds_last_decisions_are_trained_with_advantage_r_minus_v():
     """A rescue completes every robot's macro-action (docs/design.md#asynchronous-gae): the rescuer's
     decision that reached the target is in the batch with advantage R - V (normalised with the rest), a
     truncated world's last decisions are not."""
-    from catmip_rl.gae import async_gae
-    from catmip_rl.ppo import ValueNorm
-    from catmip_rl.train import build_batch
+    from catmip_rl.training.gae import async_gae
+    from catmip_rl.training.ppo import ValueNorm
+    from catmip_rl.training.train import build_batch
 
     cfg = make_config("task1", map_size=10, horizon_ticks=100)
     col = Collector(cfg, 8, seed=0)

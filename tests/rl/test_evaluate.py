@@ -11,10 +11,10 @@ import torch
 
 from catmip_env.events import EventEngine
 from catmip_rl import AMAT, AmatConfig, save_model
-from catmip_rl.amat import decision_order
+from catmip_rl.amat.model import decision_order
 from catmip_rl.cli import main as cli
-from catmip_rl.distributed import message_bytes
-from catmip_rl.evaluate import (
+from catmip_rl.evaluation.execution import message_bytes
+from catmip_rl.evaluation.evaluate import (
     GOAL_BYTES,
     AmatExecutor,
     EvalSetting,
@@ -24,7 +24,7 @@ from catmip_rl.evaluate import (
     render_episode,
     success_curve,
 )
-from catmip_rl.paper import FIGURES, run_figure
+from catmip_rl.evaluation.paper import FIGURES, run_figure
 
 
 def _sharp_model(window: int = 7, seed: int = 0) -> AMAT:
@@ -64,7 +64,7 @@ def test_every_method_sees_the_same_maps(ckpt, tmp_path):
     # a map depends on the episode index only: episode 1 alone equals episode 1 of the batch
     eng = EventEngine(setting.env_config(), 1, seed=11)
     eng.reset(episode_indices=[1])
-    from catmip_rl.evaluate import map_hash
+    from catmip_rl.evaluation.evaluate import map_hash
 
     assert map_hash(eng, 0) == hashes["nearest"][1]
 

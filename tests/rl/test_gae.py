@@ -5,7 +5,7 @@ import pytest
 import torch
 from torchrl.objectives.value.functional import generalized_advantage_estimate
 
-from catmip_rl.gae import async_gae
+from catmip_rl.training.gae import async_gae
 
 TRUNCATED = np.zeros(1, bool)  # one world that reached the horizon
 RESCUED = np.ones(1, bool)

@@ -9,11 +9,11 @@ import torch
 from catmip_env import make_config
 from catmip_env.events import EventEngine
 from catmip_env.window_planner import make_window_planner
-from catmip_rl.amat import AMAT, AmatConfig
-from catmip_rl.collect import Collector
-from catmip_rl.config import make_train_config
-from catmip_rl.imitation import DemoBuffer, dagger, imitation_loss
-from catmip_rl.train import train
+from catmip_rl.amat.model import AMAT, AmatConfig
+from catmip_rl.training.collect import Collector
+from catmip_rl.training.config import make_train_config
+from catmip_rl.training.imitation import DemoBuffer, dagger, imitation_loss
+from catmip_rl.training.train import train
 
 
 def _labelled(horizon: int, worlds: int, seed: int, teacher_prob: float):

@@ -5,9 +5,9 @@ import pytest
 import torch
 
 from catmip_env.events import EventEngine, random_valid_actions
-from catmip_rl.amat import AMAT
-from catmip_rl.config import make_train_config
-from catmip_rl.train import evaluate_policy, train
+from catmip_rl.amat.model import AMAT
+from catmip_rl.training.config import make_train_config
+from catmip_rl.training.train import evaluate_policy, train
 
 
 def _random_window_success(cfg) -> float:

@@ -1,14 +1,14 @@
-"""Data-parallel PPO gradients (catmip_rl.parallel_update): the same update as one process."""
+"""Data-parallel PPO gradients (catmip_rl.training.parallel_update): the same update as one process."""
 
 import csv
 
 import pytest
 import torch
 
-from catmip_rl.config import make_train_config
-from catmip_rl.parallel_update import ParallelGradients
-from catmip_rl.ppo import accumulate_gradients
-from catmip_rl.train import loss_kwargs, make_optimizer, ppo_update, train
+from catmip_rl.training.config import make_train_config
+from catmip_rl.training.parallel_update import ParallelGradients
+from catmip_rl.training.ppo import accumulate_gradients
+from catmip_rl.training.train import loss_kwargs, make_optimizer, ppo_update, train
 from tests.rl.helpers import shaken_model
 from tests.rl.test_sparse_conv import _batch
 

@@ -12,12 +12,12 @@ import numpy as np
 import pytest
 import torch
 
-from catmip_rl.amat import AMAT
+from catmip_rl.amat.model import AMAT
 from catmip_rl.cli import main as cli
-from catmip_rl.collect import Collector
-from catmip_rl.config import TrainConfig, make_train_config
-from catmip_rl.ray_collect import merge_stats
-from catmip_rl.train import train
+from catmip_rl.training.collect import Collector
+from catmip_rl.training.config import TrainConfig, make_train_config
+from catmip_rl.adapters.ray_collect import merge_stats
+from catmip_rl.training.train import train
 
 
 @pytest.fixture(scope="module")
@@ -34,7 +34,7 @@ def _params(model):
 
 @pytest.mark.ray
 def test_ray_rollout_equals_local_rollout(ray_cluster):
-    from catmip_rl.ray_collect import RayRolloutCollector
+    from catmip_rl.adapters.ray_collect import RayRolloutCollector
 
     cfg = make_train_config("tiny", collector="ray", ray_workers=2)
     torch.manual_seed(1)

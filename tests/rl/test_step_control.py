@@ -4,9 +4,9 @@ warm-up, and the per-epoch log."""
 import pytest
 import torch
 
-from catmip_rl.amat import AmatConfig
-from catmip_rl.config import make_train_config
-from catmip_rl.train import lr_factor, make_optimizer, ppo_update
+from catmip_rl.amat.model import AmatConfig
+from catmip_rl.training.config import make_train_config
+from catmip_rl.training.train import lr_factor, make_optimizer, ppo_update
 from tests.rl.helpers import shaken_model
 from tests.rl.test_sparse_conv import _batch
 
@@ -94,7 +94,7 @@ def test_bad_step_control_values_are_refused():
 
 
 def test_precision_auto_follows_the_cpu_and_bf16_reaches_every_gradient(monkeypatch):
-    from catmip_rl import precision
+    from catmip_rl.training import precision
 
     monkeypatch.setattr(precision, "native_bf16", lambda: True)
     assert precision.use_bf16("auto", "cpu") and not precision.use_bf16("fp32", "cpu")
@@ -116,8 +116,8 @@ def test_precision_auto_follows_the_cpu_and_bf16_reaches_every_gradient(monkeypa
 def test_auto_precision_measures_and_takes_bf16_only_when_clearly_faster(monkeypatch, tmp_path):
     import json
 
-    from catmip_rl import precision
-    from catmip_rl.train import loss_kwargs, train
+    from catmip_rl.training import precision
+    from catmip_rl.training.train import loss_kwargs, train
 
     model = shaken_model(AmatConfig(embed_dim=32)).train()
     batch = _batch(worlds=2)
@@ -143,8 +143,8 @@ def test_auto_precision_measures_and_takes_bf16_only_when_clearly_faster(monkeyp
 def test_a_resumed_run_keeps_the_precision_auto_chose(monkeypatch, tmp_path):
     import json
 
-    from catmip_rl import precision
-    from catmip_rl.train import train
+    from catmip_rl.training import precision
+    from catmip_rl.training.train import train
 
     monkeypatch.setattr(precision, "native_bf16", lambda: True)
     monkeypatch.setattr(precision, "measure_bf16", lambda *a, **k: {"fp32_s": 1.0, "bf16_s": 0.5})

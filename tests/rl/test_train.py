@@ -8,8 +8,8 @@ import pytest
 import torch
 
 from catmip_rl.cli import main as cli
-from catmip_rl.config import TrainConfig, make_train_config
-from catmip_rl.train import METRICS, train
+from catmip_rl.training.config import TrainConfig, make_train_config
+from catmip_rl.training.train import METRICS, train
 
 
 def _params(model):

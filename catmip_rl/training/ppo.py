@@ -2,7 +2,7 @@
 loss on normalised values, entropy bonus, advantage normalisation.
 
 The loss is a few lines on purpose (``ppo_loss``); ``tests/rl/test_ppo.py`` checks that its policy term
-equals TorchRL's ``ClipPPOLoss`` with the :class:`~catmip_rl.actor.AmatActor` on the same batch.
+equals TorchRL's ``ClipPPOLoss`` with the :class:`~catmip_rl.adapters.torchrl_actor.AmatActor` on the same batch.
 """
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import torch
 import torch.nn.functional as F
 
-from catmip_rl.amat import AMAT
+from catmip_rl.amat.model import AMAT
 
 __all__ = ["ValueNorm", "SampleBatch", "ppo_loss", "accumulate_gradients"]
 
@@ -131,7 +131,7 @@ def accumulate_gradients(
     """Backward of ``ppo_loss`` over the micro-batches ``parts`` (index tensors into ``batch``), each
     averaged with the minibatch's ``count``, into the model's .grad (added to what is there); returns
     the loss parts summed over the micro-batches. ``bf16`` runs the forward under bfloat16 autocast
-    (``catmip_rl.precision``)."""
+    (``catmip_rl.training.precision``)."""
     sums: dict[str, float] = {}
     device = batch.action.device.type
     for part in parts:

@@ -31,7 +31,7 @@ from typing import Any
 import numpy as np
 from numba import njit
 
-from catmip_rl.amat import INVALID_LOGIT, OBS_SCALE, AmatConfig
+from catmip_rl.amat.model import INVALID_LOGIT, OBS_SCALE, AmatConfig
 
 __all__ = ["FastAmat"]
 
@@ -249,7 +249,7 @@ def ones_conv(flipped, h, wd):
 
 ConvWeights = namedtuple("ConvWeights", ["g_w", "g_runs", "g_torch", "g_b"])
 """One k x k convolution in the layouts of the sparse convolution kernels (the global convolution's
-fields of ``_Weights``), also for callers of the kernels (``catmip_rl.sparse_conv``). Defined here:
+fields of ``_Weights``), also for callers of the kernels (``catmip_rl.amat.sparse_conv``). Defined here:
 numba's cache of this module's kernels names the type."""
 
 

@@ -50,7 +50,7 @@ def measure_bf16(model, batch, loss_kwargs: dict, events: int = 512, repeats: in
     """Seconds of one forward + backward of the PPO loss on the first ``events`` events of ``batch``,
     float32 and bf16 autocast (best of ``repeats`` after a warm-up each); the model's gradients are
     left cleared."""
-    from catmip_rl.ppo import accumulate_gradients
+    from catmip_rl.training.ppo import accumulate_gradients
 
     part = torch.arange(min(events, len(batch)), device=batch.action.device)
     count = batch.trainable[part].sum().clamp_min(1).float()

@@ -31,13 +31,13 @@ import numpy as np
 import torch
 
 from catmip_env import EnvConfig, make_config
-from catmip_env.baselines import PLANNERS, make_planner
+from catmip_env.planners import PLANNERS, make_planner
 from catmip_env.decision_stats import DecisionTracker
 from catmip_env.events import EventEngine
 from catmip_env.window_planner import make_window_planner
-from catmip_rl.amat import AMAT
+from catmip_rl.amat.model import AMAT
 from catmip_rl.checkpoint import load_model, resolve_model
-from catmip_rl.distributed import GOAL_BYTES, AmatExecutor
+from catmip_rl.evaluation.execution import GOAL_BYTES, AmatExecutor
 from catmip_rl.files import atomic_write_csv, atomic_write_text
 
 __all__ = [

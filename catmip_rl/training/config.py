@@ -11,7 +11,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from catmip_env import EnvConfig, make_config
-from catmip_rl.amat import AmatConfig
+from catmip_rl.amat.model import AmatConfig
 
 __all__ = ["TrainConfig", "TRAIN_PRESETS", "make_train_config"]
 
@@ -107,13 +107,13 @@ class TrainConfig:
     """torch CPU threads."""
     precision: str = "fp32"
     """PPO update precision: "fp32", "bf16" (bfloat16 autocast) or "auto" (bf16 where the CPU has it
-    natively, catmip_rl.precision; else fp32)."""
+    natively, catmip_rl.training.precision; else fp32)."""
     update_processes: int = 1
     """Processes computing the PPO update's gradients (CPU): 1 = this one, on ``threads`` threads; n > 1 =
     this one and n - 1 helpers, one thread each, sharing every minibatch's micro-batches (data parallel,
     the same update to float32 rounding; ~15 % faster than one process with two threads on 2 cores)."""
     warm_start: str = ""
-    """Imitation warm start before PPO (catmip_rl.imitation): a planner name ("nearest", "rrt", ...)
+    """Imitation warm start before PPO (catmip_rl.training.imitation): a planner name ("nearest", "rrt", ...)
     whose goals, projected into the window, label DAgger rounds; "" = none (the paper's recipe)."""
     warm_start_rounds: int = 6
     """DAgger rounds (each collects num_worlds episodes with the current policy, labelled)."""
@@ -139,7 +139,7 @@ class TrainConfig:
     def __post_init__(self) -> None:
         _check_fields(self)
         if self.warm_start:
-            from catmip_env.baselines import PLANNERS
+            from catmip_env.planners import PLANNERS
 
             if self.collector != "local":
                 raise ValueError(
@@ -159,7 +159,7 @@ class TrainConfig:
                 f"update_processes = {self.update_processes} computes gradients in CPU processes; with "
                 f"device {self.device!r} set update_processes = 1"
             )
-        from catmip_rl.precision import use_bf16
+        from catmip_rl.training.precision import use_bf16
 
         use_bf16(self.precision, self.device)  # validates
         if self.collector not in ("local", "ray"):

@@ -28,8 +28,8 @@ from typing import Any
 import torch
 import torch.multiprocessing as mp
 
-from catmip_rl.amat import AMAT, AmatConfig
-from catmip_rl.ppo import SampleBatch, accumulate_gradients
+from catmip_rl.amat.model import AMAT, AmatConfig
+from catmip_rl.training.ppo import SampleBatch, accumulate_gradients
 
 __all__ = ["ParallelGradients"]
 
@@ -54,7 +54,7 @@ def _unpack(flat: torch.Tensor, params: list[torch.Tensor]) -> list[torch.Tensor
 
 def _helper(conn, config: dict[str, Any], params: torch.Tensor, grads: torch.Tensor, loss_kwargs) -> None:
     """A helper process: one torch thread, a copy of the model, commands from ``conn``."""
-    from catmip_rl.heap import keep_freed_memory
+    from catmip_rl.training.memory import keep_freed_memory
 
     torch.set_num_threads(1)
     keep_freed_memory()

@@ -1,4 +1,4 @@
-"""Thin TorchRL wrappers around :class:`~catmip_rl.amat.AMAT`: the actor and the critic.
+"""Thin TorchRL wrappers around :class:`~catmip_rl.amat.model.AMAT`: the actor and the critic.
 
 * :class:`AmatActor` — ``forward(td)`` embeds, encodes and decodes the active robots autoregressively
   (sampling, or argmax under ``set_interaction_type("deterministic")`` / ``deterministic=True``), and
@@ -7,7 +7,7 @@
   ``ClipPPOLoss`` calls.
 * :class:`AmatCritic` — the encoder's per-token values.
 
-Keys are those of :mod:`catmip_rl.keys`.
+Keys are those of :mod:`catmip_rl.adapters.keys`.
 """
 
 from __future__ import annotations
@@ -18,8 +18,8 @@ from tensordict.nn import InteractionType, TensorDictModuleBase
 from tensordict.nn.probabilistic import interaction_type
 from torchrl.modules import MaskedCategorical
 
-from catmip_rl import keys as K
-from catmip_rl.amat import AMAT, decision_order
+from catmip_rl.adapters import keys as K
+from catmip_rl.amat.model import AMAT, decision_order
 
 __all__ = ["AmatActor", "AmatCritic"]
 

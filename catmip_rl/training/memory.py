@@ -8,7 +8,7 @@ thresholds makes malloc serve them from the heap and keep what is freed, so late
 (~100 faults a step). The cost is memory the process keeps after its peak, which training reaches again
 every step anyway.
 
-``keep_freed_memory()`` is called by ``catmip_rl.train.train`` and the training benchmarks; set
+``keep_freed_memory()`` is called by ``catmip_rl.training.train.train`` and the training benchmarks; set
 ``CATMIP_KEEP_HEAP=0`` to leave malloc as it is. Elsewhere (macOS, musl, Windows) it does nothing.
 """
 

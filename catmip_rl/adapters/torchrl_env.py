@@ -16,8 +16,8 @@ from torchrl.envs import ActionMask, Compose, DTypeCastTransform, EnvBase, Obser
 
 from catmip_env import EnvConfig, make_config
 from catmip_env.events import EventEngine
-from catmip_env.types import OBS_ONE, OBS_SCALE
-from catmip_rl import keys as K
+from catmip_env.constants import OBS_ONE, OBS_SCALE
+from catmip_rl.adapters import keys as K
 
 __all__ = ["CatmipEnv", "float_observation_transform"]
 
@@ -224,7 +224,7 @@ def float_observation_transform(
     in_keys: Sequence[NestedKey] = (K.GLOBAL_MAP, K.LOCAL_MAP),
 ) -> Compose:
     """``TransformedEnv(CatmipEnv(...), float_observation_transform())``: the uint8 maps become float32
-    in [0, 1] in place (``value × OBS_SCALE``, ``catmip_env.types``: 4 → 1.0, a clue's 1 → 0.25), specs
+    in [0, 1] in place (``value × OBS_SCALE``, ``catmip_env.constants``: 4 → 1.0, a clue's 1 → 0.25), specs
     included — TorchRL's ``DTypeCastTransform`` then ``ObservationNorm(loc=0, scale=OBS_SCALE)`` — and
     TorchRL's ``ActionMask`` keeps the transformed env's action spec masked (a ``TransformedEnv`` holds
     its own copy of the spec, which ``CatmipEnv`` cannot update), so that its random actions

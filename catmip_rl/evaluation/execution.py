@@ -16,7 +16,7 @@ import numpy as np
 import torch
 
 from catmip_env.events import EventEngine
-from catmip_rl.amat import AMAT, AmatConfig, decision_order
+from catmip_rl.amat.model import AMAT, AmatConfig, decision_order
 
 __all__ = [
     "AmatExecutor",

@@ -28,7 +28,7 @@ from catmip_env.mapgen import Episode, generate
 from catmip_env.observe import observe as build_observations
 from catmip_env.rng import seed_state
 from catmip_env.sensing import RAY_NBLOCK, VIEW_BLOCKERS, VIEW_OFFSETS
-from catmip_env.types import (
+from catmip_env.constants import (
     CLUE,
     EXPLORED,
     OBSTACLE,

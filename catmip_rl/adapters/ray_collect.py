@@ -2,7 +2,7 @@
 
 ``--collector ray`` splits the B worlds of an iteration over W remote workers. Worker ``w`` is a Ray
 actor running :class:`ShardCollector` (a TorchRL collector class): it owns a
-:class:`~catmip_rl.collect.Collector` over ``B / W`` worlds of the event engine and, for an iteration
+:class:`~catmip_rl.training.collect.Collector` over ``B / W`` worlds of the event engine and, for an iteration
 whose first episode is ``E``, collects episodes ``E + w * B/W ... E + (w+1) * B/W - 1``, so that the
 workers together collect exactly the episodes of the local collector, in the same order. Actions are
 sampled from a generator seeded by (run seed, the worker's first episode): a run is reproducible for
@@ -12,7 +12,7 @@ Each iteration the driver pushes the current weights through RayCollector's weig
 (:meth:`update_policy_weights_`, a :class:`~torchrl.weight_update.RayWeightSyncScheme`), and
 RayCollector's synchronous iterator gathers one TensorDict per worker (batch ``[B/W]``: one row per
 world, time padded to ``horizon_ticks + 1`` so that the workers' batches stack) and stacks them;
-:class:`RayRolloutCollector` turns the stack back into one :class:`~catmip_rl.collect.Rollout`
+:class:`RayRolloutCollector` turns the stack back into one :class:`~catmip_rl.training.collect.Rollout`
 (worlds in episode order, time trimmed to the longest episode) for ``build_batch`` and PPO.
 """
 
@@ -31,9 +31,9 @@ import torch
 from tensordict import TensorDict
 from torchrl.collectors import BaseCollector
 
-from catmip_rl.amat import AMAT
-from catmip_rl.collect import Collector, Rollout
-from catmip_rl.config import TrainConfig
+from catmip_rl.amat.model import AMAT
+from catmip_rl.training.collect import Collector, Rollout
+from catmip_rl.training.config import TrainConfig
 
 __all__ = ["ShardCollector", "RayRolloutCollector", "import_ray", "RAY_MISSING"]
 

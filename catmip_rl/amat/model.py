@@ -28,7 +28,7 @@ from torch import nn
 
 __all__ = ["AmatConfig", "AMAT", "decision_order", "OBS_SCALE"]
 
-OBS_SCALE = 0.25  # uint8 macro-observations: float = value * OBS_SCALE (catmip_env.types.OBS_SCALE)
+OBS_SCALE = 0.25  # uint8 macro-observations: float = value * OBS_SCALE (catmip_env.constants.OBS_SCALE)
 INVALID_LOGIT = -1e10
 
 
@@ -135,8 +135,8 @@ class Attention(nn.Module):
         else:
             q, k, v = self.q(query), self.k(key), self.v(value)
         if q.dtype == torch.float32 and q.device.type == "cpu" and torch.is_grad_enabled():
-            # training on CPU: a few tokens per event (catmip_rl.small_attention)
-            from catmip_rl.small_attention import small_attention
+            # training on CPU: a few tokens per event (catmip_rl.amat.small_attention)
+            from catmip_rl.amat.small_attention import small_attention
 
             y = small_attention(q, k, v, allowed, self.n_heads)
         else:
@@ -255,8 +255,8 @@ class AMAT(nn.Module):
         gmap, lmap, cls = obs["global_map"], obs["local_map"], obs["agent_class"]
         b, n = gmap.shape[:2]
         if gmap.dtype == torch.uint8 and gmap.device.type == "cpu" and torch.is_grad_enabled():
-            # training on CPU: sparse conv + pool with a winning-cell backward (catmip_rl.sparse_conv)
-            from catmip_rl.sparse_conv import global_conv_pool
+            # training on CPU: sparse conv + pool with a winning-cell backward (catmip_rl.amat.sparse_conv)
+            from catmip_rl.amat.sparse_conv import global_conv_pool
 
             g = global_conv_pool(gmap, self.global_conv.weight, self.global_conv.bias, self.config.pool)
         else:

@@ -1,7 +1,7 @@
 """Asynchronous centralised training of AMAT with PPO (docs/design.md#training) — the whole loop in one place.
 
     build: config -> collector (B worlds) -> AMAT -> Adam -> value normaliser
-    (warm start: DAgger rounds against a window-projected planner, catmip_rl.imitation)
+    (warm start: DAgger rounds against a window-projected planner, catmip_rl.training.imitation)
     loop:  LR (linear decay over the iterations or the time budget) -> collect one episode per world
            -> async GAE -> PPO epochs (target-KL stop) -> log -> evaluate -> checkpoint
 
@@ -25,17 +25,17 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from catmip_rl.amat import AMAT
+from catmip_rl.amat.model import AMAT
 from catmip_rl.checkpoint import atomic_torch_save, resume_checkpoint
-from catmip_rl.collect import Collector, Rollout
-from catmip_rl.config import TrainConfig
+from catmip_rl.training.collect import Collector, Rollout
+from catmip_rl.training.config import TrainConfig
 from catmip_rl.files import atomic_write_text, check_new_dir, open_csv_log, write_csv_row
-from catmip_rl.gae import async_gae
-from catmip_rl.heap import keep_freed_memory
-from catmip_rl.imitation import warm_start
-from catmip_rl.parallel_update import ParallelGradients
-from catmip_rl.ppo import SampleBatch, ValueNorm, accumulate_gradients
-from catmip_rl.precision import choose_bf16, use_bf16
+from catmip_rl.training.gae import async_gae
+from catmip_rl.training.memory import keep_freed_memory
+from catmip_rl.training.imitation import warm_start
+from catmip_rl.training.parallel_update import ParallelGradients
+from catmip_rl.training.ppo import SampleBatch, ValueNorm, accumulate_gradients
+from catmip_rl.training.precision import choose_bf16, use_bf16
 
 __all__ = [
     "train",
@@ -261,7 +261,7 @@ def _check_run(cfg: TrainConfig, run_dir: Path, resume: bool) -> dict | None:
     if cuda and not torch.cuda.is_available():
         raise ValueError(f"device {cfg.device!r} requested but torch sees no CUDA device")
     if cfg.collector == "ray":
-        from catmip_rl.ray_collect import import_ray
+        from catmip_rl.adapters.ray_collect import import_ray
 
         import_ray()  # RuntimeError naming the extra to install
     return saved
@@ -285,7 +285,7 @@ def train(cfg: TrainConfig, run_dir: str | Path, resume: bool = False, progress:
 
     # -- build the parts -------------------------------------------------------------------------------
     torch.set_num_threads(cfg.threads)
-    keep_freed_memory()  # reuse the step's large activations' pages (catmip_rl.heap)
+    keep_freed_memory()  # reuse the step's large activations' pages (catmip_rl.training.memory)
     device = torch.device(cfg.device)
     torch.manual_seed(cfg.seed)
     gen = torch.Generator().manual_seed(cfg.seed)
@@ -307,8 +307,8 @@ def train(cfg: TrainConfig, run_dir: str | Path, resume: bool = False, progress:
         start, episodes, elapsed = saved["iteration"], saved["episodes"], saved.get("elapsed_s", 0.0)
         same_precision = TrainConfig.from_json(saved["config"]).precision == cfg.precision
         chosen_bf16 = saved.get("bf16") if same_precision else None
-    if cfg.collector == "ray":  # the same episodes, collected by Ray workers (catmip_rl/ray_collect.py)
-        from catmip_rl.ray_collect import RayRolloutCollector
+    if cfg.collector == "ray":  # the same episodes, collected by Ray workers (catmip_rl/adapters/ray_collect.py)
+        from catmip_rl.adapters.ray_collect import RayRolloutCollector
 
         collector = RayRolloutCollector(cfg, model)
     else:

@@ -20,7 +20,7 @@ import torch
 from catmip_env import EnvConfig
 from catmip_env.decision_stats import DecisionTracker
 from catmip_env.events import EventEngine
-from catmip_rl.amat import AMAT, decision_order
+from catmip_rl.amat.model import AMAT, decision_order
 
 __all__ = ["Rollout", "Collector", "episode_stats"]
 

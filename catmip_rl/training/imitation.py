@@ -24,8 +24,8 @@ import numpy as np
 import torch
 
 from catmip_env.window_planner import make_window_planner
-from catmip_rl.amat import AMAT
-from catmip_rl.collect import Collector, Rollout
+from catmip_rl.amat.model import AMAT
+from catmip_rl.training.collect import Collector, Rollout
 from catmip_rl.files import open_csv_log, write_csv_row
 
 __all__ = ["DemoBuffer", "imitation_loss", "dagger", "warm_start", "WARM_START_METRICS"]

@@ -1,0 +1,11 @@
+"""Training AMAT: one PPO iteration is collect → GAE → PPO update, run by ``train.train``.
+
+* ``config`` — :class:`TrainConfig` and the presets;
+* ``collect`` — the asynchronous rollout of B worlds (the event engine + AMAT's decisions);
+* ``gae`` — asynchronous GAE over decision events and the PPO batch built from a rollout;
+* ``ppo`` — the clipped loss, value normalisation and the update over epochs and minibatches;
+* ``parallel_update`` — the update's gradients computed by several CPU processes;
+* ``imitation`` — the DAgger warm start from a planner;
+* ``precision``, ``memory`` — bf16 autocast choice and allocator tuning;
+* ``train`` — builds the parts, then runs the loop (logs, evaluation, checkpoints).
+"""
