@@ -36,9 +36,9 @@ from common import cpu_times, env_observation, steal_percent, write_json
 
 from catmip_env.config import PRESETS, make_config
 from catmip_env.events import EventEngine, random_valid_actions
+from catmip_rl.amat.fast import FastAmat
 from catmip_rl.amat.model import AMAT, decision_order
 from catmip_rl.training.config import make_train_config
-from catmip_rl.amat.fast import FastAmat
 from catmip_rl.training.memory import keep_freed_memory
 from catmip_rl.training.parallel_update import ParallelGradients
 from catmip_rl.training.ppo import SampleBatch, ppo_loss
@@ -191,7 +191,7 @@ def task2_training_batch(events: int, seed: int = 0) -> SampleBatch:
 def bench_training(model: AMAT, batch: SampleBatch, bf16: bool, steps: int, processes: int = 1) -> dict:
     """One PPO minibatch step as training runs it: ``ppo_loss`` forward, backward, grad-norm clip and
     fused Adam (``catmip_rl.training.train.make_optimizer``). One process on two threads, or ``processes``
-    single-threaded processes (``catmip_rl.training.parallel_update``), each with one micro-batch of ``batch``'s
+    single-threaded processes (``training.parallel_update``), each with one micro-batch of ``batch``'s
     events (so the step covers ``processes`` x as many events)."""
     torch.set_num_threads(2)
     keep_freed_memory()  # as catmip_rl.training.train.train does

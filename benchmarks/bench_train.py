@@ -36,7 +36,7 @@ from catmip_rl.training.train import train
 @contextmanager
 def instrumented(bf16: bool) -> Iterator[list[dict]]:
     """Record each rollout's decision events and world-ticks; with ``bf16``, run the PPO loss under
-    CPU bf16 autocast (in this process). Wraps the names ``catmip_rl.training.train`` and ``catmip_rl.training.ppo`` call,
+    CPU bf16 autocast (in this process). Wraps the names ``training.train`` and ``training.ppo`` call,
     restored on exit."""
     seen: list[dict] = []
     build_batch, ppo_loss = train_module.build_batch, ppo_module.ppo_loss

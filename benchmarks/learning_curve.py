@@ -21,11 +21,11 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from catmip_env.planners import make_planner
 from catmip_env.events import EventEngine
+from catmip_env.planners import make_planner
 from catmip_rl.cli import parse_set
-from catmip_rl.training.config import TrainConfig, make_train_config
 from catmip_rl.files import atomic_write_csv, atomic_write_text
+from catmip_rl.training.config import TrainConfig, make_train_config
 from catmip_rl.training.precision import native_bf16
 
 PLANNER_LINES = ("nearest", "rrt", "random")
@@ -111,7 +111,9 @@ def plot(runs: list[Path], out: Path) -> None:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--preset", default="task1", help="training preset (catmip_rl.training.config.TRAIN_PRESETS)")
+    ap.add_argument(
+        "--preset", default="task1", help="training preset (catmip_rl.training.config.TRAIN_PRESETS)"
+    )
     ap.add_argument("--minutes", type=float, default=30.0, help="wall-clock budget of the training run")
     ap.add_argument("--threads", type=int, default=2, help="torch threads (1 to run two curves side by side)")
     ap.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE", help="TrainConfig override")

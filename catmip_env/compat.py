@@ -37,8 +37,9 @@ class _Aliases(importlib.abc.MetaPathFinder, importlib.abc.Loader):
 
     def exec_module(self, module: types.ModuleType) -> None:
         new = self.table[module.__name__]
-        warnings.warn(f"{module.__name__} moved to {new}; import it from there", DeprecationWarning,
-                      stacklevel=2)
+        warnings.warn(
+            f"{module.__name__} moved to {new}; import it from there", DeprecationWarning, stacklevel=2
+        )
         target = importlib.import_module(new)
         module.__doc__ = f"Moved to :mod:`{new}`."
         module.__getattr__ = lambda name: getattr(target, name)  # PEP 562

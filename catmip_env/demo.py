@@ -20,8 +20,8 @@ from pathlib import Path
 import numpy as np
 
 from catmip_env import make_config
-from catmip_env.planners import PLANNERS, make_planner
 from catmip_env.events import EventEngine
+from catmip_env.planners import PLANNERS, make_planner
 from catmip_env.render import render_world, save_gif
 
 DEFAULT_PLANNERS = ("nearest", "utility", "rrt", "apf", "random-frontier", "random")

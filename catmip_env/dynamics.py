@@ -19,8 +19,6 @@ import math
 import numpy as np
 from numba import njit
 
-from catmip_env.rng import uniform
-from catmip_env.sensing import sense_robot
 from catmip_env.constants import (
     CLUE,
     EXPLORED,
@@ -31,6 +29,8 @@ from catmip_env.constants import (
     TURN_LEFT,
     TURN_RIGHT,
 )
+from catmip_env.rng import uniform
+from catmip_env.sensing import sense_robot
 
 _DR = np.array([0, 1, 0, -1], dtype=np.int64)
 _DC = np.array([1, 0, -1, 0], dtype=np.int64)

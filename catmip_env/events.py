@@ -18,7 +18,6 @@ from typing import NamedTuple
 import numpy as np
 
 from catmip_env.config import EnvConfig
-from catmip_env.world import BatchedEngine
 from catmip_env.macro import (
     M_ACTIVE,
     M_ELAPSED,
@@ -29,6 +28,7 @@ from catmip_env.macro import (
     start_activation,
 )
 from catmip_env.sensing import RAY_NBLOCK, VIEW_BLOCKERS, VIEW_OFFSETS
+from catmip_env.world import BatchedEngine
 
 __all__ = ["EventEngine", "EventResult", "GOAL_MODES", "random_valid_actions"]
 

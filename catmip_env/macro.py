@@ -12,10 +12,10 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from catmip_env.constants import FORWARD, OCCUPIED, STAY, TARGET_BIT, TURN_LEFT, TURN_RIGHT
 from catmip_env.dynamics import move_robots, perceive
 from catmip_env.paths import next_step
 from catmip_env.rng import randint
-from catmip_env.constants import FORWARD, OCCUPIED, STAY, TARGET_BIT, TURN_LEFT, TURN_RIGHT
 
 # Columns of mstate.
 M_MA_TICKS = 0  # ticks the current macro-action has run

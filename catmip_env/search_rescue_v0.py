@@ -22,10 +22,10 @@ from pettingzoo import ParallelEnv
 from pettingzoo.utils import parallel_to_aec, wrappers
 
 from catmip_env.config import EnvConfig, make_config
-from catmip_env.world import BatchedEngine
+from catmip_env.constants import OBS_SCALE, PRIMITIVE_ACTIONS, global_channels, local_channels
 from catmip_env.events import GOAL_MODES, INVALID_ACTION_MODES, EventEngine
 from catmip_env.render import render_ansi, render_world
-from catmip_env.constants import OBS_SCALE, PRIMITIVE_ACTIONS, global_channels, local_channels
+from catmip_env.world import BatchedEngine
 
 __all__ = ["SearchRescueEnv", "parallel_env", "env", "raw_env", "LEVELS", "OBS_FORMATS"]
 

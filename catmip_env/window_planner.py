@@ -28,11 +28,11 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from catmip_env.planners import Planner, make_planner
+from catmip_env.constants import OCCUPIED
 from catmip_env.events import EventEngine
 from catmip_env.macro import action_masks
 from catmip_env.paths import UNREACHED, bfs_from
-from catmip_env.constants import OCCUPIED
+from catmip_env.planners import Planner, make_planner
 
 __all__ = ["WindowPlanner", "make_window_planner", "project_goal"]
 

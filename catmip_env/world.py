@@ -22,12 +22,6 @@ import numpy as np
 from numba import njit
 
 from catmip_env.config import EnvConfig
-from catmip_env.dynamics import perceive, tick
-from catmip_env.layout import parse_layout
-from catmip_env.mapgen import Episode, generate
-from catmip_env.observe import observe as build_observations
-from catmip_env.rng import seed_state
-from catmip_env.sensing import RAY_NBLOCK, VIEW_BLOCKERS, VIEW_OFFSETS
 from catmip_env.constants import (
     CLUE,
     EXPLORED,
@@ -38,6 +32,12 @@ from catmip_env.constants import (
     global_channels,
     local_channels,
 )
+from catmip_env.dynamics import perceive, tick
+from catmip_env.layout import parse_layout
+from catmip_env.mapgen import Episode, generate
+from catmip_env.observe import observe as build_observations
+from catmip_env.rng import seed_state
+from catmip_env.sensing import RAY_NBLOCK, VIEW_BLOCKERS, VIEW_OFFSETS
 
 __all__ = ["WorldState", "BatchedEngine", "StepResult"]
 

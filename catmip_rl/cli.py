@@ -1,6 +1,7 @@
 """``catmip`` command line: ``catmip train | eval | render | bench paper | bench perf``.
 
-``train`` flags map onto :class:`~catmip_rl.training.config.TrainConfig` fields; ``--set field=value`` reaches any
+``train`` flags map onto :class:`~catmip_rl.training.config.TrainConfig`
+fields; ``--set field=value`` reaches any
 field (values are JSON: ``--set env_overrides='{"comm_sigma": 4.0}'``).
 
 Bad input never starts work and never shows a traceback: argparse types check every value (one line
@@ -169,8 +170,8 @@ def _bench(args: argparse.Namespace) -> int:
                 "catmip bench perf runs benchmarks/run_all.py: call it from the repository root"
             )
         return subprocess.call([sys.executable, str(script), *(["--quick"] if args.quick else [])])
-    from catmip_rl.files import check_new_dir
     from catmip_rl.evaluation.paper import FIGURES, run_figure
+    from catmip_rl.files import check_new_dir
 
     if args.all == (args.figure is not None):
         raise ValueError("give --figure N or --all (one of them)")
@@ -231,7 +232,7 @@ def _add_train(sub) -> None:
                         "tensorboard/, checkpoints/). A new run needs a new or empty --run-dir.")  # fmt: skip
     tr.add_argument(
         "--preset", choices=sorted(TRAIN_PRESETS),
-        help=f"training recipe (catmip_rl.training.config.TRAIN_PRESETS); default {DEFAULT_PRESET} (the Task-1 "
+        help=f"training recipe (training.config.TRAIN_PRESETS); default {DEFAULT_PRESET} (the Task-1 "
         "world: 12 DAgger rounds, then 2,000 PPO iterations, ~40 min on one CPU thread as the shipped model "
         "was trained; the preset itself runs 2 threads), or with --resume the run's own config. tiny: a "
         "smoke run (seconds); small: minutes; paper, paper-sync, paper-smallma: the paper's recipe (62,500 "

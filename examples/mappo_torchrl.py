@@ -40,8 +40,8 @@ from torchrl.modules import MaskedCategorical, ProbabilisticActor
 from torchrl.objectives import ClipPPOLoss, ValueEstimators
 
 from catmip_rl.adapters import keys as K
-from catmip_rl.training.config import TRAIN_PRESETS
 from catmip_rl.adapters.torchrl_env import CatmipEnv, float_observation_transform
+from catmip_rl.training.config import TRAIN_PRESETS
 
 LOGITS = (K.ROBOTS, "logits")
 EPISODE_REWARD = (K.ROBOTS, "episode_reward")

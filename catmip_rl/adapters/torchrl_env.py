@@ -15,8 +15,8 @@ from torchrl.data import Binary, Bounded, Categorical, Composite, Unbounded
 from torchrl.envs import ActionMask, Compose, DTypeCastTransform, EnvBase, ObservationNorm
 
 from catmip_env import EnvConfig, make_config
-from catmip_env.events import EventEngine
 from catmip_env.constants import OBS_ONE, OBS_SCALE
+from catmip_env.events import EventEngine
 from catmip_rl.adapters import keys as K
 
 __all__ = ["CatmipEnv", "float_observation_transform"]

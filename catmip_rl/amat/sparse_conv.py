@@ -29,8 +29,8 @@ import numpy as np
 import torch
 from numba import njit
 
-from catmip_rl.amat.model import OBS_SCALE
 from catmip_rl.amat.fast import _robot_conv, _shared_base, conv_weights, ones_conv
+from catmip_rl.amat.model import OBS_SCALE
 
 __all__ = ["global_conv_pool", "global_conv_pool_winners", "GlobalConvPool", "CHUNKS"]
 

@@ -31,9 +31,9 @@ import numpy as np
 import torch
 
 from catmip_env import EnvConfig, make_config
-from catmip_env.planners import PLANNERS, make_planner
 from catmip_env.decision_stats import DecisionTracker
 from catmip_env.events import EventEngine
+from catmip_env.planners import PLANNERS, make_planner
 from catmip_env.window_planner import make_window_planner
 from catmip_rl.amat.model import AMAT
 from catmip_rl.checkpoint import load_model, resolve_model

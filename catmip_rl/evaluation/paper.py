@@ -6,7 +6,8 @@ Each figure is a row of panels (one per setting); each panel draws, for every me
 vs mission time over the same ``episodes`` maps. Every (panel, method) run is independent, so runs go
 to a process pool. Written per figure under ``out/fig{N}/``: ``curves.csv`` (figure, panel, method, tick,
 success_rate), ``summary.csv`` (one row per run), ``summary.md``, ``fig{N}.png``, per-run folders with
-the per-episode results of :mod:`catmip_rl.evaluation.evaluate`, and ``marl_eval.json`` (see :func:`marl_eval_json`).
+the per-episode results of :mod:`~catmip_rl.evaluation.evaluate`,
+and ``marl_eval.json`` (see :func:`marl_eval_json`).
 
 Figure layout (docs/design.md#evaluation-protocol): 6-8 = Tasks 1-3, panels = communication {full,
 sigma 4, sigma 2}; 9 = SLAM noise 5 % with full communication, panels = Tasks 1-3; 10 = noise 5 % with

@@ -25,8 +25,8 @@ import torch
 
 from catmip_env.window_planner import make_window_planner
 from catmip_rl.amat.model import AMAT
-from catmip_rl.training.collect import Collector, Rollout
 from catmip_rl.files import open_csv_log, write_csv_row
+from catmip_rl.training.collect import Collector, Rollout
 
 __all__ = ["DemoBuffer", "imitation_loss", "dagger", "warm_start", "WARM_START_METRICS"]
 

@@ -2,7 +2,8 @@
 loss on normalised values, entropy bonus, advantage normalisation.
 
 The loss is a few lines on purpose (``ppo_loss``); ``tests/rl/test_ppo.py`` checks that its policy term
-equals TorchRL's ``ClipPPOLoss`` with the :class:`~catmip_rl.adapters.torchrl_actor.AmatActor` on the same batch.
+equals TorchRL's ``ClipPPOLoss`` with the
+:class:`~catmip_rl.adapters.torchrl_actor.AmatActor` on the same batch.
 """
 
 from __future__ import annotations

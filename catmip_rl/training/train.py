@@ -27,12 +27,12 @@ import torch
 
 from catmip_rl.amat.model import AMAT
 from catmip_rl.checkpoint import atomic_torch_save, resume_checkpoint
+from catmip_rl.files import atomic_write_text, check_new_dir, open_csv_log, write_csv_row
 from catmip_rl.training.collect import Collector, Rollout
 from catmip_rl.training.config import TrainConfig
-from catmip_rl.files import atomic_write_text, check_new_dir, open_csv_log, write_csv_row
 from catmip_rl.training.gae import async_gae
-from catmip_rl.training.memory import keep_freed_memory
 from catmip_rl.training.imitation import warm_start
+from catmip_rl.training.memory import keep_freed_memory
 from catmip_rl.training.parallel_update import ParallelGradients
 from catmip_rl.training.ppo import SampleBatch, ValueNorm, accumulate_gradients
 from catmip_rl.training.precision import choose_bf16, use_bf16
@@ -307,7 +307,9 @@ def train(cfg: TrainConfig, run_dir: str | Path, resume: bool = False, progress:
         start, episodes, elapsed = saved["iteration"], saved["episodes"], saved.get("elapsed_s", 0.0)
         same_precision = TrainConfig.from_json(saved["config"]).precision == cfg.precision
         chosen_bf16 = saved.get("bf16") if same_precision else None
-    if cfg.collector == "ray":  # the same episodes, collected by Ray workers (catmip_rl/adapters/ray_collect.py)
+    if (
+        cfg.collector == "ray"
+    ):  # the same episodes, collected by Ray workers (catmip_rl/adapters/ray_collect.py)
         from catmip_rl.adapters.ray_collect import RayRolloutCollector
 
         collector = RayRolloutCollector(cfg, model)

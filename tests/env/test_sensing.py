@@ -4,6 +4,7 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from catmip_env.constants import EXPLORED, OBSTACLE, WALL
 from catmip_env.sensing import (
     RAY_CELLS,
     RAY_NBLOCK,
@@ -12,7 +13,6 @@ from catmip_env.sensing import (
     sense_robot,
     to_world,
 )
-from catmip_env.constants import EXPLORED, OBSTACLE, WALL
 
 from .helpers import layout_engine
 

@@ -5,9 +5,9 @@ import numpy as np
 import pytest
 
 from catmip_env import make_config
-from catmip_env.planners import make_planner
-from catmip_env.events import EventEngine
 from catmip_env.constants import EXPLORED, OCCUPIED
+from catmip_env.events import EventEngine
+from catmip_env.planners import make_planner
 from catmip_env.window_planner import make_window_planner, project_goal
 
 # '#' known occupied, '.' known free, '?' unexplored (counts as free), 'R' the robot, 'o' another robot

@@ -15,16 +15,16 @@ from hypothesis import HealthCheck, event, given, settings
 from hypothesis import strategies as st
 
 import catmip_rl
-import catmip_rl.training.collect
 import catmip_rl.evaluation.evaluate
 import catmip_rl.evaluation.paper
+import catmip_rl.training.collect
 import catmip_rl.training.train
 from catmip_env.search_rescue_v0 import SearchRescueEnv
 from catmip_rl.checkpoint import SHIPPED_DIR, CheckpointError, load_model, read_checkpoint, resume_checkpoint
 from catmip_rl.cli import CPUS, DEFAULT_PRESET, build_parser, main
-from catmip_rl.training.config import TRAIN_PRESETS, make_train_config
 from catmip_rl.evaluation.evaluate import parse_method
 from catmip_rl.files import open_csv_log
+from catmip_rl.training.config import TRAIN_PRESETS, make_train_config
 
 SHIPPED = SHIPPED_DIR / "amat_task1.pt"
 
@@ -127,7 +127,9 @@ def test_resume_without_a_preset_continues_with_the_runs_own_config(tmp_path, mo
     (tmp_path / "run" / "checkpoints").mkdir(parents=True)
     torch.save(_training_checkpoint(3, iterations=7), tmp_path / "run" / "checkpoints" / "latest.pt")
     seen = {}
-    monkeypatch.setattr(catmip_rl.training.train, "train", lambda cfg, run_dir, **kw: seen.update(cfg=cfg, **kw))
+    monkeypatch.setattr(
+        catmip_rl.training.train, "train", lambda cfg, run_dir, **kw: seen.update(cfg=cfg, **kw)
+    )
     assert main(["train", "--run-dir", str(tmp_path / "run"), "--resume", "--epochs", "3"]) == 0
     assert seen["cfg"] == make_train_config("tiny", iterations=7, epochs=3) and seen["resume"]
     assert main(["train", "--run-dir", str(tmp_path / "new")]) == 0

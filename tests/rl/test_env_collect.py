@@ -12,9 +12,9 @@ from catmip_env import make_config
 from catmip_env.constants import OBS_SCALE
 from catmip_rl.adapters import keys as K
 from catmip_rl.adapters.torchrl_actor import AmatActor
+from catmip_rl.adapters.torchrl_env import CatmipEnv, float_observation_transform
 from catmip_rl.amat.model import AMAT, AmatConfig
 from catmip_rl.training.collect import Collector
-from catmip_rl.adapters.torchrl_env import CatmipEnv, float_observation_transform
 
 
 def test_env_passes_check_env_specs_and_runs_the_actor():

@@ -13,7 +13,6 @@ from catmip_env.events import EventEngine
 from catmip_rl import AMAT, AmatConfig, save_model
 from catmip_rl.amat.model import decision_order
 from catmip_rl.cli import main as cli
-from catmip_rl.evaluation.execution import message_bytes
 from catmip_rl.evaluation.evaluate import (
     GOAL_BYTES,
     AmatExecutor,
@@ -24,6 +23,7 @@ from catmip_rl.evaluation.evaluate import (
     render_episode,
     success_curve,
 )
+from catmip_rl.evaluation.execution import message_bytes
 from catmip_rl.evaluation.paper import FIGURES, run_figure
 
 

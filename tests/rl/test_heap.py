@@ -1,4 +1,4 @@
-"""catmip_rl.training.memory: glibc's malloc keeps freed large blocks, so repeated large allocations stop faulting."""
+"""training.memory: glibc's malloc keeps freed large blocks, so repeated large allocations stop faulting."""
 
 import os
 import subprocess
