@@ -21,7 +21,8 @@ from catmip_env.config import EXPLORER, PRESETS, RESCUER, EnvConfig, RobotClass,
 from catmip_env.events import EventEngine
 from catmip_env.layout import Layout, parse_layout
 from catmip_env.planners import make_planner
-from catmip_env.world import BatchedEngine, StepResult, WorldState
+from catmip_env.state import WorldState
+from catmip_env.world import BatchedEngine, StepResult
 
 __version__ = "0.1.0"
 

@@ -9,16 +9,22 @@ One call of :func:`tick` advances every live world by one tick:
 5. mission   first target knowledge and success (a target-aware rescuer next to the target), rewards;
 6. noise     the occupancy map each robot *uses* this tick is redrawn (if ``slam_noise > 0``).
 
-All arrays are the struct-of-arrays state of :class:`catmip_env.world.WorldState`.
+The entry kernels (:func:`tick`, :func:`perceive_at_reset`) take the world state as one value ``s``
+(:class:`catmip_env.state.KernelState`, the arrays of :class:`catmip_env.state.WorldState`) and the
+constants of the run as one :class:`Rules` value. They unpack ``s`` once per call and hand the per-world
+steps the arrays they use: numba reference-counts every array of a namedtuple each time the tuple is
+passed or read, which done per world and tick more than doubled the time of a tick.
 """
 
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
 
+from catmip_env.config import EnvConfig
 from catmip_env.constants import (
     CLUE,
     EXPLORED,
@@ -30,10 +36,53 @@ from catmip_env.constants import (
     TURN_RIGHT,
 )
 from catmip_env.rng import uniform
-from catmip_env.sensing import sense_robot
+from catmip_env.sensing import RAY_NBLOCK, VIEW_BLOCKERS, VIEW_OFFSETS, sense_robot
+from catmip_env.state import KernelState
 
 _DR = np.array([0, 1, 0, -1], dtype=np.int64)
 _DC = np.array([1, 0, -1, 0], dtype=np.int64)
+
+
+class Rules(NamedTuple):
+    """The constants of a run that the kernels read, as one value (built once per engine)."""
+
+    horizon_ticks: int  # ticks per episode
+    comm_sigma: float  # link range sigma in cells, 0 = full communication
+    slam_noise: float  # probability that an explored cell's used occupancy is flipped, 0 = none
+    step_reward: float  # per successful forward move
+    collision_penalty: float  # per forward move into a wall, obstacle or the target
+    find_reward: float  # to every robot when the target first becomes known (times the time scale)
+    rescue_reward: float  # to every robot on success (times the time scale)
+    max_ma_ticks: int  # macro level: ticks after which a macro-action ends
+    t_min: int  # macro level: activation rule (t_min, t_max)
+    t_max: int
+    synchronous: bool  # macro level: everyone decides every max_ma_ticks ticks
+    gamma: float  # macro level: per-tick discount of ma_rewards
+    view_offsets: np.ndarray  # (4, K, 2) sensing.VIEW_OFFSETS
+    view_blockers: np.ndarray  # (4, K, M, 4) sensing.VIEW_BLOCKERS
+    ray_nblock: np.ndarray  # (K,) sensing.RAY_NBLOCK
+
+    @classmethod
+    def of(cls, cfg: EnvConfig, gamma: float = 1.0) -> Rules:
+        """The rules of ``cfg`` (``gamma``: the event engine's discount)."""
+        t_min, t_max = cfg.activation
+        return cls(
+            horizon_ticks=int(cfg.horizon_ticks),
+            comm_sigma=float(cfg.comm_sigma) if cfg.comm_sigma is not None else 0.0,
+            slam_noise=float(cfg.slam_noise),
+            step_reward=float(cfg.step_reward),
+            collision_penalty=float(cfg.collision_penalty),
+            find_reward=float(cfg.find_reward),
+            rescue_reward=float(cfg.rescue_reward),
+            max_ma_ticks=int(cfg.max_ma_ticks),
+            t_min=int(t_min),
+            t_max=int(t_max),
+            synchronous=bool(cfg.synchronous),
+            gamma=float(gamma),
+            view_offsets=VIEW_OFFSETS,
+            view_blockers=VIEW_BLOCKERS,
+            ray_nblock=RAY_NBLOCK,
+        )
 
 
 @njit(cache=True)
@@ -278,53 +327,71 @@ def perceive(
 
 
 @njit(cache=True)
+def perceive_at_reset(worlds: np.ndarray, s: KernelState, rules: Rules) -> None:
+    """Steps 2-6 at t = 0 for the worlds in the bool mask ``worlds`` (B,); rewards (the target in view
+    at t = 0) go to ``s.pending_reward``, paid with the next step."""
+    grid, target, pos, heading, can_rescue = s.grid, s.target, s.pos, s.heading, s.can_rescue
+    belief, comp, rng, used_occ = s.belief, s.comp, s.rng, s.used_occ
+    found_tick, rescue_tick, pending = s.found_tick, s.rescue_tick, s.pending_reward
+    horizon, comm_sigma, noise = rules.horizon_ticks, rules.comm_sigma, rules.slam_noise
+    find_reward, rescue_reward = rules.find_reward, rules.rescue_reward
+    view_offsets, view_blockers, ray_nblock = rules.view_offsets, rules.view_blockers, rules.ray_nblock
+    for b in range(worlds.shape[0]):
+        if worlds[b]:
+            perceive(
+                b, 0, grid, target, pos, heading, can_rescue, belief, comp, rng, used_occ, found_tick,
+                rescue_tick, pending, horizon, comm_sigma, noise, find_reward, rescue_reward,
+                view_offsets, view_blockers, ray_nblock,
+            )  # fmt: skip
+
+
+@njit(cache=True)
 def tick(
-    live: np.ndarray,  # (B,) bool: worlds to advance
+    live: np.ndarray,  # (B,) bool: worlds to advance (those not done)
     actions: np.ndarray,  # (B, N) int64 primitive actions
-    grid: np.ndarray,
-    target: np.ndarray,
-    pos: np.ndarray,
-    heading: np.ndarray,
-    speed: np.ndarray,
-    can_rescue: np.ndarray,
-    belief: np.ndarray,
-    comp: np.ndarray,
-    rng: np.ndarray,
-    used_occ: np.ndarray,
-    ticks: np.ndarray,  # (B,) int64 ticks done so far
-    moves: np.ndarray,
-    collisions: np.ndarray,
-    found_tick: np.ndarray,
-    rescue_tick: np.ndarray,
-    rewards: np.ndarray,  # (B, N) float64, overwritten (plus any pending reset reward)
+    s: KernelState,
+    rules: Rules,
+    rewards: np.ndarray,  # (B, N) float64 out
     terminated: np.ndarray,  # (B,) bool out
     truncated: np.ndarray,  # (B,) bool out
-    horizon: int,
-    comm_sigma: float,
-    noise: float,
-    step_reward: float,
-    collision_penalty: float,
-    find_reward: float,
-    rescue_reward: float,
-    view_offsets: np.ndarray,
-    view_blockers: np.ndarray,
-    ray_nblock: np.ndarray,
 ) -> None:
-    """Advance every world with ``live[b]`` by one tick; ``rewards`` must be zeroed (or hold pending
-    reset rewards) by the caller. Worlds that are not live are left untouched."""
+    """Advance every world with ``live[b]`` by one tick and mark the finished ones ``s.done``.
+
+    ``rewards`` receives each live world's rewards of this tick plus any reward pending since its reset
+    (which is then cleared), zero elsewhere; ``terminated`` / ``truncated`` are false for worlds not live.
+    """
+    # Unpacked once per call: numba reference-counts every array of a namedtuple that is passed on.
+    grid, target, pos, heading, speed = s.grid, s.target, s.pos, s.heading, s.speed
+    can_rescue, belief, comp, rng, used_occ = s.can_rescue, s.belief, s.comp, s.rng, s.used_occ
+    ticks, moves, collisions, pending, done = s.ticks, s.moves, s.collisions, s.pending_reward, s.done
+    found_tick, rescue_tick = s.found_tick, s.rescue_tick
+    horizon, comm_sigma, noise = rules.horizon_ticks, rules.comm_sigma, rules.slam_noise
+    step_reward, collision_penalty = rules.step_reward, rules.collision_penalty
+    find_reward, rescue_reward = rules.find_reward, rules.rescue_reward
+    view_offsets, view_blockers, ray_nblock = rules.view_offsets, rules.view_blockers, rules.ray_nblock
+    n = pos.shape[1]
     for b in range(live.shape[0]):
+        terminated[b] = False
+        truncated[b] = False
         if not live[b]:
+            for i in range(n):
+                rewards[b, i] = 0.0
             continue
+        for i in range(n):
+            rewards[b, i] = pending[b, i]  # the reset reward rides on the first step
+            pending[b, i] = 0.0
         t0 = ticks[b]
         move_robots(
             b, t0, grid, pos, heading, speed, actions, step_reward, collision_penalty, rewards, moves,
             collisions,
         )  # fmt: skip
         success = perceive(
-            b, t0 + 1, grid, target, pos, heading, can_rescue, belief, comp, rng, used_occ,
-            found_tick, rescue_tick, rewards, horizon, comm_sigma, noise, find_reward,
-            rescue_reward, view_offsets, view_blockers, ray_nblock,
+            b, t0 + 1, grid, target, pos, heading, can_rescue, belief, comp, rng, used_occ, found_tick,
+            rescue_tick, rewards, horizon, comm_sigma, noise, find_reward, rescue_reward, view_offsets,
+            view_blockers, ray_nblock,
         )  # fmt: skip
         ticks[b] = t0 + 1
         terminated[b] = success
         truncated[b] = (not success) and t0 + 1 >= horizon
+        if success or truncated[b]:
+            done[b] = True

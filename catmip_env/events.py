@@ -18,6 +18,7 @@ from typing import NamedTuple
 import numpy as np
 
 from catmip_env.config import EnvConfig
+from catmip_env.dynamics import Rules
 from catmip_env.macro import (
     M_ACTIVE,
     M_ELAPSED,
@@ -27,7 +28,6 @@ from catmip_env.macro import (
     assign_goals,
     start_activation,
 )
-from catmip_env.sensing import RAY_NBLOCK, VIEW_BLOCKERS, VIEW_OFFSETS
 from catmip_env.world import BatchedEngine
 
 __all__ = ["EventEngine", "EventResult", "GOAL_MODES", "random_valid_actions"]
@@ -102,24 +102,7 @@ class EventEngine:
         self._terminated = np.zeros(b, np.bool_)
         self._truncated = np.zeros(b, np.bool_)
         self._goal_cells = np.zeros((b, n, 2), np.int64)
-        t_min, t_max = cfg.activation
-        noisy = cfg.slam_noise > 0
-        self._int_params = np.array(
-            [cfg.horizon_ticks, cfg.max_ma_ticks, t_min, t_max, int(cfg.synchronous), int(noisy), 0], np.int64
-        )
-        comm = float(cfg.comm_sigma) if cfg.comm_sigma is not None else 0.0
-        self._float_params = np.array(
-            [
-                comm,
-                cfg.slam_noise,
-                cfg.step_reward,
-                cfg.collision_penalty,
-                cfg.find_reward,
-                cfg.rescue_reward,
-                self.gamma,
-            ],
-            np.float64,
-        )
+        self.rules = Rules.of(cfg, self.gamma)
 
     # -- views of the world --------------------------------------------------------------------
     @property
@@ -177,24 +160,15 @@ class EventEngine:
         """
         if max_ticks is not None and (not isinstance(max_ticks, (int, np.integer)) or max_ticks < 1):
             raise ValueError(f"max_ticks must be None or an int >= 1, got {max_ticks!r}")
-        self._int_params[6] = 0 if max_ticks is None else int(max_ticks)
         st = self.state
         live = ~st.done
         self._set_goals(np.asarray(actions), live)
         assign_goals(live, self._goal_cells, st.goal, self.mstate, self._ma_rewards)
-        self._event_rewards[live] = st.pending_reward[live]  # the reset reward rides on the first step
-        self._ma_rewards[live] += st.pending_reward[live]
-        st.pending_reward[live] = 0.0
-        self._event_rewards[st.done] = 0.0
         advance(
-            live, st.grid, st.target, st.pos, st.heading, st.speed, st.can_rescue, st.belief, st.comp,
-            st.rng, st.used_occ, st.ticks, st.moves, st.collisions, st.found_tick, st.rescue_tick, st.goal,
-            self.mstate,
-            self._prim, self._tick_rewards, self._event_rewards, self._ma_rewards, self._event_ticks,
-            self._terminated, self._truncated, self._int_params, self._float_params,
-            VIEW_OFFSETS, VIEW_BLOCKERS, RAY_NBLOCK,
+            live, st.kernel, self.rules, 0 if max_ticks is None else int(max_ticks), self.mstate, self._prim,
+            self._tick_rewards, self._event_rewards, self._ma_rewards, self._event_ticks, self._terminated,
+            self._truncated,
         )  # fmt: skip
-        st.done |= self._terminated | self._truncated
         self.world.observe(live)
         self._masks(live)
         return self._result()

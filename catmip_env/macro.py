@@ -4,7 +4,8 @@ masks.
 
 Per-robot macro state lives in one int64 array ``mstate (B, N, M_FIELDS)`` with the columns below.
 :func:`advance` runs each live world tick by tick (controller → move → perceive → bookkeeping) until
-its next decision event or the end of its episode, entirely inside numba.
+its next decision event or the end of its episode, entirely inside numba; like :func:`dynamics.tick` it
+takes the world state as one value ``s`` and the run's constants as one ``rules``.
 """
 
 from __future__ import annotations
@@ -13,9 +14,10 @@ import numpy as np
 from numba import njit
 
 from catmip_env.constants import FORWARD, OCCUPIED, STAY, TARGET_BIT, TURN_LEFT, TURN_RIGHT
-from catmip_env.dynamics import move_robots, perceive
+from catmip_env.dynamics import Rules, move_robots, perceive
 from catmip_env.paths import next_step
 from catmip_env.rng import randint
+from catmip_env.state import KernelState
 
 # Columns of mstate.
 M_MA_TICKS = 0  # ticks the current macro-action has run
@@ -162,49 +164,33 @@ def activate(
 
 @njit(cache=True)
 def advance(
-    live: np.ndarray,  # (B,) bool worlds to run
-    grid: np.ndarray,
-    target: np.ndarray,
-    pos: np.ndarray,
-    heading: np.ndarray,
-    speed: np.ndarray,
-    can_rescue: np.ndarray,
-    belief: np.ndarray,
-    comp: np.ndarray,
-    rng: np.ndarray,
-    used_occ: np.ndarray,
-    ticks: np.ndarray,
-    moves: np.ndarray,
-    collisions: np.ndarray,
-    found_tick: np.ndarray,
-    rescue_tick: np.ndarray,
-    goal: np.ndarray,
-    mstate: np.ndarray,
+    live: np.ndarray,  # (B,) bool worlds to run (those not done)
+    s: KernelState,
+    rules: Rules,
+    limit: int,  # pause a world after this many ticks without an event (0: no limit)
+    mstate: np.ndarray,  # (B, N, M_FIELDS) int64 macro state
     actions: np.ndarray,  # (B, N) int64 scratch for the controller's primitive actions
     tick_rewards: np.ndarray,  # (B, N) float64 scratch
-    event_rewards: np.ndarray,  # (B, N) float64, accumulated (caller zeroes at the event)
+    event_rewards: np.ndarray,  # (B, N) float64 out: rewards of this call (zero for worlds not live)
     ma_rewards: np.ndarray,  # (B, N) float64 discounted return since each robot's activation
     event_ticks: np.ndarray,  # (B,) int64 out: ticks run in this call
     terminated: np.ndarray,  # (B,) bool out
     truncated: np.ndarray,  # (B,) bool out
-    int_params: np.ndarray,  # horizon, max_ma_ticks, t_min, t_max, sync, noisy, tick limit (0: none)
-    float_params: np.ndarray,  # comm_sigma, noise, step, collision, find, rescue rewards, gamma
-    view_offsets: np.ndarray,
-    view_blockers: np.ndarray,
-    ray_nblock: np.ndarray,
 ) -> None:
     """Run every live world until its next decision event (some robot activates), the end of its
-    episode, or (with a tick limit) ``limit`` ticks."""
-    horizon, max_ma, t_min, t_max = int_params[0], int_params[1], int_params[2], int_params[3]
-    sync, noisy, limit = int_params[4] != 0, int_params[5] != 0, int_params[6]
-    comm_sigma, noise = float_params[0], float_params[1]
-    step_r, coll_r, find_r, rescue_r, gamma = (
-        float_params[2],
-        float_params[3],
-        float_params[4],
-        float_params[5],
-        float_params[6],
-    )
+    episode (``s.done`` is then set), or (with a tick limit) ``limit`` ticks. A reward pending since
+    the world's reset is paid first (and cleared)."""
+    # Unpacked once per call: numba reference-counts every array of a namedtuple that is passed on.
+    grid, target, pos, heading, speed, goal = s.grid, s.target, s.pos, s.heading, s.speed, s.goal
+    can_rescue, belief, comp, rng, used_occ = s.can_rescue, s.belief, s.comp, s.rng, s.used_occ
+    ticks, moves, collisions, pending, done = s.ticks, s.moves, s.collisions, s.pending_reward, s.done
+    found_tick, rescue_tick = s.found_tick, s.rescue_tick
+    horizon, max_ma, t_min, t_max = rules.horizon_ticks, rules.max_ma_ticks, rules.t_min, rules.t_max
+    comm_sigma, noise, gamma, sync = rules.comm_sigma, rules.slam_noise, rules.gamma, rules.synchronous
+    step_r, coll_r = rules.step_reward, rules.collision_penalty
+    find_r, rescue_r = rules.find_reward, rules.rescue_reward
+    view_offsets, view_blockers, ray_nblock = rules.view_offsets, rules.view_blockers, rules.ray_nblock
+    noisy = noise > 0.0
     n, h, w = pos.shape[1], belief.shape[2], belief.shape[3]
     blocked = np.zeros((h, w), np.bool_)
     dist = np.empty(h * w, np.int64)
@@ -214,9 +200,14 @@ def advance(
         truncated[b] = False
         event_ticks[b] = 0
         if not live[b]:
+            for i in range(n):
+                event_rewards[b, i] = 0.0
             continue
         for i in range(n):
             mstate[b, i, M_ACTIVE] = 0
+            event_rewards[b, i] = pending[b, i]  # the reset reward rides on the first step
+            ma_rewards[b, i] += pending[b, i]
+            pending[b, i] = 0.0
         while True:
             t0 = ticks[b]
             controller(b, t0, pos, heading, speed, belief, used_occ, noisy, goal, mstate, rng, actions,
@@ -248,6 +239,8 @@ def advance(
                 break
             if limit > 0 and event_ticks[b] >= limit:
                 break  # paused between events (rendering, tick-level inspection)
+        if terminated[b] or truncated[b]:
+            done[b] = True
 
 
 @njit(cache=True)

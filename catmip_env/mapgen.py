@@ -115,21 +115,12 @@ def _choose(cells: np.ndarray, count: int, k: int, u: np.ndarray, p: np.ndarray)
 
 
 @njit(cache=True)
-def _generate(
-    s: int,
-    n: int,
-    n_obs: int,
-    wall_prob: float,
-    excl_side: int,
-    u: np.ndarray,  # block of uniforms in [0, 1)
-    grid: np.ndarray,  # (s, s) uint8 out
-    robots: np.ndarray,  # (n, 2) int64 out
-    headings: np.ndarray,  # (n,) int64 out
-    doors: np.ndarray,  # (max_doors, 2) int64 out
-    info: np.ndarray,  # (4,) int64 out: corner, target row, target col, number of doors
+def _draw_walls(
+    s: int, wall_prob: float, u: np.ndarray, p: np.ndarray, grid: np.ndarray, doors: np.ndarray
 ) -> int:
-    """Draw one map; returns 0, or a negative code (_OUT_OF_UNIFORMS, _NO_SPAWN_ROOM, _NO_TARGET)."""
-    p = np.zeros(1, np.int64)
+    """Outer walls, then the room lattice: each segment between adjacent rooms with probability
+    ``wall_prob``, with one doorway; junctions that a segment meets are walls. Returns the number of
+    doorways written to ``doors``."""
     grid[:, :] = FREE
     grid[0, :] = WALL
     grid[s - 1, :] = WALL
@@ -168,6 +159,12 @@ def _generate(
         for j in range(n_cols + 1):
             if junction[i, j]:
                 grid[rb[i], cb[j]] = WALL
+    return nd
+
+
+@njit(cache=True)
+def _doorway_zone(s: int, doors: np.ndarray, nd: int) -> np.ndarray:
+    """(s, s) bool: the doorways and their 4-neighbours (kept free of obstacles and the target)."""
     zone = np.zeros((s, s), np.bool_)
     for k in range(nd):
         r, c = doors[k, 0], doors[k, 1]
@@ -176,11 +173,21 @@ def _generate(
         zone[r - 1, c] = True
         zone[r, c + 1] = True
         zone[r, c - 1] = True
-    info[3] = nd
+    return zone
 
-    # Robots: distinct free cells of the 4x4 box at a uniform corner, uniform headings.
-    corner = _below(u, p, 4)
-    info[0] = corner
+
+@njit(cache=True)
+def _place_robots(
+    s: int,
+    n: int,
+    corner: int,
+    u: np.ndarray,
+    p: np.ndarray,
+    grid: np.ndarray,
+    robots: np.ndarray,
+    headings: np.ndarray,
+) -> int:
+    """Robots on distinct free cells of the spawn box at ``corner``, uniform headings; 0 or an error code."""
     r0 = 1 if corner < 2 else s - 1 - SPAWN_BOX
     c0 = 1 if corner % 2 == 0 else s - 1 - SPAWN_BOX
     cells = np.empty(s * s, np.int64)
@@ -195,28 +202,113 @@ def _generate(
     if count < n:
         return _NO_SPAWN_ROOM
     _choose(cells, count, n, u, p)
-    occupied_by_robot = np.zeros((s, s), np.bool_)
     for i in range(n):
         robots[i, 0], robots[i, 1] = cells[i] // s, cells[i] % s
-        occupied_by_robot[robots[i, 0], robots[i, 1]] = True
     for i in range(n):
         headings[i] = _below(u, p, 4)
+    return 0
+
+
+@njit(cache=True)
+def _draw_obstacles(
+    base: np.ndarray,
+    free: np.ndarray,
+    n_obs: int,
+    u: np.ndarray,
+    p: np.ndarray,
+    grid: np.ndarray,
+    cells: np.ndarray,
+) -> None:
+    """``grid`` = ``base`` plus ``n_obs`` obstacles (fewer if short of room) on a uniform subset of the
+    cells allowed by ``free`` (s, s) bool."""
+    s = grid.shape[0]
+    grid[:, :] = base
+    count = 0
+    for r in range(s):
+        for c in range(s):
+            if free[r, c]:
+                cells[count] = r * s + c
+                count += 1
+    k = min(n_obs, count)
+    _choose(cells, count, k, u, p)
+    for j in range(k):
+        grid[cells[j] // s, cells[j] % s] = OBSTACLE
+
+
+@njit(cache=True)
+def _draw_target(
+    allowed: np.ndarray,
+    passable: np.ndarray,
+    reach: np.ndarray,
+    robots: np.ndarray,
+    u: np.ndarray,
+    p: np.ndarray,
+    grid: np.ndarray,
+    cells: np.ndarray,
+    info: np.ndarray,
+) -> int:
+    """Draw the target among the ``allowed`` cells next to a ``reach``-able one until one cuts nobody
+    off; writes it (and its clues) to ``grid`` and ``info[1:3]``. 0, or _NO_TARGET / _OUT_OF_UNIFORMS."""
+    s, n = grid.shape[0], robots.shape[0]
+    count = 0
+    for r in range(1, s - 1):
+        for c in range(1, s - 1):
+            if allowed[r, c] and (reach[r - 1, c] or reach[r + 1, c] or reach[r, c - 1] or reach[r, c + 1]):
+                cells[count] = r * s + c
+                count += 1
+    for _ in range(_MAX_TARGET_TRIES):
+        if count == 0:
+            break
+        m = _below(u, p, count)
+        tr, tc = cells[m] // s, cells[m] % s
+        passable[tr, tc] = False  # the target is impassable: it must not cut anyone off
+        reach2 = reachable_from(passable, robots[0, 0], robots[0, 1])
+        passable[tr, tc] = True
+        ok = reach2[tr - 1, tc] or reach2[tr + 1, tc] or reach2[tr, tc - 1] or reach2[tr, tc + 1]
+        for i in range(n):
+            ok &= reach2[robots[i, 0], robots[i, 1]]
+        if ok:
+            if p[0] > u.shape[0]:
+                return _OUT_OF_UNIFORMS
+            grid[tr, tc] = TARGET
+            for dr in range(-1, 2):
+                for dc in range(-1, 2):
+                    if grid[tr + dr, tc + dc] == FREE:
+                        grid[tr + dr, tc + dc] = CLUE
+            info[1], info[2] = tr, tc
+            return 0
+        count -= 1
+        cells[m] = cells[count]
+    return _NO_TARGET
+
+
+@njit(cache=True)
+def _place_obstacles_and_target(
+    n_obs: int,
+    excl_side: int,
+    corner: int,
+    zone: np.ndarray,
+    u: np.ndarray,
+    p: np.ndarray,
+    grid: np.ndarray,
+    robots: np.ndarray,
+    info: np.ndarray,
+) -> int:
+    """Obstacles off doorway zones and robots, redrawn while they cut the team apart, then the target
+    off doorway zones, robots and the exclusion box at the spawn corner. 0 or an error code."""
+    s, n = grid.shape[0], robots.shape[0]
+    occupied_by_robot = np.zeros((s, s), np.bool_)
+    for i in range(n):
+        occupied_by_robot[robots[i, 0], robots[i, 1]] = True
     er0 = 1 if corner < 2 else s - 1 - excl_side
     ec0 = 1 if corner % 2 == 0 else s - 1 - excl_side
-
+    excluded = zone | occupied_by_robot
+    excluded[er0 : er0 + excl_side, ec0 : ec0 + excl_side] = True
     base = grid.copy()
+    obstacle_ok = (base == FREE) & ~zone & ~occupied_by_robot
+    cells = np.empty(s * s, np.int64)
     for _ in range(_MAX_OBSTACLE_TRIES):
-        grid[:, :] = base
-        count = 0
-        for r in range(s):
-            for c in range(s):
-                if base[r, c] == FREE and not zone[r, c] and not occupied_by_robot[r, c]:
-                    cells[count] = r * s + c
-                    count += 1
-        k = min(n_obs, count)
-        _choose(cells, count, k, u, p)
-        for j in range(k):
-            grid[cells[j] // s, cells[j] % s] = OBSTACLE
+        _draw_obstacles(base, obstacle_ok, n_obs, u, p, grid, cells)
         if p[0] > u.shape[0]:
             return _OUT_OF_UNIFORMS
         passable = grid == FREE
@@ -226,43 +318,43 @@ def _generate(
             team_ok &= reach[robots[i, 0], robots[i, 1]]
         if not team_ok:
             continue  # the obstacles cut the team apart: redraw them
-        # Target candidates: free, allowed, next to a reachable cell.
-        count = 0
-        for r in range(1, s - 1):
-            for c in range(1, s - 1):
-                if not passable[r, c] or zone[r, c] or occupied_by_robot[r, c]:
-                    continue
-                if er0 <= r < er0 + excl_side and ec0 <= c < ec0 + excl_side:
-                    continue
-                if reach[r - 1, c] or reach[r + 1, c] or reach[r, c - 1] or reach[r, c + 1]:
-                    cells[count] = r * s + c
-                    count += 1
-        for _ in range(_MAX_TARGET_TRIES):
-            if count == 0:
-                break
-            m = _below(u, p, count)
-            tr, tc = cells[m] // s, cells[m] % s
-            passable[tr, tc] = False  # the target is impassable: it must not cut anyone off
-            reach2 = reachable_from(passable, robots[0, 0], robots[0, 1])
-            passable[tr, tc] = True
-            ok = reach2[tr - 1, tc] or reach2[tr + 1, tc] or reach2[tr, tc - 1] or reach2[tr, tc + 1]
-            for i in range(n):
-                ok &= reach2[robots[i, 0], robots[i, 1]]
-            if ok:
-                if p[0] > u.shape[0]:
-                    return _OUT_OF_UNIFORMS
-                grid[tr, tc] = TARGET
-                for dr in range(-1, 2):
-                    for dc in range(-1, 2):
-                        if grid[tr + dr, tc + dc] == FREE:
-                            grid[tr + dr, tc + dc] = CLUE
-                info[1], info[2] = tr, tc
-                return 0
-            count -= 1
-            cells[m] = cells[count]
+        code = _draw_target(passable & ~excluded, passable, reach, robots, u, p, grid, cells, info)
+        if code != _NO_TARGET:
+            return code
         if p[0] > u.shape[0]:
             return _OUT_OF_UNIFORMS
     return _NO_TARGET
+
+
+@njit(cache=True)
+def _generate(
+    s: int,
+    n: int,
+    n_obs: int,
+    wall_prob: float,
+    excl_side: int,
+    u: np.ndarray,  # block of uniforms in [0, 1)
+    grid: np.ndarray,  # (s, s) uint8 out
+    robots: np.ndarray,  # (n, 2) int64 out
+    headings: np.ndarray,  # (n,) int64 out
+    doors: np.ndarray,  # (max_doors, 2) int64 out
+    info: np.ndarray,  # (4,) int64 out: corner, target row, target col, number of doors
+) -> int:
+    """Draw one map; returns 0, or a negative code (_OUT_OF_UNIFORMS, _NO_SPAWN_ROOM, _NO_TARGET).
+
+    The uniforms of ``u`` are consumed in a fixed order: room counts, wall segments and doorways,
+    the spawn corner, the robots' cells and headings, then obstacles and target per attempt.
+    """
+    p = np.zeros(1, np.int64)  # index of the next uniform
+    nd = _draw_walls(s, wall_prob, u, p, grid, doors)
+    zone = _doorway_zone(s, doors, nd)
+    info[3] = nd
+    corner = _below(u, p, 4)
+    info[0] = corner
+    code = _place_robots(s, n, corner, u, p, grid, robots, headings)
+    if code != 0:
+        return code
+    return _place_obstacles_and_target(n_obs, excl_side, corner, zone, u, p, grid, robots, info)
 
 
 def generate(cfg: EnvConfig, rng: np.random.Generator) -> Episode:

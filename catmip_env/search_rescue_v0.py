@@ -12,7 +12,6 @@ vector-env converters take) with the action mask in ``infos[robot]["action_mask"
 
 from __future__ import annotations
 
-import math
 import warnings
 from typing import Any
 
@@ -22,33 +21,25 @@ from pettingzoo import ParallelEnv
 from pettingzoo.utils import parallel_to_aec, wrappers
 
 from catmip_env.config import EnvConfig, make_config
-from catmip_env.constants import OBS_SCALE, PRIMITIVE_ACTIONS, global_channels, local_channels
+from catmip_env.constants import PRIMITIVE_ACTIONS, STAY  # noqa: F401  (STAY: kept importable from here)
 from catmip_env.events import GOAL_MODES, INVALID_ACTION_MODES, EventEngine
 from catmip_env.render import render_ansi, render_world
+from catmip_env.spaces import (
+    LEVELS,
+    OBS_FORMATS,
+    flat_layout,
+    integer_action,
+    observation_parts,
+    observation_space,
+    parse_actions,
+    part_spaces,
+    replace_invalid_primitives,
+    robot_observations,
+    state_space,
+)
 from catmip_env.world import BatchedEngine
 
-__all__ = ["SearchRescueEnv", "parallel_env", "env", "raw_env", "LEVELS", "OBS_FORMATS"]
-
-LEVELS = ("macro", "primitive")
-OBS_FORMATS = ("dict", "flat")
-STAY = PRIMITIVE_ACTIONS.index("stay")
-_INT64 = np.iinfo(np.int64)
-
-
-def integer_action(agent: str, action: Any) -> int:
-    """``action`` as an int. Python and numpy integers (0-d arrays too) and integral floats (``2.0``)
-    are accepted; anything else — ``2.5``, a bool, a string, ``None``, an array with a shape — is a type
-    error, not an invalid choice, and raises ``ValueError`` whatever ``invalid_action`` says."""
-    if isinstance(action, (int, np.integer)) and not isinstance(action, bool):
-        return int(action)  # the common case first: this runs for every robot at every step
-    value = action.item() if isinstance(action, (np.ndarray, np.generic)) and np.ndim(action) == 0 else action
-    integral = isinstance(value, int) or (isinstance(value, float) and value.is_integer())
-    if isinstance(value, bool) or not integral:
-        raise ValueError(
-            f"action of {agent} must be an integer (Discrete action), got {action!r} of type "
-            f"{type(action).__name__}"
-        )
-    return int(value)
+__all__ = ["SearchRescueEnv", "parallel_env", "env", "raw_env", "LEVELS", "OBS_FORMATS", "integer_action"]
 
 
 class SearchRescueEnv(ParallelEnv):
@@ -199,38 +190,17 @@ class SearchRescueEnv(ParallelEnv):
         self._invalid_count = np.zeros(n, np.int64)  # ... and since reset
         self._steps = 0
         self._fig = None
-        h, w = config.map_shape
-        self.state_space = spaces.Box(0.0, 1.0, (4 + self._n_cls, h, w), np.float32)
-        self.flat_layout: dict[str, tuple[slice, tuple[int, ...]]] = {}  # part -> (slice, shape)
-        self._flat_size = 0
-        for key, box in self._part_spaces().items():
-            size = math.prod(box.shape)
-            self.flat_layout[key] = (slice(self._flat_size, self._flat_size + size), box.shape)
-            self._flat_size += size
+        self.state_space = state_space(config)
+        parts = part_spaces(config, level, compact_obs)
+        self.flat_layout = flat_layout(parts)  # part -> (slice, shape) of the flat vector
         # one space object per robot (PettingZoo seeds each robot's space on its own)
-        self.observation_spaces = {a: self._observation_space() for a in self.possible_agents}
+        self.observation_spaces = {
+            a: observation_space(part_spaces(config, level, compact_obs), obs_format, self.num_actions)
+            for a in self.possible_agents
+        }
         self.action_spaces = {a: spaces.Discrete(self.num_actions) for a in self.possible_agents}
 
     # -- spaces --------------------------------------------------------------------------------
-    def _part_spaces(self) -> dict[str, spaces.Box]:
-        """The observation parts, in table (and flat-layout) order."""
-        cfg, c = self.config, self._n_cls
-        big, dt = (4, np.uint8) if self.compact_obs else (1.0, np.float32)
-        parts = {
-            "global_map": spaces.Box(0, big, (global_channels(c), *cfg.map_shape), dt),
-            "local_map": spaces.Box(0, big, (local_channels(c), cfg.local_size, cfg.local_size), dt),
-            "agent_class": spaces.Box(0.0, 1.0, (c,), np.float32),
-        }
-        if self.level == "primitive":
-            parts["heading"] = spaces.Box(0.0, 1.0, (4,), np.float32)
-        return parts
-
-    def _observation_space(self) -> spaces.Space:
-        if self.obs_format == "flat":
-            return spaces.Box(0.0, 1.0, (self._flat_size,), np.float32)
-        mask = spaces.Box(0, 1, (self.num_actions,), np.int8)
-        return spaces.Dict({"observation": spaces.Dict(self._part_spaces()), "action_mask": mask})
-
     def observation_space(self, agent: str) -> spaces.Space:
         self._index(agent)  # a clear error for unknown ids
         return self.observation_spaces[agent]
@@ -272,7 +242,9 @@ class SearchRescueEnv(ParallelEnv):
             rewards_arr, term, trunc = ev.rewards[0], ev.terminated[0], ev.truncated[0]
             ticks = int(ev.event_ticks[0])
         else:
-            self._invalid[:] = self._replace_invalid_primitives(a[0])
+            self._invalid[:] = replace_invalid_primitives(
+                a[0], self.possible_agents, self.invalid_action == "raise"
+            )
             res = self.engine.step(a)
             rewards_arr, term, trunc, ticks = res.rewards[0], res.terminated[0], res.truncated[0], 1
         self._invalid_count += self._invalid
@@ -291,69 +263,35 @@ class SearchRescueEnv(ParallelEnv):
         return obs, rewards, terms, truncs, infos
 
     def _parse_actions(self, actions: dict[str, Any]) -> np.ndarray:
-        """The (1, N) int64 action array; unknown ids, non-integers and missing robots raise. An integer
-        no int64 holds (``2**63``) is out of range like ``-1``: strict mode raises naming it (for a
-        robot whose action applies), else it is stored as -1 and replaced and flagged (or ignored, for
-        a busy robot) with the other out-of-range actions."""
-        a = self._actions
-        a[:] = 0  # omitted busy robots: ignored by the engine
+        """The (1, N) int64 action array (see :func:`catmip_env.spaces.parse_actions`)."""
         macro = self.level == "macro"
-        for agent, action in actions.items():
-            i, value = self._index(agent), integer_action(agent, action)
-            if not _INT64.min <= value <= _INT64.max:
-                if self.invalid_action == "raise" and (not macro or self.engine.active[0, i]):
-                    kind = self.goal_mode if macro else "primitive"
-                    raise ValueError(
-                        f"action {value} of {agent} is out of range: {kind} actions are "
-                        f"0..{self.num_actions - 1} (invalid_action='stay' would replace it with 'stay')"
-                    )
-                value = -1
-            a[0, i] = value
-        needed = [ag for i, ag in enumerate(self.possible_agents) if not macro or self.engine.active[0, i]]
-        missing = sorted(set(needed) - set(actions))
-        if missing:
-            raise ValueError(f"missing actions for {'active ' if macro else ''}robots {missing}")
-        return a
-
-    def _replace_invalid_primitives(self, a: np.ndarray) -> np.ndarray:
-        """Apply the invalid-action policy to primitive actions ``a`` (N,) in place; (N,) bool replaced."""
-        bad = (a < 0) | (a >= self.num_actions)
-        if not bad.any():
-            return bad
-        if self.invalid_action == "raise":
-            i = int(np.flatnonzero(bad)[0])
-            raise ValueError(
-                f"action {a[i]} of {self.possible_agents[i]} is out of range: primitive actions are "
-                f"0..{self.num_actions - 1} {PRIMITIVE_ACTIONS} (invalid_action='stay' would replace it "
-                f"with 'stay')"
-            )
-        a[bad] = STAY
-        return bad
+        applies = self.engine.active[0] if macro else np.ones(len(self.possible_agents), np.bool_)
+        kind = self.goal_mode if macro else "primitive"
+        strict = self.invalid_action == "raise"
+        parse_actions(
+            actions,
+            self.possible_agents,
+            self._index,
+            applies,
+            kind,
+            self.num_actions,
+            strict,
+            self._actions[0],
+        )
+        return self._actions
 
     def _observations(self) -> tuple[dict[str, Any], np.ndarray]:
         """Every robot's observation, and the (N, A) int8 action masks."""
         world, st = self.world, self.world.state
-        g, l = world.obs_global[0], world.obs_local[0]  # (N, ...) uint8, value * OBS_SCALE = float
-        if self.compact_obs:
-            g, l = g.copy(), l.copy()
-        else:
-            g = g.astype(np.float32) * np.float32(OBS_SCALE)
-            l = l.astype(np.float32) * np.float32(OBS_SCALE)
-        parts = {"global_map": g, "local_map": l, "agent_class": self._eye_cls[st.cls[0]]}
-        if self.level == "primitive":
-            parts["heading"] = self._eye_head[st.heading[0]]
-        n = len(self.possible_agents)
+        heading = self._eye_head[st.heading[0]] if self.level == "primitive" else None
+        parts = observation_parts(
+            world.obs_global[0], world.obs_local[0], self._eye_cls[st.cls[0]], heading, self.compact_obs
+        )
         if self.level == "macro":
             masks = self.engine.masks[0].copy()
-        else:
-            masks = np.ones((n, self.num_actions), np.int8)  # every primitive is legal
-        if self.obs_format == "flat":
-            flat = np.concatenate([p.reshape(n, -1) for p in parts.values()], axis=1)
-            return {agent: flat[i] for i, agent in enumerate(self.possible_agents)}, masks
-        return {
-            agent: {"observation": {k: p[i] for k, p in parts.items()}, "action_mask": masks[i]}
-            for i, agent in enumerate(self.possible_agents)
-        }, masks
+        else:  # every primitive is legal
+            masks = np.ones((len(self.possible_agents), self.num_actions), np.int8)
+        return robot_observations(parts, masks, self.obs_format, self.possible_agents), masks
 
     def _infos(self, event_ticks: int, masks: np.ndarray) -> dict[str, dict[str, Any]]:
         st = self.world.state

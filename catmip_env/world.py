@@ -15,11 +15,9 @@ stream, so a world's trajectory depends only on ``(s, k)`` and its actions — n
 
 from __future__ import annotations
 
-from dataclasses import dataclass, fields
 from typing import NamedTuple
 
 import numpy as np
-from numba import njit
 
 from catmip_env.config import EnvConfig
 from catmip_env.constants import (
@@ -32,70 +30,14 @@ from catmip_env.constants import (
     global_channels,
     local_channels,
 )
-from catmip_env.dynamics import perceive, tick
+from catmip_env.dynamics import Rules, perceive_at_reset, tick
 from catmip_env.layout import parse_layout
 from catmip_env.mapgen import Episode, generate
 from catmip_env.observe import observe as build_observations
 from catmip_env.rng import seed_state
-from catmip_env.sensing import RAY_NBLOCK, VIEW_BLOCKERS, VIEW_OFFSETS
+from catmip_env.state import WorldState
 
 __all__ = ["WorldState", "BatchedEngine", "StepResult"]
-
-
-@dataclass
-class WorldState:
-    """Struct-of-arrays state of B worlds with N robots on H x W maps (C classes)."""
-
-    grid: np.ndarray  # (B, H, W) uint8 ground-truth cell codes (types.FREE ... types.CLUE)
-    target: np.ndarray  # (B, 2) int64 target cell
-    pos: np.ndarray  # (B, N, 2) int64 robot cells
-    heading: np.ndarray  # (B, N) int64 0=E 1=S 2=W 3=N
-    cls: np.ndarray  # (B, N) int64 class index
-    speed: np.ndarray  # (B, N) int64 ticks per primitive action
-    can_rescue: np.ndarray  # (B, N) bool
-    belief: np.ndarray  # (B, N, H, W) uint8 belief bits (types.EXPLORED | OCCUPIED | ...)
-    used_occ: np.ndarray  # (B, N, H, W) uint8 noisy occupancy used this tick (noise only)
-    comp: np.ndarray  # (B, N) int64 neighbourhood label = lowest robot id of the component
-    goal: np.ndarray  # (B, N, 2) int64 current goal cell, -1 = none (macro level)
-    rng: np.ndarray  # (B,) uint64 per-world dynamics stream
-    ticks: np.ndarray  # (B,) int64 ticks elapsed in the episode
-    moves: np.ndarray  # (B, N) int64 successful forward moves in the episode
-    collisions: np.ndarray  # (B, N) int64 forward moves that hit a wall, obstacle or the target
-    found_tick: np.ndarray  # (B,) int64 tick the target first became known, -1 = not yet
-    rescue_tick: np.ndarray  # (B,) int64 tick of success, -1 = not yet
-    done: np.ndarray  # (B,) bool episode over (terminated or truncated)
-    episode: np.ndarray  # (B,) int64 episode index of each world's current episode
-    pending_reward: np.ndarray  # (B, N) float64 rewards earned at reset, paid with the next step
-
-    @classmethod
-    def allocate(cls, num_worlds: int, num_robots: int, shape: tuple[int, int], noisy: bool):
-        b, n, (h, w) = num_worlds, num_robots, shape
-        occ_shape = (b, n, h, w) if noisy else (1, 1, 1, 1)
-        return cls(
-            grid=np.zeros((b, h, w), np.uint8),
-            target=np.zeros((b, 2), np.int64),
-            pos=np.zeros((b, n, 2), np.int64),
-            heading=np.zeros((b, n), np.int64),
-            cls=np.zeros((b, n), np.int64),
-            speed=np.ones((b, n), np.int64),
-            can_rescue=np.zeros((b, n), np.bool_),
-            belief=np.zeros((b, n, h, w), np.uint8),
-            used_occ=np.zeros(occ_shape, np.uint8),
-            comp=np.zeros((b, n), np.int64),
-            goal=np.full((b, n, 2), -1, np.int64),
-            rng=np.zeros(b, np.uint64),
-            ticks=np.zeros(b, np.int64),
-            moves=np.zeros((b, n), np.int64),
-            collisions=np.zeros((b, n), np.int64),
-            found_tick=np.full(b, -1, np.int64),
-            rescue_tick=np.full(b, -1, np.int64),
-            done=np.ones(b, np.bool_),
-            episode=np.full(b, -1, np.int64),
-            pending_reward=np.zeros((b, n), np.float64),
-        )
-
-    def copy(self) -> WorldState:
-        return WorldState(**{f.name: getattr(self, f.name).copy() for f in fields(self)})
 
 
 class StepResult(NamedTuple):
@@ -104,21 +46,6 @@ class StepResult(NamedTuple):
     rewards: np.ndarray  # (B, N) float64 reward of each robot on this tick
     terminated: np.ndarray  # (B,) bool mission succeeded on this tick
     truncated: np.ndarray  # (B,) bool horizon reached without success on this tick
-
-
-@njit(cache=True)
-def _perceive_worlds(
-    worlds, grid, target, pos, heading, can_rescue, belief, comp, rng, used_occ, found_tick,
-    rescue_tick, rewards, horizon, comm_sigma, noise, find_reward, rescue_reward, view_offsets,
-    view_blockers, ray_nblock,
-):  # fmt: skip
-    for b in range(worlds.shape[0]):
-        if worlds[b]:
-            perceive(
-                b, 0, grid, target, pos, heading, can_rescue, belief, comp, rng, used_occ,
-                found_tick, rescue_tick, rewards, horizon, comm_sigma, noise, find_reward,
-                rescue_reward, view_offsets, view_blockers, ray_nblock,
-            )  # fmt: skip
 
 
 class BatchedEngine:
@@ -148,7 +75,7 @@ class BatchedEngine:
         self._truncated = np.zeros(b, np.bool_)
         self._speed_of = np.array([k.ticks_per_action for k in cfg.classes], np.int64)
         self._rescue_of = np.array([k.can_rescue for k in cfg.classes], np.bool_)
-        self._comm = float(cfg.comm_sigma) if cfg.comm_sigma is not None else 0.0
+        self.rules = Rules.of(cfg)
         self.seed(seed)
 
     # -- seeding and reset ---------------------------------------------------------------------
@@ -190,13 +117,7 @@ class BatchedEngine:
         mask = np.zeros(self.num_worlds, np.bool_)
         mask[idx] = True
         st.pending_reward[idx] = 0.0
-        cfg = self.cfg
-        _perceive_worlds(
-            mask, st.grid, st.target, st.pos, st.heading, st.can_rescue, st.belief, st.comp,
-            st.rng, st.used_occ, st.found_tick, st.rescue_tick, st.pending_reward,
-            cfg.horizon_ticks, self._comm, cfg.slam_noise, cfg.find_reward, cfg.rescue_reward,
-            VIEW_OFFSETS, VIEW_BLOCKERS, RAY_NBLOCK,
-        )  # fmt: skip
+        perceive_at_reset(mask, st.kernel, self.rules)
         self.observe(mask)
         return idx
 
@@ -270,24 +191,10 @@ class BatchedEngine:
         Done worlds are left as they are (zero reward, flags false) until reset.
         """
         actions = self._check_actions(actions)
-        st, cfg = self.state, self.cfg
-        live = ~st.done
-        rewards = self._rewards
-        np.copyto(rewards, st.pending_reward)
-        st.pending_reward[live] = 0.0
-        rewards[st.done] = 0.0
-        self._terminated[:] = False
-        self._truncated[:] = False
-        tick(
-            live, actions, st.grid, st.target, st.pos, st.heading, st.speed, st.can_rescue,
-            st.belief, st.comp, st.rng, st.used_occ, st.ticks, st.moves, st.collisions, st.found_tick,
-            st.rescue_tick, rewards, self._terminated, self._truncated, cfg.horizon_ticks, self._comm,
-            cfg.slam_noise, cfg.step_reward, cfg.collision_penalty, cfg.find_reward,
-            cfg.rescue_reward, VIEW_OFFSETS, VIEW_BLOCKERS, RAY_NBLOCK,
-        )  # fmt: skip
-        st.done |= self._terminated | self._truncated
+        live = ~self.state.done
+        tick(live, actions, self.state.kernel, self.rules, self._rewards, self._terminated, self._truncated)
         self.observe(live)
-        return StepResult(rewards, self._terminated, self._truncated)
+        return StepResult(self._rewards, self._terminated, self._truncated)
 
     def _check_actions(self, actions: np.ndarray) -> np.ndarray:
         a = np.asarray(actions)

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from catmip_env import BatchedEngine, make_config
-from catmip_env.world import WorldState
+from catmip_env.state import WorldState
 
 from .helpers import random_actions
 
