@@ -13,6 +13,9 @@ Data flow of one decision::
 Decision order: active robots first, then busy ones, then padding, each in ascending id
 (:func:`decision_order`). Robot ``k`` of the order sees, through the decoder, the actions chosen by
 robots ``0 .. k-1``; padding tokens are masked out of attention, never fed as zeros.
+
+The transformer blocks and the decoder's key/value cache are in ``layers``; training on CPU runs the
+global CNN through ``sparse_conv`` and attention through ``small_attention``.
 """
 
 from __future__ import annotations
@@ -26,9 +29,12 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-__all__ = ["AmatConfig", "AMAT", "decision_order", "OBS_SCALE"]
+from catmip_env.constants import OBS_SCALE  # uint8 macro-observations: float = value * OBS_SCALE
+from catmip_rl.amat.layers import BlockCache, DecoderBlock, EncoderBlock, layer_norm, linear
+from catmip_rl.amat.sparse_conv import global_conv_pool
 
-OBS_SCALE = 0.25  # uint8 macro-observations: float = value * OBS_SCALE (catmip_env.constants.OBS_SCALE)
+__all__ = ["AmatConfig", "AMAT", "decision_order", "OBS_SCALE", "INVALID_LOGIT"]
+
 INVALID_LOGIT = -1e10
 
 
@@ -95,104 +101,6 @@ def decision_order(active: torch.Tensor, padding: torch.Tensor | None = None) ->
     return torch.argsort(rank, dim=-1)
 
 
-class Attention(nn.Module):
-    """Multi-head attention with separate q / k / v / out projections (no dropout)."""
-
-    def __init__(self, d: int, n_heads: int) -> None:
-        super().__init__()
-        self.n_heads = n_heads
-        self.q, self.k, self.v, self.out = (nn.Linear(d, d) for _ in range(4))
-
-    def split(self, x: torch.Tensor) -> torch.Tensor:  # (B, T, d) -> (B, h, T, d / h)
-        b, t, d = x.shape
-        return x.view(b, t, self.n_heads, d // self.n_heads).transpose(1, 2)
-
-    def merge(self, x: torch.Tensor) -> torch.Tensor:  # (B, h, T, d / h) -> (B, T, d)
-        b, h, t, dh = x.shape
-        return x.transpose(1, 2).reshape(b, t, h * dh)
-
-    def forward(
-        self,
-        query: torch.Tensor,
-        key: torch.Tensor,
-        value: torch.Tensor,
-        allowed: torch.Tensor | None = None,
-        rows: torch.Tensor | None = None,
-    ) -> torch.Tensor:
-        """``allowed`` (B or 1, 1, Tq, Tk) bool: which keys each query may attend to. Projections of the
-        same input are one matrix product (q/k/v of self-attention, k/v of cross-attention).
-
-        ``rows`` (K,) long: flat indices into the B * Tq query rows; the output is then those rows
-        only, (K, d), and the output projection runs on them alone."""
-        d = query.shape[-1]
-        if key is value:
-            if query is key:
-                lin = (self.q, self.k, self.v)
-                q, k, v = F.linear(query, *_stacked(lin)).split(d, -1)
-            else:
-                q = self.q(query)
-                k, v = F.linear(key, *_stacked((self.k, self.v))).split(d, -1)
-        else:
-            q, k, v = self.q(query), self.k(key), self.v(value)
-        if q.dtype == torch.float32 and q.device.type == "cpu" and torch.is_grad_enabled():
-            # training on CPU: a few tokens per event (catmip_rl.amat.small_attention)
-            from catmip_rl.amat.small_attention import small_attention
-
-            y = small_attention(q, k, v, allowed, self.n_heads)
-        else:
-            q, k, v = self.split(q), self.split(k), self.split(v)
-            y = self.merge(F.scaled_dot_product_attention(q, k, v, attn_mask=allowed))
-        return self.out(y if rows is None else y.flatten(0, 1)[rows])
-
-
-class MLP(nn.Sequential):
-    def __init__(self, d: int) -> None:
-        super().__init__(nn.Linear(d, d), nn.GELU(), nn.Linear(d, d))
-
-
-class EncoderBlock(nn.Module):
-    def __init__(self, d: int, n_heads: int) -> None:
-        super().__init__()
-        self.attn = Attention(d, n_heads)
-        self.ln1 = nn.LayerNorm(d)
-        self.mlp = MLP(d)
-        self.ln2 = nn.LayerNorm(d)
-
-    def forward(
-        self, x: torch.Tensor, allowed: torch.Tensor | None, rows: torch.Tensor | None = None
-    ) -> torch.Tensor:
-        """(B, T, d), or the flat rows ``rows`` of it (K, d): every token is a key, only they are queries."""
-        h = self.attn(x, x, x, allowed, rows)
-        x = self.ln1((x if rows is None else x.flatten(0, 1)[rows]) + h)
-        return self.ln2(x + self.mlp(x))
-
-
-class DecoderBlock(nn.Module):
-    def __init__(self, d: int, n_heads: int) -> None:
-        super().__init__()
-        self.self_attn = Attention(d, n_heads)
-        self.ln1 = nn.LayerNorm(d)
-        self.cross_attn = Attention(d, n_heads)
-        self.ln2 = nn.LayerNorm(d)
-        self.mlp = MLP(d)
-        self.ln3 = nn.LayerNorm(d)
-
-    def fused_projections(self) -> tuple[torch.Tensor, ...]:
-        """(W_qkv, b_qkv) of the self-attention and (W_kv, b_kv) of the cross-attention, concatenated
-        for one matmul per decoding step (rebuilt per call: a few microseconds, and never stale)."""
-        sa, ca = self.self_attn, self.cross_attn
-        return (*_stacked((sa.q, sa.k, sa.v)), *_stacked((ca.k, ca.v)))
-
-    def forward(
-        self, x: torch.Tensor, rep: torch.Tensor, causal: torch.Tensor, rows: torch.Tensor | None = None
-    ) -> torch.Tensor:
-        """(B, T, d), or the flat rows ``rows`` of it (K, d) (every position is still a key)."""
-        x = self.ln1(x + self.self_attn(x, x, x, causal))
-        y = self.cross_attn(rep, x, x, causal, rows)  # query: encoder rep; key/value: actions
-        x = self.ln2((rep if rows is None else rep.flatten(0, 1)[rows]) + y)
-        return self.ln3(x + self.mlp(x))
-
-
 class AMAT(nn.Module):
     """Embedder, encoder with per-token value head, macro-action embedder, causal decoder, policy
     head. Tensor-in / tensor-out; see the module docstring for the data flow."""
@@ -256,23 +164,22 @@ class AMAT(nn.Module):
         b, n = gmap.shape[:2]
         if gmap.dtype == torch.uint8 and gmap.device.type == "cpu" and torch.is_grad_enabled():
             # training on CPU: sparse conv + pool with a winning-cell backward (catmip_rl.amat.sparse_conv)
-            from catmip_rl.amat.sparse_conv import global_conv_pool
-
             g = global_conv_pool(gmap, self.global_conv.weight, self.global_conv.bias, self.config.pool)
         else:
             g = _as_float(gmap).flatten(0, 1)  # (B*N, 5+C, S, S)
             g = F.conv2d(g, self.global_conv.weight, self.global_conv.bias, padding=3)  # (B*N, 32, S, S)
             g = _max_pool(g, self.config.pool)  # (B*N, 32, G, G)
-        g = F.relu(_ln(g, self.global_ln), inplace=True).flatten(1)  # (B*N, 32 G^2)
+        g = F.relu(layer_norm(g, self.global_ln), inplace=True).flatten(1)  # (B*N, 32 G^2)
         x = _as_float(lmap).flatten(0, 1)  # (B*N, 4+C, L, L)
         x = F.conv2d(x, self.local_conv1.weight, self.local_conv1.bias, padding=1)
-        x = F.relu(_ln(x, self.local_ln1), inplace=True)  # LayerNorm's backward does not need its output
+        # in place: LayerNorm's backward does not need its output
+        x = F.relu(layer_norm(x, self.local_ln1), inplace=True)
         x = F.conv2d(x, self.local_conv2.weight, self.local_conv2.bias, padding=1)
-        x = F.relu(_ln(x, self.local_ln2), inplace=True).flatten(1)  # (B*N, 32 L^2)
+        x = F.relu(layer_norm(x, self.local_ln2), inplace=True).flatten(1)  # (B*N, 32 L^2)
         w1, n_g = self.obs_fc1.weight, g.shape[1]  # two products instead of a concatenated input
         h = F.gelu(F.linear(x, w1[:, n_g:], self.obs_fc1.bias) + F.linear(g, w1[:, :n_g]))  # (B*N, d)
-        h = F.gelu(_lin(_ln(h, self.obs_ln), self.obs_fc2))
-        return h.view(b, n, -1) + F.gelu(_lin(cls.to(h.dtype), self.class_enc))  # (B, N, d)
+        h = F.gelu(linear(layer_norm(h, self.obs_ln), self.obs_fc2))
+        return h.view(b, n, -1) + F.gelu(linear(cls.to(h.dtype), self.class_enc))  # (B, N, d)
 
     # -- encoder ----------------------------------------------------------------------------------
     def encode(
@@ -348,20 +255,20 @@ class AMAT(nn.Module):
             return actions, log_probs
         order_a = order[:, :steps]  # (B, K): the first K positions hold the active robots
         rep_o = _gather(rep, order_a)  # (B, K, d)
-        cls_tok = F.gelu(_lin(_gather(agent_class.to(rep.dtype), order_a), self.dec_class_enc))  # (B, K, d)
+        cls_tok = F.gelu(linear(_gather(agent_class.to(rep.dtype), order_a), self.dec_class_enc))  # (B, K, d)
         mask_o = _gather(mask, order_a)  # (B, K, A)
-        caches = [_BlockCache(blk, rep_o) for blk in self.dec_blocks]
+        caches = [BlockCache(blk, rep_o) for blk in self.dec_blocks]
         emb = self.action_enc.weight.t()  # (A + 1, d): one-hot @ W == row lookup
         head = self.policy_head
         prev = torch.zeros(b, dtype=torch.long, device=rep.device)  # start token
         chosen = torch.empty(b, steps, dtype=torch.long, device=rep.device)
         chosen_lp = rep.new_empty(b, steps)
         for k in range(steps):
-            x = _ln(F.gelu(emb[prev])[:, None] + cls_tok[:, k : k + 1], self.dec_ln)  # (B, 1, d)
+            x = layer_norm(F.gelu(emb[prev])[:, None] + cls_tok[:, k : k + 1], self.dec_ln)  # (B, 1, d)
             for cache in caches:
                 x = cache.step(x, k)
-            h = _ln(F.gelu(_lin(x[:, 0], head[0])), head[2])
-            logits = _lin(h, head[3]).masked_fill_(~mask_o[:, k], INVALID_LOGIT)  # (B, A)
+            h = layer_norm(F.gelu(linear(x[:, 0], head[0])), head[2])
+            logits = linear(h, head[3]).masked_fill_(~mask_o[:, k], INVALID_LOGIT)  # (B, A)
             logp_all = torch.log_softmax(logits, -1)
             if deterministic:
                 a = logits.argmax(-1)
@@ -431,66 +338,6 @@ class AMAT(nn.Module):
     def forward(self, obs: dict[str, torch.Tensor], key_padding_mask: torch.Tensor | None = None):
         """Embed + encode: (rep, values)."""
         return self.encode(self.embed(obs), key_padding_mask)
-
-
-class _BlockCache:
-    """Keys/values of one decoder block for the positions decoded so far (autoregressive mode).
-
-    The step is written with functional calls and fused q/k/v weights: at batch 1 the decoder is a
-    chain of tiny matmuls whose cost is mostly per-call overhead.
-    """
-
-    def __init__(self, block: DecoderBlock, rep_o: torch.Tensor) -> None:
-        b, k, d = rep_o.shape
-        sa, ca = block.self_attn, block.cross_attn
-        self.block, self.rep_o, self.h, self.d = block, rep_o, sa.n_heads, d
-        self.w_qkv, self.b_qkv, self.w_kv, self.b_kv = block.fused_projections()  # (3d, d), (2d, d)
-        self.q_cross = _heads(_lin(rep_o, ca.q), self.h)  # (B, h, K, dh): every position at once
-        shape = (b, self.h, k, d // self.h)
-        self.k_self, self.v_self = rep_o.new_empty(shape), rep_o.new_empty(shape)
-        self.k_cross, self.v_cross = rep_o.new_empty(shape), rep_o.new_empty(shape)
-        self.scale = (d // self.h) ** -0.5
-
-    def _attend(self, q: torch.Tensor, keys: torch.Tensor, values: torch.Tensor) -> torch.Tensor:
-        w = torch.softmax((q @ keys.transpose(-1, -2)) * self.scale, -1)  # (B, h, 1, k+1)
-        return (w @ values).transpose(1, 2).reshape(q.shape[0], 1, self.d)  # (B, 1, d)
-
-    def step(self, x: torch.Tensor, k: int) -> torch.Tensor:
-        """Block output (B, 1, d) at position k from its input x (B, 1, d)."""
-        blk, h, d = self.block, self.h, self.d
-        q, key, val = F.linear(x, self.w_qkv, self.b_qkv).split(d, -1)
-        self.k_self[:, :, k : k + 1] = _heads(key, h)
-        self.v_self[:, :, k : k + 1] = _heads(val, h)
-        y = self._attend(_heads(q, h), self.k_self[:, :, : k + 1], self.v_self[:, :, : k + 1])
-        x = _ln(x + _lin(y, blk.self_attn.out), blk.ln1)
-        key, val = F.linear(x, self.w_kv, self.b_kv).split(d, -1)
-        self.k_cross[:, :, k : k + 1] = _heads(key, h)
-        self.v_cross[:, :, k : k + 1] = _heads(val, h)
-        y = self._attend(
-            self.q_cross[:, :, k : k + 1], self.k_cross[:, :, : k + 1], self.v_cross[:, :, : k + 1]
-        )
-        x = _ln(self.rep_o[:, k : k + 1] + _lin(y, blk.cross_attn.out), blk.ln2)
-        m = blk.mlp
-        return _ln(x + _lin(F.gelu(_lin(x, m[0])), m[2]), blk.ln3)
-
-
-def _stacked(layers: tuple[nn.Linear, ...]) -> tuple[torch.Tensor, torch.Tensor]:
-    """(weight, bias) of linear layers on the same input, stacked along the output dimension."""
-    return torch.cat([m.weight for m in layers]), torch.cat([m.bias for m in layers])
-
-
-def _lin(x: torch.Tensor, layer: nn.Linear) -> torch.Tensor:
-    return F.linear(x, layer.weight, layer.bias)
-
-
-def _ln(x: torch.Tensor, layer: nn.LayerNorm) -> torch.Tensor:
-    return F.layer_norm(x, layer.normalized_shape, layer.weight, layer.bias, layer.eps)
-
-
-def _heads(x: torch.Tensor, h: int) -> torch.Tensor:
-    """(B, T, d) -> (B, h, T, d / h)."""
-    b, t, d = x.shape
-    return x.view(b, t, h, d // h).transpose(1, 2)
 
 
 def _max_pool(x: torch.Tensor, g: int) -> torch.Tensor:

@@ -5,10 +5,10 @@ backward, on the sparse uint8 global maps (docs/design.md#observations, #amat).
 ``adaptive_max_pool2d(conv2d(gmap * 0.25, weight, bias, padding=k // 2), pool)`` with its gradients for
 ``weight`` and ``bias`` (the maps are data: no input gradient), at a fraction of the dense cost:
 
-* forward — per decision event, the robots' global convolutions by ``fast_infer``'s shared/sparse split
-  (the belief channels that merged robots share are convolved once, the robot stamps and goal as the
-  few cells they are; exact for any input, dense where that is cheaper), then the max pool, keeping the
-  winning cell of every (robot, channel, bin);
+* forward — per decision event, the robots' global convolutions by the shared/sparse split of
+  ``conv_kernels`` (the belief channels that merged robots share are convolved once, the robot stamps
+  and goal as the few cells they are; exact for any input, dense where that is cheaper), then the max
+  pool, keeping the winning cell of every (robot, channel, bin);
 * backward — max pooling passes each bin's gradient to its winning cell alone, so the weight gradient
   is ``sum over (robot, channel, bin) of grad * (the k x k input patch at the winning cell)``: one
   contiguous run per patch in a copy of the map laid out by kernel column, four bins of a channel at a
@@ -18,6 +18,9 @@ Both are numba loops (GIL released) over a fixed number of chunks of the batch, 
 threads: the results do not depend on the thread count. Ties inside a bin go to the first cell in
 row-major order, as torch's pool; because the sums run in another order than torch's convolution, a
 near-tie can pick another cell than the dense path would (values agree to float32 rounding either way).
+
+The convolution kernels are ``conv_kernels``' (shared with ``FastAmat``); this module adds the pool that
+remembers its winners, the weight gradient, the thread-pool chunking and the autograd ``Function``.
 """
 
 from __future__ import annotations
@@ -29,8 +32,8 @@ import numpy as np
 import torch
 from numba import njit
 
-from catmip_rl.amat.fast import _robot_conv, _shared_base, conv_weights, ones_conv
-from catmip_rl.amat.model import OBS_SCALE
+from catmip_env.constants import OBS_SCALE
+from catmip_rl.amat.conv_kernels import conv_weights, ones_conv, robot_conv, shared_base
 
 __all__ = ["global_conv_pool", "global_conv_pool_winners", "GlobalConvPool", "CHUNKS"]
 
@@ -77,15 +80,15 @@ def _pool_argmax(x, g, pooled, where):
 @_jit
 def _forward(w, gmap, scale, ones, g, pooled, where, m0, m1):
     """Events m0 .. m1-1 of gmap (M, N, C, S, S): pooled and where (M * N, O, g, g) of their robots
-    (``fast_infer``'s shared base + per-robot convolution, into buffers reused across events)."""
+    (``conv_kernels``' shared base + per-robot convolution, into buffers reused across events)."""
     n, _, h, wd = gmap.shape[1:]
     zero = np.zeros((h, wd), gmap.dtype)
     base = np.empty((h, wd, w.g_b.size), np.float32)
     work = np.empty((h, wd, w.g_b.size), np.float32)
     for m in range(m0, m1):
-        _shared_base(w, gmap[m], scale, ones, zero, base)
+        shared_base(w, gmap[m], scale, ones, zero, base)
         for i in range(n):
-            _robot_conv(w, gmap[m], i, scale, ones, zero, base, work)
+            robot_conv(w, gmap[m], i, scale, ones, zero, base, work)
             _pool_argmax(work, g, pooled[m * n + i], where[m * n + i])
 
 
