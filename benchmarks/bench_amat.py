@@ -36,6 +36,7 @@ from common import cpu_times, env_observation, steal_percent, write_json
 
 from catmip_env.config import PRESETS, make_config
 from catmip_env.events import EventEngine, random_valid_actions
+from catmip_env.play import play
 from catmip_rl.amat.fast import FastAmat
 from catmip_rl.amat.model import AMAT, decision_order
 from catmip_rl.training.config import make_train_config
@@ -43,7 +44,7 @@ from catmip_rl.training.memory import keep_freed_memory
 from catmip_rl.training.parallel_update import ParallelGradients
 from catmip_rl.training.ppo import SampleBatch, ppo_loss
 from catmip_rl.training.precision import native_bf16
-from catmip_rl.training.train import loss_kwargs, make_optimizer
+from catmip_rl.training.update import loss_kwargs, make_optimizer
 
 TOKEN_INPUTS = ("global_map", "local_map", "agent_class")
 TASKS = ((2, 15, "task1"), (3, 20, "task2"), (6, 32, "task3"))  # (robots, map side, preset) of Tasks 1-3
@@ -160,13 +161,16 @@ def task2_training_batch(events: int, seed: int = 0) -> SampleBatch:
     eng.reset()
     rng = np.random.default_rng(seed)
     rows: dict[str, list] = {k: [] for k in ("global_map", "local_map", "cls", "mask", "active", "action")}
-    while not eng.state.done.all():
-        live = np.flatnonzero(~eng.state.done)
-        actions = random_valid_actions(eng.masks, rng)
-        seen = (eng.obs_global, eng.obs_local, eng.state.cls, eng.masks, eng.active, actions)
+
+    def random_goals(e: EventEngine) -> np.ndarray:  # the policy, keeping what it saw and chose
+        live = np.flatnonzero(~e.state.done)
+        actions = random_valid_actions(e.masks, rng)
+        seen = (e.obs_global, e.obs_local, e.state.cls, e.masks, e.active, actions)
         for key, value in zip(rows, seen):
             rows[key].append(np.array(value[live]))
-        eng.step(actions)
+        return actions
+
+    play(eng, random_goals)
     data = {k: torch.from_numpy(np.concatenate(v)) for k, v in rows.items()}
     pick = torch.from_numpy(rng.choice(len(data["action"]), events, replace=False))
     data = {k: v[pick] for k, v in data.items()}
@@ -190,7 +194,7 @@ def task2_training_batch(events: int, seed: int = 0) -> SampleBatch:
 
 def bench_training(model: AMAT, batch: SampleBatch, bf16: bool, steps: int, processes: int = 1) -> dict:
     """One PPO minibatch step as training runs it: ``ppo_loss`` forward, backward, grad-norm clip and
-    fused Adam (``catmip_rl.training.train.make_optimizer``). One process on two threads, or ``processes``
+    fused Adam (``training.update.make_optimizer``). One process on two threads, or ``processes``
     single-threaded processes (``training.parallel_update``), each with one micro-batch of ``batch``'s
     events (so the step covers ``processes`` x as many events)."""
     torch.set_num_threads(2)

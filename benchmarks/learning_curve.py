@@ -23,6 +23,7 @@ import torch
 
 from catmip_env.events import EventEngine
 from catmip_env.planners import make_planner
+from catmip_env.play import episode_metrics, play
 from catmip_rl.cli import parse_set
 from catmip_rl.files import atomic_write_csv, atomic_write_text
 from catmip_rl.training.config import TrainConfig, make_train_config
@@ -33,13 +34,11 @@ PLANNER_LINES = ("nearest", "rrt", "random")
 
 def planner_success(cfg: TrainConfig, name: str) -> tuple[float, float]:
     """(rescued by the horizon, by tick 100) of a planner on the run's evaluation maps."""
-    eng = EventEngine(cfg.eval_env_config(), cfg.eval_episodes, cfg.eval_seed, goal_mode="cell")
-    planner = make_planner(name, seed=0)
+    env_cfg = cfg.eval_env_config()
+    eng = EventEngine(env_cfg, cfg.eval_episodes, cfg.eval_seed, goal_mode="cell")
     eng.reset()
-    while not eng.state.done.all():
-        eng.step(planner.act(eng))
-    t = eng.state.rescue_tick
-    return float((t >= 0).mean()), float(((t >= 0) & (t <= 100)).mean())
+    metrics = episode_metrics(play(eng, make_planner(name, seed=0)), env_cfg.horizon_ticks)
+    return metrics["success_rate"], metrics["success_by_100"]
 
 
 def curve_rows(run_dir: Path) -> list[dict]:

@@ -19,7 +19,7 @@ import numpy as np
 
 from catmip_env.events import EventEngine
 
-__all__ = ["DecisionTracker"]
+__all__ = ["DecisionTracker", "decision_summary"]
 
 
 class DecisionTracker:
@@ -48,21 +48,27 @@ class DecisionTracker:
         self._start[act] = pose[act]
 
     def summary(self, cls: np.ndarray, classes) -> dict[str, float]:
-        """Means per episode: ``decisions_per_episode``, ``stalls_per_episode`` and, per class name,
-        ``stalls_per_episode_<name>`` and ``stall_fraction_<name>`` (stalls / completed macro-actions:
-        every decision but each robot's last, which no later activation has ended)."""
-        n_ep = max(self.decisions.shape[0], 1)
-        out = {
-            "decisions_per_episode": float(self.decisions.sum() / n_ep),
-            "stalls_per_episode": float(self.stalls.sum() / n_ep),
-        }
-        for k, c in enumerate(classes):
-            sel = cls == k
-            ended = int((self.decisions[sel] - (self.decisions[sel] > 0)).sum())
-            s = int(self.stalls[sel].sum())
-            out[f"stalls_per_episode_{c.name}"] = s / n_ep
-            out[f"stall_fraction_{c.name}"] = s / ended if ended else float("nan")
-        return out
+        """:func:`decision_summary` of the counts so far."""
+        return decision_summary(self.decisions, self.stalls, cls, classes)
+
+
+def decision_summary(decisions: np.ndarray, stalls: np.ndarray, cls: np.ndarray, classes) -> dict[str, float]:
+    """Means per episode of (B, N) ``decisions`` and ``stalls`` of robots of class ``cls`` (B, N):
+    ``decisions_per_episode``, ``stalls_per_episode`` and, per class name of ``classes``,
+    ``stalls_per_episode_<name>`` and ``stall_fraction_<name>`` (stalls / completed macro-actions:
+    every decision but each robot's last, which no later activation has ended)."""
+    n_ep = max(decisions.shape[0], 1)
+    out = {
+        "decisions_per_episode": float(decisions.sum() / n_ep),
+        "stalls_per_episode": float(stalls.sum() / n_ep),
+    }
+    for k, c in enumerate(classes):
+        sel = cls == k
+        ended = int((decisions[sel] - (decisions[sel] > 0)).sum())
+        s = int(stalls[sel].sum())
+        out[f"stalls_per_episode_{c.name}"] = s / n_ep
+        out[f"stall_fraction_{c.name}"] = s / ended if ended else float("nan")
+    return out
 
 
 def _pose(engine: EventEngine) -> np.ndarray:

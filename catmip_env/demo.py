@@ -17,12 +17,11 @@ import json
 import time
 from pathlib import Path
 
-import numpy as np
-
 from catmip_env import make_config
 from catmip_env.events import EventEngine
 from catmip_env.planners import PLANNERS, make_planner
-from catmip_env.render import render_world, save_gif
+from catmip_env.play import episode_metrics, play
+from catmip_env.render import render_episode
 
 DEFAULT_PLANNERS = ("nearest", "utility", "rrt", "apf", "random-frontier", "random")
 
@@ -43,45 +42,19 @@ def evaluate(planner: str, preset: str, episodes: int, seed: int) -> dict:
     policy = make_planner(planner, seed=seed)
     eng.reset()
     bar = _progress(episodes, f"{planner:>16}")
-    explored = np.zeros(episodes)
-    t0, decisions = time.perf_counter(), 0
-    while not eng.state.done.all():
-        live = ~eng.state.done
-        decisions += int((eng.active & live[:, None]).sum())
-        eng.step(policy.act(eng))
-        explored = np.where(live, eng.world.explored_fraction(), explored)
-        if bar is not None and int(eng.state.done.sum()) > bar.n:
-            bar.update(int(eng.state.done.sum()) - bar.n)
+
+    def progress(engine: EventEngine) -> None:
+        if bar is not None and int(engine.state.done.sum()) > bar.n:
+            bar.update(int(engine.state.done.sum()) - bar.n)
+
+    t0 = time.perf_counter()
+    metrics = episode_metrics(play(eng, policy, on_event=progress), cfg.horizon_ticks)
     if bar is not None:
         bar.close()
-    st = eng.state
-    rescued = st.rescue_tick >= 0
-    found = st.found_tick >= 0
-    return {
-        "planner": planner,
-        "preset": preset,
-        "episodes": episodes,
-        "seed": seed,
-        "success_rate": float(rescued.mean()),
-        "success_by_100": float((rescued & (st.rescue_tick <= 100)).mean()),
-        "mean_rescue_tick": float(st.rescue_tick[rescued].mean()) if rescued.any() else None,
-        "mean_target_found_tick": float(st.found_tick[found].mean()) if found.any() else None,
-        "mean_explored_fraction": float(explored.mean()),
-        "decisions": decisions,
-        "seconds": time.perf_counter() - t0,
-    }
-
-
-def render_episode(planner: str, preset: str, seed: int, path: Path, max_frames: int = 400) -> Path:
-    """GIF of episode 0 of ``seed`` played by ``planner``, one frame per tick between events."""
-    eng = EventEngine(make_config(preset), 1, seed=seed, goal_mode="cell")
-    policy = make_planner(planner, seed=seed)
-    eng.reset(episode_indices=[0])
-    frames = [render_world(eng.world, 0)]
-    while not eng.state.done[0] and len(frames) < max_frames:
-        eng.step(policy.act(eng), max_ticks=1)  # pause after every tick to draw it
-        frames.append(render_world(eng.world, 0))
-    return save_gif(frames, path, fps=6)
+    keys = ("success_rate", "success_by_100", "mean_rescue_tick", "mean_target_found_tick",
+            "mean_explored_fraction", "decisions")  # fmt: skip
+    row = {"planner": planner, "preset": preset, "episodes": episodes, "seed": seed}
+    return row | {k: metrics[k] for k in keys} | {"seconds": time.perf_counter() - t0}
 
 
 def _write(out: Path, rows: list[dict]) -> None:
@@ -120,7 +93,9 @@ def main(argv: list[str] | None = None) -> list[dict]:
             f"{found:>8} {r['mean_explored_fraction']:>9.2f}"
         )
     best = max(rows, key=lambda r: (r["success_by_100"], -(r["mean_rescue_tick"] or 1e9)))
-    gif = render_episode(best["planner"], args.preset, args.seed, out / "episode.gif")
+    # episode 0 of the seed, one frame per tick between events
+    eng = EventEngine(make_config(args.preset), 1, seed=args.seed, goal_mode="cell")
+    gif = render_episode(eng, make_planner(best["planner"], seed=args.seed), out / "episode.gif", fps=6)
     print(f"wrote {out / 'results.json'}, {out / 'results.csv'} and {gif} ({best['planner']})")
     return rows
 

@@ -4,7 +4,8 @@
 only: free cells white, walls dark grey, obstacles black, target green, clues pink, cells no robot has
 explored dimmed, robots as class-coloured triangles pointing along their heading, each robot's goal as
 a ring of its colour, and (optionally) communication links between neighbourhood members.
-:func:`save_gif` writes a list of frames (needs the ``render`` extra: ``imageio``).
+:func:`save_gif` writes a list of frames (needs the ``render`` extra: ``imageio``);
+:func:`episode_frames` / :func:`render_episode` draw a policy playing one episode (one frame per tick).
 """
 
 from __future__ import annotations
@@ -16,8 +17,10 @@ from pathlib import Path
 import numpy as np
 
 from catmip_env.constants import CLUE, EXPLORED, OBSTACLE, TARGET, WALL
+from catmip_env.events import EventEngine
+from catmip_env.play import Policy, play
 
-__all__ = ["render_world", "render_ansi", "save_gif", "CLASS_COLOURS"]
+__all__ = ["render_world", "render_ansi", "save_gif", "episode_frames", "render_episode", "CLASS_COLOURS"]
 
 _FREE = np.array([255, 255, 255], np.uint8)
 _COLOURS = {
@@ -136,3 +139,33 @@ def save_gif(frames: Sequence[np.ndarray], path: str | Path, fps: int = 8) -> Pa
     finally:
         tmp.unlink(missing_ok=True)
     return path
+
+
+def episode_frames(
+    engine: EventEngine, policy: Policy, episode: int = 0, max_frames: int = 400
+) -> list[np.ndarray]:
+    """Frames of ``policy`` playing episode index ``episode`` in world 0 of ``engine`` (a one-world
+    engine; it is reset): the start, then one frame per tick (the engine pauses after every tick), until
+    the episode ends or there are ``max_frames``."""
+    engine.reset(episode_indices=[episode])
+    frames = [render_world(engine.world, 0)]
+    play(
+        engine,
+        policy,
+        on_event=lambda eng: frames.append(render_world(eng.world, 0)),
+        until=lambda _: len(frames) >= max_frames,
+        max_ticks=1,
+    )
+    return frames
+
+
+def render_episode(
+    engine: EventEngine,
+    policy: Policy,
+    path: str | Path,
+    episode: int = 0,
+    fps: int = 8,
+    max_frames: int = 400,
+) -> Path:
+    """GIF at ``path`` of :func:`episode_frames` (``fps`` frames, i.e. ticks, per second)."""
+    return save_gif(episode_frames(engine, policy, episode, max_frames), path, fps=fps)

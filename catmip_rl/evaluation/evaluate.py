@@ -30,10 +30,10 @@ from typing import Any
 import numpy as np
 import torch
 
-from catmip_env import EnvConfig, make_config
-from catmip_env.decision_stats import DecisionTracker
+from catmip_env import EnvConfig, make_config, render
 from catmip_env.events import EventEngine
 from catmip_env.planners import PLANNERS, make_planner
+from catmip_env.play import EpisodeRecords, decision_metrics, episode_metrics, play, success_curve
 from catmip_env.window_planner import make_window_planner
 from catmip_rl.amat.model import AMAT
 from catmip_rl.checkpoint import load_model, resolve_model
@@ -48,7 +48,7 @@ __all__ = [
     "Method",
     "parse_method",
     "evaluate",
-    "success_curve",
+    "episode_rows",
     "map_hash",
     "render_episode",
     "TASKS",
@@ -159,14 +159,6 @@ def make_policy(method: Method, seed: int, model: AMAT | None = None):
 
 
 # -- results ------------------------------------------------------------------------------------
-def success_curve(rescue_ticks: np.ndarray, horizon: int) -> np.ndarray:
-    """Fraction of episodes rescued by tick t, for t = 0 .. horizon ((horizon + 1,) float)."""
-    ticks = np.asarray(rescue_ticks)
-    rescued = ticks[ticks >= 0]
-    counts = np.bincount(np.minimum(rescued, horizon), minlength=horizon + 1)
-    return np.cumsum(counts) / max(len(ticks), 1)
-
-
 @dataclass
 class EvalResult:
     method: str
@@ -229,59 +221,29 @@ def evaluate(
     passes = 2 if isinstance(policy, AmatExecutor) and sampled_too else 1
     bar = progress_bar(episodes * passes, f"{method.name} {setting.label}", progress)
     t0 = time.perf_counter()
-    eng, tracker, events, maps = _play(policy, cfg, goal_mode, episodes, seed, bar, engine_hook)
+    records, maps = _play_maps(policy, cfg, goal_mode, episodes, seed, bar, engine_hook)
     seconds = time.perf_counter() - t0
     sampled = None
     if isinstance(policy, AmatExecutor) and sampled_too:  # the same maps with sampled actions
         gen = torch.Generator().manual_seed(seed)
-        sampled = _play(AmatExecutor(policy.model, False, gen, policy.loop_guard), cfg, goal_mode,
-                        episodes, seed, bar, None)[0].state.rescue_tick.copy()  # fmt: skip
+        sampler = AmatExecutor(policy.model, False, gen, policy.loop_guard)
+        sampled = _play_maps(sampler, cfg, goal_mode, episodes, seed, bar, None)[0]
     if bar is not None:
         bar.close()
-    st = eng.state
-    explored = eng.world.explored_fraction()
-    rows = []
-    for e in range(episodes):
-        row = {
-            "method": method.name,
-            "task": setting.task,
-            "comm": setting.comm,
-            "noise": setting.noise,
-            "max_ma_ticks": setting.max_ma_ticks,
-            "seed": seed,
-            "episode": e,
-            "map_hash": maps[e],
-            "rescued": bool(st.rescue_tick[e] >= 0),
-            "rescue_tick": int(st.rescue_tick[e]) if st.rescue_tick[e] >= 0 else None,
-            "target_found_tick": int(st.found_tick[e]) if st.found_tick[e] >= 0 else None,
-            "explored_fraction": float(explored[e]),
-            "ticks": int(st.ticks[e]),
-            "events": int(events[e]),
-            "decisions": int(tracker.decisions[e].sum()),
-            "stalls": int(tracker.stalls[e].sum()),
-        }
-        if sampled is not None:
-            row["sampled_rescue_tick"] = int(sampled[e]) if sampled[e] >= 0 else None
-        if isinstance(policy, AmatExecutor):
-            row.update(
-                messages=int(policy.messages[e]),
-                bytes_embedding=int(policy.bytes_embedding[e]),
-                bytes_raw=int(policy.bytes_raw[e]),
-            )
-        else:  # planners decide on the robot's own (C-SLAM merged) belief: no decision messages
-            row.update(messages=0, bytes_embedding=0, bytes_raw=0)
-        rows.append(row)
-    curve = success_curve(st.rescue_tick, cfg.horizon_ticks)
-    result = EvalResult(method.name, setting, seed, rows, curve)
-    result.summary = summarise(rows, curve, cfg.horizon_ticks)
-    result.summary |= tracker.summary(st.cls, cfg.classes)
+    rows = episode_rows(method, setting, seed, maps, records, sampled, policy)
+    horizon = cfg.horizon_ticks
+    result = EvalResult(method.name, setting, seed, rows, success_curve(records.rescue_tick, horizon))
+    decisions = max(int(records.decisions.sum()), 1)
+    result.summary = episode_metrics(records, horizon) | {
+        "bytes_per_decision_embedding": sum(r["bytes_embedding"] for r in rows) / decisions,
+        "bytes_per_decision_raw": sum(r["bytes_raw"] for r in rows) / decisions,
+    }
+    result.summary |= decision_metrics(records, cfg.classes)
     if sampled is not None:
-        result.sampled_curve = success_curve(sampled, cfg.horizon_ticks)
-        result.summary |= {
-            "sampled_success_rate": float(result.sampled_curve[-1]),
-            "sampled_success_by_100": float(result.sampled_curve[min(100, cfg.horizon_ticks)]),
-            "sampled_mean_rescue_tick": float(sampled[sampled >= 0].mean()) if (sampled >= 0).any() else None,
-        }
+        result.sampled_curve = success_curve(sampled.rescue_tick, horizon)
+        m = episode_metrics(sampled, horizon)
+        keys = ("success_rate", "success_by_100", "mean_rescue_tick")
+        result.summary |= {f"sampled_{k}": m[k] for k in keys}
     result.summary.update(
         method=method.name,
         method_kind=method.kind,
@@ -294,27 +256,73 @@ def evaluate(
     return result
 
 
-def _play(policy, cfg: EnvConfig, goal_mode: str, episodes: int, seed: int, bar, engine_hook):
-    """One episode on each of the maps 0 .. episodes-1 of ``seed``: (engine, decision tracker, events
-    per episode, map hashes)."""
+def episode_rows(
+    method: Method,
+    setting: EvalSetting,
+    seed: int,
+    maps: list[str],
+    records: EpisodeRecords,
+    sampled: EpisodeRecords | None,
+    policy,
+) -> list[dict[str, Any]]:
+    """One row per episode (episodes.csv / episodes.json): the setting, the map hash, the outcome,
+    the decision counts, and the decision messages of an :class:`AmatExecutor` ``policy``."""
+
+    def tick(t) -> int | None:
+        return int(t) if t >= 0 else None
+
+    rows = []
+    for e in range(records.num_worlds):
+        row = {
+            "method": method.name,
+            "task": setting.task,
+            "comm": setting.comm,
+            "noise": setting.noise,
+            "max_ma_ticks": setting.max_ma_ticks,
+            "seed": seed,
+            "episode": e,
+            "map_hash": maps[e],
+            "rescued": bool(records.rescued[e]),
+            "rescue_tick": tick(records.rescue_tick[e]),
+            "target_found_tick": tick(records.found_tick[e]),
+            "explored_fraction": float(records.explored_fraction[e]),
+            "ticks": int(records.ticks[e]),
+            "events": int(records.events[e]),
+            "decisions": int(records.decisions[e].sum()),
+            "stalls": int(records.stalls[e].sum()),
+        }
+        if sampled is not None:
+            row["sampled_rescue_tick"] = tick(sampled.rescue_tick[e])
+        if isinstance(policy, AmatExecutor):
+            row.update(
+                messages=int(policy.messages[e]),
+                bytes_embedding=int(policy.bytes_embedding[e]),
+                bytes_raw=int(policy.bytes_raw[e]),
+            )
+        else:  # planners decide on the robot's own (C-SLAM merged) belief: no decision messages
+            row.update(messages=0, bytes_embedding=0, bytes_raw=0)
+        rows.append(row)
+    return rows
+
+
+def _play_maps(
+    policy, cfg: EnvConfig, goal_mode: str, episodes: int, seed: int, bar, engine_hook
+) -> tuple[EpisodeRecords, list[str]]:
+    """One episode on each of the maps 0 .. episodes-1 of ``seed``: (records, map hashes)."""
     eng = EventEngine(cfg, num_worlds=episodes, seed=seed, goal_mode=goal_mode)
     eng.reset(episode_indices=np.arange(episodes))
     maps = [map_hash(eng, e) for e in range(episodes)]
     if isinstance(policy, AmatExecutor):
         policy.reset_counters(episodes, eng.num_robots)
-    tracker = DecisionTracker(episodes, eng.num_robots)
-    tracker.reset(eng)
-    events = np.zeros(episodes, np.int64)
     done_before = 0 if bar is None else bar.n
-    while not eng.state.done.all():
-        events += ~eng.state.done
-        tracker.before_step(eng)
-        eng.step(policy.act(eng))
+
+    def on_event(engine: EventEngine) -> None:
         if engine_hook is not None:
-            engine_hook(eng)
-        if bar is not None and done_before + int(eng.state.done.sum()) > bar.n:
-            bar.update(done_before + int(eng.state.done.sum()) - bar.n)
-    return eng, tracker, events, maps
+            engine_hook(engine)
+        if bar is not None and done_before + int(engine.state.done.sum()) > bar.n:
+            bar.update(done_before + int(engine.state.done.sum()) - bar.n)
+
+    return play(eng, policy, on_event=on_event), maps
 
 
 def map_hash(engine: EventEngine, b: int) -> str:
@@ -322,29 +330,6 @@ def map_hash(engine: EventEngine, b: int) -> str:
     st = engine.state
     parts = (st.grid[b], st.target[b], st.pos[b], st.heading[b], st.cls[b])
     return f"{zlib.crc32(b''.join(np.ascontiguousarray(p).tobytes() for p in parts)):08x}"
-
-
-def summarise(rows: list[dict[str, Any]], curve: np.ndarray, horizon: int) -> dict[str, Any]:
-    """Success rates, mean ticks, explored fraction and message sizes over the episodes of ``rows``."""
-
-    def mean(key: str) -> float | None:
-        vals = [r[key] for r in rows if r[key] is not None]
-        return float(np.mean(vals)) if vals else None
-
-    decisions = sum(r["decisions"] for r in rows)
-    return {
-        "episodes": len(rows),
-        "horizon": horizon,
-        "success_rate": float(curve[-1]),
-        "success_by_100": float(curve[min(100, horizon)]),
-        "mean_rescue_tick": mean("rescue_tick"),
-        "mean_target_found_tick": mean("target_found_tick"),
-        "target_found_rate": float(np.mean([r["target_found_tick"] is not None for r in rows])),
-        "mean_explored_fraction": mean("explored_fraction"),
-        "decisions": decisions,
-        "bytes_per_decision_embedding": sum(r["bytes_embedding"] for r in rows) / max(decisions, 1),
-        "bytes_per_decision_raw": sum(r["bytes_raw"] for r in rows) / max(decisions, 1),
-    }
 
 
 def render_episode(
@@ -358,17 +343,12 @@ def render_episode(
     model: AMAT | None = None,
 ) -> Path:
     """GIF of one evaluation episode (the map of ``episode`` of ``seed``, as in :func:`evaluate`),
-    one frame per tick: robots, their goals, explored area, communication links; ``fps`` defaults to
-    the env's ``metadata["render_fps"]``."""
-    from catmip_env.render import render_world, save_gif
+    one frame per tick (:func:`catmip_env.render.render_episode`): robots, their goals, explored area,
+    communication links; ``fps`` defaults to the env's ``metadata["render_fps"]``."""
     from catmip_env.search_rescue_v0 import SearchRescueEnv
 
     method = parse_method(method) if isinstance(method, str) else method
     policy, goal_mode, window = make_policy(method, seed, model)
     eng = EventEngine(setting.env_config(window), num_worlds=1, seed=seed, goal_mode=goal_mode)
-    eng.reset(episode_indices=[episode])
-    frames = [render_world(eng.world, 0)]
-    while not eng.state.done[0] and len(frames) < max_frames:
-        eng.step(policy.act(eng), max_ticks=1)  # pause after every tick to draw it
-        frames.append(render_world(eng.world, 0))
-    return save_gif(frames, path, fps=SearchRescueEnv.metadata["render_fps"] if fps is None else fps)
+    fps = SearchRescueEnv.metadata["render_fps"] if fps is None else fps
+    return render.render_episode(eng, policy, path, episode, fps=fps, max_frames=max_frames)

@@ -1,9 +1,9 @@
 """Distributed execution (docs/design.md#distributed-execution): :class:`AmatExecutor` runs AMAT over a
-batch of worlds as the robots would, with message accounting; the helpers below do one neighbourhood by
-hand. In both, every
-robot embeds its own macro-observation and sends a d-float token; the coordinator of each neighbourhood
-(its lowest id) runs encoder + decoder on the members' tokens only and sends each active member its
-goal.
+batch of worlds as the robots would, with message accounting; its decisions are
+:func:`decide_neighbourhoods` (``decide_by_neighbourhood``: the same on one world's tensors), and the
+helpers below do one neighbourhood by hand. In both, every robot embeds its own macro-observation and
+sends a d-float token; the coordinator of each neighbourhood (its lowest id) runs encoder + decoder on
+the members' tokens only and sends each active member its goal.
 
 >>> token = embed_robot(model, obs, i)                  # on robot i: (d,)
 >>> goals = coordinate(model, tokens, classes, masks, active)   # on the coordinator
@@ -16,6 +16,7 @@ import numpy as np
 import torch
 
 from catmip_env.events import EventEngine
+from catmip_rl.amat.inputs import macro_observation
 from catmip_rl.amat.model import AMAT, AmatConfig, decision_order
 
 __all__ = [
@@ -24,6 +25,7 @@ __all__ = [
     "embed_robot",
     "coordinate",
     "message_bytes",
+    "decide_neighbourhoods",
     "decide_by_neighbourhood",
 ]
 
@@ -65,20 +67,22 @@ def decide_by_neighbourhood(
     neighbourhood: torch.Tensor,  # (N,) long labels
     deterministic: bool = True,
 ) -> torch.Tensor:
-    """Goals (N,) of one world decided neighbourhood by neighbourhood (busy robots: keep action)."""
-    n = active.shape[0]
-    tokens = torch.stack([embed_robot(model, obs, i) for i in range(n)])
-    actions = action_mask.float().argmax(-1)
-    for label in torch.unique(neighbourhood):
-        members = torch.nonzero(neighbourhood == label)[:, 0]
-        if not active[members].any():
-            continue
-        a, _ = coordinate(
-            model, tokens[members], obs["agent_class"][members], action_mask[members], active[members],
-            deterministic,
-        )  # fmt: skip
-        actions[members] = torch.where(active[members], a, actions[members])
-    return actions
+    """Goals (N,) of one world decided neighbourhood by neighbourhood (busy robots: their first valid
+    action): :func:`decide_neighbourhoods` (what :class:`AmatExecutor` runs) on a batch of one world."""
+    labels = neighbourhood.numpy()
+    lowest = np.array([np.flatnonzero(labels == label)[0] for label in labels], np.int64)
+    actions, _, _ = decide_neighbourhoods(
+        model,
+        obs["global_map"].numpy()[None],
+        obs["local_map"].numpy()[None],
+        obs["agent_class"].argmax(-1).numpy()[None],
+        action_mask.numpy()[None],
+        active.numpy().astype(np.bool_)[None],
+        lowest[None],
+        stay_action=action_mask.shape[-1] // 2,  # the window's centre
+        deterministic=deterministic,
+    )
+    return torch.from_numpy(actions[0])
 
 
 def message_bytes(config: AmatConfig, map_shape: tuple[int, int], float_bytes: int = 4) -> dict[str, int]:
@@ -92,6 +96,67 @@ def message_bytes(config: AmatConfig, map_shape: tuple[int, int], float_bytes: i
         "raw_float32": (raw_values + config.n_classes) * float_bytes,
         "raw_uint8": raw_values + config.n_classes,
     }
+
+
+@torch.no_grad()
+def decide_neighbourhoods(
+    model: AMAT,
+    global_map: np.ndarray,  # (B, N, 5+C, H, W) uint8 macro-observations
+    local_map: np.ndarray,  # (B, N, 4+C, L, L) uint8
+    cls: np.ndarray,  # (B, N) int class index
+    masks: np.ndarray,  # (B, N, A) action masks
+    active: np.ndarray,  # (B, N) bool robots that decide now
+    comp: np.ndarray,  # (B, N) int neighbourhood label = its lowest robot id
+    stay_action: int,
+    deterministic: bool = True,
+    generator: torch.Generator | None = None,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The decisions of every neighbourhood with an active robot, each on its members' tokens only
+    (encoder + decoder on one padded row per neighbourhood: other rows' robots are invisible):
+    (actions (B, N) int64 (inactive robots: their first valid action), the world of each decided
+    neighbourhood (R,), its members (R, N) bool)."""
+    b, n = active.shape
+    actions = masks.argmax(-1).astype(np.int64)
+    if not active.any():
+        return actions, np.zeros(0, np.int64), np.zeros((0, n), np.bool_)
+    # one row per neighbourhood (= component label, its lowest id) with an active member
+    bb, ii = np.nonzero(active)
+    has_active = np.zeros((b, n), np.bool_)
+    has_active[bb, comp[bb, ii]] = True
+    b_of_row, label = np.nonzero(has_active)
+    member = comp[b_of_row] == label[:, None]  # (R, N), members in ascending id
+    r = len(b_of_row)
+    slot = np.cumsum(member, axis=1) - 1  # position of each member inside its row
+    row_idx, robot = np.nonzero(member)
+    pos = slot[row_idx, robot]
+    world = b_of_row[row_idx]
+    # every member embeds its own macro-observation (robots of other neighbourhoods need not)
+    c = model.config.n_classes
+    obs = macro_observation(
+        global_map[world, robot][None], local_map[world, robot][None], cls[world, robot][None], c
+    )
+    tokens = model.embed(obs)[0]  # (K, d)
+    tok = tokens.new_zeros(r, n, tokens.shape[-1])
+    tok[row_idx, pos] = tokens
+    padding = torch.ones(r, n, dtype=torch.bool)
+    padding[row_idx, pos] = False
+    act_rows = torch.zeros(r, n, dtype=torch.bool)
+    act_rows[row_idx, pos] = torch.from_numpy(active[world, robot])
+    mask_rows = torch.zeros(r, n, masks.shape[-1], dtype=torch.bool)
+    mask_rows[:, :, stay_action] = True  # padding slots: any single valid entry
+    mask_rows[row_idx, pos] = torch.from_numpy(masks[world, robot].astype(np.bool_))
+    cls_rows = torch.zeros(r, n, c)
+    cls_rows[row_idx, pos] = obs["agent_class"][0]
+    rep, _ = model.encode(tok, key_padding_mask=padding)
+    order = decision_order(act_rows, padding)
+    a, _ = model.decode_autoregressive(
+        rep, mask_rows, order, act_rows, cls_rows, deterministic=deterministic,
+        generator=generator,
+    )  # fmt: skip
+    chosen = a[row_idx, pos].numpy()
+    is_active = act_rows[row_idx, pos].numpy()
+    actions[world[is_active], robot[is_active]] = chosen[is_active]
+    return actions, b_of_row, member
 
 
 class AmatExecutor:
@@ -155,53 +220,14 @@ class AmatExecutor:
         if self.messages is None or self._last_action.shape != (engine.num_worlds, engine.num_robots):
             self.reset_counters(engine.num_worlds, engine.num_robots)
         st = engine.state
-        n = engine.num_robots
         active = engine.active & ~st.done[:, None]
         masks = self._guarded_masks(engine, active) if self.loop_guard else engine.masks
-        actions = masks.argmax(-1).astype(np.int64)
+        actions, b_of_row, member = decide_neighbourhoods(
+            self.model, engine.obs_global, engine.obs_local, st.cls, masks, active, st.comp,
+            engine.stay_action, self.deterministic, self.generator,
+        )  # fmt: skip
         if not active.any():
             return actions
-        # one row per neighbourhood (= component label, its lowest id) with an active member
-        bb, ii = np.nonzero(active)
-        has_active = np.zeros((engine.num_worlds, n), np.bool_)
-        has_active[bb, st.comp[bb, ii]] = True
-        b_of_row, label = np.nonzero(has_active)
-        member = st.comp[b_of_row] == label[:, None]  # (R, N), members in ascending id
-        r = len(b_of_row)
-        slot = np.cumsum(member, axis=1) - 1  # position of each member inside its row
-        row_idx, robot = np.nonzero(member)
-        pos = slot[row_idx, robot]
-        world = b_of_row[row_idx]
-        # every member embeds its own macro-observation (robots of other neighbourhoods need not)
-        c = engine.cfg.num_classes
-        cls = torch.nn.functional.one_hot(torch.from_numpy(st.cls[world, robot]), c).float()
-        tokens = self.model.embed(
-            {
-                "global_map": torch.from_numpy(engine.obs_global[world, robot])[None],
-                "local_map": torch.from_numpy(engine.obs_local[world, robot])[None],
-                "agent_class": cls[None],
-            }
-        )[0]  # (K, d)
-        tok = tokens.new_zeros(r, n, tokens.shape[-1])
-        tok[row_idx, pos] = tokens
-        padding = torch.ones(r, n, dtype=torch.bool)
-        padding[row_idx, pos] = False
-        act_rows = torch.zeros(r, n, dtype=torch.bool)
-        act_rows[row_idx, pos] = torch.from_numpy(active[world, robot])
-        mask_rows = torch.zeros(r, n, engine.num_actions, dtype=torch.bool)
-        mask_rows[:, :, engine.stay_action] = True  # padding slots: any single valid entry
-        mask_rows[row_idx, pos] = torch.from_numpy(masks[world, robot].astype(np.bool_))
-        cls_rows = torch.zeros(r, n, c)
-        cls_rows[row_idx, pos] = cls
-        rep, _ = self.model.encode(tok, key_padding_mask=padding)
-        order = decision_order(act_rows, padding)
-        a, _ = self.model.decode_autoregressive(
-            rep, mask_rows, order, act_rows, cls_rows, deterministic=self.deterministic,
-            generator=self.generator,
-        )  # fmt: skip
-        chosen = a[row_idx, pos].numpy()
-        is_active = act_rows[row_idx, pos].numpy()
-        actions[world[is_active], robot[is_active]] = chosen[is_active]
         self._last_action[active] = actions[active]
         self._count(engine, b_of_row, member, active)
         return actions

@@ -10,6 +10,7 @@ import pytest
 import torch
 
 from catmip_env.events import EventEngine
+from catmip_env.play import success_curve
 from catmip_rl import AMAT, AmatConfig, save_model
 from catmip_rl.amat.model import decision_order
 from catmip_rl.cli import main as cli
@@ -21,7 +22,6 @@ from catmip_rl.evaluation.evaluate import (
     evaluate,
     parse_method,
     render_episode,
-    success_curve,
 )
 from catmip_rl.evaluation.execution import message_bytes
 from catmip_rl.evaluation.paper import FIGURES, run_figure
