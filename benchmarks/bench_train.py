@@ -15,64 +15,40 @@ for the update (the PPO loss's forward pass, in one process; collection in fp32)
 from __future__ import annotations
 
 import argparse
-import csv
 import platform
 import shutil
 import tempfile
-from collections.abc import Iterator
-from contextlib import contextmanager
+import time
 from pathlib import Path
 
 import torch
 from common import write_json
 
-import catmip_rl.training.ppo as ppo_module
-import catmip_rl.training.train as train_module
 from catmip_rl.training.config import make_train_config
 from catmip_rl.training.precision import native_bf16
-from catmip_rl.training.train import train
-
-
-@contextmanager
-def instrumented(bf16: bool) -> Iterator[list[dict]]:
-    """Record each rollout's decision events and world-ticks; with ``bf16``, run the PPO loss under
-    CPU bf16 autocast (in this process). Wraps the names ``training.train`` and ``training.ppo`` call,
-    restored on exit."""
-    seen: list[dict] = []
-    build_batch, ppo_loss = train_module.build_batch, ppo_module.ppo_loss
-
-    def recording_build_batch(r, *args, **kwargs):
-        seen.append({"events": r.num_samples, "world_ticks": r.stats["episode_ticks"] * r.valid.shape[1]})
-        return build_batch(r, *args, **kwargs)
-
-    def bf16_ppo_loss(*args, **kwargs):
-        with torch.autocast("cpu", dtype=torch.bfloat16):
-            return ppo_loss(*args, **kwargs)
-
-    train_module.build_batch = recording_build_batch
-    if bf16:
-        ppo_module.ppo_loss = bf16_ppo_loss
-    try:
-        yield seen
-    finally:
-        train_module.build_batch, ppo_module.ppo_loss = build_batch, ppo_loss
+from catmip_rl.training.train import build_run, ppo_iteration
 
 
 def run(
     epochs: int, iterations: int, threads: int, worlds: int = 64, bf16: bool = False, processes: int = 2
 ) -> dict:
-    processes = 1 if bf16 else processes  # autocast is set in this process only
+    processes = 1 if bf16 else processes  # autocast runs in the training process only
     cfg = make_train_config("paper", iterations=iterations, epochs=epochs, threads=threads, num_worlds=worlds,
-                            eval_every=0, checkpoint_every=0, update_processes=processes)  # fmt: skip
+                            eval_every=0, checkpoint_every=0, update_processes=processes,
+                            precision="bf16" if bf16 else "fp32")  # fmt: skip
     tmp = Path(tempfile.mkdtemp(prefix="catmip_bench_"))
+    run = build_run(cfg)
     try:
-        with instrumented(bf16) as seen:
-            train(cfg, tmp / "run", progress=False)
-        rows = list(csv.DictReader((tmp / "run" / "metrics.csv").open()))
+        for _ in range(iterations):  # the stages of training's loop: collect, GAE + batch, update
+            t0 = time.perf_counter()
+            row, _, rollout = ppo_iteration(run, tmp)
+            iteration_s = time.perf_counter() - t0
     finally:
+        run.close()
         shutil.rmtree(tmp, ignore_errors=True)
-    last = rows[-1]  # the first iteration includes numba/torch warm-up
-    iteration_s = float(last["time/iteration_s"])
+    # the last iteration is reported: the first includes numba/torch warm-up
+    events = rollout.num_samples
+    world_ticks = rollout.stats["episode_ticks"] * rollout.valid.shape[1]
     out = {
         "epochs": epochs,
         "threads": threads,
@@ -80,15 +56,15 @@ def run(
         "num_worlds": worlds,
         "iterations": iterations,
         "precision": "bf16-autocast" if bf16 else "fp32",
-        "collect_s": float(last["time/collect_s"]),
-        "advantage_s": float(last["time/advantage_s"]),
-        "update_s": float(last["time/update_s"]),
+        "collect_s": row["time/collect_s"],
+        "advantage_s": row["time/advantage_s"],
+        "update_s": row["time/update_s"],
         "iteration_s": iteration_s,
-        "trainable_samples": float(last["samples"]),  # trainable (robot, event) samples
-        "decision_events": seen[-1]["events"],
-        "world_ticks": seen[-1]["world_ticks"],
-        "events_per_s": seen[-1]["events"] / iteration_s,
-        "world_ticks_per_s": seen[-1]["world_ticks"] / iteration_s,
+        "trainable_samples": row["samples"],  # trainable (robot, event) samples
+        "decision_events": events,
+        "world_ticks": world_ticks,
+        "events_per_s": events / iteration_s,
+        "world_ticks_per_s": world_ticks / iteration_s,
     }
     print(
         f"{epochs:2d} epochs {out['precision']}, {processes} update proc.: {iteration_s:.1f} s/iteration "

@@ -169,9 +169,62 @@ def _state_mismatch(state: Any, expected: dict[str, torch.Tensor], shown: int = 
     return "; ".join(f"{what}: {some(keys)}" for what, keys in kinds.items() if keys)
 
 
-# what a training checkpoint holds (catmip_rl.training.train); a file without these keys cannot be resumed
+# what a training checkpoint must hold to be resumed (save_training_checkpoint writes them all)
 _RESUME_KEYS = ("iteration", "episodes", "model", "optimizer", "value_norm", "generator", "torch_rng",
                 "config")  # fmt: skip
+
+
+def save_training_checkpoint(
+    path: str | Path,
+    *,
+    iteration: int,
+    episodes: int,
+    elapsed_s: float,
+    bf16: bool | None,
+    model: AMAT,
+    optimizer: torch.optim.Optimizer,
+    value_norm: torch.nn.Module,
+    generator: torch.Generator,
+    config: Any,
+) -> Path:
+    """Write everything a run needs to continue exactly (atomically): the iteration, episodes and
+    training seconds so far (a time budget's LR schedule reads them), the precision "auto" chose
+    (None: not chosen yet; a resumed run keeps it), model, optimiser, value normaliser, the sampling
+    generator and torch's global RNG, and the :class:`~catmip_rl.training.config.TrainConfig` as JSON.
+    ``load_model`` reads the model and its ``amat_config`` from the same file."""
+    return atomic_torch_save(
+        {
+            "iteration": iteration,
+            "episodes": episodes,
+            "elapsed_s": elapsed_s,
+            "bf16": bf16,
+            "model": model.state_dict(),
+            "amat_config": config.amat_config().__dict__,
+            "optimizer": optimizer.state_dict(),
+            "value_norm": value_norm.state_dict(),
+            "generator": generator.get_state(),
+            "torch_rng": torch.get_rng_state(),
+            "config": config.to_json(),
+        },
+        path,
+    )
+
+
+def restore_training(
+    saved: dict,
+    model: AMAT,
+    optimizer: torch.optim.Optimizer,
+    value_norm: torch.nn.Module,
+    generator: torch.Generator,
+) -> tuple[int, int, float]:
+    """Load a checkpoint of :func:`save_training_checkpoint` into freshly built parts (and torch's
+    global RNG); returns (iteration, episodes, training seconds) to continue from."""
+    model.load_state_dict(saved["model"])
+    optimizer.load_state_dict(saved["optimizer"])
+    value_norm.load_state_dict(saved["value_norm"])
+    generator.set_state(saved["generator"])
+    torch.set_rng_state(saved["torch_rng"])
+    return saved["iteration"], saved["episodes"], saved.get("elapsed_s", 0.0)
 
 
 def _read_training_checkpoint(path: Path) -> dict:

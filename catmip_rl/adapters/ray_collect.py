@@ -32,17 +32,12 @@ from tensordict import TensorDict
 from torchrl.collectors import BaseCollector
 
 from catmip_rl.amat.model import AMAT
-from catmip_rl.training.collect import Collector, Rollout
+from catmip_rl.training.collect import STEP_FIELDS, Collector, Rollout
 from catmip_rl.training.config import TrainConfig
 
 __all__ = ["ShardCollector", "RayRolloutCollector", "import_ray", "RAY_MISSING"]
 
 RAY_MISSING = "--collector ray needs the distributed extra: pip install 'catmip[distributed]'"
-# (T, B, ...) arrays of a Rollout; final_return (B, N), terminated (B,) and stats a dict
-_TIME_MAJOR = (
-    "global_map", "local_map", "agent_class", "action_mask", "active", "order", "action", "log_prob",
-    "value", "ma_return", "ma_ticks", "valid",
-)  # fmt: skip
 
 
 def import_ray() -> Any:
@@ -128,7 +123,7 @@ class ShardCollector(BaseCollector):
         r = self.collector.collect(self.policy, first, generator=gen, deterministic=self.deterministic)
         b, t = self.share, r.steps
         data = {}
-        for key in _TIME_MAJOR:
+        for key in STEP_FIELDS:
             arr = getattr(r, key)
             padded = np.zeros((b, self.pad_steps) + arr.shape[2:], arr.dtype)
             padded[:, :t] = arr.swapaxes(0, 1)
@@ -256,7 +251,7 @@ class RayRolloutCollector:
         if not np.array_equal(episodes, np.arange(first_episode, first_episode + len(episodes))):
             raise RuntimeError(f"ray workers returned episodes {episodes.tolist()} out of order")
         t = int(td["steps"].max())
-        arrays = {k: np.ascontiguousarray(td[k][:, :t].numpy().swapaxes(0, 1)) for k in _TIME_MAJOR}
+        arrays = {k: np.ascontiguousarray(td[k][:, :t].numpy().swapaxes(0, 1)) for k in STEP_FIELDS}
         share = len(episodes) // self.workers
         rows = range(0, len(episodes), share)
         stats = [{k: float(v[i]) for k, v in td["stats"].items()} for i in rows]

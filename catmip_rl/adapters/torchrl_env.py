@@ -18,6 +18,7 @@ from catmip_env import EnvConfig, make_config
 from catmip_env.constants import OBS_ONE, OBS_SCALE
 from catmip_env.events import EventEngine
 from catmip_rl.adapters import keys as K
+from catmip_rl.amat.inputs import one_hot_class
 
 __all__ = ["CatmipEnv", "float_observation_transform"]
 
@@ -161,7 +162,7 @@ class CatmipEnv(EnvBase):
             {
                 "global_map": torch.from_numpy(eng.obs_global.copy()),
                 "local_map": torch.from_numpy(eng.obs_local.copy()),
-                "agent_class": torch.nn.functional.one_hot(torch.from_numpy(st.cls), c).float(),
+                "agent_class": one_hot_class(st.cls, c),
                 "action_mask": mask,
                 "active": torch.from_numpy(eng.active.copy()),
             },

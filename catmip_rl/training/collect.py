@@ -12,7 +12,7 @@ tensordict copies per step than the whole engine step costs here.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 
 import numpy as np
 import torch
@@ -20,9 +20,11 @@ import torch
 from catmip_env import EnvConfig
 from catmip_env.decision_stats import DecisionTracker
 from catmip_env.events import EventEngine
+from catmip_env.play import decision_metrics, episode_metrics, episode_records
+from catmip_rl.amat.inputs import macro_observation
 from catmip_rl.amat.model import AMAT, decision_order
 
-__all__ = ["Rollout", "Collector", "episode_stats"]
+__all__ = ["Rollout", "Collector", "episode_stats", "STEP_FIELDS"]
 
 
 @dataclass
@@ -55,28 +57,35 @@ class Rollout:
         return int(self.valid.sum())
 
 
+# the (T, B, ...) arrays of a Rollout, one row per decision event: the collector's storage
+STEP_FIELDS = tuple(f.name for f in fields(Rollout) if f.name not in ("label", "final_return", "terminated",
+                                                                       "stats"))  # fmt: skip
+
+
 def episode_stats(
     engine: EventEngine, returns: np.ndarray, tracker: DecisionTracker | None = None
 ) -> dict[str, float]:
-    """Success rate (by the horizon and by tick 100), rescue / target-found ticks, explored fraction,
-    return per class, and with ``tracker`` decisions and stalls per episode (and per class)."""
-    st = engine.state
-    rescued = st.rescue_tick >= 0
-    found = st.found_tick >= 0
+    """The training logs' episode statistics, from the metrics every evaluation uses
+    (``catmip_env.play``): success by the horizon and by tick 100, rescue / target-found ticks (NaN
+    when none), explored fraction, episode ticks, return per class, and with ``tracker`` decisions and
+    stalls per episode (and per class)."""
+    records = episode_records(engine, tracker)
+    m = episode_metrics(records, engine.cfg.horizon_ticks)
+    nan = float("nan")
     out = {
-        "success_rate": float(rescued.mean()),
-        "success_by_100": float((rescued & (st.rescue_tick <= 100)).mean()),
-        "rescue_tick": float(st.rescue_tick[rescued].mean()) if rescued.any() else float("nan"),
-        "target_found_rate": float(found.mean()),
-        "target_found_tick": float(st.found_tick[found].mean()) if found.any() else float("nan"),
-        "explored_fraction": float(engine.world.explored_fraction().mean()),
-        "episode_ticks": float(st.ticks.mean()),
+        "success_rate": m["success_rate"],
+        "success_by_100": m["success_by_100"],
+        "rescue_tick": nan if m["mean_rescue_tick"] is None else m["mean_rescue_tick"],
+        "target_found_rate": m["target_found_rate"],
+        "target_found_tick": nan if m["mean_target_found_tick"] is None else m["mean_target_found_tick"],
+        "explored_fraction": m["mean_explored_fraction"],
+        "episode_ticks": float(records.ticks.mean()),
     }
     for k, cls in enumerate(engine.cfg.classes):
-        sel = st.cls == k
-        out[f"return_{cls.name}"] = float(returns[sel].mean()) if sel.any() else float("nan")
+        sel = records.cls == k
+        out[f"return_{cls.name}"] = float(returns[sel].mean()) if sel.any() else nan
     if tracker is not None:
-        out |= tracker.summary(st.cls, engine.cfg.classes)
+        out |= decision_metrics(records, engine.cfg.classes)
     return out
 
 
@@ -92,20 +101,14 @@ class Collector:
         b, n, (h, w), c = eng.num_worlds, eng.num_robots, eng.shape, cfg.num_classes
         t = cfg.horizon_ticks + 1  # every event takes >= 1 tick, so no episode has more decisions
         l = cfg.local_size
-        self._store = dict(
-            global_map=np.zeros((t, b, n, 5 + c, h, w), np.uint8),
-            local_map=np.zeros((t, b, n, 4 + c, l, l), np.uint8),
-            agent_class=np.zeros((t, b, n), np.int64),
-            action_mask=np.zeros((t, b, n, eng.num_actions), np.bool_),
-            active=np.zeros((t, b, n), np.bool_),
-            order=np.zeros((t, b, n), np.int64),
-            action=np.zeros((t, b, n), np.int64),
-            log_prob=np.zeros((t, b, n), np.float32),
-            value=np.zeros((t, b, n), np.float32),
-            ma_return=np.zeros((t, b, n), np.float64),
-            ma_ticks=np.zeros((t, b, n), np.int64),
-            valid=np.zeros((t, b), np.bool_),
-        )
+        shapes = {  # per (T, B) row: trailing shape and dtype of each STEP_FIELDS array
+            "global_map": ((n, 5 + c, h, w), np.uint8), "local_map": ((n, 4 + c, l, l), np.uint8),
+            "agent_class": ((n,), np.int64), "action_mask": ((n, eng.num_actions), np.bool_),
+            "active": ((n,), np.bool_), "order": ((n,), np.int64), "action": ((n,), np.int64),
+            "log_prob": ((n,), np.float32), "value": ((n,), np.float32), "ma_return": ((n,), np.float64),
+            "ma_ticks": ((n,), np.int64), "valid": ((), np.bool_),
+        }  # fmt: skip
+        self._store = {k: np.zeros((t, b, *shapes[k][0]), shapes[k][1]) for k in STEP_FIELDS}
         self._final = np.zeros((b, n), np.float64)
         self._terminated = np.zeros(b, np.bool_)
         self._label = np.zeros((t, b, n), np.int64)
@@ -150,11 +153,7 @@ class Collector:
             s["active"][t, idx] = eng.active[idx]
             s["valid"][t, idx] = True
             dev = self.device
-            obs = {
-                "global_map": torch.from_numpy(s["global_map"][t, idx]).to(dev),
-                "local_map": torch.from_numpy(s["local_map"][t, idx]).to(dev),
-                "agent_class": torch.nn.functional.one_hot(torch.from_numpy(st.cls[idx]), c).float().to(dev),
-            }
+            obs = macro_observation(s["global_map"][t, idx], s["local_map"][t, idx], st.cls[idx], c, dev)
             active = torch.from_numpy(s["active"][t, idx]).to(dev)
             mask = torch.from_numpy(s["action_mask"][t, idx]).to(dev)
             rep, values = model.encode(model.embed(obs))

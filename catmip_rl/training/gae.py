@@ -14,14 +14,21 @@ bootstrap). A rescue (termination) completes every robot's current macro-action,
 last one IS trained on: it holds the success reward, and for the rescuer it is the move that reached
 the target. A macro-action cut off by the horizon (truncation) is unfinished and is not trained on.
 Value targets are the lambda-returns ``A_k + V_k``.
+
+:func:`build_batch` runs it on a collector's rollout and gives PPO its flat sample batch.
 """
 
 from __future__ import annotations
 
 import numpy as np
+import torch
 from numba import njit
 
-__all__ = ["async_gae"]
+from catmip_rl.amat.inputs import one_hot_class
+from catmip_rl.training.collect import Rollout
+from catmip_rl.training.ppo import SampleBatch, ValueNorm
+
+__all__ = ["async_gae", "build_batch"]
 
 
 @njit(cache=True)
@@ -72,3 +79,43 @@ def async_gae(
                 a_next = a
                 v_next = values[t, b, i]
     return adv, ret, trainable
+
+
+def build_batch(r: Rollout, value_norm: ValueNorm, gamma: float, lam: float, n_classes: int,
+                device: torch.device) -> tuple[SampleBatch, dict[str, float]]:  # fmt: skip
+    """Async GAE on a rollout and the flat sample batch (rows = valid events)."""
+    values = value_norm.denormalize(torch.from_numpy(r.value).double()).numpy()
+    adv, ret, trainable = async_gae(
+        r.active,
+        r.valid,
+        values,
+        r.ma_return,
+        r.ma_ticks.astype(np.int64),
+        r.final_return,
+        r.terminated,
+        gamma,
+        lam,
+    )
+    rows = r.valid
+    ret_t = torch.from_numpy(ret[rows]).float()
+    train_t = torch.from_numpy(trainable[rows])
+    if train_t.any():
+        value_norm.update(ret_t[train_t])
+    adv_t = torch.from_numpy(adv[rows]).float()
+    if train_t.sum() > 1:
+        a = adv_t[train_t]
+        adv_t = (adv_t - a.mean()) / (a.std() + 1e-8)
+    batch = SampleBatch(
+        global_map=torch.from_numpy(r.global_map[rows]),
+        local_map=torch.from_numpy(r.local_map[rows]),
+        agent_class=one_hot_class(r.agent_class[rows], n_classes),
+        action_mask=torch.from_numpy(r.action_mask[rows]),
+        order=torch.from_numpy(r.order[rows]),
+        action=torch.from_numpy(r.action[rows]),
+        log_prob=torch.from_numpy(r.log_prob[rows]),
+        value=torch.from_numpy(r.value[rows]),
+        advantage=adv_t,
+        target=value_norm.normalize(ret_t),
+        trainable=train_t,
+    ).to(device)
+    return batch, {"samples": float(train_t.sum())}

@@ -24,6 +24,7 @@ import numpy as np
 import torch
 
 from catmip_env.window_planner import make_window_planner
+from catmip_rl.amat.inputs import one_hot_class
 from catmip_rl.amat.model import AMAT
 from catmip_rl.files import open_csv_log, write_csv_row
 from catmip_rl.training.collect import Collector, Rollout
@@ -63,8 +64,7 @@ class DemoBuffer:
     def batch(self, idx: np.ndarray, n_classes: int, device: torch.device) -> dict[str, torch.Tensor]:
         a = self.arrays
         out = {k: torch.from_numpy(a[k][idx]) for k in _KEYS if k != "agent_class"}
-        out["agent_class"] = torch.nn.functional.one_hot(torch.from_numpy(a["agent_class"][idx]), n_classes)
-        out["agent_class"] = out["agent_class"].float()
+        out["agent_class"] = one_hot_class(a["agent_class"][idx], n_classes)
         return {k: v.to(device) for k, v in out.items()}
 
 

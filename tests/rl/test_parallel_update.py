@@ -8,7 +8,8 @@ import torch
 from catmip_rl.training.config import make_train_config
 from catmip_rl.training.parallel_update import ParallelGradients
 from catmip_rl.training.ppo import accumulate_gradients
-from catmip_rl.training.train import loss_kwargs, make_optimizer, ppo_update, train
+from catmip_rl.training.train import train
+from catmip_rl.training.update import loss_kwargs, make_optimizer, ppo_update
 from tests.rl.helpers import shaken_model
 from tests.rl.test_sparse_conv import _batch
 

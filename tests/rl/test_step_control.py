@@ -6,7 +6,7 @@ import torch
 
 from catmip_rl.amat.model import AmatConfig
 from catmip_rl.training.config import make_train_config
-from catmip_rl.training.train import lr_factor, make_optimizer, ppo_update
+from catmip_rl.training.update import lr_factor, make_optimizer, ppo_update
 from tests.rl.helpers import shaken_model
 from tests.rl.test_sparse_conv import _batch
 
@@ -117,7 +117,8 @@ def test_auto_precision_measures_and_takes_bf16_only_when_clearly_faster(monkeyp
     import json
 
     from catmip_rl.training import precision
-    from catmip_rl.training.train import loss_kwargs, train
+    from catmip_rl.training.train import train
+    from catmip_rl.training.update import loss_kwargs
 
     model = shaken_model(AmatConfig(embed_dim=32)).train()
     batch = _batch(worlds=2)
