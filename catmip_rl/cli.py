@@ -1,8 +1,8 @@
 """``catmip`` command line: ``catmip train | eval | render | bench paper | bench perf``.
 
-``train`` flags map onto :class:`~catmip_rl.training.config.TrainConfig`
-fields; ``--set field=value`` reaches any
-field (values are JSON: ``--set env_overrides='{"comm_sigma": 4.0}'``).
+``train`` flags map onto :class:`~catmip_rl.training.config.TrainConfig` fields; ``--set field=value``
+reaches any field (values are JSON: ``--set env_overrides='{"comm_sigma": 4.0}'``). The parser is in
+``cli_parser``, the argument types in ``cli_args``.
 
 Bad input never starts work and never shows a traceback: argparse types check every value (one line
 naming the flag), each command checks its paths before running (checkpoints are read with
@@ -22,31 +22,11 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from catmip_rl.cli_args import (
-    CPUS,
-    NON_NEGATIVE_FLOAT,
-    NON_NEGATIVE_INT,
-    POSITIVE_FLOAT,
-    POSITIVE_INT,
-    PROBABILITY,
-    UP_TO_CPUS,
-    USER_ERRORS,
-    check_comm,
-    check_device,
-    check_method,
-    check_methods,
-    checked,
-    parse_set,
-    set_item,
-)  # fmt: skip
+from catmip_rl.cli_args import CPUS, USER_ERRORS, parse_set
+from catmip_rl.cli_parser import DEFAULT_PRESET, build_parser
 from catmip_rl.training.config import TRAIN_PRESETS, TrainConfig
 
-__all__ = ["main", "parse_set", "DEFAULT_PRESET"]
-
-DEFAULT_PRESET = "task1-warm"
-"""``catmip train`` without ``--preset``: the Task-1 recipe (~40 minutes on one CPU thread, as the shipped
-model was trained), not the paper's 62,500 iterations (days)."""
-
+__all__ = ["main", "build_parser", "parse_set", "CPUS", "DEFAULT_PRESET"]
 
 # -- the commands ----------------------------------------------------------------------------------------
 _TRAIN_FLAGS = ("iterations", "num_worlds", "epochs", "minibatches", "micro_batch", "seed", "device",
@@ -185,218 +165,7 @@ def _bench(args: argparse.Namespace) -> int:
     return 0
 
 
-# -- the parser ------------------------------------------------------------------------------------------
-class _Parser(argparse.ArgumentParser):
-    """Errors as one line: ``catmip eval: error: argument --threads: expected an int >= 1, got '0'``."""
-
-    def error(self, message: str):
-        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
-
-    def parse_known_args(self, args=None, namespace=None):
-        """Strict in every subcommand too: a flag that ``catmip bench perf`` does not take is refused by it,
-        with its usage (argparse otherwise hands it to the top parser as an unknown argument)."""
-        namespace, extras = super().parse_known_args(args, namespace)
-        if extras:
-            self.error(f"unrecognized arguments: {' '.join(extras)}")
-        return namespace, extras
-
-
-class _Formatter(argparse.ArgumentDefaultsHelpFormatter):
-    """Defaults shown where there is one (not for switches, nor flags that default to the preset's)."""
-
-    def _get_help_string(self, action: argparse.Action) -> str:
-        default = action.default
-        if default is None or default is False or default == [] or default is argparse.SUPPRESS:
-            return action.help or ""
-        return super()._get_help_string(action)
-
-
-def _version() -> str:
-    import catmip_rl
-
-    version = getattr(catmip_rl, "__version__", None)
-    if version is None:
-        from importlib.metadata import PackageNotFoundError
-        from importlib.metadata import version as dist_version
-
-        try:
-            version = dist_version("catmip")
-        except PackageNotFoundError:
-            version = "unknown"
-    return version
-
-
-def _add_train(sub) -> None:
-    tr = sub.add_parser("train", help="PPO training of AMAT", formatter_class=_Formatter,
-                        description="PPO training of AMAT into --run-dir (config.json, metrics.csv, "
-                        "tensorboard/, checkpoints/). A new run needs a new or empty --run-dir.")  # fmt: skip
-    tr.add_argument(
-        "--preset", choices=sorted(TRAIN_PRESETS),
-        help=f"training recipe (training.config.TRAIN_PRESETS); default {DEFAULT_PRESET} (the Task-1 "
-        "world: 12 DAgger rounds, then 2,000 PPO iterations, ~40 min on one CPU thread as the shipped model "
-        "was trained; the preset itself runs 2 threads), or with --resume the run's own config. tiny: a "
-        "smoke run (seconds); small: minutes; paper, paper-sync, paper-smallma: the paper's recipe (62,500 "
-        "iterations: days on a CPU); "
-        "paper-warm: the paper's world after a warm start",
-    )  # fmt: skip
-    tr.add_argument("--run-dir", required=True, help="where config.json, logs and checkpoints go")
-    tr.add_argument(
-        "--resume", action="store_true",
-        help="continue the run in --run-dir exactly, from checkpoints/latest.pt; if that is unreadable the "
-        "error names the newest readable checkpoints/iter_*.pt (copy it over latest.pt to continue from it)",
-    )  # fmt: skip
-    g = tr.add_argument_group(
-        f"overrides of the preset (default: the preset's value; {DEFAULT_PRESET}'s shown)"
-    )
-    g.add_argument("--iterations", type=POSITIVE_INT, help="PPO iterations (the LR decays to 0 over them)")
-    g.add_argument("--num-worlds", type=POSITIVE_INT, help="worlds (= episodes) collected per iteration")
-    g.add_argument("--epochs", type=POSITIVE_INT, help="PPO epochs per iteration")
-    g.add_argument("--minibatches", type=POSITIVE_INT, help="minibatches per epoch (1 = full batch)")
-    g.add_argument(
-        "--micro-batch", type=NON_NEGATIVE_INT, help="events per forward/backward pass (0 = whole)"
-    )
-    g.add_argument("--lr", type=POSITIVE_FLOAT, help="Adam learning rate (decays linearly to 0)")
-    g.add_argument("--seed", type=NON_NEGATIVE_INT, help="seed of the training worlds and the sampling")
-    g.add_argument("--device", type=checked(check_device), help="cpu | cuda | cuda:N")
-    g.add_argument("--threads", type=UP_TO_CPUS, help="torch CPU threads")
-    g.add_argument("--update-processes", type=UP_TO_CPUS,
-                   help="CPU processes computing the update's gradients (1 thread each if > 1)")  # fmt: skip
-    g.add_argument(
-        "--warm-start",
-        metavar="PLANNER",
-        help="DAgger warm start from a planner's goals (projected into the window): nearest, rrt...",
-    )
-    g.add_argument("--target-kl", type=NON_NEGATIVE_FLOAT,
-                   help="stop an iteration's PPO epochs past this approx-KL (0 = never)")  # fmt: skip
-    g.add_argument("--precision", choices=["fp32", "bf16", "auto"],
-                   help="PPO update precision (auto: bf16 where the CPU has it natively)")  # fmt: skip
-    g.add_argument("--minutes", type=NON_NEGATIVE_FLOAT,
-                   help="wall-clock budget: stop after it, decaying the LR over it (0 = none)")  # fmt: skip
-    g.add_argument("--eval-every", type=NON_NEGATIVE_INT, help="iterations between evaluations (0 = never)")
-    g.add_argument("--eval-episodes", type=POSITIVE_INT, help="episodes (fixed maps) of each evaluation")
-    g.add_argument("--checkpoint-every", type=NON_NEGATIVE_INT, help="iterations between checkpoints")
-    g.add_argument("--collector", choices=["local", "ray"], help="collect here or on Ray workers")
-    g.add_argument(
-        "--ray-workers", type=POSITIVE_INT, help="Ray workers (each collects num_worlds / N worlds)"
-    )
-    g.add_argument("--ray-address", help="Ray cluster to join: auto | HOST:PORT | ray://HOST:PORT")
-    g.add_argument("--set", action="append", default=[], type=set_item, metavar="FIELD=VALUE",
-                   help="any TrainConfig field, value as JSON (repeatable)")  # fmt: skip
-    preset = TRAIN_PRESETS[DEFAULT_PRESET]
-    for action in g._group_actions:  # each flag's value in the default preset
-        field = "budget_minutes" if action.dest == "minutes" else action.dest
-        if action.dest != "set":
-            value = getattr(preset, field)
-            action.help += f" ({DEFAULT_PRESET}: {'none' if value in (None, '') else value})"
-    tr.add_argument("--no-progress", action="store_true", help="no progress bar")
-    tr.set_defaults(func=_train, name="train")
-
-
-def _add_setting_flags(p: argparse.ArgumentParser) -> None:
-    from catmip_rl.checkpoint import shipped_models
-    from catmip_rl.evaluation.evaluate import TASKS
-
-    shipped = ", ".join(shipped_models()) or "none"
-    p.add_argument(
-        "--method", required=True, type=checked(check_method),
-        help="nearest | utility | rrt | apf | random-frontier | random | window:PLANNER (its goals projected "
-        "into the 7x7 window) | amat:PATH (a model file, checkpoint or run dir) | amat:NAME (a shipped "
-        f"model: {shipped}) | amat-guard:PATH (argmax with the loop guard)",
-    )  # fmt: skip
-    p.add_argument("--task", default="task1", choices=TASKS, help="evaluation task")
-    p.add_argument(
-        "--comm", default="full", type=checked(check_comm), help="full | 4 | 2 (link range sigma in cells)"
-    )
-    p.add_argument(
-        "--noise", type=PROBABILITY, default=0.0, help="SLAM noise: per-tick cell flip probability"
-    )
-    p.add_argument(
-        "--max-ma-ticks", type=POSITIVE_INT, default=10,
-        help="longest macro-action in ticks: a positive int (the paper uses 5, 10, 20)",
-    )  # fmt: skip
-    p.add_argument(
-        "--seed", type=NON_NEGATIVE_INT, default=0, help="map set: episode k plays map k of this seed"
-    )
-    p.add_argument("--threads", type=UP_TO_CPUS, default=min(2, CPUS), help="torch CPU threads")
-
-
-def _add_eval_render(sub) -> None:
-    from catmip_env.search_rescue_v0 import SearchRescueEnv
-
-    ev = sub.add_parser(
-        "eval", help="evaluate a method on the paper's protocol", formatter_class=_Formatter,
-        description="Evaluate a method on the paper's protocol (maps 0 .. N-1 of --seed, argmax actions for "
-        "AMAT) and write episodes.csv/json, curve.csv and summary.json into --out.",
-    )  # fmt: skip
-    _add_setting_flags(ev)
-    ev.add_argument("--episodes", type=POSITIVE_INT, default=100, help="maps 0 .. N-1 of the seed")
-    ev.add_argument("--out", required=True, help="new or empty folder for episodes.csv/json, curve.csv, "
-                    "summary.json")  # fmt: skip
-    ev.add_argument(
-        "--force", action="store_true", help="write into a non-empty --out (overwriting its files)"
-    )
-    ev.add_argument("--no-progress", action="store_true", help="no progress bar")
-    ev.set_defaults(func=_eval, name="eval")
-    rd = sub.add_parser(
-        "render", help="an animated GIF of one evaluation episode", formatter_class=_Formatter,
-        description="Play one evaluation episode (map --episode of --seed) with a method and write it as an "
-        "animated GIF (one frame per tick).",
-    )  # fmt: skip
-    _add_setting_flags(rd)
-    rd.add_argument("--episode", type=NON_NEGATIVE_INT, default=0, help="which map of the seed's map set")
-    rd.add_argument("--fps", type=POSITIVE_INT, default=SearchRescueEnv.metadata["render_fps"],
-                    help="frames (ticks) per second (the env's metadata render_fps)")  # fmt: skip
-    rd.add_argument("--out", required=True, help="path of the GIF to write (ending in .gif)")
-    rd.add_argument("--force", action="store_true", help="overwrite an existing --out")
-    rd.set_defaults(func=_render, name="render")
-
-
-def _add_bench(sub) -> None:
-    from catmip_rl.evaluation.paper import DEFAULT_METHODS, FIGURES
-
-    be = sub.add_parser("bench", help="paper figures (success vs time) or the performance benchmarks",
-                        description="catmip bench paper: the paper's figures; catmip bench perf: the "
-                        "performance benchmarks of benchmarks/.")  # fmt: skip
-    suites = be.add_subparsers(dest="suite", required=True, metavar="{paper,perf}")
-    pa = suites.add_parser(
-        "paper", help="the paper's figures: success rate vs mission time", formatter_class=_Formatter,
-        description="Evaluate methods on the settings of a paper figure (--figure N) or of all of them "
-        "(--all) and draw success vs mission time into OUT/fig{N}/.",
-    )  # fmt: skip
-    pa.add_argument("--figure", type=int, choices=sorted(FIGURES), help="paper figure")
-    pa.add_argument("--all", action="store_true", help="every paper figure")
-    pa.add_argument("--methods", default=",".join(DEFAULT_METHODS), type=checked(check_methods),
-                    help="comma list of methods (NAME=amat:PATH allowed; see catmip eval -h)")  # fmt: skip
-    pa.add_argument("--method", action="append", default=[], type=checked(check_method),
-                    help="one more method (repeatable)")  # fmt: skip
-    pa.add_argument("--episodes", type=POSITIVE_INT, default=100, help="maps per (panel, method)")
-    pa.add_argument("--seed", type=NON_NEGATIVE_INT, default=0, help="map set")
-    pa.add_argument("--jobs", type=UP_TO_CPUS, default=min(2, CPUS), help="parallel processes")
-    pa.add_argument("--out", default="out/paper", help="figures go to OUT/fig{N}/ (new or empty)")
-    pa.add_argument("--force", action="store_true", help="write into non-empty OUT/fig{N}/ folders")
-    pa.set_defaults(func=_bench, name="bench")
-    pe = suites.add_parser(
-        "perf", help="the performance benchmarks (benchmarks/run_all.py)", formatter_class=_Formatter,
-        description="Run benchmarks/run_all.py (from the repository root): JSON/CSV results and plots of "
-        "the env, collection and training speed.",
-    )  # fmt: skip
-    pe.add_argument("--quick", action="store_true", help="short settings")
-    pe.set_defaults(func=_bench, name="bench")
-
-
-def build_parser() -> argparse.ArgumentParser:
-    ap = _Parser(
-        prog="catmip",
-        description="CATMiP: train, evaluate and benchmark AMAT",
-        epilog="Bad input exits with code 2 and one line on stderr, before any work starts; "
-        "CATMIP_DEBUG=1 shows the traceback instead.",
-    )
-    ap.add_argument("--version", action="version", version=f"catmip {_version()}")
-    sub = ap.add_subparsers(dest="command", required=True, metavar="{train,eval,render,bench}")
-    _add_train(sub)
-    _add_eval_render(sub)
-    _add_bench(sub)
-    return ap
+COMMANDS = {"train": _train, "eval": _eval, "render": _render, "bench": _bench}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -406,7 +175,7 @@ def main(argv: list[str] | None = None) -> int:
         return done.code if isinstance(done.code, int) else (0 if done.code is None else 2)
     name = f"catmip {args.name}" + (f" {args.suite}" if args.name == "bench" else "")
     try:
-        return args.func(args)
+        return COMMANDS[args.name](args)
     except (*USER_ERRORS, MemoryError) as err:
         if os.environ.get("CATMIP_DEBUG"):
             raise
