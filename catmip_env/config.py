@@ -42,8 +42,14 @@ def _is_number(v: Any) -> bool:
     return isinstance(v, numbers.Real) and not isinstance(v, bool) and math.isfinite(v)
 
 
+def _is_comm_range(v: Any) -> bool:
+    """A communication range: None (full communication) or a finite number > 0."""
+    return v is None or (_is_number(v) and v > 0)
+
+
 _LISTS = {"team": "class names", "random_classes": "class names", "activation": "two ints [t_min, t_max]",
-          "classes": "robot classes"}  # fmt: skip
+          "classes": "robot classes",
+          "comm_sigma_choices": "communication ranges (numbers > 0, or null)"}  # fmt: skip
 
 
 def _as_tuple(name: str, value: Any) -> tuple:
@@ -117,6 +123,10 @@ class EnvConfig:
     """Probability that a wall segment (with one doorway) separates two adjacent rooms."""
     comm_sigma: float | None = None
     """Communication range sigma in cells; ``None`` is full communication. Link prob exp(-d^2/sigma^2)."""
+    comm_sigma_choices: tuple[float | None, ...] = ()
+    """If not empty, each episode draws its communication range uniformly from these (``None``: full
+    communication), from the episode's map stream after its map, and ``comm_sigma`` is not used: one
+    policy trained across ranges. Empty (default): every episode uses ``comm_sigma``."""
     slam_noise: float = 0.0
     """Per-tick probability that each explored cell of a robot's used occupancy map is flipped."""
     local_size: int = 7
@@ -143,6 +153,11 @@ class EnvConfig:
     # -- derived -------------------------------------------------------------------------------
     def __post_init__(self) -> None:
         _validate(self)
+
+    @property
+    def comm_ranges(self) -> tuple[float | None, ...]:
+        """The communication ranges episodes are drawn from: ``comm_sigma_choices``, or ``(comm_sigma,)``."""
+        return tuple(self.comm_sigma_choices) or (self.comm_sigma,)
 
     @property
     def num_robots(self) -> int:
@@ -223,6 +238,12 @@ def _check_types(cfg: EnvConfig, fail) -> None:
             fail(f"{name} must be a finite number, got {getattr(cfg, name)!r}")
     if cfg.comm_sigma is not None and not _is_number(cfg.comm_sigma):
         fail(f"comm_sigma must be None (full communication) or a finite number > 0, got {cfg.comm_sigma!r}")
+    choices = cfg.comm_sigma_choices
+    if not isinstance(choices, (list, tuple)) or not all(map(_is_comm_range, choices)):
+        fail(
+            "comm_sigma_choices must be a list of finite numbers > 0 or null (full communication), "
+            f"got {choices!r}"
+        )
     if cfg.num_obstacles is not None and not _is_int(cfg.num_obstacles):
         fail(f"num_obstacles must be None or an int >= 0, got {cfg.num_obstacles!r}")
     for name in ("team", "random_classes"):

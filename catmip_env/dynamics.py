@@ -47,7 +47,6 @@ class Rules(NamedTuple):
     """The constants of a run that the kernels read, as one value (built once per engine)."""
 
     horizon_ticks: int  # ticks per episode
-    comm_sigma: float  # link range sigma in cells, 0 = full communication
     slam_noise: float  # probability that an explored cell's used occupancy is flipped, 0 = none
     step_reward: float  # per successful forward move
     collision_penalty: float  # per forward move into a wall, obstacle or the target
@@ -68,7 +67,6 @@ class Rules(NamedTuple):
         t_min, t_max = cfg.activation
         return cls(
             horizon_ticks=int(cfg.horizon_ticks),
-            comm_sigma=float(cfg.comm_sigma) if cfg.comm_sigma is not None else 0.0,
             slam_noise=float(cfg.slam_noise),
             step_reward=float(cfg.step_reward),
             collision_penalty=float(cfg.collision_penalty),
@@ -333,14 +331,14 @@ def perceive_at_reset(worlds: np.ndarray, s: KernelState, rules: Rules) -> None:
     grid, target, pos, heading, can_rescue = s.grid, s.target, s.pos, s.heading, s.can_rescue
     belief, comp, rng, used_occ = s.belief, s.comp, s.rng, s.used_occ
     found_tick, rescue_tick, pending = s.found_tick, s.rescue_tick, s.pending_reward
-    horizon, comm_sigma, noise = rules.horizon_ticks, rules.comm_sigma, rules.slam_noise
+    comm_sigma, horizon, noise = s.comm_sigma, rules.horizon_ticks, rules.slam_noise
     find_reward, rescue_reward = rules.find_reward, rules.rescue_reward
     view_offsets, view_blockers, ray_nblock = rules.view_offsets, rules.view_blockers, rules.ray_nblock
     for b in range(worlds.shape[0]):
         if worlds[b]:
             perceive(
                 b, 0, grid, target, pos, heading, can_rescue, belief, comp, rng, used_occ, found_tick,
-                rescue_tick, pending, horizon, comm_sigma, noise, find_reward, rescue_reward,
+                rescue_tick, pending, horizon, comm_sigma[b], noise, find_reward, rescue_reward,
                 view_offsets, view_blockers, ray_nblock,
             )  # fmt: skip
 
@@ -364,8 +362,8 @@ def tick(
     grid, target, pos, heading, speed = s.grid, s.target, s.pos, s.heading, s.speed
     can_rescue, belief, comp, rng, used_occ = s.can_rescue, s.belief, s.comp, s.rng, s.used_occ
     ticks, moves, collisions, pending, done = s.ticks, s.moves, s.collisions, s.pending_reward, s.done
-    found_tick, rescue_tick = s.found_tick, s.rescue_tick
-    horizon, comm_sigma, noise = rules.horizon_ticks, rules.comm_sigma, rules.slam_noise
+    found_tick, rescue_tick, comm_sigma = s.found_tick, s.rescue_tick, s.comm_sigma
+    horizon, noise = rules.horizon_ticks, rules.slam_noise
     step_reward, collision_penalty = rules.step_reward, rules.collision_penalty
     find_reward, rescue_reward = rules.find_reward, rules.rescue_reward
     view_offsets, view_blockers, ray_nblock = rules.view_offsets, rules.view_blockers, rules.ray_nblock
@@ -387,7 +385,7 @@ def tick(
         )  # fmt: skip
         success = perceive(
             b, t0 + 1, grid, target, pos, heading, can_rescue, belief, comp, rng, used_occ, found_tick,
-            rescue_tick, rewards, horizon, comm_sigma, noise, find_reward, rescue_reward, view_offsets,
+            rescue_tick, rewards, horizon, comm_sigma[b], noise, find_reward, rescue_reward, view_offsets,
             view_blockers, ray_nblock,
         )  # fmt: skip
         ticks[b] = t0 + 1

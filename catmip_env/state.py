@@ -44,6 +44,7 @@ class WorldState:
     done: np.ndarray  # (B,) bool episode over (terminated or truncated)
     episode: np.ndarray  # (B,) int64 episode index of each world's current episode
     pending_reward: np.ndarray  # (B, N) float64 rewards earned at reset, paid with the next step
+    comm_sigma: np.ndarray  # (B,) float64 communication range of the episode, 0 = full communication
 
     @classmethod
     def allocate(cls, num_worlds: int, num_robots: int, shape: tuple[int, int], noisy: bool) -> WorldState:
@@ -71,6 +72,7 @@ class WorldState:
             done=np.ones(b, np.bool_),
             episode=np.full(b, -1, np.int64),
             pending_reward=np.zeros((b, n), np.float64),
+            comm_sigma=np.zeros(b, np.float64),
         )
 
     def copy(self) -> WorldState:

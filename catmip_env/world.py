@@ -8,9 +8,10 @@
 >>> eng.reset(worlds=eng.done)                    # start the next episodes of finished worlds
 
 Episodes are numbered: world resets take consecutive episode indices (or explicit ones), and
-episode ``k`` of seed ``s`` always has the same map, team and spawn poses, drawn from
-``SeedSequence(s, spawn_key=(k,))``; its dynamics (communication links, SLAM noise) draw from a sibling
-stream, so a world's trajectory depends only on ``(s, k)`` and its actions — not on B or on other worlds.
+episode ``k`` of seed ``s`` always has the same map, team and spawn poses (and communication range,
+when ``EnvConfig.comm_sigma_choices`` offers several), drawn from ``SeedSequence(s, spawn_key=(k,))``;
+its dynamics (communication links, SLAM noise) draw from a sibling stream, so a world's trajectory
+depends only on ``(s, k)`` and its actions — not on B or on other worlds.
 """
 
 from __future__ import annotations
@@ -75,6 +76,7 @@ class BatchedEngine:
         self._truncated = np.zeros(b, np.bool_)
         self._speed_of = np.array([k.ticks_per_action for k in cfg.classes], np.int64)
         self._rescue_of = np.array([k.can_rescue for k in cfg.classes], np.bool_)
+        self._comm_of = np.array([0.0 if c is None else float(c) for c in cfg.comm_ranges], np.float64)
         self.rules = Rules.of(cfg)
         self.seed(seed)
 
@@ -152,6 +154,9 @@ class BatchedEngine:
         st.rescue_tick[b] = -1
         st.done[b] = False
         st.episode[b] = episode
+        # drawn after the map, and only if there is a choice: the maps never depend on it
+        pick = int(map_rng.integers(len(self._comm_of))) if len(self._comm_of) > 1 else 0
+        st.comm_sigma[b] = self._comm_of[pick]
 
     def _layout_episode(self, rng: np.random.Generator) -> Episode:
         lay, cfg = self._layout, self.cfg

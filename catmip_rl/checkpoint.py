@@ -21,7 +21,7 @@ from catmip_rl.amat.model import AMAT, AmatConfig
 
 __all__ = [
     "save_model", "load_model", "atomic_torch_save", "read_checkpoint", "resolve_model", "shipped_models",
-    "CheckpointError", "SHIPPED_DIR", "resume_checkpoint",
+    "CheckpointError", "SHIPPED_DIR", "resume_checkpoint", "initial_weights",
 ]  # fmt: skip
 
 FORMAT = "catmip-amat-v1"
@@ -256,3 +256,20 @@ def resume_checkpoint(run_dir: str | Path) -> dict:
             )
             break
         raise type(err)(f"cannot resume {run_dir}: {err}{hint}") from None
+
+
+def initial_weights(spec: str, config: AmatConfig) -> dict[str, Any]:
+    """The weights a new run starts from (``TrainConfig.init_from``): ``{"model": state dict,
+    "value_norm": state dict or None}`` from a model file, a training checkpoint, a run dir (its latest
+    checkpoint) or a shipped model's name. A training checkpoint brings its value normaliser too (the
+    value head predicts in its units); a model file has none. Raises ``ValueError`` if the model there is
+    not an AMAT of ``config``."""
+    model = load_model(spec)  # every check of a readable AMAT that fits its own config
+    if model.config != config:
+        raise ValueError(
+            f"init_from {spec!r} is an AMAT of another configuration ({model.config}); this run builds "
+            f"{config}: set the run's amat fields to match, or start from another model"
+        )
+    blob = read_checkpoint(_model_file(resolve_model(spec)))
+    value_norm = blob.get("value_norm") if "amat_config" in blob else None
+    return {"model": model.state_dict(), "value_norm": value_norm}

@@ -31,7 +31,7 @@ __all__ = ["main", "build_parser", "parse_set", "CPUS", "DEFAULT_PRESET"]
 # -- the commands ----------------------------------------------------------------------------------------
 _TRAIN_FLAGS = ("iterations", "num_worlds", "epochs", "minibatches", "micro_batch", "seed", "device",
                 "threads", "update_processes", "eval_every", "eval_episodes", "checkpoint_every", "lr",
-                "collector", "ray_workers", "ray_address", "warm_start", "target_kl",
+                "collector", "ray_workers", "ray_address", "warm_start", "init_from", "target_kl",
                 "precision")  # fmt: skip
 
 

@@ -112,6 +112,12 @@ def add_train(sub) -> None:
         metavar="PLANNER",
         help="DAgger warm start from a planner's goals (projected into the window): nearest, rrt...",
     )
+    g.add_argument(
+        "--init-from",
+        metavar="MODEL",
+        help="start a new run from these weights (fine-tuning): a model file, a training checkpoint or "
+        "run dir (with its value normaliser), or a shipped model's name",
+    )
     g.add_argument("--target-kl", type=NON_NEGATIVE_FLOAT,
                    help="stop an iteration's PPO epochs past this approx-KL (0 = never)")  # fmt: skip
     g.add_argument("--precision", choices=["fp32", "bf16", "auto"],

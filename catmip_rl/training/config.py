@@ -115,6 +115,11 @@ class TrainConfig:
     warm_start: str = ""
     """Imitation warm start before PPO (catmip_rl.training.imitation): a planner name ("nearest", "rrt", ...)
     whose goals, projected into the window, label DAgger rounds; "" = none (the paper's recipe)."""
+    init_from: str = ""
+    """Start a new run from these weights instead of a fresh initialisation: a model file, a training
+    checkpoint or run dir (its value normaliser comes too) or a shipped model's name; "" = none. The
+    model must be an AMAT of this run's ``amat`` config. A warm start, if any, then begins from them;
+    the optimiser and the LR schedule start afresh (fine-tuning). Not read when a run resumes."""
     warm_start_rounds: int = 6
     """DAgger rounds (each collects num_worlds episodes with the current policy, labelled)."""
     warm_start_steps: int = 150
@@ -262,6 +267,21 @@ TRAIN_PRESETS: dict[str, TrainConfig] = {
         checkpoint_every=10,
         **_STEP_CONTROL,
         **_WARM_START,
+        **_EVAL_64,
+    ),
+    # paper-warm's model fine-tuned (init_from, e.g. --init-from training/paper-warm) where each episode
+    # draws its communication range from full, sigma = 4 and sigma = 2 (the paper evaluates under all
+    # three; a model trained on full communication alone has never seen a teammate out of reach)
+    "paper-comm": TrainConfig(
+        env_overrides={"comm_sigma_choices": [None, 4.0, 2.0]},
+        precision="auto",
+        num_worlds=64,
+        iterations=3000,
+        lr=1e-4,
+        eval_every=25,
+        checkpoint_every=10,
+        value_warmup_iterations=5,
+        **_STEP_CONTROL,
         **_EVAL_64,
     ),
     # a minute-scale smoke run: a small map, two robots, a small AMAT

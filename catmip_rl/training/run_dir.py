@@ -13,7 +13,7 @@ from pathlib import Path
 
 import torch
 
-from catmip_rl.checkpoint import resume_checkpoint
+from catmip_rl.checkpoint import initial_weights, resume_checkpoint
 from catmip_rl.files import check_new_dir
 from catmip_rl.training.config import TrainConfig
 
@@ -22,7 +22,8 @@ __all__ = ["check_run", "first_missing", "remove_run_files", "stopped_note", "te
 
 def check_run(cfg: TrainConfig, run_dir: Path, resume: bool) -> dict | None:
     """Every refusal, before anything is built or written: the checkpoint to continue (``resume``) must
-    be readable and of the same model and task; a new run needs a new or empty run dir. Also the
+    be readable and of the same model and task; a new run needs a new or empty run dir, and the weights
+    it starts from (``init_from``) must be a readable AMAT of its model config. Also the
     device and, for ``collector="ray"``, the ray package. Returns the checkpoint (None for a new run)."""
     saved = None
     if resume:
@@ -39,6 +40,8 @@ def check_run(cfg: TrainConfig, run_dir: Path, resume: bool) -> dict | None:
         )
     else:
         check_new_dir(run_dir, "run dir", advice="pick a new run dir (or empty this one)")
+        if cfg.init_from:
+            initial_weights(cfg.init_from, cfg.amat_config())  # readable, and the same model
     try:
         cuda = torch.device(cfg.device).type == "cuda"
     except RuntimeError:

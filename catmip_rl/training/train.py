@@ -26,7 +26,7 @@ from typing import Any
 import torch
 
 from catmip_rl.amat.model import AMAT
-from catmip_rl.checkpoint import restore_training, save_training_checkpoint
+from catmip_rl.checkpoint import initial_weights, restore_training, save_training_checkpoint
 from catmip_rl.files import atomic_write_text, open_csv_log, write_csv_row
 from catmip_rl.training.collect import Collector, Rollout
 from catmip_rl.training.config import TrainConfig
@@ -117,7 +117,7 @@ class Run:
 
 def build_run(cfg: TrainConfig, saved: dict | None = None) -> Run:
     """Build a run's parts from ``cfg`` (seeded by ``cfg.seed``), continuing from the training
-    checkpoint ``saved`` if given."""
+    checkpoint ``saved`` if given, else starting from ``cfg.init_from``'s weights if set."""
     torch.set_num_threads(cfg.threads)
     keep_freed_memory()  # reuse the step's large activations' pages (training.memory)
     device = torch.device(cfg.device)
@@ -134,6 +134,11 @@ def build_run(cfg: TrainConfig, saved: dict | None = None) -> Run:
         )
         same_precision = TrainConfig.from_json(saved["config"]).precision == cfg.precision
         run.bf16 = saved.get("bf16") if same_precision else None
+    elif cfg.init_from:
+        init = initial_weights(cfg.init_from, cfg.amat_config())
+        model.load_state_dict(init["model"])
+        if init["value_norm"] is not None:
+            run.value_norm.load_state_dict(init["value_norm"])
     if cfg.collector == "ray":  # the same episodes, collected by Ray workers (adapters/ray_collect.py)
         from catmip_rl.adapters.ray_collect import RayRolloutCollector
 

@@ -97,3 +97,36 @@ def test_cli_step_control_warm_start_and_precision_flags(tmp_path, capsys):
     bad = ["train", "--preset", "tiny", "--run-dir", str(tmp_path / "bad"), "--warm-start", "dijkstra"]
     assert cli(bad) == 2 and "warm_start" in capsys.readouterr().err
     assert cli(["train", "--preset", "tiny", "--run-dir", str(tmp_path / "b2"), "--target-kl", "-1"]) == 2
+
+
+def test_a_new_run_can_start_from_another_runs_weights(tmp_path):
+    from catmip_rl.checkpoint import save_model
+    from catmip_rl.training.train import build_run
+
+    cfg = make_train_config("tiny", iterations=2, eval_every=0)
+    a = train(cfg, tmp_path / "a", progress=False)
+    saved = torch.load(tmp_path / "a" / "checkpoints" / "latest.pt", weights_only=True)
+    # from a run dir: its latest weights and value normaliser; a fresh optimiser and iteration count
+    run = build_run(cfg.replace(init_from=str(tmp_path / "a")))
+    assert torch.equal(_params(run.model), _params(a)) and not torch.equal(_params(run.model), _params(
+        build_run(cfg).model))  # fmt: skip
+    for k, v in saved["value_norm"].items():
+        assert torch.equal(run.value_norm.state_dict()[k], v)
+    assert float(saved["value_norm"]["debias"]) > 0 and run.iteration == 0 and not run.opt.state
+    # from a model file: the weights, and a fresh value normaliser (a model file has none)
+    save_model(a, tmp_path / "m.pt")
+    run = build_run(cfg.replace(init_from=str(tmp_path / "m.pt")))
+    assert torch.equal(_params(run.model), _params(a)) and float(run.value_norm.debias) == 0
+    # a fine-tuning run trains from there; resuming it continues its own weights, not init_from's
+    ft = cfg.replace(init_from=str(tmp_path / "m.pt"), iterations=1)
+    b = train(ft, tmp_path / "b", progress=False)
+    assert TrainConfig.from_json((tmp_path / "b" / "config.json").read_text()).init_from.endswith("m.pt")
+    assert not torch.equal(_params(b), _params(a))
+    (tmp_path / "m.pt").unlink()  # not read on resume
+    c = train(ft.replace(iterations=2), tmp_path / "b", resume=True, progress=False)
+    assert not torch.equal(_params(c), _params(b))
+    # refused before anything is written: another model's weights
+    with pytest.raises(ValueError, match="another configuration"):
+        other = cfg.replace(init_from=str(tmp_path / "a"), amat={"embed_dim": 16})
+        train(other, tmp_path / "d", progress=False)
+    assert not (tmp_path / "d").exists()
