@@ -8,7 +8,9 @@ A training run is ``catmip train`` with a wall-clock budget (``budget_minutes``:
 whose periodic evaluation (argmax and sampled actions, evaluation activation (0, 0), the preset's fixed
 maps) is the curve; ``--resume`` continues a run dir. ``--plot`` draws finished runs' curves against
 training minutes (evaluation excluded, the imitation warm start included) with the planners on the
-same maps as horizontal lines, and writes ``OUT.csv`` / ``OUT.png``. The CPU capability is recorded.
+same maps as horizontal lines, and writes ``OUT.csv`` / ``OUT.png``; a run started from another's
+weights (``--init-from``) continues its clock, and runs evaluated on different maps (a fine-tuning
+world) get a row of panels each. The CPU capability is recorded.
 """
 
 from __future__ import annotations
@@ -42,23 +44,33 @@ def planner_success(cfg: TrainConfig, name: str) -> tuple[float, float]:
 
 
 def curve_rows(run_dir: Path) -> list[dict]:
-    """The evaluated points of a run: warm-start rounds, then PPO iterations, against minutes."""
+    """The evaluated points of a run: warm-start rounds, then PPO iterations, against minutes. A run
+    started from another's weights (``init_from.json``) continues that run's clock."""
     rows = []
     name = run_dir.name
+    start = _start_minutes(run_dir)
     warm = run_dir / "warm_start.csv"
     if warm.exists():
         for r in csv.DictReader(warm.open()):
             if r.get("eval/success_rate"):
-                rows.append({"run": name, "phase": "warm start", "step": int(r["round"]), **_point(r)})
+                rows.append({"run": name, "phase": "warm start", "step": int(r["round"]), **_point(r, start)})
     for r in csv.DictReader((run_dir / "metrics.csv").open()):
         if r.get("eval/success_rate"):
-            rows.append({"run": name, "phase": "ppo", "step": int(r["iteration"]), **_point(r)})
+            rows.append({"run": name, "phase": "ppo", "step": int(r["iteration"]), **_point(r, start)})
     return rows
 
 
-def _point(r: dict) -> dict:
+def _start_minutes(run_dir: Path) -> float:
+    """Training minutes behind a run's first iteration: those of the checkpoint it started from."""
+    source = run_dir / "init_from.json"
+    if not source.exists():
+        return 0.0
+    return float(json.loads(source.read_text()).get("elapsed_min") or 0.0)
+
+
+def _point(r: dict, start: float = 0.0) -> dict:
     return {
-        "minutes": float(r["time/elapsed_min"]),
+        "minutes": start + float(r["time/elapsed_min"]),
         "success_rate": float(r["eval/success_rate"]),
         "success_by_100": float(r["eval/success_by_100"]),
         "sampled_success_rate": float(r["eval/sampled_success_rate"]),
@@ -66,46 +78,74 @@ def _point(r: dict) -> dict:
     }
 
 
+def _eval_maps(cfg: TrainConfig) -> str:
+    """What a run's evaluation plays: its world (communication choices included), maps and count."""
+    return json.dumps([cfg.eval_env_config().to_dict(), cfg.eval_episodes, cfg.eval_seed], sort_keys=True)
+
+
 def plot(runs: list[Path], out: Path) -> None:
-    cfg = TrainConfig.from_json((runs[0] / "config.json").read_text())
-    lines = {name: planner_success(cfg, name) for name in PLANNER_LINES}
+    """Each run's curve against training minutes; runs evaluated on the same maps share a row of
+    panels with the planners' success on those maps (a fine-tuning run on another world gets its own)."""
+    cfgs = {run: TrainConfig.from_json((run / "config.json").read_text()) for run in runs}
+    groups: dict[str, list[Path]] = {}
+    for run in runs:
+        groups.setdefault(_eval_maps(cfgs[run]), []).append(run)
+    lines = {key: {name: planner_success(cfgs[members[0]], name) for name in PLANNER_LINES}
+             for key, members in groups.items()}  # fmt: skip
     rows = [row for run in runs for row in curve_rows(run)]
     out.parent.mkdir(parents=True, exist_ok=True)
     atomic_write_csv(out.with_suffix(".csv"), rows)
+    first = cfgs[runs[0]]
+    planners = [{k: {"success_rate": v[0], "success_by_100": v[1]} for k, v in lines[key].items()}
+                for key in groups]  # fmt: skip
     meta = {"cpu_capability": torch.backends.cpu.get_cpu_capability(), "native_bf16": native_bf16(),
-            "eval_episodes": cfg.eval_episodes,
-            "eval_seed": cfg.eval_seed, "planners": {k: {"success_rate": v[0], "success_by_100": v[1]}
-                                                       for k, v in lines.items()},
+            "eval_episodes": first.eval_episodes, "eval_seed": first.eval_seed, "planners": planners[0],
             "runs": {run.name: json.loads((run / "config.json").read_text()) for run in runs}}  # fmt: skip
+    if len(groups) > 1:  # the planners on each run's own evaluation maps
+        meta["planners_by_run"] = {
+            run.name: planners[list(groups).index(_eval_maps(cfgs[run]))] for run in runs
+        }
     atomic_write_text(out.with_suffix(".json"), json.dumps(meta, indent=2))
+    _draw(runs, cfgs, groups, lines, rows, out, meta["cpu_capability"])
+    print(f"wrote {out.with_suffix('.csv')}, {out.with_suffix('.json')} and {out.with_suffix('.png')}")
+
+
+def _draw(runs, cfgs, groups, lines, rows, out: Path, capability: str) -> None:
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, axes = plt.subplots(1, 2, figsize=(12, 4.2), sharex=True)
+    fig, axes = plt.subplots(len(groups), 2, figsize=(12, 4.2 * len(groups)), sharex=True, squeeze=False)
     colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
-    for ax, key, title in ((axes[0], "success_by_100", "rescued by tick 100"),
-                           (axes[1], "success_rate", "rescued by the horizon")):  # fmt: skip
-        for k, run in enumerate(runs):
-            pts = [r for r in rows if r["run"] == run.name]
-            x = [r["minutes"] for r in pts]
-            ax.plot(x, [r[key] for r in pts], "-o", ms=2.5, color=colours[k], label=f"{run.name} (argmax)")
-            sampled = [r[f"sampled_{key}"] for r in pts]
-            ax.plot(x, sampled, ":", color=colours[k], label=f"{run.name} (sampled)")
-        for (name, vals), style in zip(lines.items(), ("--", "-.", (0, (1, 3)))):
-            ax.axhline(vals[0 if key == "success_rate" else 1], color="grey", ls=style, lw=1, label=name)
-        ax.set_xlabel(f"training minutes ({cfg.threads} CPU thread(s), {meta['cpu_capability']})")
-        ax.set_ylabel("success rate")
-        ax.set_title(f"{cfg.env_preset}, {cfg.eval_episodes} fixed maps: {title}")
-        ax.set_ylim(0, 1.02)
-        ax.grid(alpha=0.3)
-    axes[0].legend(fontsize=7, loc="lower right")
+    for g, (key, members) in enumerate(groups.items()):
+        cfg = cfgs[members[0]]
+        env = cfg.eval_env_config()
+        ranges = ["full" if c is None else f"σ={c:g}" for c in env.comm_ranges]
+        comm = "full communication" if ranges == ["full"] else "communication " + " / ".join(ranges)
+        for ax, key_, title in ((axes[g, 0], "success_by_100", "rescued by tick 100"),
+                                (axes[g, 1], "success_rate", "rescued by the horizon")):  # fmt: skip
+            for run in members:
+                k = runs.index(run)
+                pts = [r for r in rows if r["run"] == run.name]
+                x = [r["minutes"] for r in pts]
+                ax.plot(
+                    x, [r[key_] for r in pts], "-o", ms=2.5, color=colours[k], label=f"{run.name} (argmax)"
+                )
+                ax.plot(x, [r[f"sampled_{key_}"] for r in pts], ":", color=colours[k],
+                        label=f"{run.name} (sampled)")  # fmt: skip
+            for (name, vals), style in zip(lines[key].items(), ("--", "-.", (0, (1, 3)))):
+                ax.axhline(vals[0 if key_ == "success_rate" else 1], color="grey", ls=style, lw=1, label=name)
+            ax.set_xlabel(f"training minutes ({cfg.threads} CPU thread(s), {capability})")
+            ax.set_ylabel("success rate")
+            ax.set_title(f"{cfg.env_preset}, {comm}, {cfg.eval_episodes} fixed maps: {title}", fontsize=9)
+            ax.set_ylim(0, 1.02)
+            ax.grid(alpha=0.3)
+        axes[g, 0].legend(fontsize=7, loc="lower right")
     fig.tight_layout()
     tmp = out.with_name(out.name + ".tmp.png")
     fig.savefig(tmp, dpi=110)
     tmp.replace(out.with_suffix(".png"))
-    print(f"wrote {out.with_suffix('.csv')}, {out.with_suffix('.json')} and {out.with_suffix('.png')}")
 
 
 def main() -> None:

@@ -260,16 +260,25 @@ def resume_checkpoint(run_dir: str | Path) -> dict:
 
 def initial_weights(spec: str, config: AmatConfig) -> dict[str, Any]:
     """The weights a new run starts from (``TrainConfig.init_from``): ``{"model": state dict,
-    "value_norm": state dict or None}`` from a model file, a training checkpoint, a run dir (its latest
-    checkpoint) or a shipped model's name. A training checkpoint brings its value normaliser too (the
-    value head predicts in its units); a model file has none. Raises ``ValueError`` if the model there is
-    not an AMAT of ``config``."""
+    "value_norm": state dict or None, "source": {file, iteration, training minutes}}`` from a model
+    file, a training checkpoint, a run dir (its latest checkpoint) or a shipped model's name. A training
+    checkpoint brings its value normaliser too (the value head predicts in its units), its iteration and
+    training time; a model file has none of them. Raises ``ValueError`` if the model there is not an AMAT
+    of ``config``."""
     model = load_model(spec)  # every check of a readable AMAT that fits its own config
     if model.config != config:
         raise ValueError(
             f"init_from {spec!r} is an AMAT of another configuration ({model.config}); this run builds "
             f"{config}: set the run's amat fields to match, or start from another model"
         )
-    blob = read_checkpoint(_model_file(resolve_model(spec)))
-    value_norm = blob.get("value_norm") if "amat_config" in blob else None
-    return {"model": model.state_dict(), "value_norm": value_norm}
+    path = _model_file(resolve_model(spec))
+    blob = read_checkpoint(path)
+    trained = "amat_config" in blob  # a training checkpoint, not a model file
+    source = {
+        "init_from": spec,
+        "file": str(path),
+        "iteration": blob.get("iteration") if trained else None,
+        "elapsed_min": blob.get("elapsed_s", 0.0) / 60.0 if trained else None,
+    }
+    return {"model": model.state_dict(), "value_norm": blob.get("value_norm") if trained else None,
+            "source": source}  # fmt: skip

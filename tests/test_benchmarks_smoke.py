@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import csv
 import importlib.util
 import json
 import subprocess
@@ -139,3 +140,15 @@ def test_learning_curve_trains_on_a_budget_and_plots(tmp_path):
     meta = json.loads(out.with_suffix(".json").read_text())
     assert {"nearest", "rrt", "random"} <= set(meta["planners"]) and meta["cpu_capability"]
     assert out.with_suffix(".png").stat().st_size > 10_000
+    # a fine-tuning run on another world continues the first run's clock, in a row of its own
+    tuned = tmp_path / "tiny-comm"
+    subprocess.run([*train[:8], "--set", "iterations=1", "--set", f"init_from={json.dumps(str(run))}",
+                    "--set", 'env_overrides={"map_size": 12, "team": ["rescuer", "explorer"], '
+                    '"horizon_ticks": 60, "comm_sigma_choices": [null, 2]}', "--run-dir", str(tuned)],
+                   check=True, env=env, cwd=tmp_path, capture_output=True)  # fmt: skip
+    subprocess.run([sys.executable, script, "--plot", str(run), str(tuned), "--out", str(out)], check=True,
+                   env=env, cwd=tmp_path, capture_output=True)  # fmt: skip
+    rows = list(csv.DictReader(out.with_suffix(".csv").open()))
+    end = max(float(r["minutes"]) for r in rows if r["run"] == run.name and r["phase"] == "ppo")
+    assert min(float(r["minutes"]) for r in rows if r["run"] == tuned.name) > end
+    assert set(json.loads(out.with_suffix(".json").read_text())["planners_by_run"]) == {run.name, tuned.name}

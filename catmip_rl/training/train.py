@@ -10,6 +10,7 @@ one loop.
 Everything needed to continue a run exactly is saved atomically in ``RUN_DIR/checkpoints``; the
 resolved config is ``RUN_DIR/config.json`` (written once every check has passed and the parts are
 built; ``run_dir`` holds the checks and the clean-up of a new run stopped before its first checkpoint);
+a run started from other weights (``init_from``) writes where they came from to ``init_from.json``;
 metrics go to ``RUN_DIR/metrics.csv`` (per-epoch PPO statistics to ``ppo_epochs.csv``, DAgger rounds to
 ``warm_start.csv``) and TensorBoard.
 """
@@ -100,6 +101,7 @@ class Run:
     elapsed: float = 0.0  # seconds of training so far (evaluation excluded): the time budget's clock
     bf16: bool | None = None  # the update's precision, chosen on the first batch (kept on resume)
     parallel: ParallelGradients | None = None  # the update's helper processes, started on the first batch
+    init_source: dict | None = None  # where a new run's initial weights came from (init_from)
 
     def save(self, path: Path) -> None:
         save_training_checkpoint(
@@ -139,6 +141,7 @@ def build_run(cfg: TrainConfig, saved: dict | None = None) -> Run:
         model.load_state_dict(init["model"])
         if init["value_norm"] is not None:
             run.value_norm.load_state_dict(init["value_norm"])
+        run.init_source = init["source"]
     if cfg.collector == "ray":  # the same episodes, collected by Ray workers (adapters/ray_collect.py)
         from catmip_rl.adapters.ray_collect import RayRolloutCollector
 
@@ -211,6 +214,8 @@ def train(cfg: TrainConfig, run_dir: str | Path, resume: bool = False, progress:
     try:
         run_dir.mkdir(parents=True, exist_ok=True)
         atomic_write_text(run_dir / "config.json", cfg.to_json())
+        if run.init_source is not None:  # the weights' provenance: file, iteration, training minutes
+            atomic_write_text(run_dir / "init_from.json", json.dumps(run.init_source, indent=2))
         start = run.iteration if resume else None
         csv_file, csv_writer = open_csv_log(run_dir / "metrics.csv", METRICS, start)
         epoch_file, epoch_writer = open_csv_log(run_dir / "ppo_epochs.csv", EPOCH_METRICS, start)

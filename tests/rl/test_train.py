@@ -121,6 +121,9 @@ def test_a_new_run_can_start_from_another_runs_weights(tmp_path):
     ft = cfg.replace(init_from=str(tmp_path / "m.pt"), iterations=1)
     b = train(ft, tmp_path / "b", progress=False)
     assert TrainConfig.from_json((tmp_path / "b" / "config.json").read_text()).init_from.endswith("m.pt")
+    source = json.loads((tmp_path / "b" / "init_from.json").read_text())
+    assert source["file"].endswith("m.pt") and source["iteration"] is None  # a model file: no iteration
+    assert build_run(cfg.replace(init_from=str(tmp_path / "a"))).init_source["iteration"] == 2
     assert not torch.equal(_params(b), _params(a))
     (tmp_path / "m.pt").unlink()  # not read on resume
     c = train(ft.replace(iterations=2), tmp_path / "b", resume=True, progress=False)
