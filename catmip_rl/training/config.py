@@ -269,21 +269,6 @@ TRAIN_PRESETS: dict[str, TrainConfig] = {
         **_WARM_START,
         **_EVAL_64,
     ),
-    # paper-warm's model fine-tuned (init_from, e.g. --init-from training/paper-warm) where each episode
-    # draws its communication range from full, sigma = 4 and sigma = 2 (the paper evaluates under all
-    # three; a model trained on full communication alone has never seen a teammate out of reach)
-    "paper-comm": TrainConfig(
-        env_overrides={"comm_sigma_choices": [None, 4.0, 2.0]},
-        precision="auto",
-        num_worlds=64,
-        iterations=3000,
-        lr=1e-4,
-        eval_every=25,
-        checkpoint_every=10,
-        value_warmup_iterations=5,
-        **_STEP_CONTROL,
-        **_EVAL_64,
-    ),
     # a minute-scale smoke run: a small map, two robots, a small AMAT
     "tiny": TrainConfig(
         env_overrides={"map_size": 12, "team": ["rescuer", "explorer"], "horizon_ticks": 60},
