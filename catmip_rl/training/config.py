@@ -269,6 +269,20 @@ TRAIN_PRESETS: dict[str, TrainConfig] = {
         **_WARM_START,
         **_EVAL_64,
     ),
+    # paper-warm's model sharpened: fine-tuned (--init-from a paper-warm run) by the same PPO with lr 1e-4 and
+    # a tenth of the entropy bonus, so that the argmax the protocol evaluates is the policy's clear choice
+    "paper-sharp": TrainConfig(
+        precision="auto",
+        num_worlds=64,
+        iterations=3000,
+        lr=1e-4,
+        entropy_coef=0.001,
+        eval_every=25,
+        checkpoint_every=10,
+        **_STEP_CONTROL,
+        **(_WARM_START | {"warm_start": ""}),
+        **_EVAL_64,
+    ),
     # a minute-scale smoke run: a small map, two robots, a small AMAT
     "tiny": TrainConfig(
         env_overrides={"map_size": 12, "team": ["rescuer", "explorer"], "horizon_ticks": 60},
