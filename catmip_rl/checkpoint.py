@@ -21,7 +21,7 @@ from catmip_rl.amat.model import AMAT, AmatConfig
 
 __all__ = [
     "save_model", "load_model", "atomic_torch_save", "read_checkpoint", "resolve_model", "shipped_models",
-    "CheckpointError", "SHIPPED_DIR", "resume_checkpoint", "initial_weights",
+    "CheckpointError", "SHIPPED_DIR", "resume_checkpoint", "initial_weights", "export_model",
 ]  # fmt: skip
 
 FORMAT = "catmip-amat-v1"
@@ -282,3 +282,27 @@ def initial_weights(spec: str, config: AmatConfig) -> dict[str, Any]:
     }
     return {"model": model.state_dict(), "value_norm": blob.get("value_norm") if trained else None,
             "source": source}  # fmt: skip
+
+
+def export_model(source: str | Path, out: str | Path) -> tuple[Path, dict[str, Any]]:
+    """Write the model of a training checkpoint or run dir (its latest checkpoint) as a model file
+    (:func:`save_model`, what ``catmip_rl/models/`` ships), with its provenance in the file's ``extra``:
+    the run's preset fields (``train_config``), iteration, episodes, training minutes, where it started
+    from (``init_from.json``) and the CPU capability. Returns (path, extra)."""
+    path = _model_file(resolve_model(source))
+    blob = read_checkpoint(path)
+    if not (isinstance(blob, dict) and "amat_config" in blob and "config" in blob):
+        raise CheckpointError(f"{path} is not a training checkpoint (a model file needs no export)")
+    model = load_model(path)
+    run_dir = path.parent.parent if path.parent.name == "checkpoints" else None
+    source_file = run_dir / "init_from.json" if run_dir is not None else None
+    extra = {
+        "checkpoint": str(path),
+        "iteration": int(blob["iteration"]),
+        "episodes": int(blob["episodes"]),
+        "training_minutes": float(blob.get("elapsed_s", 0.0)) / 60.0,
+        "train_config": json.loads(blob["config"]),
+        "init_from": json.loads(source_file.read_text()) if source_file and source_file.is_file() else None,
+        "cpu_capability": torch.backends.cpu.get_cpu_capability(),
+    }
+    return save_model(model, out, extra=extra), extra

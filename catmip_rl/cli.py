@@ -165,7 +165,20 @@ def _bench(args: argparse.Namespace) -> int:
     return 0
 
 
-COMMANDS = {"train": _train, "eval": _eval, "render": _render, "bench": _bench}
+def _export(args: argparse.Namespace) -> int:
+    from catmip_rl.checkpoint import export_model
+    from catmip_rl.files import check_new_file
+
+    check_new_file(args.out, "--out", force=args.force, suffixes=(".pt",))
+    path, extra = export_model(args.source, args.out)
+    print(
+        f"wrote {path} (+ {path.with_suffix('.json').name}): iteration {extra['iteration']}, "
+        f"{extra['training_minutes']:.1f} training minutes"
+    )
+    return 0
+
+
+COMMANDS = {"train": _train, "eval": _eval, "render": _render, "bench": _bench, "export": _export}
 
 
 def main(argv: list[str] | None = None) -> int:

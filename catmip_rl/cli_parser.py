@@ -237,6 +237,19 @@ def add_bench(sub) -> None:
     pe.set_defaults(name="bench")
 
 
+def add_export(sub) -> None:
+    ex = sub.add_parser(
+        "export", help="a training run's model as a model file", formatter_class=Formatter,
+        description="Write the model of a training run (its checkpoints/latest.pt) or of one training "
+        "checkpoint as a model file (what catmip_rl/models/ ships, loadable with amat:PATH), with the run's "
+        "config, iteration, training minutes and origin in the file.",
+    )  # fmt: skip
+    ex.add_argument("source", help="a training run dir, its checkpoints/ folder or a checkpoint file")
+    ex.add_argument("--out", required=True, help="the model file to write (ending in .pt)")
+    ex.add_argument("--force", action="store_true", help="overwrite an existing --out")
+    ex.set_defaults(name="export")
+
+
 def build_parser() -> argparse.ArgumentParser:
     ap = Parser(
         prog="catmip",
@@ -245,8 +258,9 @@ def build_parser() -> argparse.ArgumentParser:
         "CATMIP_DEBUG=1 shows the traceback instead.",
     )
     ap.add_argument("--version", action="version", version=f"catmip {version()}")
-    sub = ap.add_subparsers(dest="command", required=True, metavar="{train,eval,render,bench}")
+    sub = ap.add_subparsers(dest="command", required=True, metavar="{train,eval,render,bench,export}")
     add_train(sub)
     add_eval_render(sub)
     add_bench(sub)
+    add_export(sub)
     return ap

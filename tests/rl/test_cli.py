@@ -233,6 +233,12 @@ CASES = {
     "train --resume nothing": ([*TRAIN, "--run-dir", "{out}", "--resume"], ["no checkpoint at"]),
     "train --resume all corrupt": ([*TRAIN, "--run-dir", "{corrupt_run}", "--resume"],
                                    ["latest.pt", "no checkpoints/iter_*.pt is readable either (2 tried)"]),
+    "export a model file": (["export", "task1", "--out", "{out}.pt"], ["not a training checkpoint"]),
+    "export a missing run": (["export", "{out}/nope", "--out", "{out}.pt"], ["does not exist"]),
+    "export a corrupt run": (["export", "{corrupt_run}", "--out", "{out}.pt"], ["not a readable checkpoint"]),
+    "export --out not .pt": (["export", "task1", "--out", "{out}.txt"], ["--out", "must end in .pt"]),
+    "export --out a folder": (["export", "task1", "--out", "{nonempty}"], ["--out", "is a folder"]),
+    "export --out exists": (["export", "task1", "--out", "{badsd}"], ["--out", "exists", "--force"]),
     "no command": ([], ["required"]),
 }  # fmt: skip
 
@@ -519,6 +525,7 @@ FLAGS = {
                     "--method": _METHOD, "--episodes": ["1"], "--seed": _INT, "--jobs": ["1", "2"],
                     "--out": ["{new}", "{nonempty}"], "--force": []},
     "bench perf": {"--quick": [], "--figure": ["6"], "--episodes": ["1"]},  # the last two: not perf flags
+    "export": {"--out": ["{new}.pt", "{badsd}", "{new}"], "--force": []},
 }  # fmt: skip
 # ... and values no flag should take (most flags)
 GARBAGE = ["0", "-1", "0.5", "-0.5", "1e999", "nan", "inf", "", "abc", "-", "--", "cuda:x", "amat:nope",
@@ -532,7 +539,7 @@ GARBAGE = ["0", "-1", "0.5", "-0.5", "1e999", "nan", "inf", "", "abc", "-", "--"
            "{corrupt_run}"]  # fmt: skip
 REQUIRED = {"train": ["--run-dir", "{new}"], "eval": ["--method", "nearest", "--out", "{new}"],
             "render": ["--method", "nearest", "--out", "{new}.gif"],
-            "bench paper": ["--figure", "6"], "bench perf": []}  # fmt: skip
+            "bench paper": ["--figure", "6"], "bench perf": [], "export": ["{run}"]}  # fmt: skip
 
 
 # ~3 s for the default 300 examples; CATMIP_FUZZ_EXAMPLES=4000 for a longer hunt (~50 s, passed)

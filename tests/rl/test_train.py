@@ -133,3 +133,24 @@ def test_a_new_run_can_start_from_another_runs_weights(tmp_path):
         other = cfg.replace(init_from=str(tmp_path / "a"), amat={"embed_dim": 16})
         train(other, tmp_path / "d", progress=False)
     assert not (tmp_path / "d").exists()
+
+
+def test_export_writes_a_runs_model_with_its_provenance(tmp_path, capsys):
+    from catmip_rl.checkpoint import load_model
+
+    run, out = tmp_path / "run", tmp_path / "m.pt"
+    cfg = make_train_config("tiny", iterations=2, eval_every=0)
+    model = train(cfg, run, progress=False)
+    assert cli(["export", str(run), "--out", str(out)]) == 0
+    assert "iteration 2" in capsys.readouterr().out
+    assert torch.equal(_params(load_model(out)), _params(model)) and out.with_suffix(".json").exists()
+    extra = torch.load(out, weights_only=True)["extra"]
+    assert extra["iteration"] == 2 and extra["episodes"] == 16 and extra["training_minutes"] > 0
+    assert TrainConfig.from_json(json.dumps(extra["train_config"])) == cfg and extra["cpu_capability"]
+    # never overwritten without --force; with it, from one checkpoint file
+    before = out.read_bytes()
+    assert cli(["export", str(run), "--out", str(out)]) == 2 and out.read_bytes() == before
+    assert "--force" in capsys.readouterr().err
+    ckpt = run / "checkpoints" / "iter_000001.pt"
+    assert cli(["export", str(ckpt), "--out", str(out), "--force"]) == 0
+    assert torch.load(out, weights_only=True)["extra"]["iteration"] == 1
