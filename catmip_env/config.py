@@ -152,6 +152,9 @@ class EnvConfig:
 
     # -- derived -------------------------------------------------------------------------------
     def __post_init__(self) -> None:
+        for name in _LISTS:  # lists given directly (not through replace) become tuples: hashable, immutable
+            if isinstance(getattr(self, name), list):
+                object.__setattr__(self, name, tuple(getattr(self, name)))
         _validate(self)
 
     @property
@@ -296,6 +299,11 @@ def _validate(cfg: EnvConfig) -> None:
         )
     if cfg.horizon_ticks < 1:
         fail(f"horizon_ticks must be an int >= 1, got {cfg.horizon_ticks!r}")
+    if cfg.comm_sigma is not None and cfg.comm_sigma_choices:
+        fail(
+            f"give comm_sigma ({cfg.comm_sigma!r}) or comm_sigma_choices ({cfg.comm_sigma_choices!r}), not "
+            "both: with choices every episode draws its range from them"
+        )
     if cfg.num_obstacles is not None and cfg.num_obstacles < 0:
         fail(f"num_obstacles must be None or an int >= 0, got {cfg.num_obstacles!r}")
     if cfg.layout is None and cfg.obstacles > (cfg.map_size - 2) ** 2 // 4:

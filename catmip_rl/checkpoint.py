@@ -8,6 +8,7 @@ models (``catmip_rl/models/amat_NAME.pt``) load by name: ``load_model("task1")``
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 import zipfile
@@ -21,7 +22,7 @@ from catmip_rl.amat.model import AMAT, AmatConfig
 
 __all__ = [
     "save_model", "load_model", "atomic_torch_save", "read_checkpoint", "resolve_model", "shipped_models",
-    "CheckpointError", "SHIPPED_DIR", "resume_checkpoint", "initial_weights", "export_model",
+    "CheckpointError", "SHIPPED_DIR", "resume_checkpoint", "initial_weights", "export_model", "model_from",
 ]  # fmt: skip
 
 FORMAT = "catmip-amat-v1"
@@ -126,7 +127,11 @@ def load_model(path: str | Path, map_location: str | torch.device = "cpu") -> AM
     checkpoint (``RUN_DIR/checkpoints/*.pt``), a training run dir or its ``checkpoints/`` folder (the
     latest checkpoint) or the name of a shipped model (:func:`resolve_model`)."""
     path = _model_file(resolve_model(path))
-    blob = read_checkpoint(path, map_location)
+    return model_from(read_checkpoint(path, map_location), path).to(map_location)
+
+
+def model_from(blob: Any, path: Path) -> AMAT:
+    """The AMAT of a checkpoint already read from ``path`` (a model file or a training checkpoint)."""
     if isinstance(blob, dict) and "model" in blob and "amat_config" in blob:  # a training checkpoint
         blob = {"format": FORMAT, "config": blob["amat_config"], "state_dict": blob["model"]}
     if not isinstance(blob, dict) or blob.get("format") != FORMAT:
@@ -145,7 +150,7 @@ def load_model(path: str | Path, map_location: str | torch.device = "cpu") -> AM
             reason = reason if len(reason) <= 300 else reason[:300] + " ..."
     if reason:
         raise ValueError(f"checkpoint {path} does not fit the AMAT its config describes: {reason}")
-    return model.to(map_location)
+    return model
 
 
 def _state_mismatch(state: Any, expected: dict[str, torch.Tensor], shown: int = 3) -> str:
@@ -258,51 +263,82 @@ def resume_checkpoint(run_dir: str | Path) -> dict:
         raise type(err)(f"cannot resume {run_dir}: {err}{hint}") from None
 
 
+def _is_training_checkpoint(blob: Any) -> bool:
+    return isinstance(blob, dict) and "amat_config" in blob and "config" in blob
+
+
+def _origin(path: Path) -> dict | None:
+    """``init_from.json`` of the run a training checkpoint belongs to (RUN_DIR/checkpoints/X.pt), if any."""
+    source = path.parent.parent / "init_from.json" if path.parent.name == "checkpoints" else None
+    return json.loads(source.read_text()) if source is not None and source.is_file() else None
+
+
+def _minutes_behind(own_minutes: float, origin: dict | None) -> float:
+    """Training minutes behind some weights: their run's own and those of every run it started from."""
+    return own_minutes + float((origin or {}).get("elapsed_min") or 0.0)
+
+
 def initial_weights(spec: str, config: AmatConfig) -> dict[str, Any]:
-    """The weights a new run starts from (``TrainConfig.init_from``): ``{"model": state dict,
-    "value_norm": state dict or None, "source": {file, iteration, training minutes}}`` from a model
-    file, a training checkpoint, a run dir (its latest checkpoint) or a shipped model's name. A training
-    checkpoint brings its value normaliser too (the value head predicts in its units), its iteration and
-    training time; a model file has none of them. Raises ``ValueError`` if the model there is not an AMAT
-    of ``config``."""
-    model = load_model(spec)  # every check of a readable AMAT that fits its own config
+    """The weights a new run starts from (``TrainConfig.init_from``), read once: ``{"model": state dict,
+    "value_norm": state dict or None, "source": {...}}`` from a training checkpoint or run dir (its latest
+    checkpoint), a model file or a shipped model's name. The value normaliser (the value head predicts in
+    its units) comes from a training checkpoint or a file of :func:`export_model`. ``source`` says where
+    they came from: the spec, the file, its SHA-256, the iteration and the training minutes behind the
+    weights (counting the runs they came from in turn; None where unknown). Raises ``ValueError`` (the
+    message starts with "init_from") if the file is missing, unreadable or not an AMAT of ``config``."""
+    try:
+        path = _model_file(resolve_model(spec))
+        blob = read_checkpoint(path)
+        model = model_from(blob, path)
+    except (OSError, ValueError) as err:
+        raise ValueError(f"init_from: {err}") from None
     if model.config != config:
+        theirs, ours = asdict(model.config), asdict(config)
+        diff = ", ".join(f"{k} {theirs[k]!r} there vs {ours[k]!r} here" for k in ours if theirs[k] != ours[k])
         raise ValueError(
-            f"init_from {spec!r} is an AMAT of another configuration ({model.config}); this run builds "
-            f"{config}: set the run's amat fields to match, or start from another model"
+            f"init_from {spec!r} is an AMAT of another configuration ({diff}): set the run's amat fields to "
+            "match, or start from another model"
         )
-    path = _model_file(resolve_model(spec))
-    blob = read_checkpoint(path)
-    trained = "amat_config" in blob  # a training checkpoint, not a model file
+    if _is_training_checkpoint(blob):
+        state = {"iteration": blob["iteration"], "training_minutes": blob.get("elapsed_s", 0.0) / 60.0,
+                 "init_from": _origin(path), "value_norm": blob["value_norm"]}  # fmt: skip
+    else:  # a model file; export_model's carry their run's state in extra
+        state = blob.get("extra") or {}
+    own = state.get("training_minutes")
     source = {
         "init_from": spec,
         "file": str(path),
-        "iteration": blob.get("iteration") if trained else None,
-        "elapsed_min": blob.get("elapsed_s", 0.0) / 60.0 if trained else None,
+        "sha256": hashlib.sha256(path.read_bytes()).hexdigest(),
+        "iteration": state.get("iteration"),
+        "elapsed_min": None if own is None else _minutes_behind(own, state.get("init_from")),
     }
-    return {"model": model.state_dict(), "value_norm": blob.get("value_norm") if trained else None,
-            "source": source}  # fmt: skip
+    return {"model": model.state_dict(), "value_norm": state.get("value_norm"), "source": source}
 
 
 def export_model(source: str | Path, out: str | Path) -> tuple[Path, dict[str, Any]]:
     """Write the model of a training checkpoint or run dir (its latest checkpoint) as a model file
-    (:func:`save_model`, what ``catmip_rl/models/`` ships), with its provenance in the file's ``extra``:
-    the run's preset fields (``train_config``), iteration, episodes, training minutes, where it started
-    from (``init_from.json``) and the CPU capability. Returns (path, extra)."""
+    (:func:`save_model`, what ``catmip_rl/models/`` ships), with the run's state in the file's ``extra``:
+    its config (``train_config``), iteration, episodes, training minutes (``training_minutes``: the run's
+    own; ``total_training_minutes``: with those of the runs it started from), where it started from
+    (``init_from``, its ``init_from.json``), the value normaliser (so that ``--init-from`` the file
+    fine-tunes like the checkpoint) and the CPU capability. Returns (path, extra)."""
     path = _model_file(resolve_model(source))
     blob = read_checkpoint(path)
-    if not (isinstance(blob, dict) and "amat_config" in blob and "config" in blob):
+    if not _is_training_checkpoint(blob):
         raise CheckpointError(f"{path} is not a training checkpoint (a model file needs no export)")
-    model = load_model(path)
-    run_dir = path.parent.parent if path.parent.name == "checkpoints" else None
-    source_file = run_dir / "init_from.json" if run_dir is not None else None
+    if Path(out).resolve() in (path.resolve(), path.with_suffix(".json").resolve()):
+        raise ValueError(f"--out {out} would replace the checkpoint it exports; write the model elsewhere")
+    model = model_from(blob, path)
+    origin, own = _origin(path), float(blob.get("elapsed_s", 0.0)) / 60.0
     extra = {
         "checkpoint": str(path),
         "iteration": int(blob["iteration"]),
         "episodes": int(blob["episodes"]),
-        "training_minutes": float(blob.get("elapsed_s", 0.0)) / 60.0,
+        "training_minutes": own,
+        "total_training_minutes": _minutes_behind(own, origin),
         "train_config": json.loads(blob["config"]),
-        "init_from": json.loads(source_file.read_text()) if source_file and source_file.is_file() else None,
+        "init_from": origin,
+        "value_norm": blob["value_norm"],
         "cpu_capability": torch.backends.cpu.get_cpu_capability(),
     }
     return save_model(model, out, extra=extra), extra

@@ -24,7 +24,7 @@ from typing import Any
 
 from catmip_rl.cli_args import CPUS, USER_ERRORS, parse_set
 from catmip_rl.cli_parser import DEFAULT_PRESET, build_parser
-from catmip_rl.training.config import TRAIN_PRESETS, TrainConfig
+from catmip_rl.training.config import FINE_TUNING_PRESETS, TRAIN_PRESETS, TrainConfig
 
 __all__ = ["main", "build_parser", "parse_set", "CPUS", "DEFAULT_PRESET"]
 
@@ -67,6 +67,11 @@ def _train(args: argparse.Namespace) -> int:
     else:
         base = TRAIN_PRESETS[args.preset or DEFAULT_PRESET]
     cfg = _config(base, overrides)
+    if not args.resume and args.preset in FINE_TUNING_PRESETS and not cfg.init_from:
+        raise ValueError(
+            f"preset {args.preset} fine-tunes a trained model: give --init-from MODEL (a run dir, training "
+            "checkpoint or model file of the same AMAT, e.g. a paper-warm run)"
+        )
     for name in ("threads", "update_processes"):  # asked for here (a preset's or resumed run's value is kept)
         if name in overrides and getattr(cfg, name) > CPUS:
             raise ValueError(
@@ -169,8 +174,9 @@ def _export(args: argparse.Namespace) -> int:
     from catmip_rl.checkpoint import export_model
     from catmip_rl.files import check_new_file
 
-    check_new_file(args.out, "--out", force=args.force, suffixes=(".pt",))
-    path, extra = export_model(args.source, args.out)
+    out = check_new_file(args.out, "--out", force=args.force, suffixes=(".pt",))
+    check_new_file(out.with_suffix(".json"), "--out's config file", force=args.force)  # written beside it
+    path, extra = export_model(args.source, out)
     print(
         f"wrote {path} (+ {path.with_suffix('.json').name}): iteration {extra['iteration']}, "
         f"{extra['training_minutes']:.1f} training minutes"

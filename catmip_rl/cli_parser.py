@@ -246,7 +246,7 @@ def add_export(sub) -> None:
     )  # fmt: skip
     ex.add_argument("source", help="a training run dir, its checkpoints/ folder or a checkpoint file")
     ex.add_argument("--out", required=True, help="the model file to write (ending in .pt)")
-    ex.add_argument("--force", action="store_true", help="overwrite an existing --out")
+    ex.add_argument("--force", action="store_true", help="overwrite an existing --out (and its .json)")
     ex.set_defaults(name="export")
 
 

@@ -13,7 +13,7 @@ from typing import Any
 from catmip_env import EnvConfig, make_config
 from catmip_rl.amat.model import AmatConfig
 
-__all__ = ["TrainConfig", "TRAIN_PRESETS", "make_train_config"]
+__all__ = ["TrainConfig", "TRAIN_PRESETS", "FINE_TUNING_PRESETS", "make_train_config"]
 
 
 def _is_int(v: Any) -> bool:
@@ -270,7 +270,8 @@ TRAIN_PRESETS: dict[str, TrainConfig] = {
         **_EVAL_64,
     ),
     # paper-warm's model sharpened: fine-tuned (--init-from a paper-warm run) by the same PPO with lr 1e-4 and
-    # a tenth of the entropy bonus, so that the argmax the protocol evaluates is the policy's clear choice
+    # a tenth of the entropy bonus, so that the argmax the protocol evaluates is the policy's clear choice;
+    # its first 5 iterations train the value head alone (the warm_start_* fields are paper-warm's, unused)
     "paper-sharp": TrainConfig(
         precision="auto",
         num_worlds=64,
@@ -295,6 +296,11 @@ TRAIN_PRESETS: dict[str, TrainConfig] = {
         checkpoint_every=1,
     ),
 }
+
+
+#: presets that fine-tune a trained model: a new run of one needs ``init_from`` (``catmip train`` refuses it
+#: without; from fresh weights they would be a slow, unwarmed paper run)
+FINE_TUNING_PRESETS = ("paper-sharp",)
 
 
 def make_train_config(preset: str = "paper", **overrides: Any) -> TrainConfig:

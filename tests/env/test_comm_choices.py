@@ -64,7 +64,17 @@ def test_bad_choices_are_refused_naming_the_field(bad):
         make_config("train", comm_sigma_choices=bad)
 
 
+def test_a_fixed_range_and_choices_together_are_refused():
+    with pytest.raises(ValueError, match="comm_sigma .* or comm_sigma_choices .* not both"):
+        make_config("train", comm_sigma=4.0, comm_sigma_choices=[None, 2.0])
+
+
 def test_choices_come_from_json_lists():
     cfg = make_config("train").replace(**{"comm_sigma_choices": [None, 4, 2.5]})
     assert cfg.comm_sigma_choices == (None, 4, 2.5) and cfg.comm_ranges == (None, 4, 2.5)
     assert make_config("train", comm_sigma_choices=[]).comm_ranges == (None,)
+    from catmip_env import EnvConfig
+
+    direct = EnvConfig(comm_sigma_choices=[None, 2.0], team=["rescuer", "explorer"])  # lists become tuples
+    assert direct.comm_sigma_choices == (None, 2.0) and direct.team == ("rescuer", "explorer")
+    assert hash(direct) == hash(direct.replace())

@@ -113,23 +113,38 @@ def test_a_new_run_can_start_from_another_runs_weights(tmp_path):
     for k, v in saved["value_norm"].items():
         assert torch.equal(run.value_norm.state_dict()[k], v)
     assert float(saved["value_norm"]["debias"]) > 0 and run.iteration == 0 and not run.opt.state
-    # from a model file: the weights, and a fresh value normaliser (a model file has none)
+    # from a plain model file: the weights, and a fresh value normaliser (it has none)
     save_model(a, tmp_path / "m.pt")
     run = build_run(cfg.replace(init_from=str(tmp_path / "m.pt")))
     assert torch.equal(_params(run.model), _params(a)) and float(run.value_norm.debias) == 0
+    # from an exported model file: its run's value normaliser and clock come along
+    assert cli(["export", str(tmp_path / "a"), "--out", str(tmp_path / "e.pt")]) == 0
+    run = build_run(cfg.replace(init_from=str(tmp_path / "e.pt")))
+    assert torch.equal(_params(run.model), _params(a))
+    assert torch.equal(run.value_norm.mean, saved["value_norm"]["mean"])
+    assert run.init_source["iteration"] == 2 and run.init_source["elapsed_min"] == saved["elapsed_s"] / 60
     # a fine-tuning run trains from there; resuming it continues its own weights, not init_from's
     ft = cfg.replace(init_from=str(tmp_path / "m.pt"), iterations=1)
     b = train(ft, tmp_path / "b", progress=False)
     assert TrainConfig.from_json((tmp_path / "b" / "config.json").read_text()).init_from.endswith("m.pt")
     source = json.loads((tmp_path / "b" / "init_from.json").read_text())
     assert source["file"].endswith("m.pt") and source["iteration"] is None  # a model file: no iteration
+    assert len(source["sha256"]) == 64
     assert build_run(cfg.replace(init_from=str(tmp_path / "a"))).init_source["iteration"] == 2
+    # the clock goes back through every run the weights came from: b started from a's exported file
+    tuned = train(cfg.replace(init_from=str(tmp_path / "e.pt"), iterations=1), tmp_path / "t", progress=False)
+    assert tuned is not None
+    b_saved = torch.load(tmp_path / "t" / "checkpoints" / "latest.pt", weights_only=True)
+    chain = build_run(cfg.replace(init_from=str(tmp_path / "t"))).init_source["elapsed_min"]
+    assert chain == pytest.approx(saved["elapsed_s"] / 60 + b_saved["elapsed_s"] / 60)
     assert not torch.equal(_params(b), _params(a))
     (tmp_path / "m.pt").unlink()  # not read on resume
     c = train(ft.replace(iterations=2), tmp_path / "b", resume=True, progress=False)
     assert not torch.equal(_params(c), _params(b))
     # refused before anything is written: another model's weights
-    with pytest.raises(ValueError, match="another configuration"):
+    with pytest.raises(ValueError, match="init_from: .*'nope' does not exist"):
+        build_run(cfg.replace(init_from="nope"))
+    with pytest.raises(ValueError, match="another configuration .embed_dim 32 there vs 16 here"):
         other = cfg.replace(init_from=str(tmp_path / "a"), amat={"embed_dim": 16})
         train(other, tmp_path / "d", progress=False)
     assert not (tmp_path / "d").exists()
@@ -154,3 +169,16 @@ def test_export_writes_a_runs_model_with_its_provenance(tmp_path, capsys):
     ckpt = run / "checkpoints" / "iter_000001.pt"
     assert cli(["export", str(ckpt), "--out", str(out), "--force"]) == 0
     assert torch.load(out, weights_only=True)["extra"]["iteration"] == 1
+    # never onto the checkpoint it reads, nor onto a file beside --out that it would write
+    assert (
+        cli(["export", str(ckpt), "--out", str(ckpt), "--force"]) == 2
+        and "would replace" in capsys.readouterr().err
+    )
+    (run / "config.pt").unlink(missing_ok=True)
+    assert cli(["export", str(run), "--out", str(run / "config.pt")]) == 2  # config.json is there
+    assert "config file" in capsys.readouterr().err and not (run / "config.pt").exists()
+
+
+def test_a_fine_tuning_preset_needs_init_from(tmp_path, capsys):
+    assert cli(["train", "--preset", "paper-sharp", "--run-dir", str(tmp_path / "r")]) == 2
+    assert "--init-from" in capsys.readouterr().err and not (tmp_path / "r").exists()
