@@ -401,7 +401,8 @@ def test_shipped_models_load_by_name(tmp_path, monkeypatch):
     assert catmip_rl.load_model("task1").config == load_model(SHIPPED).config
     assert Path(parse_method("amat:task1").target) == SHIPPED
     assert parse_method("best=amat-guard:task1").loop_guard
-    with pytest.raises(FileNotFoundError, match=r"shipped: task1"):
+    assert load_model("paper").config.embed_dim == 192  # the Table-2 size
+    with pytest.raises(FileNotFoundError, match=r"shipped: paper, task1"):
         load_model("task9")
     monkeypatch.chdir(tmp_path)  # a path named like a shipped model wins: paths keep working
     (tmp_path / "task1").mkdir()
