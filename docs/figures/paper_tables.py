@@ -1,14 +1,18 @@
 """The tables of docs/reproducing.md from the summaries ``catmip bench paper`` wrote: one markdown table per
 figure, a row per method and a column per panel, each cell "success by tick 100 / success by the horizon /
-mean rescue tick"; with ``--bold`` the best by-tick-100 value of each column is bold.
+mean rescue tick"; with ``--bold`` the best by-tick-100 value of each column is bold. With ``--update FILE``
+each figure's table in FILE (the first table after a heading that starts with "### Figure N") is replaced
+in place; otherwise the tables are printed.
 
-    python docs/figures/paper_tables.py [--dir docs/figures/paper] [--bold]
+    python docs/figures/paper_tables.py [--dir docs/figures/paper] [--bold] [--update docs/reproducing.md]
 """
 
 from __future__ import annotations
 
 import argparse
 import csv
+import re
+import sys
 from pathlib import Path
 
 
@@ -38,13 +42,47 @@ def table(path: Path, bold: bool = False) -> str:
     return "\n".join(lines)
 
 
+def replace_table(text: str, figure: int, new_table: str) -> str:
+    """``text`` with the first markdown table after the heading "### Figure ``figure``" replaced."""
+    heading = re.search(rf"^### Figure {figure}\b.*$", text, flags=re.MULTILINE)
+    if heading is None:
+        raise ValueError(f"no heading '### Figure {figure}' to put its table under")
+    old = re.compile(r"^\|.*\|\n(?:^\|.*\|\n?)+", flags=re.MULTILINE).search(text, heading.end())
+    nxt = re.search(r"^#{1,3} ", text[heading.end():], flags=re.MULTILINE)
+    if old is None or (nxt is not None and old.start() > heading.end() + nxt.start()):
+        raise ValueError(f"no table under '### Figure {figure}'")
+    end = old.end() - (1 if old.group().endswith("\n") else 0)
+    return text[: old.start()] + new_table + text[end:]
+
+
+def figure_files(folder: Path) -> list[tuple[int, Path]]:
+    found = [(int(p.stem[3:].split("_")[0]), p) for p in folder.glob("fig*_summary.csv")]
+    return sorted(found)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--dir", type=Path, default=Path(__file__).parent / "paper", help="the figN_summary.csv")
     ap.add_argument("--bold", action="store_true", help="bold the best success by tick 100 of each column")
+    ap.add_argument("--update", type=Path, metavar="FILE", help="replace the tables in FILE instead of printing")
     args = ap.parse_args()
-    for path in sorted(args.dir.glob("fig*_summary.csv"), key=lambda p: int(p.stem[3:].split("_")[0])):
-        print(f"### Figure {path.stem[3:].split('_')[0]}\n\n{table(path, args.bold)}\n")
+    figures = figure_files(args.dir)
+    if not figures:
+        sys.exit(f"error: no fig*_summary.csv in {args.dir}")
+    if args.update is None:
+        for n, path in figures:
+            print(f"### Figure {n}\n\n{table(path, args.bold)}\n")
+        return
+    text = args.update.read_text()
+    try:
+        for n, path in figures:
+            text = replace_table(text, n, table(path, args.bold))
+    except ValueError as err:
+        sys.exit(f"error: {args.update}: {err}")
+    tmp = args.update.with_suffix(args.update.suffix + ".tmp")
+    tmp.write_text(text)
+    tmp.replace(args.update)
+    print(f"updated {len(figures)} tables in {args.update}")
 
 
 if __name__ == "__main__":
