@@ -12,7 +12,8 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def _tables_module():
-    spec = importlib.util.spec_from_file_location("paper_tables", ROOT / "docs" / "figures" / "paper_tables.py")
+    path = ROOT / "docs" / "figures" / "paper_tables.py"
+    spec = importlib.util.spec_from_file_location("paper_tables", path)
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     return module
@@ -29,7 +30,10 @@ def test_reproducing_md_shows_the_committed_summaries():
 
 def test_replace_table_changes_only_that_figures_table():
     tables = _tables_module()
-    text = "### Figure 6: a\n\n![x](x.png)\n\n| a | b |\n|---|---|\n| 1 | 2 |\n\nprose\n\n### Figure 7\n\n| c |\n|---|\n| 3 |\n"
+    text = (
+        "### Figure 6: a\n\n![x](x.png)\n\n| a | b |\n|---|---|\n| 1 | 2 |\n\nprose\n\n"
+        "### Figure 7\n\n| c |\n|---|\n| 3 |\n"
+    )
     out = tables.replace_table(text, 6, "| a | b |\n|---|---|\n| 5 | 6 |")
     assert out == text.replace("| 1 | 2 |", "| 5 | 6 |")
     out = tables.replace_table(text, 7, "| c |\n|---|\n| 9 |")

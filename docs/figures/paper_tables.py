@@ -48,7 +48,7 @@ def replace_table(text: str, figure: int, new_table: str) -> str:
     if heading is None:
         raise ValueError(f"no heading '### Figure {figure}' to put its table under")
     old = re.compile(r"^\|.*\|\n(?:^\|.*\|\n?)+", flags=re.MULTILINE).search(text, heading.end())
-    nxt = re.search(r"^#{1,3} ", text[heading.end():], flags=re.MULTILINE)
+    nxt = re.search(r"^#{1,3} ", text[heading.end() :], flags=re.MULTILINE)
     if old is None or (nxt is not None and old.start() > heading.end() + nxt.start()):
         raise ValueError(f"no table under '### Figure {figure}'")
     end = old.end() - (1 if old.group().endswith("\n") else 0)
@@ -64,7 +64,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--dir", type=Path, default=Path(__file__).parent / "paper", help="the figN_summary.csv")
     ap.add_argument("--bold", action="store_true", help="bold the best success by tick 100 of each column")
-    ap.add_argument("--update", type=Path, metavar="FILE", help="replace the tables in FILE instead of printing")
+    ap.add_argument("--update", type=Path, metavar="FILE", help="replace the tables in FILE, not print")
     args = ap.parse_args()
     figures = figure_files(args.dir)
     if not figures:
