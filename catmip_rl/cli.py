@@ -107,10 +107,11 @@ def _eval(args: argparse.Namespace) -> int:
     out = result.write(args.out)
     s = result.summary
     rescue = "-" if s["mean_rescue_tick"] is None else f"{s['mean_rescue_tick']:.1f}"
+    p, n = s["success_by_100"], s["episodes"]
     print(
-        f"{s['method']} on {s['label']}, {s['episodes']} episodes (seed {args.seed}): success "
-        f"{s['success_rate']:.2f}, by tick 100 {s['success_by_100']:.2f}, mean rescue tick {rescue}, "
-        f"explored {s['mean_explored_fraction']:.2f}"
+        f"{s['method']} on {s['label']}, {n} episodes (seed {args.seed}): success "
+        f"{s['success_rate']:.2f}, by tick 100 {p:.2f} (standard error {(p * (1 - p) / n) ** 0.5:.3f}), "
+        f"mean rescue tick {rescue}, explored {s['mean_explored_fraction']:.2f}"
     )
     if "sampled_success_rate" in s:
         print(

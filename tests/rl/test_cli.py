@@ -4,6 +4,7 @@ and exit code 2, before any work starts, and nothing is written or overwritten w
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import subprocess
 import sys
@@ -381,6 +382,13 @@ def test_force_writes_into_a_non_empty_folder_and_keeps_other_files(tmp_path, ca
     (out / "notes.txt").write_text("mine")
     assert main([*EVAL, "--out", str(out), "--no-progress", "--threads", "1", "--force"]) == 0
     assert (out / "summary.json").exists() and (out / "notes.txt").read_text() == "mine"
+
+
+def test_eval_prints_the_standard_error_of_success_by_tick_100(tmp_path, capsys):
+    out = tmp_path / "eval"
+    assert main(["eval", "--method", "random", "--episodes", "8", "--out", str(out), "--no-progress"]) == 0
+    p = json.loads((out / "summary.json").read_text())["success_by_100"]
+    assert f"by tick 100 {p:.2f} (standard error {(p * (1 - p) / 8) ** 0.5:.3f})" in capsys.readouterr().out
 
 
 def test_render_defaults_to_the_envs_fps_and_overwrites_only_with_force(tmp_path, capsys):
