@@ -15,6 +15,8 @@ import re
 import sys
 from pathlib import Path
 
+from catmip_rl.files import atomic_write_text
+
 
 def cell(row: dict) -> str:
     tick = row["mean_rescue_tick"]
@@ -48,8 +50,8 @@ def replace_table(text: str, figure: int, new_table: str) -> str:
     if heading is None:
         raise ValueError(f"no heading '### Figure {figure}' to put its table under")
     old = re.compile(r"^\|.*\|\n(?:^\|.*\|\n?)+", flags=re.MULTILINE).search(text, heading.end())
-    nxt = re.search(r"^#{1,3} ", text[heading.end() :], flags=re.MULTILINE)
-    if old is None or (nxt is not None and old.start() > heading.end() + nxt.start()):
+    nxt = re.compile(r"^#{1,3} ", flags=re.MULTILINE).search(text, heading.end())
+    if old is None or (nxt is not None and old.start() > nxt.start()):
         raise ValueError(f"no table under '### Figure {figure}'")
     end = old.end() - (1 if old.group().endswith("\n") else 0)
     return text[: old.start()] + new_table + text[end:]
@@ -79,9 +81,7 @@ def main() -> None:
             text = replace_table(text, n, table(path, args.bold))
     except ValueError as err:
         sys.exit(f"error: {args.update}: {err}")
-    tmp = args.update.with_suffix(args.update.suffix + ".tmp")
-    tmp.write_text(text)
-    tmp.replace(args.update)
+    atomic_write_text(args.update, text)
     print(f"updated {len(figures)} tables in {args.update}")
 
 
