@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import argparse
 import os
-import platform
 import subprocess
 import sys
 import time
@@ -20,7 +19,7 @@ os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import numpy as np  # noqa: E402
-from common import write_json  # noqa: E402
+from common import machine_info, write_json  # noqa: E402
 
 from catmip_env import BatchedEngine, make_config, search_rescue_v0  # noqa: E402
 
@@ -100,11 +99,7 @@ def main() -> None:
 
     startup_seconds()  # make sure the numba cache is warm
     results: dict = {
-        "machine": {
-            "python": platform.python_version(),
-            "cpu": platform.processor() or platform.machine(),
-            "threads": 1,
-        },
+        "machine": machine_info(threads=1),
         "startup_s_cached": startup_seconds(),
         "engine": [],
         "pettingzoo": [],

@@ -13,14 +13,13 @@ from __future__ import annotations
 
 import argparse
 import os
-import platform
 import time
 
 os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import numpy as np  # noqa: E402
-from common import write_json  # noqa: E402
+from common import machine_info, write_json  # noqa: E402
 
 from catmip_env import make_config, search_rescue_v0  # noqa: E402
 from catmip_env.events import EventEngine, random_valid_actions  # noqa: E402
@@ -116,7 +115,7 @@ def main() -> None:
     ap.add_argument("--out", default="benchmarks/results/events.json")
     args = ap.parse_args()
     results: dict = {
-        "machine": {"python": platform.python_version(), "cpu": platform.processor() or platform.machine()},
+        "machine": machine_info(),
         "engine": [],
         "pettingzoo": [],
         "planners": [],

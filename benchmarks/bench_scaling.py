@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import argparse
 import os
-import platform
 import statistics
 import time
 from collections.abc import Callable
@@ -34,7 +33,7 @@ os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import numpy as np  # noqa: E402
-from common import env_observation, plot_scaling_panels, write_json  # noqa: E402
+from common import env_observation, machine_info, plot_scaling_panels, write_json  # noqa: E402
 
 from catmip_env import BatchedEngine, EnvConfig, make_config  # noqa: E402
 from catmip_env.events import EventEngine, random_valid_actions  # noqa: E402
@@ -261,11 +260,7 @@ def main(argv: list[str] | None = None) -> dict:
         except ImportError as exc:  # torch is the rl extra
             note = f"AMAT curves skipped: {exc}"
     results: dict[str, Any] = {
-        "machine": {
-            "python": platform.python_version(),
-            "cpu": platform.processor() or platform.machine(),
-            "load_average_start": list(os.getloadavg()),
-        },
+        "machine": machine_info(load_average_start=list(os.getloadavg())),
         "settings": {
             "base_preset": BASE_PRESET,
             "num_worlds": args.num_worlds,
@@ -280,7 +275,6 @@ def main(argv: list[str] | None = None) -> dict:
     }
     if amat is not None:
         results["machine"]["torch"] = amat.torch.__version__
-        results["machine"]["cpu_capability"] = amat.torch.backends.cpu.get_cpu_capability()
     points = [("map_size", s, FIXED_TEAM) for s in args.maps] + [
         ("team_size", FIXED_MAP, n) for n in args.teams
     ]

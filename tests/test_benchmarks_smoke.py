@@ -111,6 +111,8 @@ def test_run_all_quick_scaling(tmp_path):
     proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, proc.stdout + proc.stderr
     data = json.loads((tmp_path / "scaling.json").read_text())
+    assert data["machine"]["cpu_capability"] and isinstance(data["machine"]["cpu_capability"], str)
+    assert isinstance(data["machine"]["native_bf16"], bool)
     assert [r["map"] for r in data["curves"]["map_size"]] == [15, 20]
     assert [r["robots"] for r in data["curves"]["team_size"]] == [2, 3]
     for row in data["curves"]["map_size"] + data["curves"]["team_size"]:
