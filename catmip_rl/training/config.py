@@ -38,7 +38,7 @@ _RANGES: dict[str, tuple[str, Callable[[Any], bool]]] = {
                      "eval_episodes", "warm_start_rounds", "warm_start_steps", "warm_start_batch",
                      "ray_workers"), (">= 1", lambda v: v >= 1)),
     **dict.fromkeys(("micro_batch", "eval_every", "checkpoint_every", "value_warmup_iterations",
-                     "budget_minutes", "target_kl", "entropy_coef", "value_coef"),
+                     "budget_minutes", "target_kl", "entropy_coef", "value_coef", "rescue_coef"),
                     (">= 0", lambda v: v >= 0)),
     **dict.fromkeys(("lr", "adam_eps", "clip", "value_clip", "huber_delta", "max_grad_norm", "warm_start_lr"),
                     ("> 0", lambda v: v > 0)),
@@ -96,6 +96,10 @@ class TrainConfig:
     huber_delta: float = 10.0
     entropy_coef: float = 0.01
     value_coef: float = 1.0
+    rescue_coef: float = 0.0
+    """Weight of an auxiliary cross-entropy toward the planners' rescue rule (projected into the window)
+    for active rescuers that know the target (catmip_rl.training.imitation.RescueLabeler); 0 = the
+    paper's loss. Collection then also labels those decisions."""
     max_grad_norm: float = 10.0
     gamma: float = 1.0
     """Discount per tick."""
@@ -157,6 +161,11 @@ class TrainConfig:
                     f"TrainConfig.warm_start must be '' or a planner name {sorted(PLANNERS)}, "
                     f"got {self.warm_start!r}"
                 )
+        if self.rescue_coef > 0 and self.collector != "local":
+            raise ValueError(
+                "TrainConfig.rescue_coef > 0 needs collector 'local' (the rescue rule labels decisions in "
+                "this process); set rescue_coef = 0 with --collector ray"
+            )
         if self.device not in ("cpu", "cuda") and not self.device.startswith("cuda:"):
             raise ValueError(f"device must be cpu or cuda[:i], got {self.device!r}")
         if self.update_processes > 1 and self.device != "cpu":

@@ -117,5 +117,6 @@ def build_batch(r: Rollout, value_norm: ValueNorm, gamma: float, lam: float, n_c
         advantage=adv_t,
         target=value_norm.normalize(ret_t),
         trainable=train_t,
+        rescue_label=None if r.label is None else torch.from_numpy(r.label[rows]),
     ).to(device)
     return batch, {"samples": float(train_t.sum())}

@@ -23,13 +23,15 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from catmip_env.constants import TARGET_BIT
+from catmip_env.events import EventEngine
 from catmip_env.window_planner import make_window_planner
 from catmip_rl.amat.inputs import one_hot_class
 from catmip_rl.amat.model import AMAT
 from catmip_rl.files import open_csv_log, write_csv_row
 from catmip_rl.training.collect import Collector, Rollout
 
-__all__ = ["DemoBuffer", "imitation_loss", "dagger", "warm_start", "WARM_START_METRICS"]
+__all__ = ["DemoBuffer", "RescueLabeler", "imitation_loss", "dagger", "warm_start", "WARM_START_METRICS"]
 
 WARM_START_METRICS = [
     "round", "episodes", "beta", "buffer_events", "rollout/success_rate", "rollout/success_by_100",
@@ -66,6 +68,26 @@ class DemoBuffer:
         out = {k: torch.from_numpy(a[k][idx]) for k in _KEYS if k != "agent_class"}
         out["agent_class"] = one_hot_class(a["agent_class"][idx], n_classes)
         return {k: v.to(device) for k, v in out.items()}
+
+
+class RescueLabeler:
+    """``act(engine)`` -> (B, N) labels for PPO's auxiliary rescue loss (``TrainConfig.rescue_coef``):
+    the rescue rule's window action (the planners' shared rule, projected as ``window:nearest`` projects
+    it) for every active robot of a live world that can rescue and knows where the target is; -1 for
+    every other robot. The teacher runs only on events where such a robot decides."""
+
+    def __init__(self, teacher: str = "nearest") -> None:
+        self.teacher = make_window_planner(teacher)
+
+    def act(self, engine: EventEngine) -> np.ndarray:
+        st = engine.state
+        b, n = np.nonzero(engine.active & ~st.done[:, None] & st.can_rescue)
+        knows = (st.belief[b, n, st.target[b, 0], st.target[b, 1]] & TARGET_BIT) != 0
+        out = np.full(engine.active.shape, -1, np.int64)
+        if knows.any():
+            b, n = b[knows], n[knows]
+            out[b, n] = self.teacher.act(engine)[b, n]
+        return out
 
 
 def imitation_loss(model: AMAT, batch: dict[str, torch.Tensor]) -> tuple[torch.Tensor, dict[str, float]]:

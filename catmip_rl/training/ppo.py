@@ -66,15 +66,16 @@ class SampleBatch:
     advantage: torch.Tensor  # (M, N) (normalised over trainable entries)
     target: torch.Tensor  # (M, N) normalised value targets
     trainable: torch.Tensor  # (M, N) bool: active robots whose macro-action finished
+    rescue_label: torch.Tensor | None = None  # (M, N) long: the rescue rule's window action, -1 = none
 
     def __len__(self) -> int:
         return self.action.shape[0]
 
     def index(self, idx: torch.Tensor) -> SampleBatch:
-        return SampleBatch(**{k: v[idx] for k, v in self.__dict__.items()})
+        return SampleBatch(**{k: None if v is None else v[idx] for k, v in self.__dict__.items()})
 
     def to(self, device) -> SampleBatch:
-        return SampleBatch(**{k: v.to(device) for k, v in self.__dict__.items()})
+        return SampleBatch(**{k: None if v is None else v.to(device) for k, v in self.__dict__.items()})
 
 
 def huber(x: torch.Tensor, delta: float) -> torch.Tensor:
@@ -89,9 +90,14 @@ def ppo_loss(
     huber_delta: float = 10.0,
     entropy_coef: float = 0.01,
     value_coef: float = 1.0,
+    rescue_coef: float = 0.0,
     count: torch.Tensor | float | None = None,
 ) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
     """Total loss and its parts; every term averages over trainable (active, finished) robots only.
+
+    ``rescue_coef`` > 0 adds an auxiliary cross-entropy toward ``batch.rescue_label`` (the rescue rule's
+    window action, for rescuers that know the target; -1 elsewhere), summed over the labelled trainable
+    robots and divided by the same count (``TrainConfig.rescue_coef``; 0 is the paper's loss).
 
     ``count`` replaces the number of trainable robots as the denominator: with the count of a whole
     minibatch, the losses (and parts) of its micro-batches add up to the minibatch's.
@@ -115,11 +121,18 @@ def ppo_loss(
     value_loss = torch.max(huber(v - target, huber_delta), huber(v_clipped - target, huber_delta))
     value_loss = value_loss.sum() / count
     loss = policy_loss + value_coef * value_loss - entropy_coef * entropy
+    rescue_loss = torch.zeros((), device=loss.device)
+    if rescue_coef > 0 and batch.rescue_label is not None:
+        label = batch.rescue_label[sel]
+        has = label >= 0
+        rescue_loss = -logp_all[has].gather(-1, label[has][:, None]).sum() / count
+        loss = loss + rescue_coef * rescue_loss
     with torch.no_grad():
         stats = {
             "loss/policy": policy_loss.detach(),
             "loss/value": value_loss.detach(),
             "loss/entropy": entropy.detach(),
+            "loss/rescue": rescue_loss.detach(),
             "ppo/approx_kl": ((ratio - 1) - (logp - old_logp)).sum() / count,
             "ppo/clip_fraction": ((ratio - 1).abs() > clip).float().sum() / count,
         }

@@ -32,7 +32,7 @@ from catmip_rl.files import atomic_write_text, open_csv_log, write_csv_row
 from catmip_rl.training.collect import Collector, Rollout
 from catmip_rl.training.config import TrainConfig
 from catmip_rl.training.gae import build_batch
-from catmip_rl.training.imitation import warm_start
+from catmip_rl.training.imitation import RescueLabeler, warm_start
 from catmip_rl.training.memory import keep_freed_memory
 from catmip_rl.training.parallel_update import ParallelGradients
 from catmip_rl.training.ppo import ValueNorm
@@ -55,7 +55,7 @@ METRICS = [
     "rollout/explored_fraction", "rollout/episode_ticks", "rollout/return_rescuer", "rollout/return_explorer",
     "rollout/decisions_per_episode", "rollout/stalls_per_episode", "rollout/stall_fraction_rescuer",
     "rollout/stall_fraction_explorer",
-    "loss/policy", "loss/value", "loss/entropy",
+    "loss/policy", "loss/value", "loss/entropy", "loss/rescue",
     "ppo/approx_kl", "ppo/clip_fraction", "ppo/grad_norm", "ppo/lr", "ppo/epochs", "ppo/early_stop",
     "ppo/bf16",
     "eval/success_rate", "eval/success_by_100", "eval/rescue_tick", "eval/target_found_tick",
@@ -102,6 +102,7 @@ class Run:
     bf16: bool | None = None  # the update's precision, chosen on the first batch (kept on resume)
     parallel: ParallelGradients | None = None  # the update's helper processes, started on the first batch
     init_source: dict | None = None  # where a new run's initial weights came from (init_from)
+    rescue_labeler: RescueLabeler | None = None  # labels for the auxiliary rescue loss (cfg.rescue_coef)
 
     def save(self, path: Path) -> None:
         save_training_checkpoint(
@@ -148,6 +149,8 @@ def build_run(cfg: TrainConfig, saved: dict | None = None) -> Run:
         run.collector = RayRolloutCollector(cfg, model)
     else:
         run.collector = Collector(cfg.env_config(), cfg.num_worlds, cfg.seed, cfg.gamma, str(device))
+    if cfg.rescue_coef > 0:
+        run.rescue_labeler = RescueLabeler()
     return run
 
 
@@ -159,7 +162,10 @@ def ppo_iteration(run: Run, run_dir: Path) -> tuple[dict[str, float], list[dict[
     t0 = time.perf_counter()
     for group in run.opt.param_groups:
         group["lr"] = cfg.lr * lr_factor(it, cfg, run.elapsed)
-    rollout = run.collector.collect(run.model, first_episode=run.episodes, generator=run.gen)
+    rollout = run.collector.collect(
+        run.model, first_episode=run.episodes, generator=run.gen,
+        **({"labeler": run.rescue_labeler} if run.rescue_labeler is not None else {}),
+    )  # fmt: skip
     run.episodes += cfg.num_worlds
     t1 = time.perf_counter()
     n_classes = cfg.env_config().num_classes

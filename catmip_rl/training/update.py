@@ -32,7 +32,7 @@ def loss_kwargs(cfg: TrainConfig, bf16: bool | None = None) -> dict[str, float]:
     (``bf16``, or ``cfg.precision`` resolved by the CPU's flags; ``train`` measures "auto")."""
     return {
         "clip": cfg.clip, "value_clip": cfg.value_clip, "huber_delta": cfg.huber_delta,
-        "entropy_coef": cfg.entropy_coef, "value_coef": cfg.value_coef,
+        "entropy_coef": cfg.entropy_coef, "value_coef": cfg.value_coef, "rescue_coef": cfg.rescue_coef,
         "bf16": use_bf16(cfg.precision, cfg.device) if bf16 is None else bf16,
     }  # fmt: skip
 

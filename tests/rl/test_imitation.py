@@ -4,6 +4,7 @@ training, and the warm start inside ``train``."""
 import csv
 
 import numpy as np
+import pytest
 import torch
 
 from catmip_env import make_config
@@ -12,7 +13,7 @@ from catmip_env.window_planner import make_window_planner
 from catmip_rl.amat.model import AMAT, AmatConfig
 from catmip_rl.training.collect import Collector
 from catmip_rl.training.config import make_train_config
-from catmip_rl.training.imitation import DemoBuffer, dagger, imitation_loss
+from catmip_rl.training.imitation import DemoBuffer, RescueLabeler, dagger, imitation_loss
 from catmip_rl.training.train import train
 
 
@@ -108,3 +109,38 @@ def test_train_warm_starts_once_then_runs_ppo(tmp_path):
     assert (tmp_path / "run" / "warm_start.csv").read_text() == before
     rows = list(csv.DictReader((tmp_path / "run" / "metrics.csv").open()))
     assert [int(r["iteration"]) for r in rows] == [1, 2]
+
+
+def test_rescue_labeler_labels_only_rescuers_that_know_the_target_with_the_rescue_rule():
+    cfg = make_config("task2", comm_sigma=2.0)  # rescuer, explorer and a third robot; partial news
+    eng = EventEngine(cfg, 8, seed=3)
+    eng.reset(episode_indices=np.arange(8))
+    labeler, teacher = RescueLabeler(), make_window_planner("nearest")
+    labelled = unlabelled_rescuers = 0
+    while not eng.state.done.all():
+        st = eng.state
+        label, ref = labeler.act(eng), teacher.act(eng)
+        b, n = np.arange(8)[:, None], np.arange(cfg.num_robots)[None, :]
+        knows = (st.belief[b, n, st.target[:, None, 0], st.target[:, None, 1]] & 8) != 0
+        should = eng.active & ~st.done[:, None] & st.can_rescue & knows
+        assert np.array_equal(label[should], ref[should])  # the rescue rule, projected as window:nearest
+        assert (label[~should] == -1).all()
+        assert (np.take_along_axis(eng.masks, np.maximum(label, 0)[..., None], -1)[..., 0][should] != 0).all()
+        labelled += int(should.sum())
+        unlabelled_rescuers += int((eng.active & st.can_rescue & ~knows & ~st.done[:, None]).sum())
+        eng.step(ref)
+    assert labelled > 0 and unlabelled_rescuers > 0  # both cases were met
+
+
+def test_train_with_the_rescue_loss_logs_it_and_it_pulls_toward_the_rescue_rule(tmp_path):
+    cfg = make_train_config("tiny", rescue_coef=1.0, iterations=2, eval_every=0)
+    train(cfg, tmp_path / "run", progress=False)
+    rows = list(csv.DictReader((tmp_path / "run" / "metrics.csv").open()))
+    assert any(float(r["loss/rescue"]) > 0 for r in rows)
+    plain = make_train_config("tiny", iterations=1, eval_every=0)
+    train(plain, tmp_path / "plain", progress=False)
+    assert float(next(csv.DictReader((tmp_path / "plain" / "metrics.csv").open()))["loss/rescue"]) == 0.0
+    with pytest.raises(ValueError, match="rescue_coef"):
+        make_train_config("tiny", rescue_coef=-0.1)
+    with pytest.raises(ValueError, match="rescue_coef > 0 needs collector 'local'"):
+        make_train_config("tiny", rescue_coef=0.5, collector="ray", ray_workers=1)
