@@ -259,6 +259,7 @@ def mission_update(
     can_rescue: np.ndarray,  # (B, N) bool
     belief: np.ndarray,
     found_tick: np.ndarray,  # (B,) int64, -1 until the target is known to anyone
+    informed_tick: np.ndarray,  # (B,) int64, -1 until a robot that can rescue knows the target
     rescue_tick: np.ndarray,  # (B,) int64, -1 until success
     find_reward: float,
     rescue_reward: float,
@@ -279,6 +280,8 @@ def mission_update(
         return False
     for i in range(n):
         if can_rescue[b, i] and belief[b, i, tr, tc] & TARGET_BIT:
+            if informed_tick[b] < 0:
+                informed_tick[b] = tick_1b
             if abs(pos[b, i, 0] - tr) + abs(pos[b, i, 1] - tc) == 1:
                 rescue_tick[b] = tick_1b
                 for j in range(n):
@@ -301,6 +304,7 @@ def perceive(
     rng: np.ndarray,
     used_occ: np.ndarray,
     found_tick: np.ndarray,
+    informed_tick: np.ndarray,
     rescue_tick: np.ndarray,
     rewards: np.ndarray,
     horizon: int,
@@ -317,7 +321,7 @@ def perceive(
     draw_neighbourhoods(b, pos, comm_sigma, rng, comp)
     merge_beliefs(b, comp, belief)
     success = mission_update(
-        b, tick_1b, horizon, target, pos, can_rescue, belief, found_tick, rescue_tick,
+        b, tick_1b, horizon, target, pos, can_rescue, belief, found_tick, informed_tick, rescue_tick,
         find_reward, rescue_reward, rewards,
     )  # fmt: skip
     draw_used_occupancy(b, belief, pos, noise, rng, used_occ)
@@ -331,6 +335,7 @@ def perceive_at_reset(worlds: np.ndarray, s: KernelState, rules: Rules) -> None:
     grid, target, pos, heading, can_rescue = s.grid, s.target, s.pos, s.heading, s.can_rescue
     belief, comp, rng, used_occ = s.belief, s.comp, s.rng, s.used_occ
     found_tick, rescue_tick, pending = s.found_tick, s.rescue_tick, s.pending_reward
+    informed_tick = s.informed_tick
     comm_sigma, horizon, noise = s.comm_sigma, rules.horizon_ticks, rules.slam_noise
     find_reward, rescue_reward = rules.find_reward, rules.rescue_reward
     view_offsets, view_blockers, ray_nblock = rules.view_offsets, rules.view_blockers, rules.ray_nblock
@@ -338,8 +343,8 @@ def perceive_at_reset(worlds: np.ndarray, s: KernelState, rules: Rules) -> None:
         if worlds[b]:
             perceive(
                 b, 0, grid, target, pos, heading, can_rescue, belief, comp, rng, used_occ, found_tick,
-                rescue_tick, pending, horizon, comm_sigma[b], noise, find_reward, rescue_reward,
-                view_offsets, view_blockers, ray_nblock,
+                informed_tick, rescue_tick, pending, horizon, comm_sigma[b], noise, find_reward,
+                rescue_reward, view_offsets, view_blockers, ray_nblock,
             )  # fmt: skip
 
 
@@ -363,6 +368,7 @@ def tick(
     can_rescue, belief, comp, rng, used_occ = s.can_rescue, s.belief, s.comp, s.rng, s.used_occ
     ticks, moves, collisions, pending, done = s.ticks, s.moves, s.collisions, s.pending_reward, s.done
     found_tick, rescue_tick, comm_sigma = s.found_tick, s.rescue_tick, s.comm_sigma
+    informed_tick = s.informed_tick
     horizon, noise = rules.horizon_ticks, rules.slam_noise
     step_reward, collision_penalty = rules.step_reward, rules.collision_penalty
     find_reward, rescue_reward = rules.find_reward, rules.rescue_reward
@@ -385,8 +391,8 @@ def tick(
         )  # fmt: skip
         success = perceive(
             b, t0 + 1, grid, target, pos, heading, can_rescue, belief, comp, rng, used_occ, found_tick,
-            rescue_tick, rewards, horizon, comm_sigma[b], noise, find_reward, rescue_reward, view_offsets,
-            view_blockers, ray_nblock,
+            informed_tick, rescue_tick, rewards, horizon, comm_sigma[b], noise, find_reward, rescue_reward,
+            view_offsets, view_blockers, ray_nblock,
         )  # fmt: skip
         ticks[b] = t0 + 1
         terminated[b] = success

@@ -184,7 +184,7 @@ def advance(
     grid, target, pos, heading, speed, goal = s.grid, s.target, s.pos, s.heading, s.speed, s.goal
     can_rescue, belief, comp, rng, used_occ = s.can_rescue, s.belief, s.comp, s.rng, s.used_occ
     ticks, moves, collisions, pending, done = s.ticks, s.moves, s.collisions, s.pending_reward, s.done
-    found_tick, rescue_tick = s.found_tick, s.rescue_tick
+    found_tick, informed_tick, rescue_tick = s.found_tick, s.informed_tick, s.rescue_tick
     horizon, max_ma, t_min, t_max = rules.horizon_ticks, rules.max_ma_ticks, rules.t_min, rules.t_max
     comm_sigma, noise, gamma, sync = s.comm_sigma, rules.slam_noise, rules.gamma, rules.synchronous
     step_r, coll_r = rules.step_reward, rules.collision_penalty
@@ -219,8 +219,8 @@ def advance(
             )  # fmt: skip
             success = perceive(
                 b, t0 + 1, grid, target, pos, heading, can_rescue, belief, comp, rng, used_occ,
-                found_tick, rescue_tick, tick_rewards, horizon, comm_sigma[b], noise, find_r, rescue_r,
-                view_offsets, view_blockers, ray_nblock,
+                found_tick, informed_tick, rescue_tick, tick_rewards, horizon, comm_sigma[b], noise, find_r,
+                rescue_r, view_offsets, view_blockers, ray_nblock,
             )  # fmt: skip
             ticks[b] = t0 + 1
             event_ticks[b] += 1

@@ -49,6 +49,7 @@ class EpisodeRecords:
 
     rescue_tick: np.ndarray  # (B,) int64 tick of the rescue, -1 if not rescued
     found_tick: np.ndarray  # (B,) int64 tick the target was first seen, -1 if never
+    informed_tick: np.ndarray  # (B,) int64 tick a robot that can rescue first knew the target, -1 if never
     explored_fraction: np.ndarray  # (B,) float64 interior cells explored at the end, in [0, 1]
     ticks: np.ndarray  # (B,) int64 ticks the episode ran
     events: np.ndarray  # (B,) int64 decision events the world took part in
@@ -83,6 +84,7 @@ def episode_records(
     return EpisodeRecords(
         rescue_tick=st.rescue_tick.astype(np.int64),
         found_tick=st.found_tick.astype(np.int64),
+        informed_tick=st.informed_tick.astype(np.int64),
         explored_fraction=np.asarray(engine.world.explored_fraction(), np.float64).copy(),
         ticks=st.ticks.astype(np.int64),
         events=np.zeros(b, np.int64) if events is None else np.array(events, np.int64),
@@ -141,9 +143,13 @@ def episode_metrics(records: EpisodeRecords, horizon: int) -> dict[str, Any]:
     ``episodes``; ``horizon``; ``success_rate`` (rescued by the horizon) and ``success_by_100``
     (rescued by tick 100 or the horizon if shorter), the ends of :func:`success_curve`;
     ``mean_rescue_tick`` / ``mean_target_found_tick`` over the episodes with a rescue / a sighting
-    (None if there is none); ``target_found_rate``; ``mean_explored_fraction``; ``decisions`` (robot
-    decisions in all episodes). These are the keys and values of ``catmip eval``'s summary.json."""
+    (None if there is none); ``target_found_rate``; ``mean_found_to_informed_ticks`` (from the first
+    sighting to the first tick a robot that can rescue knows the target: how long the news travels) and
+    ``mean_informed_to_rescue_ticks`` (from then to the rescue), over the episodes where each happened;
+    ``mean_explored_fraction``; ``decisions`` (robot decisions in all episodes). These are the keys and
+    values of ``catmip eval``'s summary.json."""
     curve = success_curve(records.rescue_tick, horizon)
+    informed = records.informed_tick >= 0
     return {
         "episodes": records.num_worlds,
         "horizon": horizon,
@@ -152,6 +158,10 @@ def episode_metrics(records: EpisodeRecords, horizon: int) -> dict[str, Any]:
         "mean_rescue_tick": _mean_or_none(records.rescue_tick[records.rescued]),
         "mean_target_found_tick": _mean_or_none(records.found_tick[records.found]),
         "target_found_rate": float(records.found.mean()),
+        "mean_found_to_informed_ticks": _mean_or_none((records.informed_tick - records.found_tick)[informed]),
+        "mean_informed_to_rescue_ticks": _mean_or_none(
+            (records.rescue_tick - records.informed_tick)[records.rescued & informed]
+        ),
         "mean_explored_fraction": float(records.explored_fraction.mean()),
         "decisions": int(records.decisions.sum()),
     }

@@ -40,6 +40,7 @@ class WorldState:
     moves: np.ndarray  # (B, N) int64 successful forward moves in the episode
     collisions: np.ndarray  # (B, N) int64 forward moves that hit a wall, obstacle or the target
     found_tick: np.ndarray  # (B,) int64 tick the target first became known, -1 = not yet
+    informed_tick: np.ndarray  # (B,) int64 tick a robot that can rescue first knew the target, -1 = not yet
     rescue_tick: np.ndarray  # (B,) int64 tick of success, -1 = not yet
     done: np.ndarray  # (B,) bool episode over (terminated or truncated)
     episode: np.ndarray  # (B,) int64 episode index of each world's current episode
@@ -68,6 +69,7 @@ class WorldState:
             moves=np.zeros((b, n), np.int64),
             collisions=np.zeros((b, n), np.int64),
             found_tick=np.full(b, -1, np.int64),
+            informed_tick=np.full(b, -1, np.int64),
             rescue_tick=np.full(b, -1, np.int64),
             done=np.ones(b, np.bool_),
             episode=np.full(b, -1, np.int64),

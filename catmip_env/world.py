@@ -151,6 +151,7 @@ class BatchedEngine:
         st.moves[b] = 0
         st.collisions[b] = 0
         st.found_tick[b] = -1
+        st.informed_tick[b] = -1
         st.rescue_tick[b] = -1
         st.done[b] = False
         st.episode[b] = episode

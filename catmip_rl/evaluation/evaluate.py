@@ -285,6 +285,7 @@ def episode_rows(
             "rescued": bool(records.rescued[e]),
             "rescue_tick": tick(records.rescue_tick[e]),
             "target_found_tick": tick(records.found_tick[e]),
+            "rescuer_informed_tick": tick(records.informed_tick[e]),
             "explored_fraction": float(records.explored_fraction[e]),
             "ticks": int(records.ticks[e]),
             "events": int(records.events[e]),

@@ -21,11 +21,12 @@ from catmip_env.play import (
 from catmip_env.render import episode_frames
 
 
-def _records(rescue, found, explored, decisions, stalls, cls=(0, 1)) -> EpisodeRecords:
+def _records(rescue, found, explored, decisions, stalls, cls=(0, 1), informed=None) -> EpisodeRecords:
     b = len(rescue)
     return EpisodeRecords(
         rescue_tick=np.array(rescue, np.int64),
         found_tick=np.array(found, np.int64),
+        informed_tick=np.array(found if informed is None else informed, np.int64),
         explored_fraction=np.array(explored, np.float64),
         ticks=np.where(np.array(rescue) >= 0, rescue, 99).astype(np.int64),
         events=np.ones(b, np.int64),
@@ -41,6 +42,7 @@ HAND = _records(
     explored=[0.5, 0.25, 1.0, 0.25],
     decisions=[[2, 1], [1, 1], [3, 0], [0, 0]],
     stalls=[[1, 0], [0, 0], [1, 0], [0, 0]],
+    informed=[-1, 2, -1, 4],  # episode 0: the rescuer never heard; 1: a tick after the sighting
 )
 
 
@@ -61,12 +63,15 @@ def test_episode_metrics_on_hand_built_records():
         "mean_rescue_tick": pytest.approx(11 / 3),
         "mean_target_found_tick": pytest.approx(7 / 3),
         "target_found_rate": 0.75,
+        "mean_found_to_informed_ticks": 0.5,  # episodes 1 (2 - 1) and 3 (4 - 4)
+        "mean_informed_to_rescue_ticks": 1.0,  # episodes 1 (3 - 2) and 3 (5 - 4)
         "mean_explored_fraction": 0.5,
         "decisions": 8,
     }
     assert list(m) == [
         "episodes", "horizon", "success_rate", "success_by_100", "mean_rescue_tick",
-        "mean_target_found_tick", "target_found_rate", "mean_explored_fraction", "decisions",
+        "mean_target_found_tick", "target_found_rate", "mean_found_to_informed_ticks",
+        "mean_informed_to_rescue_ticks", "mean_explored_fraction", "decisions",
     ]  # fmt: skip
 
 
@@ -79,6 +84,7 @@ def test_success_by_100_and_episodes_without_rescue_or_sighting():
     m = episode_metrics(none, horizon=300)
     assert m["success_rate"] == m["success_by_100"] == m["target_found_rate"] == 0.0
     assert m["mean_rescue_tick"] is None and m["mean_target_found_tick"] is None
+    assert m["mean_found_to_informed_ticks"] is None and m["mean_informed_to_rescue_ticks"] is None
     assert m["mean_explored_fraction"] == pytest.approx(0.3)
 
 
@@ -175,3 +181,53 @@ def test_play_is_torch_free():
     code = "import sys, catmip_env.play, catmip_env.render; print('torch' in sys.modules)"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "False"
+
+
+def _first_informed(eng, advance, max_steps: int) -> np.ndarray:
+    """Step ``advance()`` (one tick each) and return each world's first tick at which a robot that
+    can rescue had the target in its belief (-1 if none), read from the state after every tick."""
+    from catmip_env.constants import TARGET_BIT
+
+    b = np.arange(eng.num_worlds)[:, None]
+    n = np.arange(eng.num_robots)[None, :]
+    first = np.full(eng.num_worlds, -1)
+    for _ in range(max_steps):
+        if eng.state.done.all():
+            break
+        live = ~eng.state.done
+        advance()
+        st = eng.state
+        target = st.belief[b, n, st.target[:, None, 0], st.target[:, None, 1]]
+        knows = ((target & TARGET_BIT) != 0) & st.can_rescue
+        first = np.where(live & (first < 0) & knows.any(1), st.ticks, first)
+    return first
+
+
+def test_informed_tick_is_the_first_tick_a_rescuer_knows_the_target():
+    """Tick by tick, with short-range communication so that the news often reaches the rescuer after
+    the sighting: on the primitive engine (the tick kernel: random walks on a two-room map whose
+    target is in the far room) and on the event engine (the macro kernel, Nearest's goals, paused
+    after every tick)."""
+    from catmip_env import BatchedEngine
+
+    from .helpers import TWO_ROOMS, layout_config
+
+    eng = BatchedEngine(layout_config(TWO_ROOMS, comm_sigma=1.0, horizon_ticks=3000), num_worlds=8, seed=5)
+    eng.reset()
+    rng = np.random.default_rng(0)
+    first = _first_informed(eng, lambda: eng.step(rng.integers(0, 4, size=(8, 2))), 3000)
+    np.testing.assert_array_equal(eng.state.informed_tick, first)
+    found, informed = eng.state.found_tick, eng.state.informed_tick
+    assert (informed >= found).all() and (informed > found).any() and (found > 0).all()
+
+    ev = EventEngine(make_config("task2", comm_sigma=2.0), num_worlds=8, seed=1, goal_mode="cell")
+    ev.reset()
+    planner = make_planner("nearest", seed=0)
+    first = _first_informed(ev, lambda: ev.step(planner.act(ev), max_ticks=1), 1000)
+    np.testing.assert_array_equal(ev.state.informed_tick, first)
+    assert (ev.state.informed_tick > ev.state.found_tick).any()
+    ev = EventEngine(make_config("task2"), num_worlds=8, seed=1)  # full communication
+    ev.reset()
+    records = play(ev, lambda e: random_valid_actions(e.masks, rng))
+    assert (records.informed_tick[records.found] == records.found_tick[records.found]).all()
+    assert (records.rescue_tick[records.rescued] >= records.informed_tick[records.rescued]).all()
