@@ -113,6 +113,16 @@ def _eval(args: argparse.Namespace) -> int:
         f"{s['success_rate']:.2f}, by tick 100 {p:.2f} (standard error {(p * (1 - p) / n) ** 0.5:.3f}), "
         f"mean rescue tick {rescue}, explored {s['mean_explored_fraction']:.2f}"
     )
+
+    def ticks(key: str) -> str:
+        return "-" if s[key] is None else f"{s[key]:.1f}"
+
+    print(
+        f"  target found at tick {ticks('mean_target_found_tick')}; a rescuer knew it "
+        f"{ticks('mean_found_to_informed_ticks')} ticks later and rescued it "
+        f"{ticks('mean_informed_to_rescue_ticks')} ticks after that (means over the episodes where each "
+        "happened)"
+    )
     if "sampled_success_rate" in s:
         print(
             f"  with sampled actions on the same maps: success {s['sampled_success_rate']:.2f}, "

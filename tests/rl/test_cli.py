@@ -592,3 +592,19 @@ def test_fuzz_random_arguments_exit_0_or_2_without_a_traceback(
     assert "Traceback" not in err
     if code == 2:
         assert len(err.strip().splitlines()) == 1, (argv, err)
+
+
+def test_eval_prints_where_the_time_to_the_rescue_goes(tmp_path, capsys):
+    out = tmp_path / "eval"
+    cmd = ["eval", "--method", "nearest", "--task", "task2", "--comm", "2", "--episodes", "6"]
+    assert main([*cmd, "--out", str(out), "--no-progress"]) == 0
+    s = json.loads((out / "summary.json").read_text())
+    rows = json.loads((out / "episodes.json").read_text())
+    informed = [r for r in rows if r["rescued"]]
+    want = sum(r["rescue_tick"] - r["rescuer_informed_tick"] for r in informed) / len(informed)
+    assert s["mean_informed_to_rescue_ticks"] == pytest.approx(want)
+    line = (
+        f"a rescuer knew it {s['mean_found_to_informed_ticks']:.1f} ticks later and rescued it "
+        f"{s['mean_informed_to_rescue_ticks']:.1f} ticks after that"
+    )
+    assert line in capsys.readouterr().out
