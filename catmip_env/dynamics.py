@@ -333,9 +333,8 @@ def perceive_at_reset(worlds: np.ndarray, s: KernelState, rules: Rules) -> None:
     """Steps 2-6 at t = 0 for the worlds in the bool mask ``worlds`` (B,); rewards (the target in view
     at t = 0) go to ``s.pending_reward``, paid with the next step."""
     grid, target, pos, heading, can_rescue = s.grid, s.target, s.pos, s.heading, s.can_rescue
-    belief, comp, rng, used_occ = s.belief, s.comp, s.rng, s.used_occ
-    found_tick, rescue_tick, pending = s.found_tick, s.rescue_tick, s.pending_reward
-    informed_tick = s.informed_tick
+    belief, comp, rng, used_occ, pending = s.belief, s.comp, s.rng, s.used_occ, s.pending_reward
+    found_tick, informed_tick, rescue_tick = s.found_tick, s.informed_tick, s.rescue_tick
     comm_sigma, horizon, noise = s.comm_sigma, rules.horizon_ticks, rules.slam_noise
     find_reward, rescue_reward = rules.find_reward, rules.rescue_reward
     view_offsets, view_blockers, ray_nblock = rules.view_offsets, rules.view_blockers, rules.ray_nblock
@@ -367,8 +366,8 @@ def tick(
     grid, target, pos, heading, speed = s.grid, s.target, s.pos, s.heading, s.speed
     can_rescue, belief, comp, rng, used_occ = s.can_rescue, s.belief, s.comp, s.rng, s.used_occ
     ticks, moves, collisions, pending, done = s.ticks, s.moves, s.collisions, s.pending_reward, s.done
-    found_tick, rescue_tick, comm_sigma = s.found_tick, s.rescue_tick, s.comm_sigma
-    informed_tick = s.informed_tick
+    found_tick, informed_tick, rescue_tick = s.found_tick, s.informed_tick, s.rescue_tick
+    comm_sigma = s.comm_sigma
     horizon, noise = rules.horizon_ticks, rules.slam_noise
     step_reward, collision_penalty = rules.step_reward, rules.collision_penalty
     find_reward, rescue_reward = rules.find_reward, rules.rescue_reward
