@@ -5,10 +5,14 @@ D x D window (docs/design.md#goals-and-masks). :class:`WindowPlanner` runs the p
 :class:`~catmip_env.events.EventEngine` and turns each active robot's cell goal into a window action:
 
 * the goal itself if it lies inside the window and is allowed by the window mask;
-* otherwise the allowed window cell with the shortest path to the goal (ties: the nearest to the
-  robot), i.e. the most progress towards the goal the window allows; paths on the robot's clean
-  belief as the controller plans them (unknown cells free; known occupied cells, the border and other
-  robots blocked);
+* otherwise the farthest allowed cell, inside the window, of the path the controller itself would
+  take to the goal: a shortest path that keeps the robot's heading while it can (then E, S, W, N), so
+  that a robot aiming one window at a time makes the turns a robot aiming at the goal makes, and no
+  more;
+* if no cell of that path inside the window is allowed, the allowed window cell with the shortest
+  path to the goal (ties: the nearest to the robot); all paths on the robot's clean belief as the
+  controller plans them (unknown cells free; known occupied cells, the border and other robots
+  blocked);
 * "stay" (the centre) if the goal is the robot's own cell or unreachable, or no window cell is nearer
   to it than the robot.
 
@@ -31,7 +35,7 @@ from numba import njit
 from catmip_env.constants import OCCUPIED
 from catmip_env.events import EventEngine
 from catmip_env.macro import action_masks
-from catmip_env.paths import UNREACHED, bfs_from
+from catmip_env.paths import _DC, _DR, UNREACHED, bfs_from
 from catmip_env.planners import Planner, make_planner
 
 __all__ = ["WindowPlanner", "make_window_planner", "project_goal"]
@@ -42,6 +46,7 @@ def project_goal(
     belief: np.ndarray,  # (H, W) uint8 the robot's belief bits
     pos: np.ndarray,  # (N, 2) int64 every robot's cell
     i: int,  # the robot
+    heading: int,  # its heading (0 = E, 1 = S, 2 = W, 3 = N)
     goal_r: int,
     goal_c: int,
     window: int,
@@ -49,10 +54,11 @@ def project_goal(
     dist: np.ndarray,  # (H * W) int64 scratch
     queue: np.ndarray,  # (H * W) int64 scratch
 ) -> int:
-    """The window action of the allowed window cell with the shortest path to the goal (ties: the one
-    nearest the robot, then row-major), i.e. the most progress towards the goal that the window
-    allows; the goal itself when it is inside and allowed; the centre ("stay") when the goal is the
-    robot's own cell or unreachable, or no window cell is nearer to it than the robot."""
+    """The window action for a goal anywhere on the map: the goal itself when it is inside and
+    allowed; else the farthest allowed window cell of the controller's own path to it (heading first,
+    then E, S, W, N among equally short moves); else the allowed window cell with the shortest path to
+    the goal (ties: the one nearest the robot, then row-major); the centre ("stay") when the goal is
+    the robot's own cell or unreachable, or no window cell is nearer to it than the robot."""
     h, w = belief.shape
     half = window // 2
     stay = half * window + half
@@ -76,6 +82,28 @@ def project_goal(
     to_goal = dist.copy()
     if to_goal[r0 * w + c0] == UNREACHED:
         return stay
+    # follow the path the controller would take (the heading first, then E, S, W, N among equally short
+    # moves) and keep its farthest allowed cell inside the window
+    best, r, c, hd, g = -1, r0, c0, heading, to_goal[r0 * w + c0]
+    while g > 0:
+        step = -1
+        for m in range(5):
+            mm = hd if m == 0 else m - 1
+            if m > 0 and mm == hd:
+                continue
+            rr, cc = r + _DR[mm], c + _DC[mm]
+            if 0 <= rr < h and 0 <= cc < w and to_goal[rr * w + cc] == g - 1:
+                step = mm
+                break
+        if step < 0:
+            break
+        r, c, hd, g = r + _DR[step], c + _DC[step], step, g - 1
+        if abs(r - r0) > half or abs(c - c0) > half:
+            break
+        if window_mask[(r - r0 + half) * window + c - c0 + half] != 0:
+            best = (r - r0 + half) * window + c - c0 + half
+    if best >= 0:
+        return best
     bfs_from(blocked, r0, c0, dist, queue, -1)  # dist: from the robot
     best, best_g, best_r = stay, to_goal[r0 * w + c0], 0
     for a in range(window * window):
@@ -128,7 +156,16 @@ class WindowPlanner:
         for b, i in zip(*np.nonzero(engine.active & live[:, None])):
             gr, gc = divmod(int(cells[b, i]), w)
             out[b, i] = project_goal(
-                st.belief[b, i], st.pos[b], int(i), gr, gc, engine.cfg.window, engine.masks[b, i], dist, queue
+                st.belief[b, i],
+                st.pos[b],
+                int(i),
+                int(st.heading[b, i]),
+                gr,
+                gc,
+                engine.cfg.window,
+                engine.masks[b, i],
+                dist,
+                queue,
             )
         return out
 

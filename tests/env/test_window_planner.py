@@ -33,11 +33,18 @@ def _belief(layout: str):
     return belief, np.concatenate([me[None], others]).astype(np.int64)
 
 
-def _project(belief, pos, goal, window=7, mask=None):
+def _project(belief, pos, goal, window=7, mask=None, heading=0):
     h, w = belief.shape
     mask = np.ones(window * window, np.int8) if mask is None else mask
     dist, queue = np.empty(h * w, np.int64), np.empty(h * w, np.int64)
-    return project_goal(belief, pos, 0, goal[0], goal[1], window, mask, dist, queue)
+    return project_goal(belief, pos, 0, heading, goal[0], goal[1], window, mask, dist, queue)
+
+
+def _mask_out(*cells, pos=((1, 1),), window=7):
+    mask = np.ones(window * window, np.int8)
+    for r, c in cells:
+        mask[(r - pos[0][0] + window // 2) * window + c - pos[0][1] + window // 2] = 0
+    return mask
 
 
 def _cell(action, pos, window=7):
@@ -50,17 +57,30 @@ def test_a_goal_inside_the_window_is_kept_and_the_own_cell_is_stay():
     assert _project(belief, pos, (1, 1)) == 24  # the centre of a 7 x 7 window
 
 
-def test_a_far_goal_becomes_the_window_cell_nearest_to_it():
+def test_a_far_goal_becomes_the_farthest_window_cell_of_the_controllers_path():
     belief, pos = _belief(MAP)
-    # the goal is behind the wall at column 6: every path goes through the gap at (5, 6); inside the
-    # window (rows and cols 1..4) the cell nearest to the goal is the corner (4, 4), 6 steps from the
-    # robot on a shortest path (17 steps in all)
+    # the goal is behind the wall at column 6: every shortest path (17 steps) goes through the gap at
+    # (5, 6). The controller keeps its heading while that stays on a shortest path: heading east it runs
+    # along row 1 and leaves the window (cols 1..4) after (1, 4); heading south it runs down column 1.
     goal = (1, 10)
-    assert _cell(_project(belief, pos, goal), pos) == (4, 4)
-    # masked, it gives way to the next best: (3, 4) or (4, 3), one step farther from the goal
-    mask = np.ones(49, np.int8)
-    mask[(4 - 1 + 3) * 7 + 4 - 1 + 3] = 0
-    assert _cell(_project(belief, pos, goal, mask=mask), pos) in ((3, 4), (4, 3))
+    assert _cell(_project(belief, pos, goal, heading=0), pos) == (1, 4)
+    assert _cell(_project(belief, pos, goal, heading=1), pos) == (4, 1)
+    # heading west or north no first move is shorter that way: the order E, S, W, N picks east
+    assert _cell(_project(belief, pos, goal, heading=2), pos) == (1, 4)
+    # a masked path cell gives way to the farthest allowed one before it
+    assert _cell(_project(belief, pos, goal, mask=_mask_out((1, 4)), heading=0), pos) == (1, 3)
+
+
+def test_without_an_allowed_path_cell_the_window_cell_nearest_to_the_goal_is_taken():
+    belief, pos = _belief(MAP)
+    goal = (1, 10)
+    # the path heading east is masked cell by cell: fall back to the allowed window cell with the
+    # shortest path to the goal, the corner (4, 4) (6 steps from the robot on a shortest path)
+    mask = _mask_out((1, 2), (1, 3), (1, 4))
+    assert _cell(_project(belief, pos, goal, mask=mask, heading=0), pos) == (4, 4)
+    # with that corner masked too, the next best: (3, 4) or (4, 3), one step farther from the goal
+    mask = _mask_out((1, 2), (1, 3), (1, 4), (4, 4))
+    assert _cell(_project(belief, pos, goal, mask=mask, heading=0), pos) in ((3, 4), (4, 3))
 
 
 def test_unreachable_goals_mean_stay():
@@ -77,7 +97,9 @@ def test_other_robots_block_paths_and_unknown_cells_are_free():
     assert _project(belief, pos, (1, 10)) == 24  # cut off: stay
     # open the unexplored bottom row through column 6: reachable again, around the teammate
     belief, pos = _belief(layout.replace("#?????#....o..#", "#??????....o..#"))
-    assert _cell(_project(belief, pos, (1, 10)), pos) == (4, 4)
+    # around the teammate (5, 6) through row 6: heading east, the path runs along row 1 to (1, 4)
+    # and then down; heading south it runs down column 1 past the window
+    assert _cell(_project(belief, pos, (1, 10), heading=1), pos) == (4, 1)
 
 
 @pytest.mark.parametrize("name", ["nearest", "rrt"])
