@@ -12,8 +12,9 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-_DR = np.array([0, 1, 0, -1], dtype=np.int64)
-_DC = np.array([1, 0, -1, 0], dtype=np.int64)
+# row and column step of each heading / move direction: 0 = E, 1 = S, 2 = W, 3 = N
+STEP_ROW = np.array([0, 1, 0, -1], dtype=np.int64)
+STEP_COL = np.array([1, 0, -1, 0], dtype=np.int64)
 UNREACHED = -1
 
 
@@ -44,7 +45,7 @@ def bfs_from(
         r, c = k // w, k % w
         d = dist[k] + 1
         for m in range(4):
-            rr, cc = r + _DR[m], c + _DC[m]
+            rr, cc = r + STEP_ROW[m], c + STEP_COL[m]
             if 0 <= rr < h and 0 <= cc < w:
                 kk = rr * w + cc
                 if dist[kk] == UNREACHED and not blocked[rr, cc]:
@@ -74,11 +75,18 @@ def next_step(
     d = bfs_from(blocked, gr, gc, dist, queue, r * w + c)
     if d == UNREACHED:
         return -1
+    return downhill(dist, blocked.shape[0], w, r, c, heading, d)
+
+
+@njit(cache=True)
+def downhill(dist: np.ndarray, h: int, w: int, r: int, c: int, heading: int, d: int) -> int:
+    """Direction (0..3) of a move from (r, c), at distance ``d`` in the field ``dist`` (flat, (H * W)),
+    to a neighbour at ``d - 1``: the current heading first, then E, S, W, N; -1 if there is none."""
     for m in range(5):
         mm = heading if m == 0 else m - 1  # the current heading first, then E, S, W, N
         if m > 0 and mm == heading:
             continue
-        rr, cc = r + _DR[mm], c + _DC[mm]
-        if 0 <= rr < blocked.shape[0] and 0 <= cc < w and dist[rr * w + cc] == d - 1:
+        rr, cc = r + STEP_ROW[mm], c + STEP_COL[mm]
+        if 0 <= rr < h and 0 <= cc < w and dist[rr * w + cc] == d - 1:
             return mm
-    return -1  # unreachable: BFS found the robot, so a predecessor always exists
+    return -1  # none (never for next_step: its BFS reached the robot, so a predecessor exists)

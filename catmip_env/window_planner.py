@@ -35,7 +35,7 @@ from numba import njit
 from catmip_env.constants import OCCUPIED
 from catmip_env.events import EventEngine
 from catmip_env.macro import action_masks
-from catmip_env.paths import _DC, _DR, UNREACHED, bfs_from
+from catmip_env.paths import STEP_COL, STEP_ROW, UNREACHED, bfs_from, downhill
 from catmip_env.planners import Planner, make_planner
 
 __all__ = ["WindowPlanner", "make_window_planner", "project_goal"]
@@ -86,18 +86,10 @@ def project_goal(
     # moves) and keep its farthest allowed cell inside the window
     best, r, c, hd, g = -1, r0, c0, heading, to_goal[r0 * w + c0]
     while g > 0:
-        step = -1
-        for m in range(5):
-            mm = hd if m == 0 else m - 1
-            if m > 0 and mm == hd:
-                continue
-            rr, cc = r + _DR[mm], c + _DC[mm]
-            if 0 <= rr < h and 0 <= cc < w and to_goal[rr * w + cc] == g - 1:
-                step = mm
-                break
+        step = downhill(to_goal, h, w, r, c, hd, g)
         if step < 0:
             break
-        r, c, hd, g = r + _DR[step], c + _DC[step], step, g - 1
+        r, c, hd, g = r + STEP_ROW[step], c + STEP_COL[step], step, g - 1
         if abs(r - r0) > half or abs(c - c0) > half:
             break
         if window_mask[(r - r0 + half) * window + c - c0 + half] != 0:
