@@ -23,12 +23,15 @@ def main(argv: list[str] | None = None) -> list[dict[str, float]]:
     ap.add_argument("--episodes", type=int, default=2)
     ap.add_argument("--comm-sigma", type=float, default=None, help="None = full communication")
     ap.add_argument("--no-mask", action="store_true", help="sample goals without the action mask")
+    ap.add_argument("--seed", type=int, default=0, help="seed of the maps and of the random goals")
     args = ap.parse_args(argv)
 
     env = search_rescue_v0.parallel_env(preset=args.preset, comm_sigma=args.comm_sigma)
     episodes = []
     for episode in range(args.episodes):
-        obs, infos = env.reset(seed=episode)
+        obs, infos = env.reset(seed=args.seed + episode)
+        for k, robot in enumerate(env.agents):  # the random goals are seeded too: a run repeats exactly
+            env.action_space(robot).seed(args.seed + 1000 * episode + k)
         total, decisions = 0.0, 0
         while env.agents:
             deciding = [robot for robot in env.agents if infos[robot]["active"]]
