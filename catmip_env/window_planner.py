@@ -66,8 +66,10 @@ def project_goal(
     if goal_r == r0 and goal_c == c0:
         return stay
     dr, dc = goal_r - r0, goal_c - c0
-    if abs(dr) <= half and abs(dc) <= half and window_mask[(dr + half) * window + dc + half] != 0:
-        return (dr + half) * window + dc + half
+    if abs(dr) <= half and abs(dc) <= half:
+        a = (dr + half) * window + dc + half
+        if window_mask[a] != 0:
+            return a
     blocked = (belief & OCCUPIED) != 0
     blocked[0, :] = True
     blocked[h - 1, :] = True
@@ -92,8 +94,9 @@ def project_goal(
         r, c, hd, g = r + STEP_ROW[step], c + STEP_COL[step], step, g - 1
         if abs(r - r0) > half or abs(c - c0) > half:
             break
-        if window_mask[(r - r0 + half) * window + c - c0 + half] != 0:
-            best = (r - r0 + half) * window + c - c0 + half
+        a = (r - r0 + half) * window + c - c0 + half
+        if window_mask[a] != 0:
+            best = a
     if best >= 0:
         return best
     bfs_from(blocked, r0, c0, dist, queue, -1)  # dist: from the robot
