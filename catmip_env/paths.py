@@ -81,8 +81,9 @@ def next_step(
 @njit(cache=True)
 def downhill(dist: np.ndarray, h: int, w: int, r: int, c: int, heading: int, d: int) -> int:
     """Direction (0..3) of a move from (r, c), at distance ``d`` in the field ``dist`` (flat, (H * W)),
-    to a neighbour at ``d - 1``: the current heading first, then E, S, W, N; -1 if there is none."""
-    for m in range(5):
+    to a neighbour at ``d - 1``: the current heading first, then E, S, W, N (``heading`` -1: no
+    heading, E, S, W, N only); -1 if there is none."""
+    for m in range(0 if heading >= 0 else 1, 5):
         mm = heading if m == 0 else m - 1  # the current heading first, then E, S, W, N
         if m > 0 and mm == heading:
             continue

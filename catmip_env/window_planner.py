@@ -8,7 +8,10 @@ D x D window (docs/design.md#goals-and-masks). :class:`WindowPlanner` runs the p
 * otherwise the farthest allowed cell, inside the window, of the path the controller itself would
   take to the goal: a shortest path that keeps the robot's heading while it can (then E, S, W, N), so
   that a robot aiming one window at a time makes the turns a robot aiming at the goal makes, and no
-  more;
+  more. With ``follow_heading=False`` (method ``window-noheading:NAME``) the path ignores the robot's
+  heading: its first move is the first of E, S, W, N on a shortest path, and it then goes straight
+  while it can. Its goals are then a function of what AMAT observes (positions and maps, no heading),
+  a label a policy can fit exactly, at the price of a turn where the robot faced another way;
 * if no cell of that path inside the window is allowed, the allowed window cell with the shortest
   path to the goal (ties: the nearest to the robot); all paths on the robot's clean belief as the
   controller plans them (unknown cells free; known occupied cells, the border and other robots
@@ -46,7 +49,7 @@ def project_goal(
     belief: np.ndarray,  # (H, W) uint8 the robot's belief bits
     pos: np.ndarray,  # (N, 2) int64 every robot's cell
     i: int,  # the robot
-    heading: int,  # its heading (0 = E, 1 = S, 2 = W, 3 = N)
+    heading: int,  # its heading (0 = E, 1 = S, 2 = W, 3 = N), or -1: none (E, S, W, N, then straight)
     goal_r: int,
     goal_c: int,
     window: int,
@@ -126,11 +129,13 @@ class _CellView:
 
 
 class WindowPlanner:
-    """``act(engine)`` -> (B, N) window actions of ``planner``'s goals, projected (see the module)."""
+    """``act(engine)`` -> (B, N) window actions of ``planner``'s goals, projected (see the module)
+    along the controller's path, or with ``follow_heading=False`` along a heading-free one."""
 
-    def __init__(self, planner: Planner) -> None:
+    def __init__(self, planner: Planner, follow_heading: bool = True) -> None:
         self.planner = planner
-        self.name = f"window:{planner.name}"
+        self.follow_heading = bool(follow_heading)
+        self.name = f"{'window' if self.follow_heading else 'window-noheading'}:{planner.name}"
         self._cell_masks: np.ndarray | None = None
         self._scratch: tuple[np.ndarray, np.ndarray] | None = None
 
@@ -154,7 +159,7 @@ class WindowPlanner:
                 st.belief[b, i],
                 st.pos[b],
                 int(i),
-                int(st.heading[b, i]),
+                int(st.heading[b, i]) if self.follow_heading else -1,
                 gr,
                 gc,
                 engine.cfg.window,
@@ -165,6 +170,6 @@ class WindowPlanner:
         return out
 
 
-def make_window_planner(name: str, seed: int = 0) -> WindowPlanner:
-    """``make_planner(name, seed)`` projected into the goal window."""
-    return WindowPlanner(make_planner(name, seed=seed))
+def make_window_planner(name: str, seed: int = 0, follow_heading: bool = True) -> WindowPlanner:
+    """``make_planner(name, seed)`` projected into the goal window (see :class:`WindowPlanner`)."""
+    return WindowPlanner(make_planner(name, seed=seed), follow_heading=follow_heading)

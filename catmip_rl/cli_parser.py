@@ -153,7 +153,8 @@ def add_setting_flags(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--method", required=True, type=checked(check_method),
         help="nearest | utility | rrt | apf | random-frontier | random | window:PLANNER (its goals projected "
-        "into the 7x7 window) | amat:PATH (a model file, checkpoint or run dir) | amat:NAME (a shipped "
+        "into the 7x7 window) | window-noheading:PLANNER (projected along a heading-free path) | "
+        "amat:PATH (a model file, checkpoint or run dir) | amat:NAME (a shipped "
         f"model: {shipped}) | amat-guard:PATH (argmax with the loop guard)",
     )  # fmt: skip
     p.add_argument("--task", default="task1", choices=TASKS, help="evaluation task")

@@ -112,8 +112,9 @@ def comm_sigma(comm: str | float | None) -> float | None:
 @dataclass(frozen=True)
 class Method:
     """``name`` as written on plots; ``kind`` "planner", "window" (a planner projected into the goal
-    window) or "amat"; ``target`` the planner's name or the AMAT checkpoint path; ``loop_guard`` (AMAT)
-    executes argmax with the loop guard of :class:`AmatExecutor`."""
+    window), "window-noheading" (the same along a heading-free path) or "amat"; ``target`` the planner's
+    name or the AMAT checkpoint path; ``loop_guard`` (AMAT) executes argmax with the loop guard of
+    :class:`AmatExecutor`."""
 
     name: str
     kind: str
@@ -124,6 +125,7 @@ class Method:
 def parse_method(spec: str) -> Method:
     """``nearest`` | ``utility`` | ``rrt`` | ``apf`` | ``random-frontier`` | ``random`` |
     ``window:PLANNER`` (the planner's goals projected into the 7x7 window, the imitation teacher) |
+    ``window-noheading:PLANNER`` (projected along a path that ignores the robot's heading) |
     ``amat:PATH`` | ``amat-guard:PATH`` (argmax with the loop guard) | ``NAME=...`` (PATH: a model
     file, a training checkpoint, a run dir or a shipped model's name, ``amat:task1``)."""
     spec = spec.strip()
@@ -138,11 +140,12 @@ def parse_method(spec: str) -> Method:
             if not path:
                 raise ValueError(f"amat method needs a checkpoint: {prefix}PATH")
             return Method(name or prefix[:-1], "amat", str(resolve_model(path)), loop_guard=guard)
-    if spec.startswith("window:"):
-        planner = spec[len("window:") :]
-        if planner not in PLANNERS:
-            raise ValueError(f"unknown planner {planner!r} in {spec!r}; choose one of {sorted(PLANNERS)}")
-        return Method(name or spec, "window", planner)
+    for kind in ("window", "window-noheading"):
+        if spec.startswith(kind + ":"):
+            planner = spec[len(kind) + 1 :]
+            if planner not in PLANNERS:
+                raise ValueError(f"unknown planner {planner!r} in {spec!r}; choose one of {sorted(PLANNERS)}")
+            return Method(name or spec, kind, planner)
     if spec not in PLANNERS:
         raise ValueError(f"unknown method {spec!r}; choose amat:PATH or one of {sorted(PLANNERS)}")
     return Method(name or spec, "planner", spec)
@@ -152,8 +155,9 @@ def make_policy(method: Method, seed: int, model: AMAT | None = None):
     """(policy with ``act(engine)``, goal mode, window) for ``method``."""
     if method.kind == "planner":
         return make_planner(method.target, seed=seed), "cell", None
-    if method.kind == "window":
-        return make_window_planner(method.target, seed=seed), "window", None
+    if method.kind in ("window", "window-noheading"):
+        teacher = make_window_planner(method.target, seed=seed, follow_heading=method.kind == "window")
+        return teacher, "window", None
     model = model if model is not None else load_model(method.target)
     return AmatExecutor(model, loop_guard=method.loop_guard), "window", model.config.window
 

@@ -29,6 +29,7 @@ _TYPES: dict[str, tuple[str, Callable[[Any], bool]]] = {
     "int": ("an int", _is_int),
     "float": ("a finite number", _is_number),
     "str": ("a string", lambda v: isinstance(v, str)),
+    "bool": ("true or false", lambda v: isinstance(v, bool)),
     "str | None": ("a string or null", lambda v: v is None or isinstance(v, str)),
     "dict[str, Any]": ("a JSON object {field: value}", lambda v: isinstance(v, dict)),
 }
@@ -124,6 +125,11 @@ class TrainConfig:
     checkpoint or run dir (its value normaliser comes too) or a shipped model's name; "" = none. The
     model must be an AMAT of this run's ``amat`` config. A warm start, if any, then begins from them;
     the optimiser and the LR schedule start afresh (fine-tuning). Not read when a run resumes."""
+    warm_start_heading: bool = True
+    """Whether the teacher projects a far goal into the window along the controller's own path, which
+    starts in the robot's heading (``window:PLANNER``), or along a heading-free one (E, S, W, N first,
+    then straight on: ``window-noheading:PLANNER``), a label AMAT can fit exactly, as it does not observe
+    headings (docs/training.md, "A teacher that turns less")."""
     warm_start_rounds: int = 6
     """DAgger rounds (each collects num_worlds episodes with the current policy, labelled)."""
     warm_start_steps: int = 150

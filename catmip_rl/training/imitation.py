@@ -119,16 +119,18 @@ def dagger(
     max_grad_norm: float = 10.0,
     deterministic: bool = False,
     on_round=None,
+    follow_heading: bool = True,
 ) -> tuple[int, list[dict[str, float]]]:
     """Train ``model`` by DAgger against the window-projected ``teacher`` planner; returns (episodes
     used, one log row per round). The policy's own actions in the rollouts are argmax with
     ``deterministic`` (as it will be evaluated), else sampled. ``on_round(row)`` is called after each
-    round (logging, progress)."""
+    round (logging, progress). ``follow_heading=False`` projects the teacher's goals along a
+    heading-free path (:class:`~catmip_env.window_planner.WindowPlanner`)."""
     if rounds < 1 or steps_per_round < 1 or batch_events < 1:
         raise ValueError("dagger: rounds, steps_per_round and batch_events must be >= 1")
     gen = generator if generator is not None else torch.Generator().manual_seed(seed)
     rng = np.random.default_rng(seed)
-    label_teacher = make_window_planner(teacher, seed=seed)
+    label_teacher = make_window_planner(teacher, seed=seed, follow_heading=follow_heading)
     buffer = DemoBuffer(buffer_events)
     device = next(model.parameters()).device
     n_classes = model.config.n_classes
@@ -183,7 +185,8 @@ def warm_start(cfg, model, collector, gen, run_dir, progress: bool, evaluate=Non
     if progress:
         from tqdm import tqdm
 
-        bar = tqdm(total=cfg.warm_start_rounds, desc=f"warm start ({cfg.warm_start})", unit="round")
+        teacher = ("window:" if cfg.warm_start_heading else "window-noheading:") + cfg.warm_start
+        bar = tqdm(total=cfg.warm_start_rounds, desc=f"warm start ({teacher})", unit="round")
 
     def on_round(row: dict) -> None:
         nonlocal elapsed
@@ -205,7 +208,7 @@ def warm_start(cfg, model, collector, gen, run_dir, progress: bool, evaluate=Non
         dagger(
             model, collector, cfg.warm_start, cfg.warm_start_rounds, cfg.warm_start_steps,
             batch_events=cfg.warm_start_batch, lr=cfg.warm_start_lr, generator=gen, seed=cfg.seed,
-            max_grad_norm=cfg.max_grad_norm, on_round=on_round,
+            max_grad_norm=cfg.max_grad_norm, on_round=on_round, follow_heading=cfg.warm_start_heading,
         )  # fmt: skip
     finally:
         file.close()

@@ -71,6 +71,35 @@ def test_a_far_goal_becomes_the_farthest_window_cell_of_the_controllers_path():
     assert _cell(_project(belief, pos, goal, mask=_mask_out((1, 4)), heading=0), pos) == (1, 3)
 
 
+def test_the_heading_free_path_starts_with_east_south_west_north_and_ignores_the_heading():
+    belief, pos = _belief(MAP)
+    # heading -1: no heading; east is the first of E, S, W, N on a shortest path to (1, 10), then straight
+    # on along row 1 -- what heading east gives, where heading south gives column 1
+    assert _cell(_project(belief, pos, (1, 10), heading=-1), pos) == (1, 4)
+    assert _cell(_project(belief, pos, (1, 10), heading=1), pos) == (4, 1)
+    # due south: east is not on a shortest path, south is
+    assert _cell(_project(belief, pos, (6, 1), heading=-1), pos) == (4, 1)
+
+
+@pytest.mark.parametrize("name", ["nearest", "rrt"])
+def test_heading_free_window_planners_do_not_read_the_headings(name):
+    eng = EventEngine(make_config("task2"), 6, 3)
+    eng.reset()
+    st, rng, differs = eng.state, np.random.default_rng(0), False
+    for _ in range(25):
+        headings = st.heading.copy()
+        acts = {}
+        for turned in (False, True):
+            st.heading[:] = rng.integers(0, 4, headings.shape) if turned else headings
+            for follow in (True, False):
+                acts[turned, follow] = make_window_planner(name, seed=0, follow_heading=follow).act(eng)
+        st.heading[:] = headings
+        assert np.array_equal(acts[False, False], acts[True, False])
+        differs |= not np.array_equal(acts[False, True], acts[True, True])
+        eng.step(acts[False, False])
+    assert differs  # the heading-following projection does read them
+
+
 def test_without_an_allowed_path_cell_the_window_cell_nearest_to_the_goal_is_taken():
     belief, pos = _belief(MAP)
     goal = (1, 10)

@@ -203,6 +203,8 @@ CASES = {
     "train --set eval_seed=1.5": (_set("eval_seed=1.5"), ["TrainConfig.eval_seed must be an int >= 0"]),
     "train --set seed=2**64": (_set(f"seed={2**64}"), ["seed", "2**64"]),
     "train --set iterations=true": (_set("iterations=true"), ["TrainConfig.iterations must be", "got True"]),
+    "train --set warm_start_heading=1": (_set("warm_start_heading=1"),
+                                        ["TrainConfig.warm_start_heading must be true or false", "got 1"]),
     "train --set lr=Infinity": (_set("lr=Infinity"), ["TrainConfig.lr", "finite"]),
     "train --set entropy_coef=NaN": (_set("entropy_coef=NaN"), ["TrainConfig.entropy_coef", "finite"]),
     "train --set amat=null": (_set("amat=null"), ["TrainConfig.amat", "JSON object"]),

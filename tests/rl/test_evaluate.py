@@ -54,7 +54,9 @@ def test_every_method_sees_the_same_maps(ckpt, tmp_path):
     small_window = save_model(_sharp_model(window=5), tmp_path / "d5.pt")
     setting = EvalSetting("task2", "4")
     hashes = {}
-    for method in ("nearest", "rrt", "random", "window:nearest", f"amat:{ckpt}", f"amat:{small_window}"):
+    methods = ("nearest", "rrt", "random", "window:nearest", "window-noheading:rrt", f"amat:{ckpt}",
+               f"amat:{small_window}")  # fmt: skip
+    for method in methods:
         res = evaluate(method, setting, episodes=3, seed=11)
         hashes[method] = [r["map_hash"] for r in res.episodes]
     assert len({tuple(h) for h in hashes.values()}) == 1
@@ -171,8 +173,10 @@ def test_parse_method_errors(tmp_path):
     with pytest.raises(ValueError, match="unknown method"):
         parse_method("astar")
     assert parse_method("window:rrt") == Method("window:rrt", "window", "rrt")
-    with pytest.raises(ValueError, match="unknown planner 'astar'"):
-        parse_method("window:astar")
+    assert parse_method("window-noheading:rrt") == Method("window-noheading:rrt", "window-noheading", "rrt")
+    for spec in ("window:astar", "window-noheading:astar"):
+        with pytest.raises(ValueError, match="unknown planner 'astar'"):
+            parse_method(spec)
     with pytest.raises(FileNotFoundError, match="does not exist"):
         parse_method(f"amat:{tmp_path / 'none.pt'}")
     with pytest.raises(ValueError, match="empty name"):

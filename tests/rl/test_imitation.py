@@ -88,6 +88,23 @@ def test_dagger_fits_the_teacher():
     assert stats["imitation/accuracy"] > 4 * chance
 
 
+def test_the_heading_free_teacher_labels_the_warm_start(tmp_path, monkeypatch):
+    import catmip_rl.training.imitation as imitation
+
+    made = []
+
+    def recording(name, seed=0, follow_heading=True):
+        made.append((name, follow_heading))
+        return make_window_planner(name, seed=seed, follow_heading=follow_heading)
+
+    monkeypatch.setattr(imitation, "make_window_planner", recording)
+    for follow in (True, False):
+        cfg = make_train_config("tiny", warm_start="rrt", warm_start_heading=follow, warm_start_rounds=1,
+                                warm_start_steps=1, iterations=1, eval_every=0)  # fmt: skip
+        train(cfg, tmp_path / f"run{follow}", progress=False)
+        assert made.pop() == ("rrt", follow)
+
+
 def test_train_warm_starts_once_then_runs_ppo(tmp_path):
     cfg = make_train_config("tiny", warm_start="nearest", warm_start_rounds=2, warm_start_steps=3,
                             value_warmup_iterations=1, iterations=2, eval_every=1)  # fmt: skip
