@@ -10,8 +10,8 @@ D x D window (docs/design.md#goals-and-masks). :class:`WindowPlanner` runs the p
   that a robot aiming one window at a time makes the turns a robot aiming at the goal makes, and no
   more. With ``follow_heading=False`` (method ``window-noheading:NAME``) the path ignores the robot's
   heading: its first move is the first of E, S, W, N on a shortest path, and it then goes straight
-  while it can. Its goals are then a function of what AMAT observes (positions and maps, no heading),
-  a label a policy can fit exactly, at the price of a turn where the robot faced another way;
+  while it can. Its goals then depend only on what AMAT observes (positions and maps, no heading), at
+  the price of a turn where the robot faced another way;
 * if no cell of that path inside the window is allowed, the allowed window cell with the shortest
   path to the goal (ties: the nearest to the robot); all paths on the robot's clean belief as the
   controller plans them (unknown cells free; known occupied cells, the border and other robots
