@@ -41,7 +41,16 @@ from catmip_env.macro import action_masks
 from catmip_env.paths import STEP_COL, STEP_ROW, UNREACHED, bfs_from, downhill
 from catmip_env.planners import Planner, make_planner
 
-__all__ = ["WindowPlanner", "make_window_planner", "project_goal"]
+__all__ = ["WINDOW_KINDS", "WindowPlanner", "make_window_planner", "project_goal", "window_method_name"]
+
+WINDOW_KINDS = {"window": True, "window-noheading": False}
+"""Method prefix of a window planner (``window:NAME``) -> whether its projection follows the heading."""
+
+
+def window_method_name(planner: str, follow_heading: bool = True) -> str:
+    """``window:PLANNER`` or ``window-noheading:PLANNER``: the method that projects as asked."""
+    kind = next(k for k, follows in WINDOW_KINDS.items() if follows == bool(follow_heading))
+    return f"{kind}:{planner}"
 
 
 @njit(cache=True)
@@ -135,7 +144,7 @@ class WindowPlanner:
     def __init__(self, planner: Planner, follow_heading: bool = True) -> None:
         self.planner = planner
         self.follow_heading = bool(follow_heading)
-        self.name = f"{'window' if self.follow_heading else 'window-noheading'}:{planner.name}"
+        self.name = window_method_name(planner.name, self.follow_heading)
         self._cell_masks: np.ndarray | None = None
         self._scratch: tuple[np.ndarray, np.ndarray] | None = None
 

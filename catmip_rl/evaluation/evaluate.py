@@ -34,7 +34,7 @@ from catmip_env import EnvConfig, make_config, render
 from catmip_env.events import EventEngine
 from catmip_env.planners import PLANNERS, make_planner
 from catmip_env.play import EpisodeRecords, decision_metrics, episode_metrics, play, success_curve
-from catmip_env.window_planner import make_window_planner
+from catmip_env.window_planner import WINDOW_KINDS, make_window_planner
 from catmip_rl.amat.model import AMAT
 from catmip_rl.checkpoint import load_model, resolve_model
 from catmip_rl.evaluation.execution import GOAL_BYTES, AmatExecutor
@@ -140,7 +140,7 @@ def parse_method(spec: str) -> Method:
             if not path:
                 raise ValueError(f"amat method needs a checkpoint: {prefix}PATH")
             return Method(name or prefix[:-1], "amat", str(resolve_model(path)), loop_guard=guard)
-    for kind in ("window", "window-noheading"):
+    for kind in WINDOW_KINDS:
         if spec.startswith(kind + ":"):
             planner = spec[len(kind) + 1 :]
             if planner not in PLANNERS:
@@ -155,8 +155,8 @@ def make_policy(method: Method, seed: int, model: AMAT | None = None):
     """(policy with ``act(engine)``, goal mode, window) for ``method``."""
     if method.kind == "planner":
         return make_planner(method.target, seed=seed), "cell", None
-    if method.kind in ("window", "window-noheading"):
-        teacher = make_window_planner(method.target, seed=seed, follow_heading=method.kind == "window")
+    if method.kind in WINDOW_KINDS:
+        teacher = make_window_planner(method.target, seed=seed, follow_heading=WINDOW_KINDS[method.kind])
         return teacher, "window", None
     model = model if model is not None else load_model(method.target)
     return AmatExecutor(model, loop_guard=method.loop_guard), "window", model.config.window

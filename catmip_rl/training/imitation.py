@@ -25,7 +25,7 @@ import torch
 
 from catmip_env.constants import TARGET_BIT
 from catmip_env.events import EventEngine
-from catmip_env.window_planner import make_window_planner
+from catmip_env.window_planner import make_window_planner, window_method_name
 from catmip_rl.amat.inputs import one_hot_class
 from catmip_rl.amat.model import AMAT
 from catmip_rl.files import open_csv_log, write_csv_row
@@ -185,7 +185,7 @@ def warm_start(cfg, model, collector, gen, run_dir, progress: bool, evaluate=Non
     if progress:
         from tqdm import tqdm
 
-        teacher = ("window:" if cfg.warm_start_heading else "window-noheading:") + cfg.warm_start
+        teacher = window_method_name(cfg.warm_start, cfg.warm_start_heading)
         bar = tqdm(total=cfg.warm_start_rounds, desc=f"warm start ({teacher})", unit="round")
 
     def on_round(row: dict) -> None:
