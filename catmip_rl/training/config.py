@@ -129,7 +129,7 @@ class TrainConfig:
     """Whether the teacher projects a far goal into the window along the controller's own path, which
     starts in the robot's heading (``window:PLANNER``), or along a heading-free one (E, S, W, N first,
     then straight on: ``window-noheading:PLANNER``), a label that depends only on what AMAT observes (no
-    headings); measured, it taught no better (docs/training.md, "A teacher that turns less")."""
+    headings); measured, it taught no better (docs/paper-model.md, "A teacher that turns less")."""
     warm_start_rounds: int = 6
     """DAgger rounds (each collects num_worlds episodes with the current policy, labelled)."""
     warm_start_steps: int = 150
