@@ -101,6 +101,10 @@ class TrainConfig:
     """Weight of an auxiliary cross-entropy toward the planners' rescue rule (projected into the window)
     for active rescuers that know the target (catmip_rl.training.imitation.RescueLabeler); 0 = the
     paper's loss. Collection then also labels those decisions."""
+    rescue_heading: bool = True
+    """Whether the rescue loss's label projects the way to the target into the window along the
+    controller's own path, which starts in the robot's heading (``window:nearest``), or along a
+    heading-free one (``window-noheading:nearest``): a label that depends only on what AMAT observes."""
     max_grad_norm: float = 10.0
     gamma: float = 1.0
     """Discount per tick."""

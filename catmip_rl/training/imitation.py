@@ -73,11 +73,12 @@ class DemoBuffer:
 class RescueLabeler:
     """``act(engine)`` -> (B, N) labels for PPO's auxiliary rescue loss (``TrainConfig.rescue_coef``):
     the rescue rule's window action (the planners' shared rule, projected as ``window:nearest`` projects
-    it) for every active robot of a live world that can rescue and knows where the target is; -1 for
-    every other robot. The teacher runs only on events where such a robot decides."""
+    it, or ``window-noheading:nearest`` with ``follow_heading=False``) for every active robot of a live
+    world that can rescue and knows where the target is; -1 for every other robot. The teacher runs only
+    on events where such a robot decides."""
 
-    def __init__(self, teacher: str = "nearest") -> None:
-        self.teacher = make_window_planner(teacher)
+    def __init__(self, teacher: str = "nearest", follow_heading: bool = True) -> None:
+        self.teacher = make_window_planner(teacher, follow_heading=follow_heading)
 
     def act(self, engine: EventEngine) -> np.ndarray:
         st = engine.state

@@ -150,7 +150,7 @@ def build_run(cfg: TrainConfig, saved: dict | None = None) -> Run:
     else:
         run.collector = Collector(cfg.env_config(), cfg.num_worlds, cfg.seed, cfg.gamma, str(device))
     if cfg.rescue_coef > 0:
-        run.rescue_labeler = RescueLabeler()
+        run.rescue_labeler = RescueLabeler(follow_heading=cfg.rescue_heading)
     return run
 
 

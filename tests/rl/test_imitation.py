@@ -14,7 +14,7 @@ from catmip_rl.amat.model import AMAT, AmatConfig
 from catmip_rl.training.collect import Collector
 from catmip_rl.training.config import make_train_config
 from catmip_rl.training.imitation import DemoBuffer, RescueLabeler, dagger, imitation_loss
-from catmip_rl.training.train import train
+from catmip_rl.training.train import build_run, train
 
 
 def _labelled(horizon: int, worlds: int, seed: int, teacher_prob: float):
@@ -128,11 +128,13 @@ def test_train_warm_starts_once_then_runs_ppo(tmp_path):
     assert [int(r["iteration"]) for r in rows] == [1, 2]
 
 
-def test_rescue_labeler_labels_only_rescuers_that_know_the_target_with_the_rescue_rule():
+@pytest.mark.parametrize("follow_heading", [True, False])
+def test_rescue_labeler_labels_only_rescuers_that_know_the_target_with_the_rescue_rule(follow_heading):
     cfg = make_config("task2", comm_sigma=2.0)  # rescuer, explorer and a third robot; partial news
     eng = EventEngine(cfg, 8, seed=3)
     eng.reset(episode_indices=np.arange(8))
-    labeler, teacher = RescueLabeler(), make_window_planner("nearest")
+    labeler = RescueLabeler(follow_heading=follow_heading)
+    teacher = make_window_planner("nearest", follow_heading=follow_heading)
     labelled = unlabelled_rescuers = 0
     while not eng.state.done.all():
         st = eng.state
@@ -140,7 +142,7 @@ def test_rescue_labeler_labels_only_rescuers_that_know_the_target_with_the_rescu
         b, n = np.arange(8)[:, None], np.arange(cfg.num_robots)[None, :]
         knows = (st.belief[b, n, st.target[:, None, 0], st.target[:, None, 1]] & 8) != 0
         should = eng.active & ~st.done[:, None] & st.can_rescue & knows
-        assert np.array_equal(label[should], ref[should])  # the rescue rule, projected as window:nearest
+        assert np.array_equal(label[should], ref[should])  # the rescue rule, projected as the teacher does
         assert (label[~should] == -1).all()
         assert (np.take_along_axis(eng.masks, np.maximum(label, 0)[..., None], -1)[..., 0][should] != 0).all()
         labelled += int(should.sum())
@@ -161,3 +163,12 @@ def test_train_with_the_rescue_loss_logs_it_and_it_pulls_toward_the_rescue_rule(
         make_train_config("tiny", rescue_coef=-0.1)
     with pytest.raises(ValueError, match="rescue_coef > 0 needs collector 'local'"):
         make_train_config("tiny", rescue_coef=0.5, collector="ray", ray_workers=1)
+
+
+@pytest.mark.parametrize("follow_heading", [True, False])
+def test_the_rescue_losss_label_follows_the_heading_as_configured(follow_heading):
+    cfg = make_train_config("tiny", rescue_coef=0.3, rescue_heading=follow_heading, eval_every=0)
+    run = build_run(cfg)
+    assert run.rescue_labeler.teacher.follow_heading is follow_heading
+    with pytest.raises(ValueError, match="rescue_heading must be true or false"):
+        make_train_config("tiny", rescue_heading=0)
