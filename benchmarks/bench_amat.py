@@ -205,7 +205,7 @@ def bench_training(model: AMAT, batch: SampleBatch, bf16: bool, steps: int, proc
     parallel = None
     if processes > 1:
         parallel = ParallelGradients(model, processes, **loss_kwargs(cfg))
-        batch = SampleBatch(**{k: torch.cat([v] * processes) for k, v in batch.__dict__.items()})
+        batch = batch.map(lambda v: torch.cat([v] * processes))
         parallel.set_batch(batch)
         parts = list(torch.arange(m * processes).chunk(processes))
         count = batch.trainable.sum().clamp_min(1).float()

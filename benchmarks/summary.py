@@ -100,16 +100,28 @@ def write_summary(
     statuses = statuses or {}
     failed = {n for n, s in statuses.items() if s.ran and not s.ok}
     results = {k: v for k, v in load_results(out_dir).items() if k not in failed}
-    checks = all_checks(results)
+    # a failed benchmark's targets stay in the count, as not measured (its stale JSON is not read)
+    checks = all_checks(results | dict.fromkeys(failed, {}))
     met = [c for c in checks if c.met is True]
     unmet = [c for c in checks if c.met is False]
+    missing = [c for c in checks if c.target is not None and c.value is None]
+    targets = [c for c in checks if c.target is not None]
+    headline = (
+        f"Targets: **{len(met)} met, {len(unmet)} unmet, {len(missing)} not measured** of {len(targets)}"
+    )
+    if len(targets) > len(met) + len(unmet) + len(missing):
+        headline += (
+            f" ({len(targets) - len(met) - len(unmet) - len(missing)} n/a: measured in another setting)"
+        )
+    if failed:
+        headline += f"; **failed: {', '.join(sorted(failed))}** (its targets are among those not measured)"
     lines = [
         "# Benchmark summary",
         "",
         f"{datetime.now():%Y-%m-%d %H:%M}; {machine_line()}."
         + (" **Quick settings** (`run_all.py --quick`): short timings, noisier numbers." if quick else ""),
         "",
-        f"Targets: **{len(met)} met, {len(unmet)} unmet** of {len(met) + len(unmet)} measured.",
+        headline + ".",
         "",
     ]
     for name in NAMES:
@@ -118,6 +130,8 @@ def write_summary(
         if name in failed:
             assert st is not None
             lines += [f"**FAILED** after {st.seconds:.0f} s: `{st.command}`", "", "```", st.error, "```", ""]
+            lost = ", ".join(c.label for c in checks if c.bench == name and c.target is not None)
+            lines += [f"Targets not measured: {lost}.", ""]
             continue
         if name not in results:
             lines += ["Not run (no JSON).", ""]
@@ -169,29 +183,40 @@ def plot_summary(results: dict[str, dict], checks: list[Check], path: Path) -> P
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    targeted = [c for c in checks if c.ratio is not None]
-    fig = plt.figure(figsize=(11, 8 + 0.25 * max(len(targeted), 4)), layout="constrained")
-    top_fig, bar_fig = fig.subfigures(2, 1, height_ratios=[8, 0.25 * max(len(targeted), 4)])
+    # every target gets a bar: measured ones as measured / target, unmeasured ones (a failed or
+    # missing benchmark) as a hatched grey bar at 1 marked NOT MEASURED, so none silently disappears
+    rows = [c for c in checks if c.ratio is not None or (c.target is not None and c.value is None)]
+    height = 0.25 * max(len(rows), 4)
+    fig = plt.figure(figsize=(11, 8 + height), layout="constrained")
+    top_fig, bar_fig = fig.subfigures(2, 1, height_ratios=[8, height])
     axes = top_fig.subplots(2, 2)
     scaling = results.get("scaling", {})
     plot_scaling_panels(axes, scaling.get("curves", {}), scaling.get("settings", {}).get("num_worlds", 64))
     ax = bar_fig.subplots()
-    if targeted:
-        ratios = [c.ratio for c in targeted]
-        colors = ["tab:green" if c.met else "tab:red" for c in targeted]
-        ypos = range(len(targeted))
-        ax.barh(ypos, ratios, color=colors)
-        ax.set_yticks(ypos, [_short(c) for c in targeted], fontsize=7)
+    if rows:
+        ratios = [1.0 if c.ratio is None else c.ratio for c in rows]
+        colors = ["lightgrey" if c.ratio is None else "tab:green" if c.met else "tab:red" for c in rows]
+        ypos = range(len(rows))
+        bars = ax.barh(ypos, ratios, color=colors)
+        for bar, c in zip(bars, rows):
+            if c.ratio is None:
+                bar.set_hatch("//")
+        ax.set_yticks(ypos, [_short(c) for c in rows], fontsize=7)
         ax.invert_yaxis()
         ax.axvline(1.0, color="k", lw=1)
         ax.set_xscale("log")
-        for y, c, r in zip(ypos, targeted, ratios):
-            ax.text(r, y, f" {_num(c.value, c.unit)} ({_target(c)})", va="center", fontsize=7)
+        for y, c, r in zip(ypos, rows, ratios):
+            text = (
+                f" NOT MEASURED ({_target(c)})"
+                if c.ratio is None
+                else f" {_num(c.value, c.unit)} ({_target(c)})"
+            )
+            ax.text(r, y, text, va="center", fontsize=7, color="tab:red" if c.ratio is None else "k")
         ax.set_xlabel("measured vs target (> 1 = met; for time targets: target / measured)")
         ax.set_xlim(min(min(ratios) / 2, 0.5), max(max(ratios) * 40, 2))
     else:
         ax.set_axis_off()
-        ax.text(0.5, 0.5, "no targets measured", ha="center", va="center", transform=ax.transAxes)
+        ax.text(0.5, 0.5, "no targets", ha="center", va="center", transform=ax.transAxes)
     ax.set_title("Headline figures against their targets", fontsize=10)
     tmp = path.with_name(path.stem + ".tmp.png")
     fig.savefig(tmp, dpi=90)

@@ -145,9 +145,7 @@ class ParallelGradients:
 
     def set_batch(self, batch: SampleBatch) -> None:
         """Hand the helpers the iteration's batch: its tensors move to shared memory (no copies later)."""
-        self._batch = SampleBatch(
-            **{k: None if v is None else v.cpu().share_memory_() for k, v in batch.__dict__.items()}
-        )
+        self._batch = batch.map(lambda v: v.cpu().share_memory_())
         for conn in self._conns:
             conn.send(("batch", self._batch))
         self._replies()

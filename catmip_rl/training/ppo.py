@@ -8,6 +8,7 @@ equals TorchRL's ``ClipPPOLoss`` with the
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import torch
@@ -71,11 +72,15 @@ class SampleBatch:
     def __len__(self) -> int:
         return self.action.shape[0]
 
+    def map(self, fn: Callable[[torch.Tensor], torch.Tensor]) -> SampleBatch:
+        """A batch of ``fn(field)`` for every field that is set (optional fields stay None)."""
+        return SampleBatch(**{k: None if v is None else fn(v) for k, v in self.__dict__.items()})
+
     def index(self, idx: torch.Tensor) -> SampleBatch:
-        return SampleBatch(**{k: None if v is None else v[idx] for k, v in self.__dict__.items()})
+        return self.map(lambda v: v[idx])
 
     def to(self, device) -> SampleBatch:
-        return SampleBatch(**{k: None if v is None else v.to(device) for k, v in self.__dict__.items()})
+        return self.map(lambda v: v.to(device))
 
 
 def huber(x: torch.Tensor, delta: float) -> torch.Tensor:
