@@ -31,7 +31,7 @@ from catmip_rl.files import atomic_write_csv, atomic_write_text
 from catmip_rl.training.config import TrainConfig, make_train_config
 from catmip_rl.training.precision import native_bf16
 
-PLANNER_LINES = ("nearest", "rrt", "random")
+PLANNER_LINES = ("nearest", "rrt", "random-rescue", "random-uniform")
 
 
 def planner_success(cfg: TrainConfig, name: str) -> tuple[float, float]:

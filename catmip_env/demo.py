@@ -23,7 +23,7 @@ from catmip_env.planners import PLANNERS, make_planner
 from catmip_env.play import episode_metrics, play
 from catmip_env.render import render_episode
 
-DEFAULT_PLANNERS = ("nearest", "utility", "rrt", "apf", "random-frontier", "random")
+DEFAULT_PLANNERS = ("nearest", "utility", "rrt", "apf", "random-frontier", "random-rescue", "random-uniform")
 
 
 def _progress(total: int, desc: str):

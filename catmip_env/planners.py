@@ -1,9 +1,7 @@
 """Classical planning baselines, choosing goals in cell mode for the active robots.
 
-The rules: docs/design.md#planning-baselines.
-
 All planners share the low-level controller and activation rules of the env; they differ only in
-which goal an active robot picks from its own clean belief:
+which goal an active robot picks from its own clean belief (docs/design.md#planning-baselines):
 
 * ``nearest``          the reachable frontier with the smallest path distance (seeded tie-break);
 * ``utility``          the reachable frontier with the most unexplored cells in the 15x15 square
@@ -16,12 +14,13 @@ which goal an active robot picks from its own clean belief:
                        cluster size / (1 + path distance)), repulsion from teammates within radius 5,
                        greedy descent from the robot; stops at a frontier or a local minimum;
 * ``random-frontier``  a uniformly drawn reachable frontier (floor);
-* ``random``           a uniformly drawn valid goal inside the robot's 7x7 window (floor).
+* ``random-rescue``    a uniformly drawn valid goal inside the robot's 7x7 window, with the rescue rule;
+* ``random-uniform``   the same without the rescue rule: no skill at all (the floor of a learner).
 
 A frontier is an explored free cell with an unexplored 4-neighbour (the robot's own cell excluded).
-Once a rescuer knows the target, its goal is the reachable cell next to the target with the shortest
-path (every planner). Paths are shortest 4-connected paths on the belief with unknown cells free and
-other robots blocked, as in the controller. Planners are seeded and deterministic.
+The rescue rule: a rescuer that knows the target heads for the reachable cell next to it with the
+shortest path. Paths: shortest 4-connected on the belief with unknown cells free and other robots
+blocked, as in the controller. Planners are seeded and deterministic.
 
 >>> eng = EventEngine(PRESETS["task1"], num_worlds=8, seed=0, goal_mode="cell")
 >>> planner = make_planner("nearest", seed=0)
@@ -54,6 +53,7 @@ class Planner:
     """Base class: ``act(engine)`` returns (B, N) cell-mode actions (only active robots' matter)."""
 
     name = "planner"
+    rescue_rule = True  # a rescuer that knows the target heads for it
 
     def __init__(self, seed: int = 0) -> None:
         self.rng = np.random.default_rng(seed)
@@ -67,7 +67,7 @@ class Planner:
         live = ~st.done
         for b, i in zip(*np.nonzero(engine.active & live[:, None])):
             ctx = _Context(engine, int(b), int(i))
-            goal = ctx.rescue_goal()
+            goal = ctx.rescue_goal() if self.rescue_rule else None
             if goal is None:
                 goal = self.choose(ctx)
             if goal is None or not ctx.valid[goal]:
@@ -193,7 +193,7 @@ class RandomFrontier(Planner):
 
 
 class RandomWindow(Planner):
-    name = "random"
+    name = "random-rescue"
 
     def choose(self, ctx):
         half = ctx.engine.cfg.window // 2
@@ -201,6 +201,11 @@ class RandomWindow(Planner):
         win = np.zeros_like(ctx.valid)
         win[max(r - half, 0) : r + half + 1, max(c - half, 0) : c + half + 1] = True
         return self._pick(np.argwhere(win & ctx.valid))
+
+
+class UniformWindow(RandomWindow):
+    name = "random-uniform"
+    rescue_rule = False
 
 
 # -- RRT --------------------------------------------------------------------------------------------
@@ -384,11 +389,11 @@ class APF(Planner):
         return r, c
 
 
-PLANNERS = {p.name: p for p in (Nearest, Utility, RRT, APF, RandomFrontier, RandomWindow)}
+PLANNERS = {p.name: p for p in (Nearest, Utility, RRT, APF, RandomFrontier, RandomWindow, UniformWindow)}
 
 
 def make_planner(name: str, seed: int = 0) -> Planner:
-    """A planner by name: nearest, utility, rrt, apf, random-frontier, random."""
+    """A planner by name: nearest, utility, rrt, apf, random-frontier, random-rescue, random-uniform."""
     try:
         return PLANNERS[name](seed=seed)
     except KeyError:

@@ -61,6 +61,12 @@ class EpisodeRecords:
     def num_worlds(self) -> int:
         return len(self.rescue_tick)
 
+    @classmethod
+    def concat(cls, parts: list[EpisodeRecords]) -> EpisodeRecords:
+        """The episodes of ``parts``, in order, as one record set."""
+        names = cls.__dataclass_fields__
+        return cls(**{k: np.concatenate([getattr(p, k) for p in parts]) for k in names})
+
     @property
     def rescued(self) -> np.ndarray:
         """(B,) bool: the episode ended in a rescue."""

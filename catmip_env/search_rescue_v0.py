@@ -29,6 +29,8 @@ from catmip_env.spaces import (
     OBS_FORMATS,
     flat_layout,
     integer_action,
+    macro_infos,
+    macro_observations,
     observation_parts,
     observation_space,
     parse_actions,
@@ -282,44 +284,39 @@ class SearchRescueEnv(ParallelEnv):
 
     def _observations(self) -> tuple[dict[str, Any], np.ndarray]:
         """Every robot's observation, and the (N, A) int8 action masks."""
+        if self.level == "macro":
+            return macro_observations(self.engine, 0, self.possible_agents, self.obs_format, self.compact_obs)
         world, st = self.world, self.world.state
-        heading = self._eye_head[st.heading[0]] if self.level == "primitive" else None
+        heading = self._eye_head[st.heading[0]]
         parts = observation_parts(
             world.obs_global[0], world.obs_local[0], self._eye_cls[st.cls[0]], heading, self.compact_obs
         )
-        if self.level == "macro":
-            masks = self.engine.masks[0].copy()
-        else:  # every primitive is legal
-            masks = np.ones((len(self.possible_agents), self.num_actions), np.int8)
+        masks = np.ones((len(self.possible_agents), self.num_actions), np.int8)  # every primitive is legal
         return robot_observations(parts, masks, self.obs_format, self.possible_agents), masks
 
     def _infos(self, event_ticks: int, masks: np.ndarray) -> dict[str, dict[str, Any]]:
-        st = self.world.state
-        t = int(st.ticks[0])
-        knows = self.world.knows_target()[0] if self.level == "primitive" else None
-        infos = {}
-        for i, agent in enumerate(self.possible_agents):
-            if self.level == "macro":
-                info = {
-                    "active": int(self.engine.active[0, i]),
-                    "agent_class": int(st.cls[0, i]),
-                    "event_ticks": event_ticks,
-                    "tick": t,
-                    "neighbourhood": int(st.comp[0, i]),
-                }
-            else:
-                info = {
+        if self.level == "macro":
+            infos = macro_infos(self.engine, 0, self.possible_agents, event_ticks)
+        else:
+            st = self.world.state
+            t = int(st.ticks[0])
+            knows = self.world.knows_target()[0]
+            infos = {
+                agent: {
                     "agent_class": int(st.cls[0, i]),
                     "tick": t,
                     "neighbourhood": int(st.comp[0, i]),
                     "can_act": int(t % st.speed[0, i] == 0),
                     "knows_target": int(knows[i]),
                 }
+                for i, agent in enumerate(self.possible_agents)
+            }
+        for i, agent in enumerate(self.possible_agents):
+            info = infos[agent]
             info["invalid_action"] = int(self._invalid[i])
             info["invalid_actions"] = int(self._invalid_count[i])
             if self.obs_format == "flat":
                 info["action_mask"] = masks[i]
-            infos[agent] = info
         return infos
 
     def state(self) -> np.ndarray:

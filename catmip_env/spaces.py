@@ -28,6 +28,8 @@ __all__ = [
     "observation_space",
     "state_space",
     "observation_parts",
+    "macro_observations",
+    "macro_infos",
     "robot_observations",
     "integer_action",
     "parse_actions",
@@ -179,3 +181,34 @@ def replace_invalid_primitives(a: np.ndarray, agents: list[str], strict: bool) -
         )
     a[bad] = STAY
     return bad
+
+
+def macro_observations(
+    engine, b: int, agents: list[str], obs_format: str = "dict", compact_obs: bool = False
+) -> tuple[dict[str, Any], np.ndarray]:
+    """World ``b``'s observations ``{agent: observation}`` as the macro env gives them (new arrays),
+    and its (N, A) int8 action masks: one source for the env and for evaluating a PettingZoo-level
+    policy on a batched engine (``catmip_rl.evaluation.user_policy``); ``engine``: an ``EventEngine``."""
+    world, st = engine.world, engine.world.state
+    class_onehot = np.eye(engine.cfg.num_classes, dtype=np.float32)[st.cls[b]]
+    parts = observation_parts(world.obs_global[b], world.obs_local[b], class_onehot, None, compact_obs)
+    masks = engine.masks[b].copy()
+    return robot_observations(parts, masks, obs_format, agents), masks
+
+
+def macro_infos(engine, b: int, agents: list[str], event_ticks: int) -> dict[str, dict[str, Any]]:
+    """World ``b``'s macro-level infos without the invalid-action counters: ``active``,
+    ``agent_class``, ``event_ticks`` (given: ticks since the previous event), ``tick``,
+    ``neighbourhood``."""
+    st = engine.state
+    t = int(st.ticks[b])
+    return {
+        agent: {
+            "active": int(engine.active[b, i]),
+            "agent_class": int(st.cls[b, i]),
+            "event_ticks": int(event_ticks),
+            "tick": t,
+            "neighbourhood": int(st.comp[b, i]),
+        }
+        for i, agent in enumerate(agents)
+    }

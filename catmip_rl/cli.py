@@ -1,4 +1,4 @@
-"""``catmip`` command line: ``catmip train | eval | render | bench paper | bench perf``.
+"""``catmip`` command line: ``catmip train | eval | render | compare | bench paper | bench perf | export``.
 
 ``train`` flags map onto :class:`~catmip_rl.training.config.TrainConfig` fields; ``--set field=value``
 reaches any field (values are JSON: ``--set env_overrides='{"comm_sigma": 4.0}'``). The parser is in
@@ -103,7 +103,10 @@ def _eval(args: argparse.Namespace) -> int:
 
     check_new_dir(args.out, "--out", force=args.force)
     torch.set_num_threads(args.threads)
-    result = evaluate(args.method, _setting(args), args.episodes, args.seed, progress=not args.no_progress)
+    result = evaluate(
+        args.method, _setting(args), args.episodes, args.seed, progress=not args.no_progress,
+        allow_other_maps=args.allow_other_maps,
+    )  # fmt: skip
     out = result.write(args.out)
     s = result.summary
     rescue = "-" if s["mean_rescue_tick"] is None else f"{s['mean_rescue_tick']:.1f}"
@@ -139,6 +142,7 @@ def _eval(args: argparse.Namespace) -> int:
             f"messages per decision: {s['bytes_per_decision_embedding']:.0f} bytes with embeddings vs "
             f"{s['bytes_per_decision_raw']:.0f} bytes with raw macro-observations"
         )
+    print(f"  maps: {s['map_set']} {s['map_set_status']} ({s['map_set_verified_episodes']} checked)")
     print(f"wrote {out}/episodes.csv, episodes.json, curve.csv, summary.json")
     return 0
 
@@ -176,7 +180,8 @@ def _bench(args: argparse.Namespace) -> int:
         check_new_dir(Path(args.out) / f"fig{fig}", "--out", force=args.force)
     methods = [m for m in args.methods.split(",") if m.strip()] + list(args.method)
     for fig in figures:
-        out = run_figure(fig, methods, args.episodes, args.seed, args.out, args.jobs)
+        out = run_figure(fig, methods, args.episodes, args.seed, args.out, args.jobs,
+                         allow_other_maps=args.allow_other_maps)  # fmt: skip
         print(f"figure {fig}: {out}/fig{fig}.png, curves.csv, summary.csv, marl_eval.json")
     return 0
 
@@ -195,7 +200,21 @@ def _export(args: argparse.Namespace) -> int:
     return 0
 
 
-COMMANDS = {"train": _train, "eval": _eval, "render": _render, "bench": _bench, "export": _export}
+def _compare(args: argparse.Namespace) -> int:
+    from catmip_rl.evaluation.compare import compare, load_results
+    from catmip_rl.files import check_new_dir
+
+    check_new_dir(args.out, "--out", force=args.force)
+    results = load_results(args.results)
+    report = compare(results, seed=args.seed)
+    print(report.markdown())
+    out = report.write(args.out)
+    print(f"wrote {out}/compare.md, paired.csv, aggregate.csv, improvement.csv and the plots")
+    return 0
+
+
+COMMANDS = {"train": _train, "eval": _eval, "render": _render, "compare": _compare, "bench": _bench,
+            "export": _export}  # fmt: skip
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -77,7 +77,7 @@ def check_comm(text: str) -> None:
 
 
 def check_method(text: str) -> None:
-    from catmip_rl.evaluation.evaluate import parse_method
+    from catmip_rl.evaluation.methods import parse_method
 
     parse_method(text)
 

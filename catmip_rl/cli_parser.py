@@ -148,14 +148,12 @@ def add_train(sub) -> None:
 def add_setting_flags(p: argparse.ArgumentParser) -> None:
     from catmip_rl.checkpoint import shipped_models
     from catmip_rl.evaluation.evaluate import TASKS
+    from catmip_rl.evaluation.methods import METHOD_HELP
 
     shipped = ", ".join(shipped_models()) or "none"
     p.add_argument(
         "--method", required=True, type=checked(check_method),
-        help="nearest | utility | rrt | apf | random-frontier | random | window:PLANNER (its goals projected "
-        "into the 7x7 window) | window-noheading:PLANNER (projected along a heading-free path) | "
-        "amat:PATH (a model file, checkpoint or run dir) | amat:NAME (a shipped "
-        f"model: {shipped}) | amat-guard:PATH (argmax with the loop guard)",
+        help=METHOD_HELP + f" (shipped models: {shipped})",
     )  # fmt: skip
     p.add_argument("--task", default="task1", choices=TASKS, help="evaluation task")
     p.add_argument(
@@ -174,6 +172,14 @@ def add_setting_flags(p: argparse.ArgumentParser) -> None:
     p.add_argument("--threads", type=UP_TO_CPUS, default=min(2, CPUS), help="torch CPU threads")
 
 
+def add_allow_other_maps(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "--allow-other-maps", action="store_true",
+        help="evaluate even if this installation generates maps other than the frozen map sets' "
+        "(catmip_env/frozen_maps; the summary records it); without it such a run is refused",
+    )  # fmt: skip
+
+
 def add_eval_render(sub) -> None:
     from catmip_env.search_rescue_v0 import SearchRescueEnv
 
@@ -190,6 +196,7 @@ def add_eval_render(sub) -> None:
         "--force", action="store_true", help="write into a non-empty --out (overwriting its files)"
     )
     ev.add_argument("--no-progress", action="store_true", help="no progress bar")
+    add_allow_other_maps(ev)
     ev.set_defaults(name="eval")
     rd = sub.add_parser(
         "render", help="an animated GIF of one evaluation episode", formatter_class=Formatter,
@@ -220,7 +227,7 @@ def add_bench(sub) -> None:
     pa.add_argument("--figure", type=int, choices=sorted(FIGURES), help="paper figure")
     pa.add_argument("--all", action="store_true", help="every paper figure")
     pa.add_argument("--methods", default=",".join(DEFAULT_METHODS), type=checked(check_methods),
-                    help="comma list of methods (NAME=amat:PATH allowed; see catmip eval -h)")  # fmt: skip
+                    help="comma list of methods (NAME=METHOD allowed; see catmip eval -h)")  # fmt: skip
     pa.add_argument("--method", action="append", default=[], type=checked(check_method),
                     help="one more method (repeatable)")  # fmt: skip
     pa.add_argument("--episodes", type=POSITIVE_INT, default=100, help="maps per (panel, method)")
@@ -228,6 +235,7 @@ def add_bench(sub) -> None:
     pa.add_argument("--jobs", type=UP_TO_CPUS, default=min(2, CPUS), help="parallel processes")
     pa.add_argument("--out", default="out/paper", help="figures go to OUT/fig{N}/ (new or empty)")
     pa.add_argument("--force", action="store_true", help="write into non-empty OUT/fig{N}/ folders")
+    add_allow_other_maps(pa)
     pa.set_defaults(name="bench")
     pe = suites.add_parser(
         "perf", help="the performance benchmarks (benchmarks/run_all.py)", formatter_class=Formatter,
@@ -251,6 +259,27 @@ def add_export(sub) -> None:
     ex.set_defaults(name="export")
 
 
+def add_compare(sub) -> None:
+    co = sub.add_parser(
+        "compare", help="paired differences and across-seed statistics of eval results",
+        formatter_class=Formatter,
+        description="Compare catmip eval results: for every pair of methods on the same maps the paired "
+        "difference in success by tick 100 and in mean rescue tick with 95 %% CIs; across runs (training "
+        "seeds) the IQM and mean with 95 %% stratified-bootstrap CIs, the probability of improvement and "
+        "performance profiles (rliable). Writes paired.csv, aggregate.csv, improvement.csv, compare.md and "
+        "PNGs into --out.",
+    )  # fmt: skip
+    co.add_argument(
+        "results", nargs="+", metavar="RESULT",
+        help="a folder of catmip eval results (searched recursively: a bench paper figure folder works), or "
+        "NAME=DIR[,DIR...]: every result under those folders as runs of the method NAME (its training seeds)",
+    )  # fmt: skip
+    co.add_argument("--out", default="out/compare", help="new or empty folder for the tables and plots")
+    co.add_argument("--force", action="store_true", help="write into a non-empty --out")
+    co.add_argument("--seed", type=NON_NEGATIVE_INT, default=0, help="seed of the bootstrap resampling")
+    co.set_defaults(name="compare")
+
+
 def build_parser() -> argparse.ArgumentParser:
     ap = Parser(
         prog="catmip",
@@ -259,9 +288,10 @@ def build_parser() -> argparse.ArgumentParser:
         "CATMIP_DEBUG=1 shows the traceback instead.",
     )
     ap.add_argument("--version", action="version", version=f"catmip {version()}")
-    sub = ap.add_subparsers(dest="command", required=True, metavar="{train,eval,render,bench,export}")
+    sub = ap.add_subparsers(dest="command", required=True, metavar="{train,eval,render,compare,bench,export}")
     add_train(sub)
     add_eval_render(sub)
+    add_compare(sub)
     add_bench(sub)
     add_export(sub)
     return ap

@@ -27,7 +27,7 @@ from catmip_rl.evaluation.paper import plot_figure
 from catmip_rl.files import atomic_write_csv, atomic_write_text
 
 SHIPPED = Path(__file__).parent / "models" / "amat_task1.pt"
-PLANNERS = ("nearest", "utility", "rrt", "apf", "random-frontier", "random")
+PLANNERS = ("nearest", "utility", "rrt", "apf", "random-frontier", "random-rescue", "random-uniform")
 COLUMNS = ("success_rate", "success_by_100", "sampled_success_by_100", "mean_rescue_tick",
            "mean_target_found_tick", "mean_explored_fraction", "stalls_per_episode",
            "bytes_per_decision_embedding", "seconds")  # fmt: skip

@@ -20,7 +20,7 @@ from catmip_env.events import EventEngine
 from catmip_rl.adapters import keys as K
 from catmip_rl.amat.inputs import one_hot_class
 
-__all__ = ["CatmipEnv", "float_observation_transform"]
+__all__ = ["CatmipEnv", "engine_observation", "float_observation_transform"]
 
 _DONE_NAMES = ("done", "terminated", "truncated")
 
@@ -152,24 +152,9 @@ class CatmipEnv(EnvBase):
 
     # -- helpers ----------------------------------------------------------------------------------
     def _observation(self) -> TensorDict:
-        eng = self.engine
-        st = eng.state
-        c = self.cfg.num_classes
-        dev = self.device
-        mask = torch.from_numpy(eng.masks.astype(np.bool_))
-        self.action_spec[K.ACTION].update_mask(mask.to(dev))
-        robots = TensorDict(
-            {
-                "global_map": torch.from_numpy(eng.obs_global.copy()),
-                "local_map": torch.from_numpy(eng.obs_local.copy()),
-                "agent_class": one_hot_class(st.cls, c),
-                "action_mask": mask,
-                "active": torch.from_numpy(eng.active.copy()),
-            },
-            batch_size=(eng.num_worlds, eng.num_robots),
-        )
-        state = torch.from_numpy(eng.world.ground_truth(None))
-        return TensorDict({K.ROBOTS: robots, K.STATE: state}, batch_size=self.batch_size).to(dev)
+        out = engine_observation(self.engine, self.device)
+        self.action_spec[K.ACTION].update_mask(out.get(K.ACTION_MASK))
+        return out
 
     def _set_done(self, out: TensorDictBase, terminated: np.ndarray, truncated: np.ndarray) -> None:
         """Write the (B,) flags as root (B, 1) and group-level (B, N, 1) done / terminated / truncated."""
@@ -219,6 +204,25 @@ class CatmipEnv(EnvBase):
 
     def _set_seed(self, seed: int | None) -> None:
         self.engine.seed(seed)
+
+
+def engine_observation(engine: EventEngine, device: str | torch.device = "cpu") -> TensorDict:
+    """The observation :class:`CatmipEnv` gives for ``engine``'s current event, batch ``(B,)``: the
+    ``"robots"`` group (maps, class one-hot, action mask, active) and the ground-truth ``"state"``; also
+    what :class:`~catmip_rl.adapters.torchrl_policy.TorchRLPolicy` feeds a TorchRL policy."""
+    st = engine.state
+    robots = TensorDict(
+        {
+            "global_map": torch.from_numpy(engine.obs_global.copy()),
+            "local_map": torch.from_numpy(engine.obs_local.copy()),
+            "agent_class": one_hot_class(st.cls, engine.cfg.num_classes),
+            "action_mask": torch.from_numpy(engine.masks.astype(np.bool_)),
+            "active": torch.from_numpy(engine.active.copy()),
+        },
+        batch_size=(engine.num_worlds, engine.num_robots),
+    )
+    state = torch.from_numpy(engine.world.ground_truth(None))
+    return TensorDict({K.ROBOTS: robots, K.STATE: state}, batch_size=(engine.num_worlds,)).to(device)
 
 
 def float_observation_transform(

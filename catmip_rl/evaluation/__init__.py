@@ -1,6 +1,9 @@
 """Evaluating policies on the paper's protocol.
 
+* ``methods`` — the methods by name (planners, window planners, AMAT models, your own ``py:`` policy);
+* ``user_policy`` — your policy at the PettingZoo or engine level, checked at every call;
 * ``execution`` — decentralised AMAT execution (per-neighbourhood decisions, message sizes);
-* ``evaluate`` — methods (AMAT, planners, window planners), settings and the evaluation itself;
+* ``evaluate`` — settings and the evaluation itself (frozen map sets checked);
+* ``compare`` (+ ``compare_plots``) — paired per-map differences and across-seed statistics with CIs;
 * ``paper`` — the paper's figures: every method on every panel, tables and plots.
 """

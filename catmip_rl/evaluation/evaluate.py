@@ -22,7 +22,6 @@ from __future__ import annotations
 import json
 import math
 import time
-import zlib
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -32,24 +31,19 @@ import torch
 
 from catmip_env import EnvConfig, make_config, render
 from catmip_env.events import EventEngine
-from catmip_env.planners import PLANNERS, make_planner
+from catmip_env.map_sets import check_maps, map_hash
 from catmip_env.play import EpisodeRecords, decision_metrics, episode_metrics, play, success_curve
-from catmip_env.window_planner import WINDOW_KINDS, make_window_planner
 from catmip_rl.amat.model import AMAT
-from catmip_rl.checkpoint import load_model, resolve_model
-from catmip_rl.evaluation.execution import GOAL_BYTES, AmatExecutor
+from catmip_rl.evaluation.execution import AmatExecutor
+from catmip_rl.evaluation.methods import Method, make_policy, parse_method
+from catmip_rl.evaluation.user_policy import PettingZooPolicy
 from catmip_rl.files import atomic_write_csv, atomic_write_text
 
 __all__ = [
     "EvalSetting",
     "EvalResult",
-    "AmatExecutor",
-    "GOAL_BYTES",
-    "Method",
-    "parse_method",
     "evaluate",
     "episode_rows",
-    "map_hash",
     "render_episode",
     "TASKS",
     "COMM_SETTINGS",
@@ -108,60 +102,6 @@ def comm_sigma(comm: str | float | None) -> float | None:
     return sigma
 
 
-# -- methods ------------------------------------------------------------------------------------
-@dataclass(frozen=True)
-class Method:
-    """``name`` as written on plots; ``kind`` "planner", "window" (a planner projected into the goal
-    window), "window-noheading" (the same along a heading-free path) or "amat"; ``target`` the planner's
-    name or the AMAT checkpoint path; ``loop_guard`` (AMAT) executes argmax with the loop guard of
-    :class:`AmatExecutor`."""
-
-    name: str
-    kind: str
-    target: str
-    loop_guard: bool = False
-
-
-def parse_method(spec: str) -> Method:
-    """``nearest`` | ``utility`` | ``rrt`` | ``apf`` | ``random-frontier`` | ``random`` |
-    ``window:PLANNER`` (the planner's goals projected into the 7x7 window, the imitation teacher) |
-    ``window-noheading:PLANNER`` (projected along a path that ignores the robot's heading) |
-    ``amat:PATH`` | ``amat-guard:PATH`` (argmax with the loop guard) | ``NAME=...`` (PATH: a model
-    file, a training checkpoint, a run dir or a shipped model's name, ``amat:task1``)."""
-    spec = spec.strip()
-    name = None
-    if "=" in spec:
-        name, spec = (s.strip() for s in spec.split("=", 1))
-        if not name:
-            raise ValueError(f"method {spec!r} has an empty name: write NAME={spec} or just {spec}")
-    for prefix, guard in (("amat:", False), ("amat-guard:", True)):
-        if spec.startswith(prefix):
-            path = spec[len(prefix) :]
-            if not path:
-                raise ValueError(f"amat method needs a checkpoint: {prefix}PATH")
-            return Method(name or prefix[:-1], "amat", str(resolve_model(path)), loop_guard=guard)
-    for kind in WINDOW_KINDS:
-        if spec.startswith(kind + ":"):
-            planner = spec[len(kind) + 1 :]
-            if planner not in PLANNERS:
-                raise ValueError(f"unknown planner {planner!r} in {spec!r}; choose one of {sorted(PLANNERS)}")
-            return Method(name or spec, kind, planner)
-    if spec not in PLANNERS:
-        raise ValueError(f"unknown method {spec!r}; choose amat:PATH or one of {sorted(PLANNERS)}")
-    return Method(name or spec, "planner", spec)
-
-
-def make_policy(method: Method, seed: int, model: AMAT | None = None):
-    """(policy with ``act(engine)``, goal mode, window) for ``method``."""
-    if method.kind == "planner":
-        return make_planner(method.target, seed=seed), "cell", None
-    if method.kind in WINDOW_KINDS:
-        teacher = make_window_planner(method.target, seed=seed, follow_heading=WINDOW_KINDS[method.kind])
-        return teacher, "window", None
-    model = model if model is not None else load_model(method.target)
-    return AmatExecutor(model, loop_guard=method.loop_guard), "window", model.config.window
-
-
 # -- results ------------------------------------------------------------------------------------
 @dataclass
 class EvalResult:
@@ -209,6 +149,8 @@ def evaluate(
     progress: bool = False,
     engine_hook=None,
     sampled_too: bool = True,
+    policy: Any = None,
+    allow_other_maps: bool = False,
 ) -> EvalResult:
     """Play ``episodes`` maps of ``setting`` (episode indices 0.. of ``seed``) with ``method``.
 
@@ -216,22 +158,37 @@ def evaluate(
     event (for rendering or inspection). AMAT plays argmax actions (the paper's protocol: the curve and
     the plain summary keys) and, with ``sampled_too``, the same maps again with sampled actions
     (``sampled_curve``, ``sampled_*`` summary keys; a generator seeded by ``seed``).
+
+    ``policy``: your own policy object (PettingZoo or engine level, or a TorchRL module; see
+    :mod:`~catmip_rl.evaluation.user_policy`), played under the name ``method``:
+    ``evaluate("mine", setting, policy=MyPolicy())``. The maps are checked against the frozen map sets
+    (:mod:`catmip_env.map_sets`) before any is played: other maps raise ``MapSetMismatch`` unless
+    ``allow_other_maps`` (the summary's ``map_set_*`` keys say what was found).
     """
+    if policy is not None:
+        if not isinstance(method, str) or not method.strip() or ":" in method or "=" in method:
+            raise ValueError(f"with policy=..., method is the policy's name (a plain word), got {method!r}")
+        method = Method(method.strip(), "policy", type(policy).__name__)
     method = parse_method(method) if isinstance(method, str) else method
     if not isinstance(episodes, int) or episodes < 1:
         raise ValueError(f"episodes must be an int >= 1, got {episodes!r}")
-    policy, goal_mode, window = make_policy(method, seed, model)
+    policy, goal_mode, window = make_policy(method, setting.env_config(), seed, model, policy)
     cfg = setting.env_config(window)
+    engine = EventEngine(cfg, num_worlds=episodes, seed=seed, goal_mode=goal_mode)
+    engine.reset(episode_indices=np.arange(episodes))
+    maps = [map_hash(engine, e) for e in range(episodes)]
+    map_set = check_maps(setting.task, seed, maps, allow_other_maps)
     passes = 2 if isinstance(policy, AmatExecutor) and sampled_too else 1
     bar = progress_bar(episodes * passes, f"{method.name} {setting.label}", progress)
     t0 = time.perf_counter()
-    records, maps = _play_maps(policy, cfg, goal_mode, episodes, seed, bar, engine_hook)
+    records = _play_maps(policy, engine, bar, engine_hook)
     seconds = time.perf_counter() - t0
     sampled = None
     if isinstance(policy, AmatExecutor) and sampled_too:  # the same maps with sampled actions
         gen = torch.Generator().manual_seed(seed)
         sampler = AmatExecutor(policy.model, False, gen, policy.loop_guard)
-        sampled = _play_maps(sampler, cfg, goal_mode, episodes, seed, bar, None)[0]
+        engine.reset(episode_indices=np.arange(episodes))
+        sampled = _play_maps(sampler, engine, bar, None)
     if bar is not None:
         bar.close()
     rows = episode_rows(method, setting, seed, maps, records, sampled, policy)
@@ -252,10 +209,12 @@ def evaluate(
         method=method.name,
         method_kind=method.kind,
         checkpoint=method.target if method.kind == "amat" else None,
+        policy=method.target if method.kind in ("py", "policy") else None,
         setting=asdict(setting),
         label=setting.label,
         seed=seed,
         seconds=seconds,
+        **map_set.as_dict(),
     )
     return result
 
@@ -310,31 +269,32 @@ def episode_rows(
     return rows
 
 
-def _play_maps(
-    policy, cfg: EnvConfig, goal_mode: str, episodes: int, seed: int, bar, engine_hook
-) -> tuple[EpisodeRecords, list[str]]:
-    """One episode on each of the maps 0 .. episodes-1 of ``seed``: (records, map hashes)."""
-    eng = EventEngine(cfg, num_worlds=episodes, seed=seed, goal_mode=goal_mode)
-    eng.reset(episode_indices=np.arange(episodes))
-    maps = [map_hash(eng, e) for e in range(episodes)]
+def _play_maps(policy, engine: EventEngine, bar, engine_hook) -> EpisodeRecords:
+    """Play the episodes ``engine`` was just reset to (world e = map e) to their end: their records.
+
+    A PettingZoo-level policy plays them one after another on a one-world engine, its ``reset()``
+    called before each (as in a PettingZoo loop); every other policy plays them all at once."""
     if isinstance(policy, AmatExecutor):
-        policy.reset_counters(episodes, eng.num_robots)
+        policy.reset_counters(engine.num_worlds, engine.num_robots)
     done_before = 0 if bar is None else bar.n
 
-    def on_event(engine: EventEngine) -> None:
+    def on_event(eng: EventEngine, offset: int = 0) -> None:
         if engine_hook is not None:
-            engine_hook(engine)
-        if bar is not None and done_before + int(engine.state.done.sum()) > bar.n:
-            bar.update(done_before + int(engine.state.done.sum()) - bar.n)
+            engine_hook(eng)
+        done = done_before + offset + int(eng.state.done.sum())
+        if bar is not None and done > bar.n:
+            bar.update(done - bar.n)
 
-    return play(eng, policy, on_event=on_event), maps
-
-
-def map_hash(engine: EventEngine, b: int) -> str:
-    """CRC-32 (hex) of world ``b``'s map, target and start poses: equal hashes = the same episode."""
-    st = engine.state
-    parts = (st.grid[b], st.target[b], st.pos[b], st.heading[b], st.cls[b])
-    return f"{zlib.crc32(b''.join(np.ascontiguousarray(p).tobytes() for p in parts)):08x}"
+    if not isinstance(policy, PettingZooPolicy):
+        return play(engine, policy, on_event=on_event)
+    # a world's episode depends only on the seed, its index and the actions (catmip_env.rng)
+    one = EventEngine(engine.cfg, num_worlds=1, seed=engine.world.base_seed, goal_mode=engine.goal_mode)
+    records = []
+    for e in range(engine.num_worlds):
+        one.reset(episode_indices=[e])
+        policy.reset()
+        records.append(play(one, policy, on_event=lambda eng, e=e: on_event(eng, e)))
+    return EpisodeRecords.concat(records)
 
 
 def render_episode(
@@ -353,7 +313,9 @@ def render_episode(
     from catmip_env.search_rescue_v0 import SearchRescueEnv
 
     method = parse_method(method) if isinstance(method, str) else method
-    policy, goal_mode, window = make_policy(method, seed, model)
+    policy, goal_mode, window = make_policy(method, setting.env_config(), seed, model)
     eng = EventEngine(setting.env_config(window), num_worlds=1, seed=seed, goal_mode=goal_mode)
+    if isinstance(policy, PettingZooPolicy):
+        policy.reset()
     fps = SearchRescueEnv.metadata["render_fps"] if fps is None else fps
     return render.render_episode(eng, policy, path, episode, fps=fps, max_frames=max_frames)

@@ -28,7 +28,8 @@ from typing import Any
 import numpy as np
 
 from catmip_rl.checkpoint import load_model
-from catmip_rl.evaluation.evaluate import EvalSetting, Method, evaluate, parse_method, progress_bar
+from catmip_rl.evaluation.evaluate import EvalSetting, evaluate, progress_bar
+from catmip_rl.evaluation.methods import Method, make_policy, parse_method
 from catmip_rl.files import atomic_write_csv, atomic_write_text
 
 __all__ = [
@@ -74,12 +75,12 @@ def figure_settings(figure: int) -> list[tuple[str, EvalSetting]]:
     return FIGURES[figure][1]
 
 
-def _run_one(args: tuple[Method, EvalSetting, int, int, str, int]) -> dict[str, Any]:
-    method, setting, episodes, seed, out, threads = args
+def _run_one(args: tuple[Method, EvalSetting, int, int, str, int, bool]) -> dict[str, Any]:
+    method, setting, episodes, seed, out, threads, allow_other_maps = args
     import torch
 
     torch.set_num_threads(threads)
-    result = evaluate(method, setting, episodes=episodes, seed=seed)
+    result = evaluate(method, setting, episodes=episodes, seed=seed, allow_other_maps=allow_other_maps)
     result.write(out)
     sampled = None if result.sampled_curve is None else result.sampled_curve.tolist()
     return {"out": out, "summary": result.summary, "curve": result.curve.tolist(), "sampled_curve": sampled}
@@ -93,6 +94,7 @@ def run_figure(
     out: str | Path = "out/paper",
     jobs: int = 1,
     progress: bool = True,
+    allow_other_maps: bool = False,
 ) -> Path:
     """Run every (panel, method) of ``figure``; returns the figure's folder. Bad arguments (figure,
     methods, an unreadable AMAT checkpoint, episodes, seed, jobs) raise before any run starts."""
@@ -101,17 +103,22 @@ def run_figure(
     parsed: list[Method] = [parse_method(m) for m in (methods or DEFAULT_METHODS)]
     names = [m.name for m in parsed]
     if len(set(names)) != len(names):
-        raise ValueError(f"method names must be unique (use NAME=amat:PATH), got {names}")
+        raise ValueError(f"method names must be unique (use NAME=METHOD), got {names}")
     for what, value, low in (("episodes", episodes, 1), ("seed", seed, 0), ("jobs", jobs, 1)):
         if not isinstance(value, int) or value < low:
             raise ValueError(f"{what} must be an int >= {low}, got {value!r}")
-    for m in parsed:
+    for m in parsed:  # an unreadable checkpoint or a broken policy fails here, not in every run
         if m.kind == "amat":
-            load_model(m.target)  # an unreadable checkpoint fails here, not in every run
+            load_model(m.target)
+        elif m.kind == "py":
+            make_policy(m, panels[0][1].env_config(), seed)
     fig_dir = Path(out) / f"fig{figure}"
     grid = [(panel, setting, method) for panel, setting in panels for method in parsed]
     threads = 1 if jobs > 1 else 2
-    tasks = [(m, st, episodes, seed, str(fig_dir / st.label / m.name), threads) for _, st, m in grid]
+    tasks = [
+        (m, st, episodes, seed, str(fig_dir / st.label / m.name), threads, allow_other_maps)
+        for _, st, m in grid
+    ]
     results = _map(tasks, jobs, progress, f"figure {figure}")
     curve_rows, summary_rows, runs = [], [], []
     for (panel, _setting, method), res in zip(grid, results):

@@ -27,7 +27,7 @@ def _run(name: str, preset="task1", episodes=EPISODES, seed=SEED, **overrides):
 
 @pytest.fixture(scope="module")
 def floor():
-    return _run("random")
+    return _run("random-rescue")
 
 
 @pytest.mark.parametrize("name", ["nearest", "utility", "rrt", "apf", "random-frontier"])
@@ -58,11 +58,11 @@ def test_rescuer_heads_for_the_target_once_known():
     eng = EventEngine(cfg, 1, seed=0, goal_mode="cell")
     eng.reset()
     assert eng.state.found_tick[0] == 0  # robot_1 sees the target at reset
-    actions = make_planner("random", seed=0).act(eng)
+    actions = make_planner("random-rescue", seed=0).act(eng)
     w = eng.shape[1]
     assert divmod(int(actions[0, 0]), w) == (3, 6)  # the reachable side of the target nearest to it
     while not eng.state.done[0]:
-        eng.step(make_planner("random", seed=0).act(eng))
+        eng.step(make_planner("random-rescue", seed=0).act(eng))
     assert eng.state.rescue_tick[0] > 0
 
 

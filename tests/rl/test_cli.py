@@ -23,7 +23,7 @@ import catmip_rl.training.train
 from catmip_env.search_rescue_v0 import SearchRescueEnv
 from catmip_rl.checkpoint import SHIPPED_DIR, CheckpointError, load_model, read_checkpoint, resume_checkpoint
 from catmip_rl.cli import CPUS, DEFAULT_PRESET, build_parser, main
-from catmip_rl.evaluation.evaluate import parse_method
+from catmip_rl.evaluation.methods import parse_method
 from catmip_rl.files import open_csv_log
 from catmip_rl.training.config import TRAIN_PRESETS, make_train_config
 
@@ -388,7 +388,10 @@ def test_force_writes_into_a_non_empty_folder_and_keeps_other_files(tmp_path, ca
 
 def test_eval_prints_the_standard_error_of_success_by_tick_100(tmp_path, capsys):
     out = tmp_path / "eval"
-    assert main(["eval", "--method", "random", "--episodes", "8", "--out", str(out), "--no-progress"]) == 0
+    assert (
+        main(["eval", "--method", "random-rescue", "--episodes", "8", "--out", str(out), "--no-progress"])
+        == 0
+    )
     p = json.loads((out / "summary.json").read_text())["success_by_100"]
     assert f"by tick 100 {p:.2f} (standard error {(p * (1 - p) / 8) ** 0.5:.3f})" in capsys.readouterr().out
 

@@ -10,20 +10,14 @@ import pytest
 import torch
 
 from catmip_env.events import EventEngine
+from catmip_env.map_sets import map_hash
 from catmip_env.play import success_curve
 from catmip_rl import AMAT, AmatConfig, save_model
 from catmip_rl.amat.model import decision_order
 from catmip_rl.cli import main as cli
-from catmip_rl.evaluation.evaluate import (
-    GOAL_BYTES,
-    AmatExecutor,
-    EvalSetting,
-    Method,
-    evaluate,
-    parse_method,
-    render_episode,
-)
-from catmip_rl.evaluation.execution import message_bytes
+from catmip_rl.evaluation.evaluate import EvalSetting, evaluate, render_episode
+from catmip_rl.evaluation.execution import GOAL_BYTES, AmatExecutor, message_bytes
+from catmip_rl.evaluation.methods import Method, parse_method
 from catmip_rl.evaluation.paper import FIGURES, run_figure
 
 
@@ -54,7 +48,7 @@ def test_every_method_sees_the_same_maps(ckpt, tmp_path):
     small_window = save_model(_sharp_model(window=5), tmp_path / "d5.pt")
     setting = EvalSetting("task2", "4")
     hashes = {}
-    methods = ("nearest", "rrt", "random", "window:nearest", "window-noheading:rrt", f"amat:{ckpt}",
+    methods = ("nearest", "rrt", "random-rescue", "window:nearest", "window-noheading:rrt", f"amat:{ckpt}",
                f"amat:{small_window}")  # fmt: skip
     for method in methods:
         res = evaluate(method, setting, episodes=3, seed=11)
@@ -66,13 +60,11 @@ def test_every_method_sees_the_same_maps(ckpt, tmp_path):
     # a map depends on the episode index only: episode 1 alone equals episode 1 of the batch
     eng = EventEngine(setting.env_config(), 1, seed=11)
     eng.reset(episode_indices=[1])
-    from catmip_rl.evaluation.evaluate import map_hash
-
     assert map_hash(eng, 0) == hashes["nearest"][1]
 
 
 def test_curve_is_monotone_and_matches_the_episodes(ckpt):
-    res = evaluate("random", EvalSetting("task1"), episodes=8, seed=2)
+    res = evaluate("random-rescue", EvalSetting("task1"), episodes=8, seed=2)
     curve = res.curve
     assert curve.shape == (301,)
     assert np.all(np.diff(curve) >= 0)

@@ -1,0 +1,161 @@
+"""Frozen map sets: the maps of the evaluation protocol, shipped as manifests of map hashes.
+
+A map depends only on the task, the seed and the episode index (``catmip_env.rng``), so "maps 0 .. E-1
+of seed s" names the same episodes on every machine -- as long as map generation itself does not change
+(another catmip version, another numpy or numba). The manifests ``frozen_maps/task1.json`` ..
+``task3.json`` hold the hash of each of the first 1,000 maps of the frozen seeds; :func:`check_maps`
+compares an evaluation's maps with them, so that numbers from different machines and versions are
+comparable or refused::
+
+    hashes = [map_hash(engine, b) for b in range(engine.num_worlds)]
+    report = check_maps("task2", seed=0, hashes=hashes)   # MapSetMismatch if they differ
+    report.status                                         # "verified" or "not frozen"
+
+The frozen seeds (:data:`FROZEN_SEEDS`): 0 is the paper protocol's (its first 100 maps are the figures'
+maps); 1 and 2 are the development sets earlier models were compared and chosen on; 1000 is the held-out
+set (:data:`HELDOUT_SEED`) that claims are made on and nothing is chosen on.
+
+``python -m catmip_env.map_sets --write`` regenerates the manifests (maintainers, after a deliberate
+change of map generation).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import zlib
+from dataclasses import dataclass
+from functools import cache
+from pathlib import Path
+
+import numpy as np
+
+from catmip_env.config import make_config
+from catmip_env.world import BatchedEngine
+
+__all__ = [
+    "FROZEN_SEEDS", "HELDOUT_SEED", "MANIFEST_EPISODES", "MapSetMismatch", "MapSetReport", "check_maps",
+    "manifest", "map_hash", "map_hashes",
+]  # fmt: skip
+
+FROZEN_SEEDS = (0, 1, 2, 1000)
+HELDOUT_SEED = 1000
+"""The held-out map set: claims are made on it, and no model or setting is chosen on it."""
+MANIFEST_EPISODES = 1000
+TASKS = ("task1", "task2", "task3")
+FORMAT = "catmip-map-set-v1"
+HERE = Path(__file__).resolve().parent / "frozen_maps"
+
+
+def map_hash(engine, b: int) -> str:
+    """CRC-32 (hex) of world ``b``'s map, target and start poses: equal hashes = the same episode.
+    ``engine``: a ``BatchedEngine`` or an ``EventEngine`` just reset (start poses are read)."""
+    st = engine.state
+    parts = (st.grid[b], st.target[b], st.pos[b], st.heading[b], st.cls[b])
+    return f"{zlib.crc32(b''.join(np.ascontiguousarray(p).tobytes() for p in parts)):08x}"
+
+
+def map_hashes(task: str, seed: int, episodes: int) -> list[str]:
+    """The hashes of maps 0 .. episodes-1 of ``seed`` for a task preset, generated here and now."""
+    eng = BatchedEngine(make_config(task), num_worlds=episodes, seed=seed)
+    eng.reset(episode_indices=np.arange(episodes))
+    return [map_hash(eng, b) for b in range(episodes)]
+
+
+class MapSetMismatch(ValueError):
+    """The maps generated here differ from a frozen map set's."""
+
+
+@dataclass(frozen=True)
+class MapSetReport:
+    """What :func:`check_maps` found: ``status`` "verified" (every map matched the manifest), "not
+    frozen" (no manifest covers this seed or these episodes) or "differs" (allowed by the caller)."""
+
+    name: str  # "task2/seed0"
+    status: str
+    verified_episodes: int  # how many of the maps were compared (and matched, unless "differs")
+    first_difference: int | None = None  # the first episode whose map differs
+
+    def as_dict(self) -> dict:
+        return {
+            "map_set": self.name,
+            "map_set_status": self.status,
+            "map_set_verified_episodes": self.verified_episodes,
+            "map_set_first_difference": self.first_difference,
+        }
+
+
+@cache
+def manifest(task: str) -> dict:
+    """The shipped manifest of a task: ``{"seeds": {"0": [hash, ...], ...}, ...}``."""
+    path = HERE / f"{task}.json"
+    try:
+        data = json.loads(path.read_text())
+    except (OSError, json.JSONDecodeError) as err:
+        raise ValueError(
+            f"the map-set manifest {path} is missing or corrupt ({err}); reinstall catmip"
+        ) from None
+    if data.get("format") != FORMAT or data.get("task") != task:
+        raise ValueError(f"{path} is not a {FORMAT} manifest of {task}")
+    return data
+
+
+def check_maps(task: str, seed: int, hashes: list[str], allow_other: bool = False) -> MapSetReport:
+    """Compare the hashes of maps 0 .. len(hashes)-1 of ``seed`` with the frozen set of ``task``.
+
+    Raises :class:`MapSetMismatch` (one line: where, and what it means) when a map differs, unless
+    ``allow_other`` (the report then says "differs"). Seeds without a manifest are "not frozen"; maps
+    past the manifest's 1,000 are not compared (``verified_episodes`` says how many were)."""
+    name = f"{task}/seed{seed}"
+    if task not in TASKS:
+        return MapSetReport(name, "not frozen", 0)
+    frozen = manifest(task)["seeds"].get(str(seed))
+    if frozen is None:
+        return MapSetReport(name, "not frozen", 0)
+    n = min(len(hashes), len(frozen))
+    diff = next((e for e in range(n) if hashes[e] != frozen[e]), None)
+    if diff is None:
+        return MapSetReport(name, "verified", n)
+    if not allow_other:
+        raise MapSetMismatch(
+            f"map {diff} of {name} differs from the frozen map set (hash {hashes[diff]}, frozen "
+            f"{frozen[diff]}): this installation (catmip, numpy or numba version) generates other maps, so "
+            "its numbers are not comparable with results on the frozen set; pass --allow-other-maps "
+            "(allow_other_maps=True) to evaluate anyway, recorded as such in the summary"
+        )
+    return MapSetReport(name, "differs", n, diff)
+
+
+def _write_manifests() -> None:
+    import numba
+
+    import catmip_env
+
+    for task in TASKS:
+        seeds = {str(s): map_hashes(task, s, MANIFEST_EPISODES) for s in FROZEN_SEEDS}
+        data = {
+            "format": FORMAT,
+            "task": task,
+            "hash": "CRC-32 of the grid, target, start positions, headings and classes (map_sets.map_hash)",
+            "episodes": MANIFEST_EPISODES,
+            "made_with": {
+                "catmip": catmip_env.__version__,
+                "numpy": np.__version__,
+                "numba": numba.__version__,
+            },
+            "seeds": seeds,
+        }
+        path = HERE / f"{task}.json"
+        tmp = path.with_suffix(".json.tmp")
+        tmp.write_text(json.dumps(data, separators=(",", ":")) + "\n")
+        tmp.replace(path)
+        print(f"wrote {path}")
+
+
+if __name__ == "__main__":
+    ap = argparse.ArgumentParser(description="regenerate the frozen map sets' manifests")
+    ap.add_argument("--write", action="store_true", help="write frozen_maps/task1.json .. task3.json")
+    if ap.parse_args().write:
+        _write_manifests()
+    else:
+        ap.print_help()

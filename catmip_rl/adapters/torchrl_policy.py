@@ -1,0 +1,68 @@
+"""A TorchRL policy on the evaluation protocol: :class:`TorchRLPolicy` turns a ``TensorDictModule`` that
+reads :class:`~catmip_rl.adapters.torchrl_env.CatmipEnv`'s keys into an engine-level policy
+(``act(engine) -> (B, N)``), so that ``catmip eval --method NAME=py:FILE.py:FACTORY`` and
+``evaluate(policy=...)`` can play it on the same maps as every other method::
+
+    def make_policy(env_config, seed):
+        actor = ...  # e.g. the ProbabilisticActor of examples/mappo_torchrl.py, weights loaded
+        return TorchRLPolicy(actor, float_maps=True)
+
+Each call builds the observation ``CatmipEnv`` would give for the engine's current event
+(:func:`~catmip_rl.adapters.torchrl_env.engine_observation`), runs the module on it and reads
+``("robots", "action")``. ``float_maps=True`` gives the module the maps as
+:func:`~catmip_rl.adapters.torchrl_env.float_observation_transform` does (float32, ``value ×
+OBS_SCALE``), for a policy trained behind that transform; AMAT's own actor reads the uint8 maps.
+Actions are the distribution's mode (``deterministic=True``, the protocol's argmax) or samples.
+"""
+
+from __future__ import annotations
+
+import torch
+from tensordict import TensorDictBase
+from tensordict.nn import TensorDictModuleBase
+from torchrl.envs.utils import ExplorationType, set_exploration_type
+
+from catmip_env.constants import OBS_SCALE
+from catmip_env.events import EventEngine
+from catmip_rl.adapters import keys as K
+from catmip_rl.adapters.torchrl_env import engine_observation
+
+__all__ = ["TorchRLPolicy"]
+
+
+class TorchRLPolicy:
+    """An engine-level policy (``level = "engine"``, window goals) from a TorchRL module."""
+
+    level = "engine"
+    goal_mode = "window"
+
+    def __init__(
+        self, module: TensorDictModuleBase, float_maps: bool = False, deterministic: bool = True
+    ) -> None:
+        if not isinstance(module, TensorDictModuleBase):
+            raise TypeError(f"TorchRLPolicy wraps a TensorDictModule, got {type(module).__name__}")
+        self.module = module
+        self.float_maps = float_maps
+        self.deterministic = deterministic
+
+    @staticmethod
+    def wraps(obj) -> bool:
+        """Whether ``obj`` is a TorchRL module this class turns into a policy."""
+        return isinstance(obj, TensorDictModuleBase)
+
+    def observation(self, engine: EventEngine) -> TensorDictBase:
+        """What the module reads: ``CatmipEnv``'s observation of the current event (maps as float32 if
+        ``float_maps``), on the module's device."""
+        params = list(self.module.parameters())
+        td = engine_observation(engine, params[0].device if params else "cpu")
+        if self.float_maps:
+            for key in (K.GLOBAL_MAP, K.LOCAL_MAP):
+                td.set(key, td.get(key).to(torch.float32) * OBS_SCALE)
+        return td
+
+    @torch.no_grad()
+    def act(self, engine: EventEngine):
+        kind = ExplorationType.DETERMINISTIC if self.deterministic else ExplorationType.RANDOM
+        with set_exploration_type(kind):
+            td = self.module(self.observation(engine))
+        return td.get(K.ACTION).cpu().numpy()

@@ -1,0 +1,320 @@
+"""Statistics over evaluation results: paired per-map differences and aggregates across training seeds.
+
+    results = load_results(["out/eval", "mappo=out/mappo-s0,out/mappo-s1,out/mappo-s2"])
+    report = compare(results)            # paired differences, IQM / mean with CIs, P(improvement)
+    report.write("out/compare")          # paired.csv, aggregate.csv, improvement.csv, *.png, compare.md
+
+A *result* is a folder ``catmip eval`` wrote (``summary.json`` + ``episodes.json``); folders are searched
+recursively, so a ``catmip bench paper`` figure folder gives all its runs. Results of one method are
+grouped by its name (``NAME=DIR[,DIR...]`` renames every result found under those folders: the
+training seeds of one algorithm). The score of an episode is "rescued by tick 100" (or by the horizon
+if shorter), the paper's headline measure.
+
+* **Paired comparisons** (every pair of methods, in every setting where both played the same maps, map
+  hash by map hash): the mean per-map difference in success by tick 100 with a 95 % percentile
+  bootstrap CI over maps (``scipy.stats.bootstrap``, paired), an exact McNemar p-value (binomial test
+  on the discordant maps) when each method has one run, and the difference in mean rescue tick over
+  the maps both rescued, with its paired CI. A method with several runs enters with its per-map mean.
+* **Across training seeds** (rliable, Agarwal et al. 2021): for each method the interquartile mean and
+  the mean of the (runs x settings) success-by-100 scores with 95 % stratified-bootstrap CIs, the
+  probability of improvement of every method over every other, and performance profiles. Settings
+  that not every method played are left out of these (and named).
+"""
+
+from __future__ import annotations
+
+import json
+import warnings
+from dataclasses import dataclass, field
+from itertools import combinations
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from catmip_rl.files import atomic_write_csv, atomic_write_text
+
+__all__ = ["Result", "load_results", "compare", "Comparison", "paired_difference"]
+
+CONFIDENCE = 0.95
+RESAMPLES = 10_000  # paired bootstrap over maps (scipy: vectorised, ~0.2 s a pair)
+RLIABLE_RESAMPLES = 2_000  # rliable's stratified bootstrap runs a Python call per resample (~1 ms)
+
+
+@dataclass
+class Result:
+    """One ``catmip eval`` result folder."""
+
+    path: Path
+    method: str
+    setting: str  # the setting's label, e.g. task2-sigma4-noise0-ma10
+    seed: int
+    maps: list[str]  # map hash of each episode
+    success: np.ndarray  # (E,) bool rescued by tick 100 (or the horizon)
+    rescue_tick: np.ndarray  # (E,) float, nan where not rescued
+
+
+def _load_one(folder: Path, name: str | None) -> Result:
+    try:
+        summary = json.loads((folder / "summary.json").read_text())
+        rows = json.loads((folder / "episodes.json").read_text())
+        label, horizon = summary["label"], int(summary["horizon"])
+        by = min(100, horizon)
+        ticks = np.array([np.nan if r["rescue_tick"] is None else r["rescue_tick"] for r in rows], float)
+        maps = [r["map_hash"] for r in rows]
+        seed = int(summary["seed"])
+        method = name or summary["method"]
+    except (OSError, ValueError, KeyError, TypeError) as err:
+        raise ValueError(
+            f"{folder} is not a readable catmip eval result ({type(err).__name__}: {err})"
+        ) from None
+    with np.errstate(invalid="ignore"):
+        success = ticks <= by
+    return Result(folder, method, label, seed, maps, success, ticks)
+
+
+def load_results(specs: list[str]) -> list[Result]:
+    """The results under each ``DIR`` or ``NAME=DIR[,DIR...]`` of ``specs``; ValueError on a path
+    without results or a corrupt one (one line naming it)."""
+    results = []
+    for spec in specs:
+        name, sep, paths = spec.partition("=")
+        if not sep:
+            name, paths = None, spec
+        elif not name.strip():
+            raise ValueError(f"{spec!r}: the name before = is empty (write NAME=DIR[,DIR...])")
+        for p in (s for s in paths.split(",") if s.strip()):
+            root = Path(p.strip())
+            if not root.exists():
+                raise FileNotFoundError(f"no such result folder: {root}")
+            found = sorted(
+                s.parent for s in root.rglob("summary.json") if (s.parent / "episodes.json").exists()
+            )
+            if not found:
+                raise ValueError(
+                    f"{root} holds no catmip eval result (a folder with summary.json and episodes.json)"
+                )
+            results += [_load_one(f, name.strip() if name else None) for f in found]
+    return results
+
+
+# -- statistics ---------------------------------------------------------------------------------------------
+def _bootstrap_ci(data: np.ndarray, seed: int = 0) -> tuple[float, float]:
+    """95 % percentile bootstrap CI of the mean of ``data`` (paired differences, one per map)."""
+    from scipy.stats import bootstrap
+
+    if len(data) < 2 or np.all(data == data[0]):
+        return float(data.mean()), float(data.mean())
+    res = bootstrap(
+        (data,), np.mean, confidence_level=CONFIDENCE, n_resamples=RESAMPLES, method="percentile",
+        rng=np.random.default_rng(seed),
+    )  # fmt: skip
+    return float(res.confidence_interval.low), float(res.confidence_interval.high)
+
+
+def paired_difference(a: np.ndarray, b: np.ndarray, seed: int = 0) -> dict[str, float]:
+    """Mean of ``a - b`` over paired maps with its 95 % bootstrap CI (``a``, ``b``: (E,) per-map
+    scores, the same maps in the same order)."""
+    d = np.asarray(a, float) - np.asarray(b, float)
+    low, high = _bootstrap_ci(d, seed)
+    return {"diff": float(d.mean()), "ci_low": low, "ci_high": high}
+
+
+def mcnemar_p(a: np.ndarray, b: np.ndarray) -> float:
+    """Exact McNemar p-value (two-sided binomial test on the maps where exactly one succeeded)."""
+    from scipy.stats import binomtest
+
+    only_a, only_b = int(np.sum(a & ~b)), int(np.sum(~a & b))
+    return 1.0 if only_a + only_b == 0 else float(binomtest(only_a, only_a + only_b, 0.5).pvalue)
+
+
+@dataclass
+class Comparison:
+    """What :func:`compare` found: rows of the paired, aggregate and improvement tables, plus what the
+    plots need."""
+
+    paired: list[dict[str, Any]] = field(default_factory=list)
+    aggregate: list[dict[str, Any]] = field(default_factory=list)
+    improvement: list[dict[str, Any]] = field(default_factory=list)
+    scores: dict[str, np.ndarray] = field(default_factory=dict)  # method -> (runs, settings)
+    settings: list[str] = field(default_factory=list)  # the columns of ``scores``
+    left_out: list[str] = field(default_factory=list)  # settings not every method played
+
+    def write(self, out: str | Path) -> Path:
+        """paired.csv, aggregate.csv, improvement.csv, compare.md and the plots (atomic) in ``out``."""
+        from catmip_rl.evaluation.compare_plots import plot_aggregate, plot_paired, plot_profiles
+
+        out = Path(out)
+        out.mkdir(parents=True, exist_ok=True)
+        for name, rows in (
+            ("paired", self.paired),
+            ("aggregate", self.aggregate),
+            ("improvement", self.improvement),
+        ):
+            if rows:
+                atomic_write_csv(out / f"{name}.csv", rows)
+        atomic_write_text(out / "compare.md", self.markdown())
+        if self.paired:
+            plot_paired(self.paired, out / "paired.png")
+        if self.aggregate:
+            plot_aggregate(self.aggregate, out / "aggregate.png")
+            plot_profiles(self.scores, out / "profile.png")
+        return out
+
+    def markdown(self) -> str:
+        head = (
+            "| setting | A | B | maps | A | B | A - B [95 % CI] | McNemar p | rescue tick A - B [CI] (maps) |"
+        )
+        lines = ["# Comparison", "", "## Paired per-map differences (success by tick 100, A - B)", "", head]
+        lines += ["|---|---|---|---|---|---|---|---|---|"]
+        for r in self.paired:
+            p = "–" if r["mcnemar_p"] is None else f"{r['mcnemar_p']:.3g}"
+            tick = "–"
+            if r["tick_diff"] is not None:
+                ci = f"[{r['tick_ci_low']:+.1f}, {r['tick_ci_high']:+.1f}]"
+                tick = f"{r['tick_diff']:+.1f} {ci} ({r['both_rescued']})"
+            diff = f"{r['diff']:+.3f} [{r['ci_low']:+.3f}, {r['ci_high']:+.3f}]"
+            cells = [r["setting"], r["method_a"], r["method_b"], str(r["maps"]), f"{r['success_a']:.3f}"]
+            cells += [f"{r['success_b']:.3f}", diff, p, tick]
+            lines.append("| " + " | ".join(cells) + " |")
+        if self.aggregate:
+            lines += ["", f"## Across runs (training seeds): settings {', '.join(self.settings)}", ""]
+            if self.left_out:
+                lines += [f"Left out (not played by every method): {', '.join(self.left_out)}.", ""]
+            lines += ["| method | runs | IQM [95 % CI] | mean [95 % CI] |", "|---|---|---|---|"]
+            for r in self.aggregate:
+                iqm, mean = (_interval(r, k) for k in ("iqm", "mean"))
+                lines.append(f"| {r['method']} | {r['runs']} | {iqm} | {mean} |")
+            lines += [
+                "",
+                "(one run: no interval across seeds; its uncertainty over maps is in the paired table)",
+            ]
+        if self.improvement:
+            lines += ["", "| P(X > Y) | X | Y | 95 % CI |", "|---|---|---|---|"]
+            for r in self.improvement:
+                ci = f"[{r['ci_low']:.3f}, {r['ci_high']:.3f}]"
+                lines.append(f"| {r['probability']:.3f} | {r['method_x']} | {r['method_y']} | {ci} |")
+        return "\n".join(lines) + "\n"
+
+
+def _interval(row: dict[str, Any], key: str) -> str:
+    if row[f"{key}_ci_low"] is None:
+        return f"{row[key]:.3f}"
+    return f"{row[key]:.3f} [{row[f'{key}_ci_low']:.3f}, {row[f'{key}_ci_high']:.3f}]"
+
+
+def _by_setting(results: list[Result]) -> dict[str, dict[str, list[Result]]]:
+    out: dict[str, dict[str, list[Result]]] = {}
+    for r in results:
+        out.setdefault(r.setting, {}).setdefault(r.method, []).append(r)
+    return out
+
+
+def _paired_rows(groups: dict[str, dict[str, list[Result]]]) -> list[dict[str, Any]]:
+    rows = []
+    for setting, methods in sorted(groups.items()):
+        for (ma, ra), (mb, rb) in combinations(sorted(methods.items()), 2):
+            maps = ra[0].maps
+            if any(r.maps != maps for r in (*ra, *rb)):
+                continue  # not the same maps: no paired comparison
+            sa = np.mean([r.success for r in ra], axis=0)  # (E,) per-map mean over runs
+            sb = np.mean([r.success for r in rb], axis=0)
+            row = {"setting": setting, "method_a": ma, "method_b": mb, "maps": len(maps), "runs_a": len(ra),
+                   "runs_b": len(rb), "success_a": float(sa.mean()),
+                   "success_b": float(sb.mean())}  # fmt: skip
+            row |= paired_difference(sa, sb)
+            single = len(ra) == len(rb) == 1
+            row["mcnemar_p"] = mcnemar_p(ra[0].success, rb[0].success) if single else None
+            # rescue ticks are paired for one run each (a per-map mean over runs would mix rescued and
+            # unrescued runs): over the maps both rescued
+            ta, tb = ra[0].rescue_tick, rb[0].rescue_tick
+            both = ~np.isnan(ta) & ~np.isnan(tb)
+            row |= {"both_rescued": int(both.sum()) if single else None, "tick_diff": None,
+                    "tick_ci_low": None, "tick_ci_high": None}  # fmt: skip
+            if single and both.sum() >= 2:
+                t = paired_difference(ta[both], tb[both])
+                row |= {"tick_diff": t["diff"], "tick_ci_low": t["ci_low"], "tick_ci_high": t["ci_high"]}
+            rows.append(row)
+    return rows
+
+
+def _score_matrices(
+    groups: dict[str, dict[str, list[Result]]],
+) -> tuple[dict[str, np.ndarray], list[str], list[str]]:
+    """method -> (runs, settings) success-by-100 over the settings every method played, the settings,
+    and those left out. A method's runs are its results in each setting, in folder order; a method with
+    different run counts across settings keeps the smallest count."""
+    methods = sorted({m for per in groups.values() for m in per})
+    common = sorted(s for s, per in groups.items() if all(m in per for m in methods))
+    left_out = sorted(set(groups) - set(common))
+    scores = {}
+    for m in methods:
+        runs = min((len(groups[s][m]) for s in common), default=0)
+        if runs:
+            scores[m] = np.array([[groups[s][m][k].success.mean() for s in common] for k in range(runs)])
+    return scores, common, left_out
+
+
+def compare(results: list[Result], seed: int = 0) -> Comparison:
+    """Paired differences for every pair of methods on the same maps, and (with rliable) IQM / mean with
+    95 % stratified-bootstrap CIs and the probability of improvement across runs and settings."""
+    if not results:
+        raise ValueError("nothing to compare: no results")
+    groups = _by_setting(results)
+    report = Comparison(paired=_paired_rows(groups))
+    scores, report.settings, report.left_out = _score_matrices(groups)
+    report.scores = scores
+    if len(scores) < 1 or not report.settings:
+        return report
+    try:
+        from rliable import library as rly
+        from rliable import metrics
+    except ImportError as err:
+        raise ImportError(
+            f"catmip compare needs the stats extra ({err}): pip install 'catmip[stats]'"
+        ) from None
+
+    def both(x: np.ndarray) -> np.ndarray:
+        return np.array([metrics.aggregate_iqm(x), metrics.aggregate_mean(x)])
+
+    # one run has no spread across seeds to resample: its row has point estimates only (its map-level
+    # uncertainty is in the paired table), and a pair needs a method with runs to resample
+    multi = {m: x for m, x in scores.items() if x.shape[0] >= 2}
+    ci: dict[str, np.ndarray] = {}
+    if multi:
+        with warnings.catch_warnings():  # arch (under rliable) deprecates the RandomState rliable passes
+            warnings.simplefilter("ignore", FutureWarning)
+            _, ci = rly.get_interval_estimates(
+                multi, both, reps=RLIABLE_RESAMPLES, confidence_interval_size=CONFIDENCE,
+                random_state=np.random.RandomState(seed),
+            )  # fmt: skip
+    for m in sorted(scores):
+        iqm, mean = both(scores[m])
+        row = {"method": m, "runs": scores[m].shape[0], "settings": len(report.settings), "iqm": float(iqm)}
+        c = ci.get(m)
+        row |= {
+            "iqm_ci_low": None if c is None else float(c[0, 0]),
+            "iqm_ci_high": None if c is None else float(c[1, 0]),
+        }
+        row |= {"mean": float(mean), "mean_ci_low": None if c is None else float(c[0, 1])}
+        row["mean_ci_high"] = None if c is None else float(c[1, 1])
+        report.aggregate.append(row)
+    # P(X > Y) for each unordered pair (P(Y > X) = 1 - P(X > Y): ties count one half)
+    pairs = {
+        f"{x}\t{y}": (scores[x], scores[y])
+        for x, y in combinations(sorted(scores), 2)
+        if x in multi or y in multi
+    }
+    if pairs:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", FutureWarning)
+            poi, poi_ci = rly.get_interval_estimates(
+                pairs, metrics.probability_of_improvement, reps=RLIABLE_RESAMPLES,
+                confidence_interval_size=CONFIDENCE, random_state=np.random.RandomState(seed),
+            )  # fmt: skip
+        for key in pairs:
+            x, y = key.split("\t")
+            low, high = np.ravel(poi_ci[key])
+            report.improvement.append({"method_x": x, "method_y": y, "probability": float(poi[key]),
+                                       "ci_low": float(low), "ci_high": float(high)})  # fmt: skip
+    return report

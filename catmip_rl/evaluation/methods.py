@@ -1,0 +1,117 @@
+"""The methods an evaluation can play, by name: planners, window planners, AMAT models, your own policy.
+
+    parse_method("rrt")                               # a planner (cell goals)
+    parse_method("window:nearest")                    # a planner projected into the goal window
+    parse_method("amat:task1")                        # a shipped model, labelled amat_task1
+    parse_method("mine=py:/path/to/mine.py:make_policy")  # your policy (user_policy)
+
+:func:`make_policy` builds the policy a :class:`Method` names for one evaluation setting.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from catmip_env.config import EnvConfig
+from catmip_env.planners import PLANNERS, make_planner
+from catmip_env.window_planner import WINDOW_KINDS, make_window_planner
+from catmip_rl.amat.model import AMAT
+from catmip_rl.checkpoint import load_model, resolve_model
+from catmip_rl.evaluation.execution import AmatExecutor
+from catmip_rl.evaluation.user_policy import load_factory, make_user_policy, parse_policy_source
+
+__all__ = ["Method", "parse_method", "make_policy", "amat_label", "METHOD_HELP"]
+
+METHOD_HELP = (
+    "nearest | utility | rrt | apf | random-frontier | random-rescue (random window goals with the planners' "
+    "rescue rule) | random-uniform (uniformly random valid window goals, no rescue rule: a learner's floor) "
+    "| "
+    "window:PLANNER (its goals projected into the 7x7 window) | window-noheading:PLANNER (projected along a "
+    "heading-free path) | amat:PATH (a model file, checkpoint or run dir) | amat:NAME (a shipped model) | "
+    "amat-guard:PATH (argmax with the loop guard) | py:FILE.py:FACTORY or py:package.module:FACTORY (your "
+    "policy: docs/benchmark-your-algorithm.md); NAME=METHOD names it on tables and plots"
+)
+
+
+@dataclass(frozen=True)
+class Method:
+    """``name`` as written on tables and plots; ``kind`` "planner", "window" (a planner projected into
+    the goal window), "window-noheading" (the same along a heading-free path), "amat", "py" (a factory
+    in a file or module) or "policy" (an object given to ``evaluate(policy=...)``); ``target`` the
+    planner's name, the AMAT checkpoint path or the ``py:`` spec; ``loop_guard`` (AMAT) executes argmax
+    with the loop guard of :class:`AmatExecutor`."""
+
+    name: str
+    kind: str
+    target: str
+    loop_guard: bool = False
+
+
+def amat_label(path: str | Path) -> str:
+    """A model's name on tables: its file's stem (``amat_task1``), or its run's folder for a training
+    checkpoint (``runs/p/checkpoints/latest.pt`` -> ``p``, ``iter_200.pt`` -> ``p@iter_200``) or run dir."""
+    path = Path(path)
+    if path.is_dir():
+        return path.resolve().name
+    if path.parent.name == "checkpoints":
+        run = path.parent.parent.resolve().name
+        return run if path.stem == "latest" else f"{run}@{path.stem}"
+    return path.stem
+
+
+def parse_method(spec: str) -> Method:
+    """A :class:`Method` from its spec (see :data:`METHOD_HELP`); ValueError naming a bad one. A
+    ``py:`` file must exist; it is imported only when the policy is made."""
+    spec = spec.strip()
+    name = None
+    if "=" in spec:
+        name, spec = (s.strip() for s in spec.split("=", 1))
+        if not name:
+            raise ValueError(f"method {spec!r} has an empty name: write NAME={spec} or just {spec}")
+    if spec.startswith("py:"):
+        src = parse_policy_source(spec)
+        default = Path(src.source).stem if src.is_file else src.source.rsplit(".", 1)[-1]
+        return Method(name or default, "py", str(src))
+    for prefix, guard in (("amat:", False), ("amat-guard:", True)):
+        if spec.startswith(prefix):
+            path = spec[len(prefix) :]
+            if not path:
+                raise ValueError(f"amat method needs a checkpoint: {prefix}PATH")
+            target = resolve_model(path)
+            label = amat_label(target) + ("-guard" if guard else "")
+            return Method(name or label, "amat", str(target), loop_guard=guard)
+    for kind in WINDOW_KINDS:
+        if spec.startswith(kind + ":"):
+            planner = spec[len(kind) + 1 :]
+            if planner not in PLANNERS:
+                raise ValueError(f"unknown planner {planner!r} in {spec!r}; choose one of {sorted(PLANNERS)}")
+            return Method(name or spec, kind, planner)
+    if spec not in PLANNERS:
+        raise ValueError(
+            f"unknown method {spec!r}; choose amat:PATH, py:FILE.py:FACTORY or one of {sorted(PLANNERS)}"
+        )
+    return Method(name or spec, "planner", spec)
+
+
+def make_policy(
+    method: Method, env_config: EnvConfig, seed: int, model: AMAT | None = None, policy: Any = None
+) -> tuple[Any, str, int | None]:
+    """(policy with ``act(engine)``, goal mode, the policy's goal window or None) for ``method`` in the
+    setting whose config is ``env_config``. ``model`` overrides loading an AMAT checkpoint; ``policy``
+    is the object of a "policy" method (what a ``py:`` factory returns: a policy at either level)."""
+    if method.kind == "planner":
+        return make_planner(method.target, seed=seed), "cell", None
+    if method.kind in WINDOW_KINDS:
+        teacher = make_window_planner(method.target, seed=seed, follow_heading=WINDOW_KINDS[method.kind])
+        return teacher, "window", None
+    if method.kind in ("py", "policy"):
+        if method.kind == "py":
+            factory = load_factory(parse_policy_source(method.target))
+        else:  # the object itself, checked as a factory's answer is
+            factory = lambda _cfg, _seed: policy  # noqa: E731
+        wrapped = make_user_policy(factory, env_config, seed, method.name)
+        return wrapped, wrapped.goal_mode, None
+    model = model if model is not None else load_model(method.target)
+    return AmatExecutor(model, loop_guard=method.loop_guard), "window", model.config.window

@@ -1,0 +1,328 @@
+"""Your own policy on the paper's protocol: ``--method NAME=py:FILE.py:FACTORY`` (or
+``py:package.module:FACTORY``) in ``catmip eval``, ``catmip render`` and ``catmip bench paper``, and
+``evaluate(policy=...)`` in Python. Guide: docs/benchmark-your-algorithm.md.
+
+``FACTORY(env_config, seed)`` gets the evaluation's :class:`~catmip_env.config.EnvConfig` (the task with
+the setting's communication, noise and macro-action length, evaluation activation (0, 0)) and the map
+set's seed, and returns a policy at one of two levels:
+
+* **PettingZoo level** -- ``act(observations, infos) -> {robot: action}``, exactly the dicts one world of
+  ``search_rescue_v0.parallel_env(level="macro")`` gives (``obs_format="dict"``), called at each decision
+  event; only the active robots' actions count (``infos[r]["active"] == 1``), the others may be left
+  out. Episodes are played one after another, and ``reset()``, if the policy has it, is called before
+  each, so a policy with memory works as it would in a PettingZoo loop.
+* **Engine level** (fast, batched) -- ``act(engine) -> (B, N) int`` goal actions for every world of a
+  :class:`~catmip_env.events.EventEngine` (the :class:`catmip_env.play.Policy` protocol, what the
+  planners and AMAT implement); all maps of a setting are played at once.
+
+The level is read from the policy's ``level`` attribute (``"pettingzoo"`` or ``"engine"``) or else from
+``act``'s signature (two parameters: PettingZoo; one: engine). ``goal_mode`` (``"window"``, default: the
+``D x D`` goal window; or ``"cell"``) says what the actions mean. A TorchRL ``TensorDictModule`` that
+reads ``CatmipEnv``'s keys is accepted too (:class:`~catmip_rl.adapters.torchrl_policy.TorchRLPolicy`).
+
+Every way a policy can fail -- a missing file, no such factory, a wrong return type, a crash inside
+``act``, an action its mask forbids -- raises :class:`PolicyError`, one line naming the policy and the
+problem (``catmip`` prints it and exits with code 2, writing nothing).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import importlib
+import importlib.util
+import inspect
+import re
+import sys
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from catmip_env.config import EnvConfig
+from catmip_env.events import GOAL_MODES, EventEngine
+from catmip_env.spaces import macro_infos, macro_observations, parse_actions
+
+__all__ = [
+    "POLICY_LEVELS", "PolicyError", "PolicySource", "parse_policy_source", "load_factory", "make_user_policy",
+    "CheckedEnginePolicy", "PettingZooPolicy",
+]  # fmt: skip
+
+POLICY_LEVELS = ("pettingzoo", "engine")
+_MODULE = re.compile(r"[A-Za-z_]\w*(\.[A-Za-z_]\w*)*")
+
+
+class PolicyError(ValueError):
+    """A user's policy could not be loaded or did something the protocol does not allow."""
+
+
+def _describe(exc: BaseException) -> str:
+    text = " ".join(str(exc).split())
+    return f"{type(exc).__name__}: {text}" if text else type(exc).__name__
+
+
+# -- where the factory is -------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class PolicySource:
+    """``py:FILE.py:FACTORY`` or ``py:package.module:FACTORY``, parsed (not yet imported)."""
+
+    source: str  # a .py file path or a dotted module name
+    factory: str
+
+    @property
+    def is_file(self) -> bool:
+        return self.source.endswith(".py")
+
+    def __str__(self) -> str:
+        return f"py:{self.source}:{self.factory}"
+
+
+def parse_policy_source(spec: str) -> PolicySource:
+    """``"py:FILE.py:FACTORY"`` | ``"py:package.module:FACTORY"`` -> :class:`PolicySource`; a
+    :class:`PolicyError` for a malformed spec or a file that is not there."""
+    body = spec[len("py:") :] if spec.startswith("py:") else spec
+    source, sep, factory = body.rpartition(":")
+    if not sep or not source or not factory.isidentifier():
+        raise PolicyError(
+            f"policy {spec!r}: expected py:FILE.py:FACTORY or py:package.module:FACTORY "
+            "(FACTORY a Python name)"
+        )
+    if source.endswith(".py"):
+        path = Path(source).expanduser()
+        if not path.is_file():
+            raise PolicyError(f"policy {spec!r}: no such file {path}")
+        return PolicySource(str(path.resolve()), factory)
+    if _MODULE.fullmatch(source) is None:
+        raise PolicyError(f"policy {spec!r}: {source!r} is neither a .py file nor a dotted module name")
+    return PolicySource(source, factory)
+
+
+def load_factory(src: PolicySource) -> Callable[..., Any]:
+    """Import the file or module and return its factory; :class:`PolicyError` on any failure (the
+    import's own error, named)."""
+    try:
+        if src.is_file:
+            path = Path(src.source)
+            # a stable, unique module name per file, so that pickling and re-imports find the same module
+            name = f"catmip_user_policy_{hashlib.sha1(str(path).encode()).hexdigest()[:12]}"
+            module = sys.modules.get(name)
+            if module is None:
+                spec = importlib.util.spec_from_file_location(name, path)
+                if spec is None or spec.loader is None:
+                    raise ImportError(f"cannot import {path}")
+                module = importlib.util.module_from_spec(spec)
+                sys.modules[name] = module
+                try:
+                    spec.loader.exec_module(module)
+                except BaseException:
+                    del sys.modules[name]
+                    raise
+        else:
+            module = importlib.import_module(src.source)
+    except KeyboardInterrupt:
+        raise
+    except BaseException as exc:  # SyntaxError, ImportError, SystemExit, anything the module runs
+        raise PolicyError(f"policy {src}: importing {src.source} failed: {_describe(exc)}") from None
+    factory = getattr(module, src.factory, None)
+    if factory is None:
+        names = sorted(n for n, v in vars(module).items() if callable(v) and not n.startswith("_"))
+        shown = ", ".join(names[:8]) + (", ..." if len(names) > 8 else "")
+        raise PolicyError(
+            f"policy {src}: {src.source} has no {src.factory!r} (its callables: {shown or 'none'})"
+        )
+    if not callable(factory):
+        raise PolicyError(
+            f"policy {src}: {src.factory} is a {type(factory).__name__}, not a callable factory"
+        )
+    return factory
+
+
+# -- what the factory returns ---------------------------------------------------------------------------
+def _act_level(act: Callable, name: str) -> str:
+    try:
+        params = inspect.signature(act).parameters.values()
+    except (TypeError, ValueError):
+        raise PolicyError(f"policy {name}: cannot read act()'s signature; set policy.level") from None
+    required = [
+        p for p in params if p.kind in (p.POSITIONAL_ONLY, p.POSITIONAL_OR_KEYWORD) and p.default is p.empty
+    ]
+    if len(required) == 2:
+        return "pettingzoo"
+    if len(required) == 1:
+        return "engine"
+    raise PolicyError(
+        f"policy {name}: act() takes {len(required)} required arguments; write act(observations, infos) "
+        "(PettingZoo level) or act(engine) (engine level), or set policy.level"
+    )
+
+
+def make_user_policy(
+    factory: Callable[..., Any], env_config: EnvConfig, seed: int, name: str
+) -> CheckedEnginePolicy | PettingZooPolicy:
+    """Call ``factory(env_config, seed)`` and wrap what it returns for the evaluator: a
+    :class:`PettingZooPolicy` or a :class:`CheckedEnginePolicy` (a TorchRL module through
+    :class:`~catmip_rl.adapters.torchrl_policy.TorchRLPolicy`)."""
+    try:
+        policy = factory(env_config, seed)
+    except KeyboardInterrupt:
+        raise
+    except Exception as exc:
+        raise PolicyError(f"policy {name}: the factory raised {_describe(exc)}") from None
+    if "tensordict" in sys.modules:  # a TorchRL module can only come from a process that imported it
+        from catmip_rl.adapters.torchrl_policy import TorchRLPolicy
+
+        if TorchRLPolicy.wraps(policy):
+            policy = TorchRLPolicy(policy)
+    act = getattr(policy, "act", None)
+    if act is None:
+        if policy is None or not callable(policy):
+            raise PolicyError(
+                f"policy {name}: the factory returned {type(policy).__name__}, not a policy: return an "
+                "object with act(observations, infos) (PettingZoo level) or act(engine) (engine level)"
+            )
+        act = policy  # a plain function is its own act
+    level = getattr(policy, "level", None)
+    if level is None:
+        level = _act_level(act, name)
+    if level not in POLICY_LEVELS:
+        raise PolicyError(f"policy {name}: level {level!r} is not one of {list(POLICY_LEVELS)}")
+    goal_mode = getattr(policy, "goal_mode", "window")
+    if goal_mode not in GOAL_MODES:
+        raise PolicyError(f"policy {name}: goal_mode {goal_mode!r} is not one of {list(GOAL_MODES)}")
+    reset = getattr(policy, "reset", None)
+    if level == "engine":
+        return CheckedEnginePolicy(act, name, goal_mode)
+    return PettingZooPolicy(act, name, goal_mode, reset if callable(reset) else None)
+
+
+def _check_allowed(actions: np.ndarray, engine: EventEngine, worlds: np.ndarray, name: str) -> None:
+    """PolicyError naming the first active robot of ``worlds`` whose action is out of range or masked."""
+    a = engine.num_actions
+    for b in worlds:
+        for i in np.flatnonzero(engine.active[b]):
+            act = int(actions[b, i])
+            if not 0 <= act < a:
+                why = f"out of range (actions are 0..{a - 1})"
+            elif not engine.masks[b, i, act]:
+                why = "forbidden by its action mask"
+            else:
+                continue
+            raise PolicyError(
+                f"policy {name}: action {act} of robot_{i} in world {b} at tick "
+                f"{int(engine.state.ticks[b])} is {why}; choose among the actions whose mask entry is 1"
+            )
+
+
+class CheckedEnginePolicy:
+    """An engine-level policy whose every answer is checked: shape (B, N), integers, allowed for the
+    active robots of live worlds; crashes and bad answers become :class:`PolicyError`."""
+
+    def __init__(self, act: Callable[[EventEngine], Any], name: str, goal_mode: str = "window") -> None:
+        self._act, self.name, self.goal_mode = act, name, goal_mode
+
+    def act(self, engine: EventEngine) -> np.ndarray:
+        try:
+            out = self._act(engine)
+        except KeyboardInterrupt:
+            raise
+        except PolicyError:
+            raise
+        except Exception as exc:
+            raise PolicyError(f"policy {self.name}: act(engine) raised {_describe(exc)}") from None
+        try:
+            actions = np.asarray(out)
+        except Exception as exc:
+            raise PolicyError(
+                f"policy {self.name}: act(engine) returned {type(out).__name__} ({_describe(exc)})"
+            ) from None
+        want = (engine.num_worlds, engine.num_robots)
+        if actions.shape != want:
+            raise PolicyError(
+                f"policy {self.name}: act(engine) returned shape {actions.shape}, expected {want}"
+            )
+        if actions.dtype.kind not in "iu":
+            raise PolicyError(
+                f"policy {self.name}: act(engine) returned {actions.dtype} actions, expected integers"
+            )
+        actions = actions.astype(np.int64)
+        _check_allowed(actions, engine, np.flatnonzero(~engine.state.done), self.name)
+        return actions
+
+
+class PettingZooPolicy:
+    """A PettingZoo-level policy as an engine-level one: for every live world with an active robot it
+    builds that world's ``(observations, infos)`` as ``search_rescue_v0`` does (the same functions) and
+    calls ``act``; busy robots keep their goals. ``one_episode_at_a_time``: the evaluator plays such a
+    policy on a one-world engine, episode after episode, calling ``reset`` (if given) before each."""
+
+    one_episode_at_a_time = True
+
+    def __init__(
+        self,
+        act: Callable[[dict, dict], Any],
+        name: str,
+        goal_mode: str = "window",
+        reset: Callable[[], Any] | None = None,
+    ) -> None:
+        self._act, self._reset, self.name, self.goal_mode = act, reset, name, goal_mode
+        self._last_tick: np.ndarray | None = None
+
+    def reset(self) -> None:
+        """Start of an episode: the policy's own ``reset()``, if it has one."""
+        if self._reset is not None:
+            self._call(self._reset, "reset()")
+
+    def _call(self, fn: Callable, what: str, *args):
+        try:
+            return fn(*args)
+        except KeyboardInterrupt:
+            raise
+        except Exception as exc:
+            raise PolicyError(f"policy {self.name}: {what} raised {_describe(exc)}") from None
+
+    def act(self, engine: EventEngine) -> np.ndarray:
+        st = engine.state
+        agents = [f"robot_{i}" for i in range(engine.num_robots)]
+        if self._last_tick is None or len(self._last_tick) != engine.num_worlds:
+            self._last_tick = np.zeros(engine.num_worlds, np.int64)
+        out = engine.masks.argmax(-1).astype(np.int64)  # busy robots: their one allowed action, "keep"
+        for b in np.flatnonzero(~st.done & engine.active.any(-1)):
+            tick = int(st.ticks[b])
+            if tick < self._last_tick[b]:  # a new episode in this world
+                self._last_tick[b] = 0
+            obs, _ = macro_observations(engine, int(b), agents)
+            infos = macro_infos(engine, int(b), agents, tick - int(self._last_tick[b]))
+            for info in infos.values():  # strict mode: an invalid action is an error, never replaced
+                info["invalid_action"] = info["invalid_actions"] = 0
+            self._last_tick[b] = tick
+            actions = self._call(self._act, "act(observations, infos)", obs, infos)
+            if not isinstance(actions, Mapping):
+                raise PolicyError(
+                    f"policy {self.name}: act(observations, infos) returned {type(actions).__name__}, "
+                    "expected a dict {robot: action}"
+                )
+            row = np.zeros(engine.num_robots, np.int64)
+            try:
+                parse_actions(
+                    actions, agents, _robot_index(agents), engine.active[b], self.goal_mode,
+                    engine.num_actions, True, row,
+                )  # fmt: skip
+            except ValueError as exc:
+                raise PolicyError(f"policy {self.name}: {' '.join(str(exc).split())}") from None
+            active = engine.active[b]
+            out[b, active] = row[active]
+            _check_allowed(out, engine, np.array([b]), self.name)
+        return out
+
+
+def _robot_index(agents: list[str]) -> Callable[[str], int]:
+    index = {a: i for i, a in enumerate(agents)}
+
+    def lookup(agent: str) -> int:
+        try:
+            return index[agent]
+        except (KeyError, TypeError):
+            raise ValueError(f"unknown robot id {agent!r}; robots are {agents}") from None
+
+    return lookup

@@ -1,0 +1,81 @@
+"""catmip compare: paired differences with known answers, across-seed statistics, the CLI's files."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from catmip_rl.cli import main
+from catmip_rl.evaluation.compare import compare, load_results, mcnemar_p, paired_difference
+
+
+def _write(
+    folder: Path, method: str, ticks: list[int | None], label: str = "task1-full-noise0-ma10", maps=None
+):
+    folder.mkdir(parents=True)
+    maps = maps or [f"{e:08x}" for e in range(len(ticks))]
+    rows = [{"map_hash": m, "rescue_tick": t} for m, t in zip(maps, ticks)]
+    (folder / "episodes.json").write_text(json.dumps(rows))
+    summary = {"method": method, "label": label, "horizon": 300, "seed": 0}
+    (folder / "summary.json").write_text(json.dumps(summary))
+
+
+def test_paired_difference_and_mcnemar_known_answers():
+    a = np.array([1, 1, 1, 1, 0, 0, 1, 1, 1, 1], bool)
+    b = np.array([1, 0, 0, 0, 0, 0, 1, 1, 1, 1], bool)
+    d = paired_difference(a, b)
+    assert d["diff"] == pytest.approx(0.3) and d["ci_low"] <= 0.3 <= d["ci_high"] and d["ci_low"] >= 0.0
+    assert mcnemar_p(a, b) == pytest.approx(0.25)  # 3 discordant maps, all for a: 2 * 0.5**3
+    same = paired_difference(a, a)
+    assert same == {"diff": 0.0, "ci_low": 0.0, "ci_high": 0.0}
+
+
+def test_compare_pairs_only_the_same_maps_and_aggregates_runs(tmp_path):
+    ticks_a = [50] * 80 + [None] * 20  # 0.8 by tick 100
+    ticks_b = [50] * 60 + [150] * 20 + [None] * 20  # 0.6 by tick 100, the same maps
+    _write(tmp_path / "a", "a", ticks_a)
+    _write(tmp_path / "b", "b", ticks_b)
+    for k, rate in enumerate((0.5, 0.6, 0.7)):  # three training seeds of "c"
+        n = int(rate * 100)
+        _write(tmp_path / f"c{k}", f"c-seed{k}", [40] * n + [None] * (100 - n))
+    _write(tmp_path / "other", "a", [10] * 100, maps=[f"{e + 500:08x}" for e in range(100)], label="task2-x")
+    seeds = f"c={tmp_path}/c0,{tmp_path}/c1,{tmp_path}/c2"
+    results = load_results([str(tmp_path / "a"), str(tmp_path / "b"), seeds, str(tmp_path / "other")])
+    report = compare(results)
+    pairs = {(r["method_a"], r["method_b"]): r for r in report.paired}
+    ab = pairs[("a", "b")]
+    assert ab["diff"] == pytest.approx(0.2) and ab["ci_low"] > 0.1 and ab["ci_high"] < 0.3
+    # over the 80 maps both rescued: 60 at 50 vs 50, 20 at 50 vs 150
+    assert ab["tick_diff"] == pytest.approx(-25.0) and ab["both_rescued"] == 80
+    ac = pairs[("a", "c")]
+    assert ac["runs_b"] == 3 and ac["success_b"] == pytest.approx(0.6) and ac["mcnemar_p"] is None
+    assert report.settings == ["task1-full-noise0-ma10"] and report.left_out == ["task2-x"]
+    agg = {r["method"]: r for r in report.aggregate}
+    assert agg["c"]["runs"] == 3 and agg["c"]["mean"] == pytest.approx(0.6)
+    assert agg["c"]["mean_ci_low"] <= 0.6 <= agg["c"]["mean_ci_high"] and agg["a"]["mean_ci_low"] is None
+    poi = {(r["method_x"], r["method_y"]): r["probability"] for r in report.improvement}
+    assert (
+        poi[("a", "c")] == pytest.approx(1.0) and ("a", "b") not in poi
+    )  # one run each: nothing to resample
+
+
+def test_cli_compare_writes_tables_and_plots(tmp_path, capsys):
+    _write(tmp_path / "r" / "a", "a", [50] * 70 + [None] * 30)
+    _write(tmp_path / "r" / "b", "b", [60] * 50 + [None] * 50)
+    out = tmp_path / "cmp"
+    assert main(["compare", str(tmp_path / "r"), "--out", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "| task1-full-noise0-ma10 | a | b | 100 | 0.700 | 0.500 | +0.200 [" in text
+    for name in ("paired.csv", "aggregate.csv", "compare.md", "paired.png", "aggregate.png", "profile.png"):
+        assert (out / name).stat().st_size > 0, name
+    assert main(["compare", str(tmp_path / "nothing"), "--out", str(tmp_path / "x")]) == 2
+    assert "no such result folder" in capsys.readouterr().err
+    (tmp_path / "bad").mkdir()
+    (tmp_path / "bad" / "summary.json").write_text("{")
+    (tmp_path / "bad" / "episodes.json").write_text("[]")
+    assert main(["compare", str(tmp_path / "bad"), "--out", str(tmp_path / "y")]) == 2
+    assert "is not a readable catmip eval result" in capsys.readouterr().err
+    assert not (tmp_path / "x").exists() and not (tmp_path / "y").exists()
