@@ -1,189 +1,132 @@
-"""MAPPO on the native TorchRL env, built from TorchRL's own parts — the recipe of TorchRL's
+"""MAPPO or IPPO on the native TorchRL env, built from TorchRL's own parts, trained on any task, saved as a
+policy that ``catmip eval`` plays on the paper's protocol. The recipe of TorchRL's
 ``sota-implementations/multiagent/mappo_ippo.py`` on ``catmip_rl.adapters.torchrl_env.CatmipEnv``:
 
-* ``TransformedEnv(CatmipEnv, float_observation_transform() + RewardSum + RewardScaling)``;
-* a shared policy (a small CNN over each robot's float maps, parameters shared by all robots) as a
-  ``ProbabilisticActor`` with a ``MaskedCategorical`` over the action mask;
-* a centralised critic over the privileged ``"state"`` (ground truth) and each robot's own map;
-* ``Collector``, ``GAE`` on the group-level keys ``("robots", "reward" | "done" | "terminated")``,
-  ``ClipPPOLoss``, a ``ReplayBuffer`` with ``SamplerWithoutReplacement``.
+* ``TransformedEnv(CatmipEnv, float_observation_transform() + RewardSum)``, one step = one decision
+  event in every world;
+* a shared policy (a small CNN over each robot's float maps) as a ``ProbabilisticActor`` with a
+  ``MaskedCategorical`` over the action mask; a critic that is centralised (MAPPO: the world's ground
+  truth beside the robot's own map) or not (IPPO: the robot's own maps);
+* ``Collector``; the asynchronous advantage (``torchrl_marl.decision_samples``): TorchRL's GAE along each
+  robot's *own* decisions with the discount ``gamma ** ticks`` between them, only finished
+  macro-actions trained; ``ClipPPOLoss`` on those per-robot samples from a ``ReplayBuffer``.
 
-Every env step is one decision event; busy robots take their single allowed action ("keep your goal"),
-which carries no gradient. Unlike ``catmip train`` (AMAT, asynchronous GAE along each robot's own
-activations, γ per tick) this is plain MAPPO with γ per event — the generic baseline a TorchRL user
-would start from.
+    python examples/mappo_torchrl.py --algo mappo --task task1 --minutes 20 --out runs/mappo-task1-s0
+    python examples/mappo_torchrl.py --algo ippo --task task2 --seed 1 --minutes 30 --out runs/ippo-task2-s1
 
-    python examples/mappo_torchrl.py                          # the `small` world for 5 minutes
-    python examples/mappo_torchrl.py --world task1 --minutes 20 --frames 2000000
-
-It prints, per iteration, the mean per-robot return and the success rate of the episodes that ended
-in the batch (sampled actions, training activation, a new map every episode). Measured with the
-defaults and ``--threads 1`` (the `small` world: 12×12, rescuer + explorer, horizon 80; 32 worlds × 32
-events an iteration) on a 2-core machine shared with another training run, seeds 0 and 1: in the
-first half minute 73 / 71 return per robot and 0.09 / 0.08 success, in the fifth minute 200 / 207 and
-0.81 / 0.82 (random goals: 68 / 0.07, the Nearest planner: 212 / 0.91; table in docs/torchrl.md).
+``--out`` gets ``metrics.csv`` (per iteration), ``config.json``, ``policy.pt`` (weights only, saved every
+``--save-every`` iterations and at the end), ``policy.json`` and ``policy.py``, a factory for
+``catmip eval --task TASK --method mappo=py:OUT/policy.py:make_policy``. At the end the policy is
+evaluated on the task's protocol maps (``--eval-episodes``, seed ``--eval-seed``) beside Nearest and
+``random-uniform``, through that factory.
 """
 
 from __future__ import annotations
 
 import argparse
-import math
+import csv
+import json
 import time
+from pathlib import Path
 
 import torch
-from tensordict.nn import TensorDictModule
 from torch import nn
 from torchrl.collectors import Collector
 from torchrl.data import LazyTensorStorage, ReplayBuffer, SamplerWithoutReplacement
-from torchrl.envs import Compose, RewardScaling, RewardSum, TransformedEnv
-from torchrl.modules import MaskedCategorical, ProbabilisticActor
-from torchrl.objectives import ClipPPOLoss, ValueEstimators
+from torchrl.envs import Compose, RewardSum, TransformedEnv
+from torchrl.objectives import ClipPPOLoss
 
+from catmip_env import PRESETS, make_config
 from catmip_rl.adapters import keys as K
 from catmip_rl.adapters.torchrl_env import CatmipEnv, float_observation_transform
-from catmip_rl.training.config import TRAIN_PRESETS
+from catmip_rl.adapters.torchrl_marl import (
+    ADVANTAGE,
+    ALGOS,
+    VALUE_TARGET,
+    decision_samples,
+    make_actor,
+    make_critic,
+    save_policy,
+)
 
-LOGITS = (K.ROBOTS, "logits")
 EPISODE_REWARD = (K.ROBOTS, "episode_reward")
 
 
-def conv_trunk(channels: int, size: int) -> tuple[nn.Module, int]:
-    """(M, channels, size, size) -> (M, features): two stride-2 convolutions; returns (trunk, features)."""
-    trunk = nn.Sequential(
-        nn.Conv2d(channels, 16, 3, stride=2, padding=1),
-        nn.ReLU(),
-        nn.Conv2d(16, 32, 3, stride=2, padding=1),
-        nn.ReLU(),
-        nn.Flatten(),
-    )
-    return trunk, 32 * math.ceil(math.ceil(size / 2) / 2) ** 2
-
-
-def _per_robot(module: nn.Module, x: torch.Tensor) -> torch.Tensor:
-    """Apply a module over (..., C, H, W) maps with any leading dims (worlds, time, robots)."""
-    return module(x.reshape(-1, *x.shape[-3:])).reshape(*x.shape[:-3], -1)
-
-
-class PolicyNet(nn.Module):
-    """Per-robot action logits (..., A) from the robot's float global map (..., 5 + C, H, W), local map
-    (..., 4 + C, L, L) and class one-hot (..., C); one set of parameters for every robot."""
-
-    def __init__(self, env: CatmipEnv, hidden: int = 128) -> None:
-        super().__init__()
-        g, l = env.observation_spec[K.GLOBAL_MAP].shape, env.observation_spec[K.LOCAL_MAP].shape
-        a = env.engine.num_actions
-        self.global_trunk, features = conv_trunk(g[-3], g[-1])
-        inputs = features + l[-3] * l[-2] * l[-1] + env.cfg.num_classes
-        self.head = nn.Sequential(
-            nn.Linear(inputs, hidden), nn.ReLU(), nn.Linear(hidden, hidden), nn.ReLU(), nn.Linear(hidden, a)
-        )
-
-    def forward(self, global_map: torch.Tensor, local_map: torch.Tensor, agent_class: torch.Tensor):
-        x = torch.cat([_per_robot(self.global_trunk, global_map), local_map.flatten(-3), agent_class], -1)
-        return self.head(x)
-
-
-class CentralCritic(nn.Module):
-    """Per-robot values (..., N, 1) from the world's ground truth ``state`` (..., 4 + C, H, W) — shared
-    by the robots — stacked on each robot's own global map (..., N, 5 + C, H, W), plus its class."""
-
-    def __init__(self, env: CatmipEnv, hidden: int = 128) -> None:
-        super().__init__()
-        s, g = env.observation_spec[K.STATE].shape, env.observation_spec[K.GLOBAL_MAP].shape
-        self.trunk, features = conv_trunk(s[-3] + g[-3], g[-1])
-        self.head = nn.Sequential(
-            nn.Linear(features + env.cfg.num_classes, hidden), nn.ReLU(), nn.Linear(hidden, 1)
-        )
-
-    def forward(self, state: torch.Tensor, global_map: torch.Tensor, agent_class: torch.Tensor):
-        state = state.unsqueeze(-4).expand(*global_map.shape[:-3], *state.shape[-3:])
-        x = _per_robot(self.trunk, torch.cat([state, global_map], -3))
-        return self.head(torch.cat([x, agent_class], -1))
-
-
-def make_env(world: str, num_worlds: int, seed: int, reward_scale: float) -> TransformedEnv:
-    """The training world of a ``catmip train`` preset, with float maps, episode returns (raw rewards,
-    for the log) and scaled rewards (for GAE and the critic)."""
-    base = CatmipEnv(TRAIN_PRESETS[world].env_config(), num_worlds=num_worlds, seed=seed)
+def make_env(task: str, num_worlds: int, seed: int) -> TransformedEnv:
+    """The task's world (training activation, a new map every episode) with float maps and episode returns."""
+    base = CatmipEnv(make_config(task), num_worlds=num_worlds, seed=seed)
     return TransformedEnv(
-        base,
-        Compose(
-            float_observation_transform(),
-            RewardSum(in_keys=[K.REWARD], out_keys=[EPISODE_REWARD]),
-            RewardScaling(loc=0.0, scale=reward_scale, in_keys=[K.REWARD]),
-        ),
+        base, Compose(float_observation_transform(), RewardSum(in_keys=[K.REWARD], out_keys=[EPISODE_REWARD]))
     )
+
+
+def parse_args(argv: list[str] | None) -> argparse.Namespace:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument(
+        "--algo", default="mappo", choices=ALGOS, help="centralised (mappo) or local (ippo) critic"
+    )
+    ap.add_argument("--task", default="task1", choices=sorted(PRESETS), help="the world trained on")
+    ap.add_argument("--minutes", type=float, default=5.0, help="wall-clock budget (the LR decays over it)")
+    ap.add_argument("--iterations", type=int, default=1_000_000, help="budget in iterations")
+    ap.add_argument("--worlds", type=int, default=32, help="worlds stepped together")
+    ap.add_argument("--events", type=int, default=64, help="events per world per iteration")
+    ap.add_argument("--epochs", type=int, default=4)
+    ap.add_argument("--minibatch", type=int, default=256, help="robot decisions per minibatch")
+    ap.add_argument("--lr", type=float, default=3e-4)
+    ap.add_argument("--gamma", type=float, default=0.99, help="discount per tick")
+    ap.add_argument("--lmbda", type=float, default=0.95)
+    ap.add_argument("--entropy", type=float, default=0.01, help="entropy bonus")
+    ap.add_argument("--reward-scale", type=float, default=0.01)
+    ap.add_argument("--seed", type=int, default=0, help="training seed (worlds, sampling, initial weights)")
+    ap.add_argument("--threads", type=int, default=1, help="torch threads")
+    ap.add_argument("--out", default=None, help="run folder (new or empty): metrics, config, policy files")
+    ap.add_argument("--save-every", type=int, default=20, help="iterations between policy saves")
+    ap.add_argument(
+        "--eval-episodes", type=int, default=100, help="protocol maps evaluated at the end (0: none)"
+    )
+    ap.add_argument("--eval-seed", type=int, default=0, help="the map set of that evaluation")
+    return ap.parse_args(argv)
 
 
 def main(argv: list[str] | None = None) -> list[dict[str, float]]:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument(
-        "--world", default="small", choices=sorted(TRAIN_PRESETS), help="a catmip train preset's world"
-    )
-    ap.add_argument("--minutes", type=float, default=5.0, help="wall-clock budget")
-    ap.add_argument("--frames", type=int, default=10_000_000, help="budget in env frames (worlds x events)")
-    ap.add_argument("--worlds", type=int, default=32, help="worlds stepped together")
-    ap.add_argument("--events", type=int, default=32, help="events per world per iteration")
-    ap.add_argument("--epochs", type=int, default=4)
-    ap.add_argument("--minibatch", type=int, default=256, help="frames per minibatch")
-    ap.add_argument("--lr", type=float, default=3e-4)
-    ap.add_argument("--gamma", type=float, default=0.99, help="discount per event")
-    ap.add_argument("--reward-scale", type=float, default=0.01)
-    ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--threads", type=int, default=0, help="torch threads (0: torch's default)")
-    args = ap.parse_args(argv)
-    if args.threads:
-        torch.set_num_threads(args.threads)
+    args = parse_args(argv)
+    torch.set_num_threads(args.threads)
     torch.manual_seed(args.seed)
+    out = Path(args.out) if args.out else None
+    if out is not None and out.exists() and any(out.iterdir()):
+        raise SystemExit(f"--out {out} is not empty: pick a new folder")
+    cfg = make_config(args.task)
 
-    env = make_env(args.world, args.worlds, args.seed, args.reward_scale)
-    actor = ProbabilisticActor(
-        TensorDictModule(PolicyNet(env.base_env), in_keys=list(K.OBS_KEYS), out_keys=[LOGITS]),
-        in_keys={"logits": LOGITS, "mask": K.ACTION_MASK},
-        out_keys=[K.ACTION],
-        distribution_class=MaskedCategorical,
-        return_log_prob=True,  # written to K.LOG_PROB = ("robots", "action_log_prob")
+    env = make_env(args.task, args.worlds, args.seed)
+    actor = make_actor(cfg)
+    critic = make_critic(cfg, args.algo)
+    loss_module = ClipPPOLoss(
+        actor, critic, clip_epsilon=0.2, entropy_coeff=args.entropy, loss_critic_type="l2"
     )
-    critic = TensorDictModule(
-        CentralCritic(env.base_env), in_keys=[K.STATE, K.GLOBAL_MAP, K.AGENT_CLASS], out_keys=[K.VALUE]
-    )
-    loss_module = ClipPPOLoss(actor, critic, clip_epsilon=0.2, entropy_coeff=0.01, loss_critic_type="l2")
-    loss_module.set_keys(
-        reward=K.REWARD,
-        action=K.ACTION,
-        sample_log_prob=K.LOG_PROB,
-        value=K.VALUE,
-        done=K.DONE,
-        terminated=K.TERMINATED,
-    )
-    loss_module.make_value_estimator(ValueEstimators.GAE, gamma=args.gamma, lmbda=0.95)
-    gae = loss_module.value_estimator
+    loss_module.set_keys(action=K.ACTION, sample_log_prob=K.LOG_PROB, value=K.VALUE, advantage=ADVANTAGE,
+                         value_target=VALUE_TARGET)  # fmt: skip
     optim = torch.optim.Adam(loss_module.parameters(), args.lr)
-
     frames_per_batch = args.worlds * args.events
-    collector = Collector(
-        env,
-        actor,
-        frames_per_batch=frames_per_batch,
-        total_frames=args.frames,
-        auto_register_policy_transforms=False,  # a feed-forward policy: no InitTracker / primers
-    )
-    buffer = ReplayBuffer(
-        storage=LazyTensorStorage(frames_per_batch),
-        sampler=SamplerWithoutReplacement(),
-        batch_size=args.minibatch,
-    )
-
+    collector = Collector(env, actor, frames_per_batch=frames_per_batch, total_frames=-1,
+                          auto_register_policy_transforms=False)  # fmt: skip
+    # at most every robot decides at every event of the batch
+    buffer = ReplayBuffer(storage=LazyTensorStorage(frames_per_batch * cfg.num_robots),
+                          sampler=SamplerWithoutReplacement(), batch_size=args.minibatch)  # fmt: skip
+    if out is not None:
+        out.mkdir(parents=True, exist_ok=True)
+        (out / "config.json").write_text(json.dumps(vars(args), indent=2))
     history, start = [], time.perf_counter()
     for iteration, data in enumerate(collector):
-        with torch.no_grad():
-            gae(
-                data,
-                params=loss_module.critic_network_params,
-                target_params=loss_module.target_critic_network_params,
-            )
-        buffer.extend(data.reshape(-1))
-        for _ in range(args.epochs * max(1, frames_per_batch // args.minibatch)):
+        minutes = (time.perf_counter() - start) / 60
+        for group in optim.param_groups:  # linear decay over whichever budget ends first
+            group["lr"] = args.lr * max(0.0, 1 - max(minutes / args.minutes, iteration / args.iterations))
+        data.set(("next", *K.REWARD), data.get(("next", *K.REWARD)) * args.reward_scale)
+        samples = decision_samples(data, critic, args.gamma, args.lmbda)
+        adv = samples.get(ADVANTAGE)
+        samples.set(ADVANTAGE, (adv - adv.mean()) / (adv.std() + 1e-8))
+        buffer.empty()
+        buffer.extend(samples)
+        for _ in range(args.epochs * max(1, len(samples) // args.minibatch)):
             losses = loss_module(buffer.sample())
             loss = losses["loss_objective"] + losses["loss_critic"] + losses["loss_entropy"]
             optim.zero_grad()
@@ -200,18 +143,55 @@ def main(argv: list[str] | None = None) -> list[dict[str, float]]:
             "episodes": int(done.sum()),
             "episode_reward": data["next", EPISODE_REWARD][data["next", K.DONE]].mean().item(),
             "success_rate": data["next", "terminated"].squeeze(-1)[done].float().mean().item(),
+            "decisions": len(samples),
             **{k: losses[k].item() for k in ("loss_objective", "loss_critic", "loss_entropy")},
         }
         history.append(row)
         print(
             f"iter {iteration:4d}  {row['minutes']:5.1f} min  episodes {row['episodes']:4d}  "
             f"reward/robot {row['episode_reward']:7.2f}  success {row['success_rate']:.2f}  "
-            f"loss π {row['loss_objective']:+.3f} V {row['loss_critic']:.3f} H {row['loss_entropy']:+.4f}"
+            f"loss π {row['loss_objective']:+.3f} V {row['loss_critic']:.3f} H {row['loss_entropy']:+.4f}",
+            flush=True,
         )
-        if row["minutes"] >= args.minutes:
+        finished = row["minutes"] >= args.minutes or iteration + 1 >= args.iterations
+        if out is not None and (finished or (iteration + 1) % args.save_every == 0):
+            _write_metrics(out / "metrics.csv", history)
+            save_policy(actor, cfg, out, {"algo": args.algo, "task": args.task, "iteration": iteration,
+                                          "minutes": row["minutes"], "seed": args.seed})  # fmt: skip
+        if finished:
             break
     collector.shutdown()
+    if out is not None and args.eval_episodes:
+        evaluate_saved(out, args.task, args.algo, args.eval_episodes, args.eval_seed)
     return history
+
+
+def _write_metrics(path: Path, rows: list[dict]) -> None:
+    tmp = path.with_suffix(".csv.tmp")
+    with tmp.open("w", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=list(rows[0]))
+        writer.writeheader()
+        writer.writerows(rows)
+    tmp.replace(path)
+
+
+def evaluate_saved(out: Path, task: str, algo: str, episodes: int, seed: int) -> dict[str, float]:
+    """The saved policy on the task's protocol (full communication) through its ``py:`` factory, beside
+    Nearest and random-uniform on the same maps; results in OUT/eval/."""
+    from catmip_rl.evaluation.evaluate import EvalSetting, evaluate
+
+    if task not in ("task1", "task2", "task3"):
+        return {}
+    setting = EvalSetting(task)
+    rates = {}
+    for method in (f"{algo}=py:{out / 'policy.py'}:make_policy", "nearest", "random-uniform"):
+        result = evaluate(method, setting, episodes=episodes, seed=seed)
+        result.write(out / "eval" / result.method)
+        rates[result.method] = result.summary["success_by_100"]
+    print(
+        "rescued by tick 100 on the protocol's maps: " + ", ".join(f"{k} {v:.2f}" for k, v in rates.items())
+    )
+    return rates
 
 
 if __name__ == "__main__":

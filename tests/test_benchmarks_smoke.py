@@ -82,7 +82,8 @@ def test_summary_reports_failures_and_ignores_their_stale_json(run_all, tmp_path
     md, _ = run_all.write_summary(tmp_path, {"engine": failed})
     text = md.read_text()
     assert "**FAILED**" in text and "Traceback: boom" in text
-    assert "1,000,000" not in text and _status(tmp_path) == {}
+    assert "1,000,000" not in text  # the stale JSON is not read: its targets count as not measured
+    assert set(_status(tmp_path).values()) == {"not measured"} and len(_status(tmp_path)) == 3
 
 
 def test_paper_targets_not_judged_on_other_world_counts(run_all, tmp_path):
@@ -95,32 +96,43 @@ def test_paper_targets_not_judged_on_other_world_counts(run_all, tmp_path):
 
 
 @pytest.mark.slow
-def test_run_all_quick_scaling(tmp_path):
-    """The real thing in a tiny setting: one subprocess, JSON, SUMMARY.md and both PNGs."""
-    tiny = ["--seconds", "0.05", "--pass", "scaling=--maps 15 20 --teams 2 3"]
-    cmd = [
-        sys.executable,
-        str(BENCH / "run_all.py"),
-        "--quick",
-        "--only",
-        "scaling",
-        "--out-dir",
-        str(tmp_path),
-    ]
-    cmd += tiny
-    proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=300)
-    assert proc.returncode == 0, proc.stdout + proc.stderr
+def test_run_all_runs_every_benchmark(tmp_path):
+    """Every benchmark script for real in its smallest setting, one subprocess each: all exit 0, every
+    JSON records the CPU, every target is counted, and the summary and both PNGs are written."""
+    tiny = ["--seconds", "0.05", "--pass", "scaling=--maps 15 20 --teams 2 3",
+            "--pass", "amat=--repeats 3 --train-steps 1 --bf16-steps 1",
+            "--pass", "train=--iterations 1 --epochs 1 --worlds 8",
+            "--pass", "events=--decisions 10"]  # fmt: skip
+    cmd = [sys.executable, str(BENCH / "run_all.py"), "--quick", "--out-dir", str(tmp_path), *tiny]
+    proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=900)
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    for name in ("engine", "events", "amat", "train", "scaling"):
+        data = json.loads((tmp_path / f"{name}.json").read_text())
+        assert data["machine"]["cpu_capability"] and isinstance(data["machine"]["native_bf16"], bool), name
     data = json.loads((tmp_path / "scaling.json").read_text())
-    assert data["machine"]["cpu_capability"] and isinstance(data["machine"]["cpu_capability"], str)
-    assert isinstance(data["machine"]["native_bf16"], bool)
     assert [r["map"] for r in data["curves"]["map_size"]] == [15, 20]
     assert [r["robots"] for r in data["curves"]["team_size"]] == [2, 3]
     for row in data["curves"]["map_size"] + data["curves"]["team_size"]:
         assert row["engine_world_ticks_per_s"] > 0 and row["events_per_s"] > 0 and row["amat_ms"] > 0
-    assert "## Scaling" in (tmp_path / "SUMMARY.md").read_text()
+    summary = (tmp_path / "SUMMARY.md").read_text()
+    assert "## Scaling" in summary and "FAILED" not in summary and "Not run" not in summary
+    assert ", 0 not measured**" in summary
     for png in ("scaling.png", "summary.png"):
         assert (tmp_path / png).stat().st_size > 10_000
     assert not list(tmp_path.glob("*.tmp*"))  # atomic writes leave no temporaries
+
+
+def test_a_failed_benchmark_keeps_its_targets_in_the_count(run_all, tmp_path):
+    failed = run_all.RunStatus(
+        "amat", ran=True, ok=False, returncode=1, command="python x", error="exit code 1"
+    )
+    md, png = run_all.write_summary(tmp_path, {"amat": failed})
+    text = md.read_text()
+    assert "not measured** of" in text and "**failed: amat**" in text
+    assert "Targets not measured: batch-1 decision (FastAmat), N = 6, S = 32, all active" in text
+    checks = json.loads((tmp_path / "run_all.json").read_text())["checks"]
+    assert any(c["bench"] == "amat" and c["status"] == "not measured" for c in checks)
+    assert png is not None and png.stat().st_size > 5_000
 
 
 def test_learning_curve_trains_on_a_budget_and_plots(tmp_path):
@@ -140,7 +152,9 @@ def test_learning_curve_trains_on_a_budget_and_plots(tmp_path):
     assert rows[0].startswith("run,phase,step,minutes,success_rate,success_by_100")
     assert any(",warm start," in r for r in rows) and any(",ppo," in r for r in rows)
     meta = json.loads(out.with_suffix(".json").read_text())
-    assert {"nearest", "rrt", "random"} <= set(meta["planners"]) and meta["cpu_capability"]
+    assert {"nearest", "rrt", "random-rescue", "random-uniform"} <= set(meta["planners"]) and meta[
+        "cpu_capability"
+    ]
     assert out.with_suffix(".png").stat().st_size > 10_000
     # a fine-tuning run on another world continues the first run's clock, in a row of its own
     tuned = tmp_path / "tiny-comm"

@@ -30,20 +30,65 @@ def test_demo_writes_results_and_gif(tmp_path):
     from catmip_env import demo
 
     rows = demo.main(
-        ["--preset", "task1", "--episodes", "4", "--planners", "nearest,random", "--out", str(tmp_path)]
+        [
+            "--preset",
+            "task1",
+            "--episodes",
+            "4",
+            "--planners",
+            "nearest,random-rescue",
+            "--out",
+            str(tmp_path),
+        ]
     )
     saved = json.loads((tmp_path / "results.json").read_text())
-    assert saved == rows and [r["planner"] for r in saved] == ["nearest", "random"]
+    assert saved == rows and [r["planner"] for r in saved] == ["nearest", "random-rescue"]
     assert all(0.0 <= r["success_rate"] <= 1.0 and r["episodes"] == 4 for r in saved)
     assert (tmp_path / "results.csv").read_text().startswith("planner,")
     assert (tmp_path / "episode.gif").stat().st_size > 1000
 
 
-def test_mappo_torchrl_runs_with_finite_losses():
+@pytest.mark.parametrize("algo", ["mappo", "ippo"])
+def test_mappo_torchrl_trains_saves_and_evaluates_through_its_factory(tmp_path, algo, capsys):
+    out = tmp_path / algo
     history = _load(ROOT / "examples" / "mappo_torchrl.py").main(
-        ["--frames", "512", "--worlds", "8", "--events", "32", "--epochs", "2", "--minibatch", "128"]
-    )
-    assert len(history) == 2  # 512 frames = 2 iterations of 8 worlds x 32 events
+        ["--algo", algo, "--iterations", "2", "--worlds", "8", "--events", "32", "--epochs", "2",
+         "--minibatch", "128", "--out", str(out), "--eval-episodes", "3", "--save-every", "1"]
+    )  # fmt: skip
+    assert len(history) == 2
     for row in history:
         assert all(math.isfinite(row[k]) for k in ("loss_objective", "loss_critic", "loss_entropy"))
-        assert row["episodes"] > 0 and 0.0 <= row["success_rate"] <= 1.0
+        assert row["decisions"] > 0
+    assert sum(r["episodes"] for r in history) > 0
+    assert f"rescued by tick 100 on the protocol's maps: {algo} " in capsys.readouterr().out
+    summary = json.loads((out / "eval" / algo / "summary.json").read_text())
+    assert summary["policy"] == f"py:{out / 'policy.py'}:make_policy" and summary["episodes"] == 3
+    nearest = json.loads((out / "eval" / "nearest" / "episodes.json").read_text())
+    mine = json.loads((out / "eval" / algo / "episodes.json").read_text())
+    assert [e["map_hash"] for e in mine] == [e["map_hash"] for e in nearest]
+    assert len((out / "metrics.csv").read_text().splitlines()) == 3
+    # the saved factory refuses a task of another map size with one line
+    from catmip_rl.cli import main as cli
+
+    factory = f"py:{out / 'policy.py'}:make_policy"
+    code = cli(["eval", "--task", "task2", "--method", factory, "--episodes", "1",
+                "--out", str(tmp_path / "t2"), "--no-progress"])  # fmt: skip
+    assert code == 2 and "was trained for" in capsys.readouterr().err
+
+
+def test_evaluate_my_policy_plays_the_planners_maps_and_compares(tmp_path, capsys):
+    example = ROOT / "examples" / "evaluate_my_policy.py"
+    rates = _load(example).main(["--episodes", "12", "--out", str(tmp_path)])
+    assert set(rates) == {"greedy", "nearest", "random-uniform"}
+    assert "| task1-full-noise0-ma10 | greedy | nearest | 12 |" in capsys.readouterr().out
+    assert (tmp_path / "compare" / "paired.csv").exists()
+    # the same file as a method of the command line, from outside the repository
+    from catmip_rl.cli import main as cli
+
+    out = tmp_path / "cli"
+    assert cli(["eval", "--method", f"greedy=py:{example}:make_policy", "--episodes", "12", "--out", str(out),
+                "--no-progress", "--threads", "1"]) == 0  # fmt: skip
+    mine = json.loads((out / "episodes.json").read_text())
+    ref = json.loads((tmp_path / "eval" / "greedy" / "episodes.json").read_text())
+    assert [e["map_hash"] for e in mine] == [e["map_hash"] for e in ref]
+    assert [e["rescue_tick"] for e in mine] == [e["rescue_tick"] for e in ref]  # seeded: the same run
