@@ -207,9 +207,9 @@ def _compare(args: argparse.Namespace) -> int:
     check_new_dir(args.out, "--out", force=args.force)
     results = load_results(args.results)
     report = compare(results, seed=args.seed)
+    written = report.write(args.out)  # the files first: a closed pipe on stdout loses nothing
     print(report.markdown())
-    out = report.write(args.out)
-    print(f"wrote {out}/compare.md, paired.csv, aggregate.csv, improvement.csv and the plots")
+    print(f"wrote {args.out}/: {', '.join(p.name for p in written)}")
     return 0
 
 
@@ -225,6 +225,9 @@ def main(argv: list[str] | None = None) -> int:
     name = f"catmip {args.name}" + (f" {args.suite}" if args.name == "bench" else "")
     try:
         return COMMANDS[args.name](args)
+    except BrokenPipeError:  # stdout closed by the reader (`| head`): the work and its files are done
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # no second error at exit
+        return 0
     except (*USER_ERRORS, MemoryError) as err:
         if os.environ.get("CATMIP_DEBUG"):
             raise

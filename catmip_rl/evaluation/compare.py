@@ -140,26 +140,30 @@ class Comparison:
     settings: list[str] = field(default_factory=list)  # the columns of ``scores``
     left_out: list[str] = field(default_factory=list)  # settings not every method played
 
-    def write(self, out: str | Path) -> Path:
-        """paired.csv, aggregate.csv, improvement.csv, compare.md and the plots (atomic) in ``out``."""
+    def write(self, out: str | Path) -> list[Path]:
+        """compare.md and, where there is something to show, paired.csv / .png (two methods on the same
+        maps), aggregate.csv / .png and profile.png (any method), improvement.csv (a method with several
+        runs), each atomic, in ``out``; the files written."""
         from catmip_rl.evaluation.compare_plots import plot_aggregate, plot_paired, plot_profiles
 
         out = Path(out)
         out.mkdir(parents=True, exist_ok=True)
+        written = []
         for name, rows in (
             ("paired", self.paired),
             ("aggregate", self.aggregate),
             ("improvement", self.improvement),
         ):
             if rows:
-                atomic_write_csv(out / f"{name}.csv", rows)
+                written.append(atomic_write_csv(out / f"{name}.csv", rows))
         atomic_write_text(out / "compare.md", self.markdown())
+        written.append(out / "compare.md")
         if self.paired:
-            plot_paired(self.paired, out / "paired.png")
+            written.append(plot_paired(self.paired, out / "paired.png"))
         if self.aggregate:
-            plot_aggregate(self.aggregate, out / "aggregate.png")
-            plot_profiles(self.scores, out / "profile.png")
-        return out
+            written.append(plot_aggregate(self.aggregate, out / "aggregate.png"))
+            written.append(plot_profiles(self.scores, out / "profile.png"))
+        return written
 
     def markdown(self) -> str:
         head = (

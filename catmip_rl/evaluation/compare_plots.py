@@ -55,9 +55,11 @@ def plot_aggregate(rows: list[dict[str, Any]], path: Path) -> Path:
         high = np.array([r[key] if r[f"{key}_ci_high"] is None else r[f"{key}_ci_high"] for r in rows])
         ax.barh(y, high - low, left=low, height=0.6, alpha=0.6)
         ax.scatter([r[key] for r in rows], y, color="k", marker="|", s=200, zorder=3)
-        ax.set_title(f"{title} (95 % CI)")
+        ax.set_title(f"{title} (95 % CI across runs)")
         ax.set_xlabel("success by tick 100")
-    axes[0].set_yticks(y, [f"{r['method']} ({r['runs']} runs)" for r in rows])
+        ax.set_xlim(-0.02, 1.02)  # success rates: the whole range, so no method sits on an edge
+        ax.grid(axis="x", alpha=0.3)
+    axes[0].set_yticks(y, [f"{r['method']} ({r['runs']} run{'s' if r['runs'] > 1 else ''})" for r in rows])
     axes[0].invert_yaxis()
     return _save(fig, path)
 

@@ -89,9 +89,10 @@ def parse_method(spec: str) -> Method:
                 raise ValueError(f"unknown planner {planner!r} in {spec!r}; choose one of {sorted(PLANNERS)}")
             return Method(name or spec, kind, planner)
     if spec not in PLANNERS:
-        raise ValueError(
-            f"unknown method {spec!r}; choose amat:PATH, py:FILE.py:FACTORY or one of {sorted(PLANNERS)}"
-        )
+        looks_like_policy = ".py:" in spec or "." in spec.split(":")[0] and ":" in spec
+        hint = f" (your policy? write py:{spec})" if looks_like_policy else ""
+        choices = f"amat:PATH, py:FILE.py:FACTORY or one of {sorted(PLANNERS)}"
+        raise ValueError(f"unknown method {spec!r}{hint}; choose {choices}")
     return Method(name or spec, "planner", spec)
 
 
@@ -108,7 +109,7 @@ def make_policy(
         return teacher, "window", None
     if method.kind in ("py", "policy"):
         if method.kind == "py":
-            factory = load_factory(parse_policy_source(method.target))
+            factory = load_factory(parse_policy_source(method.target), method.name)
         else:  # the object itself, checked as a factory's answer is
             factory = lambda _cfg, _seed: policy  # noqa: E731
         wrapped = make_user_policy(factory, env_config, seed, method.name)

@@ -98,12 +98,17 @@ def parse_policy_source(spec: str) -> PolicySource:
     return PolicySource(source, factory)
 
 
-def load_factory(src: PolicySource) -> Callable[..., Any]:
+def load_factory(src: PolicySource, name: str | None = None) -> Callable[..., Any]:
     """Import the file or module and return its factory; :class:`PolicyError` on any failure (the
-    import's own error, named)."""
+    import's own error, named). A file is imported as ``python FILE`` would run it: its folder is put
+    on ``sys.path`` first, so that it can import the modules beside it. ``name``: the method's name,
+    for messages."""
+    who = f"policy {name or src}"
     try:
         if src.is_file:
             path = Path(src.source)
+            if str(path.parent) not in sys.path:
+                sys.path.insert(0, str(path.parent))
             # a stable, unique module name per file, so that pickling and re-imports find the same module
             name = f"catmip_user_policy_{hashlib.sha1(str(path).encode()).hexdigest()[:12]}"
             module = sys.modules.get(name)
@@ -123,18 +128,14 @@ def load_factory(src: PolicySource) -> Callable[..., Any]:
     except KeyboardInterrupt:
         raise
     except BaseException as exc:  # SyntaxError, ImportError, SystemExit, anything the module runs
-        raise PolicyError(f"policy {src}: importing {src.source} failed: {_describe(exc)}") from None
+        raise PolicyError(f"{who}: importing {src.source} failed: {_describe(exc)}") from None
     factory = getattr(module, src.factory, None)
     if factory is None:
         names = sorted(n for n, v in vars(module).items() if callable(v) and not n.startswith("_"))
         shown = ", ".join(names[:8]) + (", ..." if len(names) > 8 else "")
-        raise PolicyError(
-            f"policy {src}: {src.source} has no {src.factory!r} (its callables: {shown or 'none'})"
-        )
+        raise PolicyError(f"{who}: {src.source} has no {src.factory!r} (its callables: {shown or 'none'})")
     if not callable(factory):
-        raise PolicyError(
-            f"policy {src}: {src.factory} is a {type(factory).__name__}, not a callable factory"
-        )
+        raise PolicyError(f"{who}: {src.factory} is a {type(factory).__name__}, not a callable factory")
     return factory
 
 
@@ -309,7 +310,8 @@ class PettingZooPolicy:
                     engine.num_actions, True, row,
                 )  # fmt: skip
             except ValueError as exc:
-                raise PolicyError(f"policy {self.name}: {' '.join(str(exc).split())}") from None
+                where = f"world {b} at tick {int(st.ticks[b])}"
+                raise PolicyError(f"policy {self.name}: {' '.join(str(exc).split())} ({where})") from None
             active = engine.active[b]
             out[b, active] = row[active]
             _check_allowed(out, engine, np.array([b]), self.name)

@@ -71,6 +71,8 @@ def test_cli_compare_writes_tables_and_plots(tmp_path, capsys):
     assert "| task1-full-noise0-ma10 | a | b | 100 | 0.700 | 0.500 | +0.200 [" in text
     for name in ("paired.csv", "aggregate.csv", "compare.md", "paired.png", "aggregate.png", "profile.png"):
         assert (out / name).stat().st_size > 0, name
+    assert not (out / "improvement.csv").exists()  # one run each: nothing across seeds to compare
+    assert "wrote " in text and "improvement.csv" not in text.splitlines()[-1]
     assert main(["compare", str(tmp_path / "nothing"), "--out", str(tmp_path / "x")]) == 2
     assert "no such result folder" in capsys.readouterr().err
     (tmp_path / "bad").mkdir()

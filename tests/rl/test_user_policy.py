@@ -248,3 +248,18 @@ def test_the_two_random_floors():
 def test_render_plays_a_pettingzoo_policy(policy_file, tmp_path):
     path = render_episode(f"py:{policy_file}:make_pz", EvalSetting("task1"), tmp_path / "a.gif", episode=1)
     assert path.stat().st_size > 1000
+
+
+def test_a_policy_file_imports_the_modules_beside_it(tmp_path, capsys):
+    (tmp_path / "helper_mod.py").write_text("STEP = 'argmax'\n")
+    (tmp_path / "pol.py").write_text(
+        "import numpy as np\nimport helper_mod\n\n"
+        "class P:\n    def act(self, engine):\n        return engine.masks.argmax(-1)\n\n"
+        "def make(env_config, seed):\n    return P()\n"
+    )
+    assert (
+        evaluate(f"py:{tmp_path / 'pol.py'}:make", EvalSetting("task1"), episodes=1).summary["method"]
+        == "pol"
+    )
+    code = main(["eval", "--method", f"mine={tmp_path / 'pol.py'}:make", "--out", str(tmp_path / "o")])
+    assert code == 2 and f"(your policy? write py:{tmp_path / 'pol.py'}:make)" in capsys.readouterr().err
