@@ -134,6 +134,7 @@ class Comparison:
     plots need."""
 
     paired: list[dict[str, Any]] = field(default_factory=list)
+    by_setting: list[dict[str, Any]] = field(default_factory=list)
     aggregate: list[dict[str, Any]] = field(default_factory=list)
     improvement: list[dict[str, Any]] = field(default_factory=list)
     scores: dict[str, np.ndarray] = field(default_factory=dict)  # method -> (runs, settings)
@@ -150,6 +151,7 @@ class Comparison:
         out.mkdir(parents=True, exist_ok=True)
         written = []
         for name, rows in (
+            ("by_setting", self.by_setting),
             ("paired", self.paired),
             ("aggregate", self.aggregate),
             ("improvement", self.improvement),
@@ -166,10 +168,22 @@ class Comparison:
         return written
 
     def markdown(self) -> str:
-        head = (
-            "| setting | A | B | maps | A | B | A - B [95 % CI] | McNemar p | rescue tick A - B [CI] (maps) |"
-        )
-        lines = ["# Comparison", "", "## Paired per-map differences (success by tick 100, A - B)", "", head]
+        settings = sorted({r["setting"] for r in self.by_setting})
+        lines = ["# Comparison", "", "## Success by tick 100 per setting [95 % CI]", ""]
+        lines += ["Over the training runs where a method has several (percentile bootstrap over runs), else "
+                  "over the maps.", ""]  # fmt: skip
+        lines += ["| method | " + " | ".join(settings) + " |", "|---|" + "---|" * len(settings)]
+        cells = {}
+        for r in self.by_setting:
+            runs = f" ({r['runs']} runs)" if r["runs"] > 1 else ""
+            cells[r["method"], r["setting"]] = (
+                f"{r['success_by_100']:.3f} [{r['ci_low']:.3f}, {r['ci_high']:.3f}]{runs}"
+            )
+        for m in sorted({r["method"] for r in self.by_setting}):
+            lines.append(f"| {m} | " + " | ".join(cells.get((m, s), "–") for s in settings) + " |")
+        head = "| setting | A | B | maps | success A | success B | A - B [95 % CI] | McNemar p |"
+        head += " rescue tick A - B (maps) |"
+        lines += ["", "## Paired per-map differences (success by tick 100, A - B)", "", head]
         lines += ["|---|---|---|---|---|---|---|---|---|"]
         for r in self.paired:
             p = "–" if r["mcnemar_p"] is None else f"{r['mcnemar_p']:.3g}"
@@ -199,6 +213,36 @@ class Comparison:
                 ci = f"[{r['ci_low']:.3f}, {r['ci_high']:.3f}]"
                 lines.append(f"| {r['probability']:.3f} | {r['method_x']} | {r['method_y']} | {ci} |")
         return "\n".join(lines) + "\n"
+
+
+def _setting_rows(groups: dict[str, dict[str, list[Result]]], seed: int) -> list[dict[str, Any]]:
+    """Per setting and method: success by tick 100 (the mean over runs) with a 95 % percentile bootstrap
+    CI over the runs when there are several (training seeds), else over the maps; the success by the
+    horizon and the mean rescue tick beside it."""
+    from scipy.stats import bootstrap
+
+    rows = []
+    for setting, methods in sorted(groups.items()):
+        for method, runs in sorted(methods.items()):
+            data = (
+                np.array([r.success.mean() for r in runs]) if len(runs) > 1 else runs[0].success.astype(float)
+            )
+            low = high = float(data.mean())
+            if len(data) > 1 and not np.all(data == data[0]):
+                ci = bootstrap(
+                    (data,), np.mean, confidence_level=CONFIDENCE, n_resamples=RESAMPLES, method="percentile",
+                    rng=np.random.default_rng(seed),
+                ).confidence_interval  # fmt: skip
+                low, high = float(ci.low), float(ci.high)
+            ticks = [np.nanmean(r.rescue_tick) for r in runs if not np.all(np.isnan(r.rescue_tick))]
+            rows.append({
+                "setting": setting, "method": method, "runs": len(runs), "maps": len(runs[0].maps),
+                "success_by_100": float(data.mean()), "ci_low": low, "ci_high": high,
+                "ci_over": "runs" if len(runs) > 1 else "maps",
+                "success": float(np.mean([(~np.isnan(r.rescue_tick)).mean() for r in runs])),
+                "mean_rescue_tick": float(np.mean(ticks)) if ticks else None,
+            })  # fmt: skip
+    return rows
 
 
 def _interval(row: dict[str, Any], key: str) -> str:
@@ -265,7 +309,7 @@ def compare(results: list[Result], seed: int = 0) -> Comparison:
     if not results:
         raise ValueError("nothing to compare: no results")
     groups = _by_setting(results)
-    report = Comparison(paired=_paired_rows(groups))
+    report = Comparison(paired=_paired_rows(groups), by_setting=_setting_rows(groups, seed))
     scores, report.settings, report.left_out = _score_matrices(groups)
     report.scores = scores
     if len(scores) < 1 or not report.settings:

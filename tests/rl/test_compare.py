@@ -53,6 +53,13 @@ def test_compare_pairs_only_the_same_maps_and_aggregates_runs(tmp_path):
     ac = pairs[("a", "c")]
     assert ac["runs_b"] == 3 and ac["success_b"] == pytest.approx(0.6) and ac["mcnemar_p"] is None
     assert report.settings == ["task1-full-noise0-ma10"] and report.left_out == ["task2-x"]
+    cell = {(r["method"], r["setting"]): r for r in report.by_setting}
+    c = cell[("c", "task1-full-noise0-ma10")]  # three seeds at 0.5, 0.6, 0.7
+    assert (c["runs"], c["ci_over"]) == (3, "runs") and c["success_by_100"] == pytest.approx(0.6)
+    assert 0.5 <= c["ci_low"] < 0.6 < c["ci_high"] <= 0.7
+    a = cell[("a", "task1-full-noise0-ma10")]
+    assert a["ci_over"] == "maps" and a["ci_low"] < 0.8 < a["ci_high"] and a["success"] == pytest.approx(0.8)
+    assert cell[("a", "task2-x")]["success_by_100"] == 1.0  # a setting only "a" played is still listed
     agg = {r["method"]: r for r in report.aggregate}
     assert agg["c"]["runs"] == 3 and agg["c"]["mean"] == pytest.approx(0.6)
     assert agg["c"]["mean_ci_low"] <= 0.6 <= agg["c"]["mean_ci_high"] and agg["a"]["mean_ci_low"] is None
