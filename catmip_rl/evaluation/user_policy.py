@@ -254,10 +254,8 @@ class CheckedEnginePolicy:
 class PettingZooPolicy:
     """A PettingZoo-level policy as an engine-level one: for every live world with an active robot it
     builds that world's ``(observations, infos)`` as ``search_rescue_v0`` does (the same functions) and
-    calls ``act``; busy robots keep their goals. ``one_episode_at_a_time``: the evaluator plays such a
-    policy on a one-world engine, episode after episode, calling ``reset`` (if given) before each."""
-
-    one_episode_at_a_time = True
+    calls ``act``; busy robots keep their goals. The evaluator plays such a policy on a one-world
+    engine, episode after episode, calling :meth:`reset` before each."""
 
     def __init__(
         self,
