@@ -170,8 +170,8 @@ class Comparison:
     def markdown(self) -> str:
         settings = sorted({r["setting"] for r in self.by_setting})
         lines = ["# Comparison", "", "## Success by tick 100 per setting [95 % CI]", ""]
-        lines += ["Over the training runs where a method has several (percentile bootstrap over runs), else "
-                  "over the maps.", ""]  # fmt: skip
+        lines += ["Percentile bootstrap over the maps, and over the training runs and the maps together "
+                  "where a method has several runs.", ""]  # fmt: skip
         lines += ["| method | " + " | ".join(settings) + " |", "|---|" + "---|" * len(settings)]
         cells = {}
         for r in self.by_setting:
@@ -215,30 +215,53 @@ class Comparison:
         return "\n".join(lines) + "\n"
 
 
+def runs_and_maps_ci(success: np.ndarray, seed: int = 0) -> tuple[float, float]:
+    """95 % percentile CI of the mean of ``success`` (runs, maps) when both the training runs and the
+    maps are a sample: each resample draws runs with replacement and, for all of them alike, maps with
+    replacement (the runs played the same maps). Neither scipy's bootstrap nor rliable's (over runs
+    only) resamples the two levels together; with three runs, resampling the runs alone would hide the
+    maps' share of the uncertainty."""
+    rng = np.random.default_rng(seed)
+    r, e = success.shape
+    means = np.empty(RESAMPLES)
+    for k in range(0, RESAMPLES, 500):  # 500 resamples at a time: (500, r, e) stays small
+        n = min(500, RESAMPLES - k)
+        runs = rng.integers(r, size=(n, r))
+        maps = rng.integers(e, size=(n, e))
+        means[k : k + n] = success[runs[:, :, None], maps[:, None, :]].mean(axis=(1, 2))
+    low, high = np.quantile(means, [(1 - CONFIDENCE) / 2, (1 + CONFIDENCE) / 2])
+    return float(low), float(high)
+
+
 def _setting_rows(groups: dict[str, dict[str, list[Result]]], seed: int) -> list[dict[str, Any]]:
-    """Per setting and method: success by tick 100 (the mean over runs) with a 95 % percentile bootstrap
-    CI over the runs when there are several (training seeds), else over the maps; the success by the
-    horizon and the mean rescue tick beside it."""
+    """Per setting and method: success by tick 100 (the mean over runs) with a 95 % CI: over the maps
+    for one run (scipy's percentile bootstrap), over runs and maps together for several runs of the
+    same maps (:func:`runs_and_maps_ci`); the success by the horizon and the mean rescue tick beside it."""
     from scipy.stats import bootstrap
 
     rows = []
     for setting, methods in sorted(groups.items()):
         for method, runs in sorted(methods.items()):
-            data = (
-                np.array([r.success.mean() for r in runs]) if len(runs) > 1 else runs[0].success.astype(float)
-            )
-            low = high = float(data.mean())
-            if len(data) > 1 and not np.all(data == data[0]):
+            success = np.array([r.success for r in runs], float)  # (runs, maps)
+            mean = float(success.mean())
+            if len(runs) > 1:
+                if any(r.maps != runs[0].maps for r in runs):
+                    raise ValueError(
+                        f"the runs of {method} in {setting} played different maps; give each the same --seed"
+                    )
+                (low, high), over = runs_and_maps_ci(success, seed), "runs and maps"
+            elif np.all(success == success.flat[0]):
+                (low, high), over = (mean, mean), "maps"
+            else:
                 ci = bootstrap(
-                    (data,), np.mean, confidence_level=CONFIDENCE, n_resamples=RESAMPLES, method="percentile",
-                    rng=np.random.default_rng(seed),
+                    (success[0],), np.mean, confidence_level=CONFIDENCE, n_resamples=RESAMPLES,
+                    method="percentile", rng=np.random.default_rng(seed),
                 ).confidence_interval  # fmt: skip
-                low, high = float(ci.low), float(ci.high)
+                (low, high), over = (float(ci.low), float(ci.high)), "maps"
             ticks = [np.nanmean(r.rescue_tick) for r in runs if not np.all(np.isnan(r.rescue_tick))]
             rows.append({
                 "setting": setting, "method": method, "runs": len(runs), "maps": len(runs[0].maps),
-                "success_by_100": float(data.mean()), "ci_low": low, "ci_high": high,
-                "ci_over": "runs" if len(runs) > 1 else "maps",
+                "success_by_100": mean, "ci_low": low, "ci_high": high, "ci_over": over,
                 "success": float(np.mean([(~np.isnan(r.rescue_tick)).mean() for r in runs])),
                 "mean_rescue_tick": float(np.mean(ticks)) if ticks else None,
             })  # fmt: skip

@@ -55,8 +55,8 @@ def test_compare_pairs_only_the_same_maps_and_aggregates_runs(tmp_path):
     assert report.settings == ["task1-full-noise0-ma10"] and report.left_out == ["task2-x"]
     cell = {(r["method"], r["setting"]): r for r in report.by_setting}
     c = cell[("c", "task1-full-noise0-ma10")]  # three seeds at 0.5, 0.6, 0.7
-    assert (c["runs"], c["ci_over"]) == (3, "runs") and c["success_by_100"] == pytest.approx(0.6)
-    assert 0.5 <= c["ci_low"] < 0.6 < c["ci_high"] <= 0.7
+    assert (c["runs"], c["ci_over"]) == (3, "runs and maps") and c["success_by_100"] == pytest.approx(0.6)
+    assert 0.4 < c["ci_low"] < 0.55 and 0.65 < c["ci_high"] < 0.8  # the seeds' spread and the maps' together
     a = cell[("a", "task1-full-noise0-ma10")]
     assert a["ci_over"] == "maps" and a["ci_low"] < 0.8 < a["ci_high"] and a["success"] == pytest.approx(0.8)
     assert cell[("a", "task2-x")]["success_by_100"] == 1.0  # a setting only "a" played is still listed
@@ -67,6 +67,19 @@ def test_compare_pairs_only_the_same_maps_and_aggregates_runs(tmp_path):
     assert (
         poi[("a", "c")] == pytest.approx(1.0) and ("a", "b") not in poi
     )  # one run each: nothing to resample
+
+
+def test_runs_and_maps_ci_covers_both_sources():
+    from catmip_rl.evaluation.compare import runs_and_maps_ci
+
+    rng = np.random.default_rng(0)
+    same = np.tile(rng.random(400) < 0.7, (3, 1))  # three identical runs: only the maps vary
+    low, high = runs_and_maps_ci(same)
+    se = np.sqrt(0.7 * 0.3 / 400)
+    assert high - low == pytest.approx(2 * 1.96 * se, rel=0.25)
+    spread = np.array([rng.random(400) < p for p in (0.5, 0.7, 0.9)])  # the runs differ as well
+    low2, high2 = runs_and_maps_ci(spread)
+    assert high2 - low2 > 2 * (high - low)
 
 
 def test_cli_compare_writes_tables_and_plots(tmp_path, capsys):
