@@ -134,7 +134,7 @@ def _draw(runs, cfgs, groups, lines, rows, out: Path, capability: str) -> None:
                 )
                 ax.plot(x, [r[f"sampled_{key_}"] for r in pts], ":", color=colours[k],
                         label=f"{run.name} (sampled)")  # fmt: skip
-            for (name, vals), style in zip(lines[key].items(), ("--", "-.", (0, (1, 3)))):
+            for (name, vals), style in zip(lines[key].items(), ("--", "-.", (0, (1, 3)), (0, (5, 2, 1, 2)))):
                 ax.axhline(vals[0 if key_ == "success_rate" else 1], color="grey", ls=style, lw=1, label=name)
             ax.set_xlabel(f"training minutes ({cfg.threads} CPU thread(s), {capability})")
             ax.set_ylabel("success rate")
