@@ -198,21 +198,22 @@ def make_user_policy(
 
 
 def _check_allowed(actions: np.ndarray, engine: EventEngine, worlds: np.ndarray, name: str) -> None:
-    """PolicyError naming the first active robot of ``worlds`` whose action is out of range or masked."""
+    """PolicyError naming the first active robot of ``worlds`` whose action is out of range or masked
+    (one vectorised check: it runs at every event of every world)."""
     a = engine.num_actions
-    for b in worlds:
-        for i in np.flatnonzero(engine.active[b]):
-            act = int(actions[b, i])
-            if not 0 <= act < a:
-                why = f"out of range (actions are 0..{a - 1})"
-            elif not engine.masks[b, i, act]:
-                why = "forbidden by its action mask"
-            else:
-                continue
-            raise PolicyError(
-                f"policy {name}: action {act} of robot_{i} in world {b} at tick "
-                f"{int(engine.state.ticks[b])} is {why}; choose among the actions whose mask entry is 1"
-            )
+    acts = actions[worlds]  # (W, N)
+    in_range = (acts >= 0) & (acts < a)
+    allowed = np.take_along_axis(engine.masks[worlds], np.clip(acts, 0, a - 1)[..., None], -1)[..., 0] != 0
+    bad = engine.active[worlds] & ~(in_range & allowed)
+    if not bad.any():
+        return
+    w, i = (int(x[0]) for x in np.nonzero(bad))
+    b, act = int(worlds[w]), int(acts[w, i])
+    why = f"out of range (actions are 0..{a - 1})" if not in_range[w, i] else "forbidden by its action mask"
+    raise PolicyError(
+        f"policy {name}: action {act} of robot_{i} in world {b} at tick {int(engine.state.ticks[b])} is "
+        f"{why}; choose among the actions whose mask entry is 1"
+    )
 
 
 class CheckedEnginePolicy:

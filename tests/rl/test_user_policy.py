@@ -72,6 +72,13 @@ POLICIES = textwrap.dedent(
     def make_wrong_shape(env_config, seed):
         return WrongShape()
 
+    class TooLarge:
+        def act(self, engine):
+            return np.full((engine.num_worlds, engine.num_robots), 999)
+
+    def make_too_large(env_config, seed):
+        return TooLarge()
+
     class Missing:
         def act(self, observations, infos):
             return {}
@@ -192,6 +199,7 @@ def test_cli_eval_render_and_bench_take_a_policy_file(policy_file, tmp_path, cap
         ("make_divides", "act(observations, infos) raised ZeroDivisionError"),
         ("make_wrong_shape", "returned shape (3,), expected (1, 2)"),
         ("make_missing", "missing actions for active robots"),
+        ("make_too_large", "action 999 of robot_0 in world 0 at tick 0 is out of range (actions are 0..48)"),
         ("nope", "has no 'nope'"),
     ],
 )
