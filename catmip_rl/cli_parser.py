@@ -263,11 +263,12 @@ def add_compare(sub) -> None:
     co = sub.add_parser(
         "compare", help="paired differences and across-seed statistics of eval results",
         formatter_class=Formatter,
-        description="Compare catmip eval results: for every pair of methods on the same maps the paired "
-        "difference in success by tick 100 and in mean rescue tick with 95 %% CIs; across runs (training "
-        "seeds) the IQM and mean with 95 %% stratified-bootstrap CIs, the probability of improvement and "
-        "performance profiles (rliable). Writes paired.csv, aggregate.csv, improvement.csv, compare.md and "
-        "PNGs into --out.",
+        description="Compare catmip eval results: per setting each method's success by tick 100 with a 95 % "
+        "CI (over the maps, or over training runs and maps); for every pair of methods on the same maps the "
+        "paired difference in success by tick 100 and in mean rescue tick with 95 % CIs; across runs "
+        "(training seeds) the IQM and mean with 95 % stratified-bootstrap CIs, the probability of "
+        "improvement and performance profiles (rliable). Writes compare.md, by_setting.csv, paired.csv, "
+        "aggregate.csv, improvement.csv and PNGs into --out (each where there is something to show).",
     )  # fmt: skip
     co.add_argument(
         "results", nargs="+", metavar="RESULT",
