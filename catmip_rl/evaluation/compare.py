@@ -100,7 +100,7 @@ def load_results(specs: list[str]) -> list[Result]:
 
 # -- statistics ---------------------------------------------------------------------------------------------
 def _bootstrap_ci(data: np.ndarray, seed: int = 0) -> tuple[float, float]:
-    """95 % percentile bootstrap CI of the mean of ``data`` (paired differences, one per map)."""
+    """95 % percentile bootstrap CI of the mean of ``data`` (one value per map)."""
     from scipy.stats import bootstrap
 
     if len(data) < 2 or np.all(data == data[0]):
@@ -237,7 +237,6 @@ def _setting_rows(groups: dict[str, dict[str, list[Result]]], seed: int) -> list
     """Per setting and method: success by tick 100 (the mean over runs) with a 95 % CI: over the maps
     for one run (scipy's percentile bootstrap), over runs and maps together for several runs of the
     same maps (:func:`runs_and_maps_ci`); the success by the horizon and the mean rescue tick beside it."""
-    from scipy.stats import bootstrap
 
     rows = []
     for setting, methods in sorted(groups.items()):
@@ -250,14 +249,8 @@ def _setting_rows(groups: dict[str, dict[str, list[Result]]], seed: int) -> list
                         f"the runs of {method} in {setting} played different maps; give each the same --seed"
                     )
                 (low, high), over = runs_and_maps_ci(success, seed), "runs and maps"
-            elif np.all(success == success.flat[0]):
-                (low, high), over = (mean, mean), "maps"
             else:
-                ci = bootstrap(
-                    (success[0],), np.mean, confidence_level=CONFIDENCE, n_resamples=RESAMPLES,
-                    method="percentile", rng=np.random.default_rng(seed),
-                ).confidence_interval  # fmt: skip
-                (low, high), over = (float(ci.low), float(ci.high)), "maps"
+                (low, high), over = _bootstrap_ci(success[0], seed), "maps"
             ticks = [np.nanmean(r.rescue_tick) for r in runs if not np.all(np.isnan(r.rescue_tick))]
             rows.append({
                 "setting": setting, "method": method, "runs": len(runs), "maps": len(runs[0].maps),
