@@ -12,8 +12,8 @@ from typing import Any
 
 __all__ = [
     "POSITIVE_INT", "NON_NEGATIVE_INT", "POSITIVE_FLOAT", "NON_NEGATIVE_FLOAT", "PROBABILITY", "CPUS",
-    "UP_TO_CPUS", "checked", "check_device", "check_comm", "check_method", "check_methods", "parse_set",
-    "set_item", "USER_ERRORS",
+    "UP_TO_CPUS", "checked", "check_device", "check_comm", "check_method", "check_methods", "check_runs",
+    "parse_set", "set_item", "USER_ERRORS",
 ]  # fmt: skip
 
 USER_ERRORS = (ValueError, OSError, ImportError)
@@ -80,6 +80,12 @@ def check_method(text: str) -> None:
     from catmip_rl.evaluation.methods import parse_method
 
     parse_method(text)
+
+
+def check_runs(text: str) -> None:
+    from catmip_rl.evaluation.methods import parse_runs
+
+    parse_runs(text)
 
 
 def check_methods(text: str) -> None:

@@ -20,6 +20,7 @@ from catmip_rl.cli_args import (
     check_device,
     check_method,
     check_methods,
+    check_runs,
     checked,
     set_item,
 )  # fmt: skip
@@ -228,8 +229,9 @@ def add_bench(sub) -> None:
     pa.add_argument("--all", action="store_true", help="every paper figure")
     pa.add_argument("--methods", default=",".join(DEFAULT_METHODS), type=checked(check_methods),
                     help="comma list of methods (NAME=METHOD allowed; see catmip eval -h)")  # fmt: skip
-    pa.add_argument("--method", action="append", default=[], type=checked(check_method),
-                    help="one more method (repeatable)")  # fmt: skip
+    pa.add_argument("--method", action="append", default=[], type=checked(check_runs),
+                    help="one more method (repeatable); NAME=SPEC,SPEC,... the training runs of one method, "
+                         "summarised as their mean with a CI over runs and maps")  # fmt: skip
     pa.add_argument("--episodes", type=POSITIVE_INT, default=100, help="maps per (panel, method)")
     pa.add_argument("--seed", type=NON_NEGATIVE_INT, default=0, help="map set")
     pa.add_argument("--jobs", type=UP_TO_CPUS, default=min(2, CPUS), help="parallel processes")

@@ -34,7 +34,9 @@ import numpy as np
 
 from catmip_rl.files import atomic_write_csv, atomic_write_text
 
-__all__ = ["Result", "load_results", "compare", "Comparison", "paired_difference"]
+__all__ = [
+    "Result", "load_results", "compare", "Comparison", "paired_difference", "success_interval",
+]  # fmt: skip
 
 CONFIDENCE = 0.95
 RESAMPLES = 10_000  # paired bootstrap over maps (scipy: vectorised, ~0.2 s a pair)
@@ -233,6 +235,16 @@ def runs_and_maps_ci(success: np.ndarray, seed: int = 0) -> tuple[float, float]:
     return float(low), float(high)
 
 
+def success_interval(success: np.ndarray, seed: int = 0) -> tuple[float, float, str]:
+    """95 % CI of the mean of ``success`` (runs, maps; the runs played the same maps) and what it is
+    over: the maps for one run (percentile bootstrap), the runs and the maps together for several
+    (:func:`runs_and_maps_ci`)."""
+    success = np.asarray(success, float)
+    if success.shape[0] > 1:
+        return (*runs_and_maps_ci(success, seed), "runs and maps")
+    return (*_bootstrap_ci(success[0], seed), "maps")
+
+
 def _setting_rows(groups: dict[str, dict[str, list[Result]]], seed: int) -> list[dict[str, Any]]:
     """Per setting and method: success by tick 100 (the mean over runs) with a 95 % CI: over the maps
     for one run (scipy's percentile bootstrap), over runs and maps together for several runs of the
@@ -241,16 +253,13 @@ def _setting_rows(groups: dict[str, dict[str, list[Result]]], seed: int) -> list
     rows = []
     for setting, methods in sorted(groups.items()):
         for method, runs in sorted(methods.items()):
+            if any(r.maps != runs[0].maps for r in runs):
+                raise ValueError(
+                    f"the runs of {method} in {setting} played different maps; give each the same --seed"
+                )
             success = np.array([r.success for r in runs], float)  # (runs, maps)
             mean = float(success.mean())
-            if len(runs) > 1:
-                if any(r.maps != runs[0].maps for r in runs):
-                    raise ValueError(
-                        f"the runs of {method} in {setting} played different maps; give each the same --seed"
-                    )
-                (low, high), over = runs_and_maps_ci(success, seed), "runs and maps"
-            else:
-                (low, high), over = _bootstrap_ci(success[0], seed), "maps"
+            low, high, over = success_interval(success, seed)
             ticks = [np.nanmean(r.rescue_tick) for r in runs if not np.all(np.isnan(r.rescue_tick))]
             rows.append({
                 "setting": setting, "method": method, "runs": len(runs), "maps": len(runs[0].maps),

@@ -10,7 +10,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -22,7 +22,7 @@ from catmip_rl.checkpoint import load_model, resolve_model
 from catmip_rl.evaluation.execution import AmatExecutor
 from catmip_rl.evaluation.user_policy import load_factory, make_user_policy, parse_policy_source
 
-__all__ = ["Method", "parse_method", "make_policy", "amat_label", "METHOD_HELP"]
+__all__ = ["Method", "parse_method", "parse_runs", "make_policy", "amat_label", "METHOD_HELP"]
 
 METHOD_HELP = (
     "nearest | utility | rrt | apf | random-frontier | random-rescue (random window goals with the planners' "
@@ -94,6 +94,19 @@ def parse_method(spec: str) -> Method:
         choices = f"amat:PATH, py:FILE.py:FACTORY or one of {sorted(PLANNERS)}"
         raise ValueError(f"unknown method {spec!r}{hint}; choose {choices}")
     return Method(name or spec, "planner", spec)
+
+
+def parse_runs(spec: str) -> list[Method]:
+    """The runs of one method: ``NAME=SPEC,SPEC,...`` are several training runs (seeds) of the method
+    NAME, each played on the same maps and summarised together; any other spec is one run
+    (:func:`parse_method`). ValueError naming a bad spec, or runs without a name."""
+    name, sep, rest = spec.partition("=")
+    if "," not in (rest if sep else spec):
+        return [parse_method(spec)]
+    if not sep or not name.strip():
+        raise ValueError(f"several runs need one name: write NAME={spec.partition('=')[2] or spec}")
+    specs = [s.strip() for s in rest.split(",") if s.strip()]
+    return [replace(parse_method(s), name=name.strip()) for s in specs]
 
 
 def make_policy(

@@ -28,13 +28,14 @@ from typing import Any
 import numpy as np
 
 from catmip_rl.checkpoint import load_model
+from catmip_rl.evaluation.compare import success_interval
 from catmip_rl.evaluation.evaluate import EvalSetting, evaluate, progress_bar
-from catmip_rl.evaluation.methods import Method, make_policy, parse_method
+from catmip_rl.evaluation.methods import Method, make_policy, parse_runs
 from catmip_rl.files import atomic_write_csv, atomic_write_text
 
 __all__ = [
     "FIGURES", "DEFAULT_METHODS", "figure_settings", "run_figure", "marl_eval_json", "plot_figure",
-    "summary_markdown",
+    "summary_markdown", "summary_table", "summary_cell",
 ]  # fmt: skip
 
 DEFAULT_METHODS = ("nearest", "utility", "rrt", "apf")
@@ -42,6 +43,7 @@ SUMMARY_KEYS = (
     "episodes", "success_rate", "success_by_100", "mean_rescue_tick", "mean_target_found_tick",
     "mean_explored_fraction", "bytes_per_decision_embedding", "bytes_per_decision_raw", "seconds",
 )  # fmt: skip
+SAMPLED_KEYS = ("success_rate", "success_by_100", "mean_rescue_tick")  # what the sampled pass reports
 
 
 def _comm_panels(task: str) -> list[tuple[str, EvalSetting]]:
@@ -83,7 +85,13 @@ def _run_one(args: tuple[Method, EvalSetting, int, int, str, int, bool]) -> dict
     result = evaluate(method, setting, episodes=episodes, seed=seed, allow_other_maps=allow_other_maps)
     result.write(out)
     sampled = None if result.sampled_curve is None else result.sampled_curve.tolist()
-    return {"out": out, "summary": result.summary, "curve": result.curve.tolist(), "sampled_curve": sampled}
+    ticks = {
+        key: [np.nan if e.get(key) is None else e[key] for e in result.episodes]
+        for key in ("rescue_tick", "sampled_rescue_tick")
+        if key in result.episodes[0]
+    }
+    return {"out": out, "summary": result.summary, "curve": result.curve.tolist(), "sampled_curve": sampled,
+            "ticks": ticks}  # fmt: skip
 
 
 def run_figure(
@@ -96,62 +104,84 @@ def run_figure(
     progress: bool = True,
     allow_other_maps: bool = False,
 ) -> Path:
-    """Run every (panel, method) of ``figure``; returns the figure's folder. Bad arguments (figure,
-    methods, an unreadable AMAT checkpoint, episodes, seed, jobs) raise before any run starts."""
+    """Run every (panel, method) of ``figure``; returns the figure's folder. A method given as
+    ``NAME=SPEC,SPEC,...`` has several training runs (:func:`parse_runs`): each plays the same maps (in
+    ``LABEL/NAME/runK/``) and the figure shows their mean, with a 95 % CI over runs and maps. Bad
+    arguments (figure, methods, an unreadable AMAT checkpoint, episodes, seed, jobs) raise before any run
+    starts."""
     _matplotlib()  # fail now rather than after the evaluations
     panels = figure_settings(figure)
-    parsed: list[Method] = [parse_method(m) for m in (methods or DEFAULT_METHODS)]
-    names = [m.name for m in parsed]
+    groups: list[list[Method]] = [parse_runs(m) for m in (methods or DEFAULT_METHODS)]
+    names = [runs[0].name for runs in groups]
     if len(set(names)) != len(names):
         raise ValueError(f"method names must be unique (use NAME=METHOD), got {names}")
     for what, value, low in (("episodes", episodes, 1), ("seed", seed, 0), ("jobs", jobs, 1)):
         if not isinstance(value, int) or value < low:
             raise ValueError(f"{what} must be an int >= {low}, got {value!r}")
-    for m in parsed:  # an unreadable checkpoint or a broken policy fails here, not in every run
+    for m in (m for runs in groups for m in runs):  # an unreadable checkpoint or a broken policy fails here
         if m.kind == "amat":
             load_model(m.target)
         elif m.kind == "py":
             make_policy(m, panels[0][1].env_config(), seed)
     fig_dir = Path(out) / f"fig{figure}"
-    grid = [(panel, setting, method) for panel, setting in panels for method in parsed]
     threads = 1 if jobs > 1 else 2
     tasks = [
-        (m, st, episodes, seed, str(fig_dir / st.label / m.name), threads, allow_other_maps)
-        for _, st, m in grid
-    ]
-    results = _map(tasks, jobs, progress, f"figure {figure}")
-    curve_rows, summary_rows, runs = [], [], []
-    for (panel, _setting, method), res in zip(grid, results):
-        for t, v in enumerate(res["curve"]):
-            curve_rows.append(
-                {"figure": figure, "panel": panel, "method": method.name, "tick": t, "success_rate": v}
-            )
-        row = {"figure": figure, "panel": panel, "method": method.name}
-        summary_rows.append(row | {k: res["summary"][k] for k in SUMMARY_KEYS})
-        runs.append((panel, method.name, res["out"]))
-        if res.get("sampled_curve") is not None:  # AMAT: the same maps with sampled actions
-            name = f"{method.name} (sampled)"
-            for t, v in enumerate(res["sampled_curve"]):
-                curve_rows.append(
-                    {"figure": figure, "panel": panel, "method": name, "tick": t, "success_rate": v}
-                )
-            s = res["summary"]
-            sampled = {k: None for k in SUMMARY_KEYS} | {
-                "episodes": s["episodes"],
-                "success_rate": s["sampled_success_rate"],
-                "success_by_100": s["sampled_success_by_100"],
-                "mean_rescue_tick": s["sampled_mean_rescue_tick"],
-            }
-            summary_rows.append({"figure": figure, "panel": panel, "method": name} | sampled)
+        (m, st, episodes, seed, str(_run_dir(fig_dir / st.label / m.name, k, len(runs))), threads,
+         allow_other_maps)
+        for _, st in panels for runs in groups for k, m in enumerate(runs)
+    ]  # fmt: skip
+    results = iter(_map(tasks, jobs, progress, f"figure {figure}"))
+    curve_rows, summary_rows, runs_written = [], [], []
+    for panel, _setting in panels:
+        for runs in groups:
+            name, res = runs[0].name, [next(results) for _ in runs]
+            runs_written += [(panel, name, r["out"], k) for k, r in enumerate(res)]
+            for label, curve_key, tick_key, prefix in (
+                (name, "curve", "rescue_tick", ""),  # the paper's protocol: argmax for AMAT
+                (f"{name} (sampled)", "sampled_curve", "sampled_rescue_tick", "sampled_"),  # AMAT's sampled
+            ):
+                if res[0][curve_key] is None:
+                    continue
+                at = {"figure": figure, "panel": panel, "method": label}
+                curve = np.mean([r[curve_key] for r in res], axis=0)
+                for t, v in enumerate(curve):
+                    curve_rows.append(at | {"tick": t, "success_rate": v, "runs": len(res)})
+                summary_rows.append(at | _summary(res, tick_key, prefix))
     fig_dir.mkdir(parents=True, exist_ok=True)
     atomic_write_csv(fig_dir / "curves.csv", curve_rows)
     atomic_write_csv(fig_dir / "summary.csv", summary_rows)
-    atomic_write_text(fig_dir / "marl_eval.json", json.dumps(marl_eval_json(runs, figure), indent=1))
+    atomic_write_text(fig_dir / "marl_eval.json", json.dumps(marl_eval_json(runs_written, figure), indent=1))
     atomic_write_text(fig_dir / "summary.md", summary_markdown(summary_rows))
     plot_figure(
         fig_dir / "curves.csv", fig_dir / f"fig{figure}.png", title=f"Fig. {figure}: {FIGURES[figure][0]}"
     )
     return fig_dir
+
+
+def _run_dir(folder: Path, k: int, runs: int) -> Path:
+    return folder / f"run{k}" if runs > 1 else folder
+
+
+def _summary(res: list[dict[str, Any]], tick_key: str, prefix: str) -> dict[str, Any]:
+    """The summary row of one method's runs in one panel: each summary key the mean over the runs (a
+    key the runs lack, e.g. the sampled pass's bytes, is None), the number of runs, and the 95 % CI of
+    success by tick 100 over the maps (one run) or over runs and maps (several)."""
+    horizon = int(res[0]["summary"]["horizon"])
+    ticks = np.array([r["ticks"][tick_key] for r in res], float)  # (runs, maps), nan: not rescued
+    with np.errstate(invalid="ignore"):
+        success = ticks <= min(100, horizon)
+    low, high, over = success_interval(success)
+    row: dict[str, Any] = {}
+    for key in SUMMARY_KEYS:
+        values = [r["summary"].get(prefix + key if key in SAMPLED_KEYS else key) for r in res]
+        if key == "episodes":
+            row[key] = values[0]
+        elif (prefix and key not in SAMPLED_KEYS) or any(v is None for v in values):
+            row[key] = None
+        else:
+            row[key] = float(np.mean(values))
+    return row | {"runs": len(res), "success_by_100_ci_low": low, "success_by_100_ci_high": high,
+                  "ci_over": over}  # fmt: skip
 
 
 def _map(tasks: list, jobs: int, progress: bool, desc: str) -> list[dict[str, Any]]:
@@ -173,35 +203,61 @@ def _map(tasks: list, jobs: int, progress: bool, desc: str) -> list[dict[str, An
     return results
 
 
-def summary_markdown(rows: list[dict[str, Any]]) -> str:
-    """Success by tick 100 / by the horizon and mean rescue tick, one row per method, one column
-    group per panel."""
+def _number(value: Any) -> float | None:
+    """A summary value as a float, None where there is none (None, or "" / "None" read back from CSV)."""
+    return None if value in (None, "", "None") else float(value)
+
+
+def summary_cell(row: dict[str, Any]) -> str:
+    """One run's or method's cell: success by tick 100 [95 % CI] / success by the horizon / mean rescue
+    tick of the rescued episodes (a row read back from ``summary.csv`` works too; the CI is left out
+    where the row has none)."""
+    low, high = _number(row.get("success_by_100_ci_low")), _number(row.get("success_by_100_ci_high"))
+    ci = "" if low is None or high is None else f" [{low:.2f}, {high:.2f}]"
+    tick = _number(row["mean_rescue_tick"])
+    rescue = "–" if tick is None else f"{tick:.0f}"
+    return f"{_number(row['success_by_100']):.2f}{ci} / {_number(row['success_rate']):.2f} / {rescue}"
+
+
+def summary_table(rows: list[dict[str, Any]], bold: bool = False) -> str:
+    """The markdown table of a figure's summary rows: a row per method, a column per panel, each cell a
+    :func:`summary_cell`; with ``bold`` the best success by tick 100 of each column is bold."""
     panels = list(dict.fromkeys(r["panel"] for r in rows))
     methods = list(dict.fromkeys(r["method"] for r in rows))
-    cell = {(r["panel"], r["method"]): r for r in rows}
-    head = "| method | " + " | ".join(panels) + " |"
-    lines = [head, "|---" * (len(panels) + 1) + "|"]
+    at = {(r["method"], r["panel"]): r for r in rows}
+    best = {p: max(_number(r["success_by_100"]) for r in rows if r["panel"] == p) for p in panels}
+    lines = ["| method | " + " | ".join(panels) + " |", "|---" * (len(panels) + 1) + "|"]
     for m in methods:
-        parts = []
+        cells = []
         for p in panels:
-            r = cell.get((p, m))
-            if r is None:
-                parts.append("-")
-                continue
-            rescue = "-" if r["mean_rescue_tick"] is None else f"{r['mean_rescue_tick']:.0f}"
-            parts.append(f"{r['success_by_100']:.2f} / {r['success_rate']:.2f} / {rescue}")
-        lines.append(f"| {m} | " + " | ".join(parts) + " |")
-    note = "\nCells: success by tick 100 / success by the horizon / mean rescue tick of rescued episodes.\n"
-    return "\n".join(lines) + "\n" + note
+            r = at.get((m, p))
+            text = "" if r is None else summary_cell(r)
+            if r is not None and bold and _number(r["success_by_100"]) == best[p]:
+                text = f"**{text}**"
+            cells.append(text)
+        lines.append(f"| {m} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
 
 
-def marl_eval_json(runs: list[tuple[str, str, str]], figure: int) -> dict[str, Any]:
+def summary_markdown(rows: list[dict[str, Any]]) -> str:
+    """:func:`summary_table` and what its cells say."""
+    note = (
+        "\nCells: success by tick 100 [95 % CI over the maps, or over training runs and maps for a method "
+        "with several] / success by the horizon / mean rescue tick of rescued episodes. A method with "
+        "several training runs shows their mean.\n"
+    )
+    return summary_table(rows) + "\n" + note
+
+
+def marl_eval_json(runs: list[tuple[str, str, str, int]], figure: int) -> dict[str, Any]:
     """Per-episode results in the nested layout marl-eval reads:
     ``{env: {task: {algorithm: {run: {"step_0": {metric: [per-episode values]}, "absolute_metrics":
-    {...}}}}}}`` with env = ``catmip-fig{N}``, task = the panel's setting label, one run per seed."""
+    {...}}}}}}`` with env = ``catmip-fig{N}``, task = the panel's setting label and run = ``seed_K``, the
+    K-th training run of the method (``seed_0`` for a method with one); ``runs``: (panel, method, result
+    folder, K)."""
     data: dict[str, Any] = {}
     env = f"catmip-fig{figure}"
-    for _panel, method, out in runs:
+    for _panel, method, out, k in runs:
         episodes = json.loads((Path(out) / "episodes.json").read_text())
         summary = json.loads((Path(out) / "summary.json").read_text())
         horizon = summary["horizon"]
@@ -216,8 +272,7 @@ def marl_eval_json(runs: list[tuple[str, str, str]], figure: int) -> dict[str, A
             "success_by_100": [summary["success_by_100"]],
         }
         task = summary["label"]
-        run = f"seed_{summary['seed']}"
-        data.setdefault(env, {}).setdefault(task, {}).setdefault(method, {})[run] = {
+        data.setdefault(env, {}).setdefault(task, {}).setdefault(method, {})[f"seed_{k}"] = {
             "step_0": metrics,
             "absolute_metrics": absolute,
         }
@@ -245,7 +300,8 @@ def plot_figure(curves_csv: str | Path, png: str | Path, title: str = "") -> Pat
     panels = list(dict.fromkeys(r["panel"] for r in rows))
     methods = list(dict.fromkeys(r["method"] for r in rows))
     fig, axes = plt.subplots(1, len(panels), figsize=(4.2 * len(panels), 3.6), sharey=True, squeeze=False)
-    colours = plt.get_cmap("tab10")
+    colours = plt.get_cmap("tab10" if len(methods) <= 10 else "tab20")
+    runs = {r["method"]: int(r.get("runs") or 1) for r in rows}
     for ax, panel in zip(axes[0], panels):
         for k, method in enumerate(methods):
             pts = [
@@ -256,7 +312,9 @@ def plot_figure(curves_csv: str | Path, png: str | Path, title: str = "") -> Pat
             if not pts:
                 continue
             t, v = np.array(pts).T
-            ax.plot(t, v, color=colours(k % 10), lw=1.6, label=method)
+            label = method + (f" (mean of {runs[method]} runs)" if runs[method] > 1 else "")
+            style = "--" if method.endswith("(sampled)") else "-"
+            ax.plot(t, v, style, color=colours(k % colours.N), lw=1.6, label=label)
         ax.set_title(panel)
         ax.set_xlabel("mission time (ticks)")
         ax.set_ylim(0, 1.02)

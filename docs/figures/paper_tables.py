@@ -15,33 +15,14 @@ import re
 import sys
 from pathlib import Path
 
+from catmip_rl.evaluation.paper import summary_table
 from catmip_rl.files import atomic_write_text
-
-
-def cell(row: dict) -> str:
-    tick = row["mean_rescue_tick"]
-    rescue = "–" if tick in ("", "None") else f"{float(tick):.0f}"
-    return f"{float(row['success_by_100']):.2f} / {float(row['success_rate']):.2f} / {rescue}"
 
 
 def table(path: Path, bold: bool = False) -> str:
     """The markdown table of one ``figN_summary.csv``."""
-    rows = list(csv.DictReader(path.open()))
-    panels = list(dict.fromkeys(r["panel"] for r in rows))
-    methods = list(dict.fromkeys(r["method"] for r in rows))
-    at = {(r["method"], r["panel"]): r for r in rows}
-    best = {p: max(float(r["success_by_100"]) for r in rows if r["panel"] == p) for p in panels}
-    lines = ["| method | " + " | ".join(panels) + " |", "|---" * (len(panels) + 1) + "|"]
-    for m in methods:
-        cells = []
-        for p in panels:
-            r = at.get((m, p))
-            text = "" if r is None else cell(r)
-            if r is not None and bold and float(r["success_by_100"]) == best[p]:
-                text = f"**{text}**"
-            cells.append(text)
-        lines.append(f"| {m} | " + " | ".join(cells) + " |")
-    return "\n".join(lines)
+    with path.open() as f:
+        return summary_table(list(csv.DictReader(f)), bold)
 
 
 def replace_table(text: str, figure: int, new_table: str) -> str:

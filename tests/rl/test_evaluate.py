@@ -17,8 +17,8 @@ from catmip_rl.amat.model import decision_order
 from catmip_rl.cli import main as cli
 from catmip_rl.evaluation.evaluate import EvalSetting, evaluate, render_episode
 from catmip_rl.evaluation.execution import GOAL_BYTES, AmatExecutor, message_bytes
-from catmip_rl.evaluation.methods import Method, parse_method
-from catmip_rl.evaluation.paper import FIGURES, run_figure
+from catmip_rl.evaluation.methods import Method, parse_method, parse_runs
+from catmip_rl.evaluation.paper import FIGURES, run_figure, summary_cell
 
 
 def _sharp_model(window: int = 7, seed: int = 0) -> AMAT:
@@ -220,6 +220,60 @@ def test_figure_runs_on_a_tiny_budget(ckpt, tmp_path):
     marl = json.loads((fig_dir / "marl_eval.json").read_text())
     run = marl["catmip-fig11"]["task2-full-noise0-ma5"]["learned"]["seed_0"]
     assert len(run["step_0"]["success"]) == 2 and "success_rate" in run["absolute_metrics"]
+
+
+def test_parse_runs_names_the_training_runs_of_one_method(ckpt):
+    assert parse_runs("rrt") == [Method("rrt", "planner", "rrt")]
+    runs = parse_runs(f"mine=amat:{ckpt}, amat:{ckpt}")
+    assert [(m.name, m.kind) for m in runs] == [("mine", "amat"), ("mine", "amat")]
+    with pytest.raises(ValueError, match="several runs need one name: write NAME=nearest,rrt"):
+        parse_runs("nearest,rrt")
+    with pytest.raises(ValueError, match="unknown method 'astar'"):
+        parse_runs("two=nearest,astar")
+
+
+def test_cli_bench_paper_names_a_nameless_group_of_runs(tmp_path, capsys):
+    assert cli(["bench", "paper", "--figure", "6", "--method", "nearest,rrt", "--out", str(tmp_path)]) == 2
+    err = capsys.readouterr().err
+    assert "several runs need one name: write NAME=nearest,rrt" in err and "Traceback" not in err
+    assert not any(tmp_path.iterdir())
+
+
+def test_figure_summarises_several_runs_of_a_method_with_a_ci_over_runs_and_maps(tmp_path):
+    """Two planners given as the "training runs" of one method: its row is their mean, its curve the mean
+    curve, its CI over runs and maps; each run is written and enters marl-eval as its own seed."""
+    fig = run_figure(11, ["nearest", "rrt", "pair=nearest,rrt"], episodes=6, out=tmp_path, progress=False)
+    with open(fig / "summary.csv") as f:
+        rows = {(r["panel"], r["method"]): r for r in csv.DictReader(f)}
+    with open(fig / "curves.csv") as f:
+        curves = list(csv.DictReader(f))
+    marl = json.loads((fig / "marl_eval.json").read_text())["catmip-fig11"]
+    for panel, setting in FIGURES[11][1]:
+        one, two, pair = (rows[panel, m] for m in ("nearest", "rrt", "pair"))
+        assert (int(one["runs"]), int(pair["runs"])) == (1, 2)
+        assert (one["ci_over"], pair["ci_over"]) == ("maps", "runs and maps")
+        for key in ("success_by_100", "success_rate", "mean_rescue_tick"):
+            assert float(pair[key]) == pytest.approx((float(one[key]) + float(two[key])) / 2)
+        low, high = float(pair["success_by_100_ci_low"]), float(pair["success_by_100_ci_high"])
+        assert 0 <= low <= float(pair["success_by_100"]) <= high <= 1
+        curve = {m: [float(r["success_rate"]) for r in curves if r["panel"] == panel and r["method"] == m]
+                 for m in ("nearest", "rrt", "pair")}  # fmt: skip
+        assert np.allclose(curve["pair"], (np.array(curve["nearest"]) + np.array(curve["rrt"])) / 2)
+        for k, planner in enumerate(("nearest", "rrt")):
+            run = json.loads((fig / setting.label / "pair" / f"run{k}" / "episodes.json").read_text())
+            alone = json.loads((fig / setting.label / planner / "episodes.json").read_text())
+            assert [e["rescue_tick"] for e in run] == [e["rescue_tick"] for e in alone]
+            assert marl[setting.label]["pair"][f"seed_{k}"]["step_0"]["success"] == [
+                float(e["rescued"]) for e in alone
+            ]
+    assert "| pair |" in (fig / "summary.md").read_text()
+
+
+def test_summary_cell_shows_a_ci_where_the_row_has_one():
+    row = {"success_by_100": 0.8512, "success_rate": 1.0, "mean_rescue_tick": 47.6}
+    assert summary_cell(row) == "0.85 / 1.00 / 48"
+    ci = {"success_by_100_ci_low": "0.781", "success_by_100_ci_high": "0.9", "mean_rescue_tick": ""}
+    assert summary_cell(row | ci) == "0.85 [0.78, 0.90] / 1.00 / –"
 
 
 @pytest.mark.parametrize("figure", sorted(FIGURES))
