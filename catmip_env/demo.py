@@ -19,6 +19,7 @@ from pathlib import Path
 
 from catmip_env import make_config
 from catmip_env.events import EventEngine
+from catmip_env.files import atomic_path
 from catmip_env.planners import PLANNERS, make_planner
 from catmip_env.play import episode_metrics, play
 from catmip_env.render import render_episode
@@ -58,15 +59,12 @@ def evaluate(planner: str, preset: str, episodes: int, seed: int) -> dict:
 
 
 def _write(out: Path, rows: list[dict]) -> None:
-    tmp = out / "results.json.tmp"
-    tmp.write_text(json.dumps(rows, indent=2))
-    tmp.replace(out / "results.json")
-    tmp = out / "results.csv.tmp"
-    with tmp.open("w", newline="") as f:
+    with atomic_path(out / "results.json") as tmp:
+        tmp.write_text(json.dumps(rows, indent=2))
+    with atomic_path(out / "results.csv") as tmp, tmp.open("w", newline="") as f:
         writer = csv.DictWriter(f, fieldnames=list(rows[0]))
         writer.writeheader()
         writer.writerows(rows)
-    tmp.replace(out / "results.csv")
 
 
 def main(argv: list[str] | None = None) -> list[dict]:

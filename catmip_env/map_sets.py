@@ -31,6 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from catmip_env.config import make_config
+from catmip_env.files import atomic_path
 from catmip_env.world import BatchedEngine
 
 __all__ = [
@@ -146,9 +147,8 @@ def _write_manifests() -> None:
             "seeds": seeds,
         }
         path = HERE / f"{task}.json"
-        tmp = path.with_suffix(".json.tmp")
-        tmp.write_text(json.dumps(data, separators=(",", ":")) + "\n")
-        tmp.replace(path)
+        with atomic_path(path) as tmp:
+            tmp.write_text(json.dumps(data, separators=(",", ":")) + "\n")
         print(f"wrote {path}")
 
 

@@ -18,6 +18,7 @@ import numpy as np
 
 from catmip_env.constants import CLUE, EXPLORED, OBSTACLE, TARGET, WALL
 from catmip_env.events import EventEngine
+from catmip_env.files import atomic_path
 from catmip_env.play import Policy, play
 
 __all__ = ["render_world", "render_ansi", "save_gif", "episode_frames", "render_episode", "CLASS_COLOURS"]
@@ -131,13 +132,8 @@ def save_gif(frames: Sequence[np.ndarray], path: str | Path, fps: int = 8) -> Pa
         raise IsADirectoryError(f"{path} is a folder: save_gif needs a file path ending in .gif")
     if not isinstance(fps, int) or fps < 1:
         raise ValueError(f"fps must be an int >= 1, got {fps!r}")
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.stem}.tmp.gif")
-    try:
+    with atomic_path(path) as tmp:
         iio.imwrite(tmp, np.stack(frames), duration=1000 / fps, loop=0)
-        tmp.replace(path)
-    finally:
-        tmp.unlink(missing_ok=True)
     return path
 
 

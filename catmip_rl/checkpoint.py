@@ -18,7 +18,9 @@ from typing import Any
 
 import torch
 
+from catmip_env.files import atomic_path
 from catmip_rl.amat.model import AMAT, AmatConfig
+from catmip_rl.files import atomic_write_text
 
 __all__ = [
     "save_model", "load_model", "atomic_torch_save", "read_checkpoint", "resolve_model", "shipped_models",
@@ -36,15 +38,11 @@ class CheckpointError(ValueError):
 
 def atomic_torch_save(obj: Any, path: str | Path) -> Path:
     """``torch.save`` to a temporary file in the same folder, fsync, then rename into place."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp")
-    with open(tmp, "wb") as f:
+    with atomic_path(path) as tmp, open(tmp, "wb") as f:
         torch.save(obj, f)
         f.flush()
         os.fsync(f.fileno())
-    tmp.replace(path)
-    return path
+    return Path(path)
 
 
 def save_model(model: AMAT, path: str | Path, extra: dict[str, Any] | None = None) -> Path:
@@ -52,10 +50,8 @@ def save_model(model: AMAT, path: str | Path, extra: dict[str, Any] | None = Non
     state = {k: v.detach().cpu() for k, v in model.state_dict().items()}
     blob = {"format": FORMAT, "config": asdict(model.config), "state_dict": state, "extra": extra or {}}
     path = atomic_torch_save(blob, path)
-    side = path.with_suffix(".json")
-    tmp = side.with_name(f".{side.name}.tmp")
-    tmp.write_text(json.dumps({"format": FORMAT, "config": asdict(model.config)}, indent=2))
-    tmp.replace(side)
+    side = {"format": FORMAT, "config": asdict(model.config)}
+    atomic_write_text(path.with_suffix(".json"), json.dumps(side, indent=2))
     return path
 
 

@@ -56,8 +56,10 @@ def _config(base: TrainConfig, overrides: dict[str, Any]) -> TrainConfig:
 
 def _train(args: argparse.Namespace) -> int:
     from catmip_rl.checkpoint import resume_checkpoint
+    from catmip_rl.training.run_dir import RunDirLock
     from catmip_rl.training.train import train
 
+    RunDirLock(args.run_dir).check_free()  # a live run's dir: say so before reading its checkpoint
     overrides = dict(args.set)
     overrides |= {name: getattr(args, name) for name in _TRAIN_FLAGS if getattr(args, name) is not None}
     if args.minutes is not None:

@@ -1,4 +1,4 @@
-"""Result files: atomic writes (a temporary file beside the target, fsync, rename into place), CSV logs,
+"""Result files: atomic writes (``catmip_env.files.atomic_path``, with an fsync before the rename), CSV logs,
 and the up-front checks that an output path can be written without losing anything."""
 
 from __future__ import annotations
@@ -9,6 +9,8 @@ import os
 from pathlib import Path
 from typing import Any
 
+from catmip_env.files import atomic_path
+
 __all__ = [
     "atomic_write_text", "atomic_write_csv", "open_csv_log", "write_csv_row", "check_new_dir",
     "check_new_file",
@@ -16,30 +18,22 @@ __all__ = [
 
 
 def atomic_write_text(path: str | Path, text: str) -> Path:
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp")
-    with open(tmp, "w") as f:
+    with atomic_path(path) as tmp, open(tmp, "w") as f:
         f.write(text)
         f.flush()
         os.fsync(f.fileno())
-    tmp.replace(path)
-    return path
+    return Path(path)
 
 
 def atomic_write_csv(path: str | Path, rows: list[dict[str, Any]]) -> Path:
     """Rows of dicts with the first row's keys as header."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp")
-    with open(tmp, "w", newline="") as f:
+    with atomic_path(path) as tmp, open(tmp, "w", newline="") as f:
         w = csv.DictWriter(f, fieldnames=list(rows[0]) if rows else [])
         w.writeheader()
         w.writerows(rows)
         f.flush()
         os.fsync(f.fileno())
-    tmp.replace(path)
-    return path
+    return Path(path)
 
 
 def open_csv_log(path: Path, fields: list[str], resume_iteration: int | None, key: str = "iteration"):
@@ -49,12 +43,10 @@ def open_csv_log(path: Path, fields: list[str], resume_iteration: int | None, ke
     if resume_iteration is not None and path.exists():
         with path.open() as f:
             rows = [r for r in csv.DictReader(f) if int(r[key]) <= resume_iteration]
-    tmp = path.with_name(path.name + ".tmp")
-    with tmp.open("w", newline="") as f:
+    with atomic_path(path) as tmp, tmp.open("w", newline="") as f:
         w = csv.DictWriter(f, fieldnames=fields, extrasaction="ignore")
         w.writeheader()
         w.writerows(rows)
-    tmp.replace(path)
     f = path.open("a", newline="")
     return f, csv.DictWriter(f, fieldnames=fields, extrasaction="ignore")
 
@@ -65,17 +57,19 @@ def write_csv_row(writer, file, row: dict) -> None:
     file.flush()
 
 
-def check_new_dir(path: str | Path, what: str, force: bool = False, advice: str = "") -> Path:
+def check_new_dir(
+    path: str | Path, what: str, force: bool = False, advice: str = "", ignore: tuple[str, ...] = ()
+) -> Path:
     """Raise unless ``path`` can become an output folder without overwriting anything: it does not exist
-    (and can be created) or is an empty folder; ``force`` accepts a folder with files too. ``what`` names
-    the path in messages (a flag: ``--out``); ``advice`` replaces the default "pick a new folder or pass
-    --force" hint."""
+    (and can be created) or is an empty folder (but for entries named in ``ignore``); ``force`` accepts a
+    folder with files too. ``what`` names the path in messages (a flag: ``--out``); ``advice`` replaces
+    the default "pick a new folder or pass --force" hint."""
     path = Path(path)
     _check_not_dangling(path, what)
     if path.exists() and not path.is_dir():
         raise FileExistsError(f"{what} {path} is a file, not a folder")
     if path.is_dir() and not force:
-        entries = sorted(p.name for p in path.iterdir())
+        entries = sorted(p.name for p in path.iterdir() if p.name not in ignore)
         if entries:
             shown = ", ".join(entries[:4]) + (", ..." if len(entries) > 4 else "")
             hint = advice or "pick a new folder, or pass --force to write into it"

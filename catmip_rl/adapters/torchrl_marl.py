@@ -35,6 +35,7 @@ from torchrl.modules import MaskedCategorical, ProbabilisticActor
 from torchrl.objectives.value.functional import vec_generalized_advantage_estimate
 
 from catmip_env.config import EnvConfig
+from catmip_env.files import atomic_path
 from catmip_rl.adapters import keys as K
 from catmip_rl.adapters.torchrl_policy import TorchRLPolicy
 from catmip_rl.files import atomic_write_text
@@ -241,9 +242,8 @@ def save_policy(actor: ProbabilisticActor, cfg: EnvConfig, folder: str | Path, i
     ``policy.py`` (a ``catmip eval`` factory) in ``folder``, each written atomically."""
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
-    tmp = folder / f".policy.pt.{id(actor)}.tmp"
-    torch.save(actor.module[0].module.state_dict(), tmp)
-    tmp.replace(folder / "policy.pt")
+    with atomic_path(folder / "policy.pt") as tmp:
+        torch.save(actor.module[0].module.state_dict(), tmp)
     meta = {"format": FORMAT, "shapes": _shapes(cfg), **info}
     atomic_write_text(folder / "policy.json", json.dumps(meta, indent=2))
     atomic_write_text(folder / "policy.py", POLICY_PY.replace("{folder}", str(folder)))

@@ -7,6 +7,8 @@ from typing import Any
 
 import numpy as np
 
+from catmip_env.files import atomic_path
+
 __all__ = ["plot_paired", "plot_aggregate", "plot_profiles"]
 
 
@@ -20,10 +22,9 @@ def _pyplot():
 
 
 def _save(fig, path: Path) -> Path:
-    tmp = path.with_name(path.stem + ".tmp.png")
-    fig.savefig(tmp, dpi=110)
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=110)
     _pyplot().close(fig)
-    tmp.replace(path)
     return path
 
 

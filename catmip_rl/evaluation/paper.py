@@ -19,7 +19,6 @@ from __future__ import annotations
 import csv
 import json
 import multiprocessing
-import os
 from concurrent.futures import ProcessPoolExecutor
 from contextlib import ExitStack
 from pathlib import Path
@@ -27,6 +26,7 @@ from typing import Any
 
 import numpy as np
 
+from catmip_env.files import atomic_path
 from catmip_rl.checkpoint import load_model
 from catmip_rl.evaluation.compare import success_interval
 from catmip_rl.evaluation.evaluate import EvalSetting, evaluate, progress_bar
@@ -324,9 +324,7 @@ def plot_figure(curves_csv: str | Path, png: str | Path, title: str = "") -> Pat
     if title:
         fig.suptitle(title)
     fig.tight_layout()
-    png = Path(png)
-    tmp = png.with_name(f".{png.stem}.tmp.png")
-    fig.savefig(tmp, dpi=110)
+    with atomic_path(png) as tmp:
+        fig.savefig(tmp, dpi=110)
     plt.close(fig)
-    os.replace(tmp, png)
-    return png
+    return Path(png)

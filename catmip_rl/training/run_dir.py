@@ -1,14 +1,19 @@
-"""A training run's folder: the checks before a run starts, and the clean-up when a new run stops early.
+"""A training run's folder: one writer at a time, the checks before a run starts, and the clean-up when a
+new run stops early.
 
-A refused run leaves nothing behind (:func:`check_run` raises before anything is built or written); a
-new run stopped by an error or Ctrl-C before its first checkpoint removes what it wrote
-(:func:`remove_run_files`), so that its run dir can be used again; :func:`stopped_note` says which of
-the two happened.
+A run holds its folder for as long as it lives (:class:`RunDirLock`): a second ``catmip train`` on it
+is refused with the holder's process id. A refused run leaves nothing behind (:func:`check_run` raises
+before anything is built or written); a new run stopped by an error or Ctrl-C before its first
+checkpoint removes what it wrote (:func:`remove_run_files`), so that its run dir can be used again;
+:func:`stopped_note` says which of the two happened.
 """
 
 from __future__ import annotations
 
+import os
 import shutil
+import sys
+import time
 from pathlib import Path
 
 import torch
@@ -17,7 +22,82 @@ from catmip_rl.checkpoint import initial_weights, resume_checkpoint
 from catmip_rl.files import check_new_dir
 from catmip_rl.training.config import TrainConfig
 
-__all__ = ["check_run", "first_missing", "remove_run_files", "stopped_note", "tensorboard_writer"]
+__all__ = [
+    "RunDirInUse", "RunDirLock", "LOCK_NAME", "check_run", "first_missing", "remove_run_files",
+    "stopped_note", "tensorboard_writer",
+]  # fmt: skip
+
+LOCK_NAME = ".lock"
+"""The file in a run dir that its live run holds locked (and names itself in)."""
+
+
+class RunDirInUse(OSError):
+    """Another live process holds the run dir."""
+
+
+class RunDirLock:
+    """The exclusive hold of a run dir by this process: an advisory OS lock (``flock``) on
+    ``RUN_DIR/.lock``, which also records the holder's process id and command for the refusal message.
+    The kernel drops the lock when the process ends, however it ends (SIGKILL included), so a dead run
+    never leaves a stale lock; the file itself stays (removing it would let two processes lock two
+    different files of one name). Creates the run dir if needed: ``created`` is the outermost folder it
+    made (None if the run dir existed), and ``release(undo=True)`` removes what acquiring added."""
+
+    def __init__(self, run_dir: str | Path) -> None:
+        self.path = Path(run_dir) / LOCK_NAME
+        self.created: Path | None = None
+        self._new_file = False
+        self._fd: int | None = None
+
+    def acquire(self) -> RunDirLock:
+        """Hold the run dir, or raise :class:`RunDirInUse` naming the process that holds it."""
+        import fcntl  # POSIX; the training runs this project supports are on Linux and macOS
+
+        if self.path.parent.exists() and not self.path.parent.is_dir():
+            raise NotADirectoryError(f"run dir {self.path.parent} is a file, not a folder")
+        self.created = first_missing(self.path.parent)
+        self._new_file = not self.path.exists()
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            holder = os.pread(fd, 4096, 0).decode(errors="replace").strip() or "another process"
+            os.close(fd)
+            raise RunDirInUse(
+                f"run dir {self.path.parent} is in use by {holder}; wait for that run to end or stop it "
+                "(its checkpoints resume with --resume)"
+            ) from None
+        os.ftruncate(fd, 0)
+        command = " ".join([Path(sys.argv[0]).name, *sys.argv[1:]]) if sys.argv and sys.argv[0] else "python"
+        started = time.strftime("%Y-%m-%d %H:%M:%S")
+        os.pwrite(fd, f"process {os.getpid()} ({command}, since {started})\n".encode(), 0)
+        self._fd = fd
+        for folder in (self.path.parent, self.path.parent / "checkpoints"):  # what a killed writer left
+            for debris in folder.glob(".*.tmp*"):
+                debris.unlink(missing_ok=True)
+        return self
+
+    def release(self, undo: bool = False) -> None:
+        """Let the run dir go; ``undo`` (a run refused after acquiring) also removes the folders or the
+        lock file that :meth:`acquire` created."""
+        if undo and self.created is not None:
+            shutil.rmtree(self.created, ignore_errors=True)
+        elif undo and self._new_file:
+            self.path.unlink(missing_ok=True)
+        if self._fd is not None:
+            os.close(self._fd)  # closing the last descriptor drops the flock
+            self._fd = None
+
+    def check_free(self) -> None:
+        """Raise :class:`RunDirInUse` if a live process holds the run dir; hold nothing, leave no trace."""
+        self.acquire().release(undo=True)
+
+    def __enter__(self) -> RunDirLock:
+        return self.acquire()
+
+    def __exit__(self, *exc) -> None:
+        self.release()
 
 
 def check_run(cfg: TrainConfig, run_dir: Path, resume: bool) -> dict | None:
@@ -39,7 +119,9 @@ def check_run(cfg: TrainConfig, run_dir: Path, resume: bool) -> dict | None:
             f"{run_dir} already holds a run; pass --resume to continue it or pick a new dir"
         )
     else:
-        check_new_dir(run_dir, "run dir", advice="pick a new run dir (or empty this one)")
+        check_new_dir(
+            run_dir, "run dir", advice="pick a new run dir (or empty this one)", ignore=(LOCK_NAME,)
+        )
         if cfg.init_from:
             initial_weights(cfg.init_from, cfg.amat_config())  # readable, and the same model
     try:
@@ -82,6 +164,8 @@ def remove_run_files(run_dir: Path, created: Path | None) -> None:
         shutil.rmtree(created, ignore_errors=True)
         return
     for entry in run_dir.iterdir():
+        if entry.name == LOCK_NAME:  # still held by this run: left for the next one
+            continue
         if entry.is_dir() and not entry.is_symlink():
             shutil.rmtree(entry, ignore_errors=True)
         else:

@@ -38,8 +38,8 @@ from catmip_rl.training.parallel_update import ParallelGradients
 from catmip_rl.training.ppo import ValueNorm
 from catmip_rl.training.precision import choose_bf16
 from catmip_rl.training.run_dir import (
+    RunDirLock,
     check_run,
-    first_missing,
     remove_run_files,
     stopped_note,
     tensorboard_writer,
@@ -194,13 +194,19 @@ def ppo_iteration(run: Run, run_dir: Path) -> tuple[dict[str, float], list[dict[
 
 
 def train(cfg: TrainConfig, run_dir: str | Path, resume: bool = False, progress: bool = True) -> AMAT:
-    """Run (or continue, with ``resume``) a training run in ``run_dir``; returns the model. Refusals
+    """Run (or continue, with ``resume``) a training run in ``run_dir``; returns the model. The run holds
+    ``run_dir`` while it lives (``run_dir.RunDirLock``: a second writer is refused); refusals
     (``run_dir.check_run``) come before anything is built or written."""
     run_dir = Path(run_dir)
     ckpt_dir = run_dir / "checkpoints"
     latest = ckpt_dir / "latest.pt"
-    run = build_run(cfg, check_run(cfg, run_dir, resume))
-    created = first_missing(run_dir)  # a new run stopped before its first checkpoint removes its files
+    lock = RunDirLock(run_dir).acquire()
+    try:
+        run = build_run(cfg, check_run(cfg, run_dir, resume))
+    except BaseException:
+        lock.release(undo=True)  # a refused run leaves nothing behind
+        raise
+    created = lock.created  # a new run stopped before its first checkpoint removes its files
     csv_file = epoch_file = tb = None
     finished = False
 
@@ -278,4 +284,5 @@ def train(cfg: TrainConfig, run_dir: str | Path, resume: bool = False, progress:
         run.close()
         if not (finished or resume or latest.exists()):  # nothing to resume: leave the dir as it was
             remove_run_files(run_dir, created)
+        lock.release()
     return run.model

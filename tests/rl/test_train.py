@@ -6,6 +6,7 @@ import json
 import pytest
 import torch
 
+from catmip_rl.checkpoint import load_model
 from catmip_rl.cli import main as cli
 from catmip_rl.training.config import TrainConfig, make_train_config
 from catmip_rl.training.train import METRICS, train
@@ -64,6 +65,10 @@ def test_errors(tmp_path):
     with pytest.raises(FileNotFoundError, match="no checkpoint"):
         train(cfg, tmp_path / "empty", resume=True, progress=False)
     assert cli(["train", "--preset", "tiny", "--run-dir", str(tmp_path / "x"), "--set", "gamma=2"]) == 2
+    (tmp_path / "file").write_text("")
+    with pytest.raises(NotADirectoryError, match="is a file, not a folder"):
+        train(cfg, tmp_path / "file", progress=False)
+    assert not (tmp_path / "x").exists() and not (tmp_path / "empty").exists()  # refused: nothing left
     assert json.loads(cfg.to_json())["iterations"] == 1
 
 
@@ -181,3 +186,65 @@ def test_export_writes_a_runs_model_with_its_provenance(tmp_path, capsys):
 def test_a_fine_tuning_preset_needs_init_from(tmp_path, capsys):
     assert cli(["train", "--preset", "paper-sharp", "--run-dir", str(tmp_path / "r")]) == 2
     assert "--init-from" in capsys.readouterr().err and not (tmp_path / "r").exists()
+
+
+def _start_cli_run(run_dir, *args):
+    """``catmip train --preset tiny`` in a process of its own (stderr captured)."""
+    import subprocess
+    import sys
+
+    cmd = [sys.executable, "-m", "catmip_rl.cli", "train", "--preset", "tiny", "--run-dir", str(run_dir),
+           "--no-progress", "--threads", "1", *args]  # fmt: skip
+    return subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+
+
+def _wait_for(path, proc, timeout=300.0):
+    import time
+
+    end = time.monotonic() + timeout
+    while not path.exists():
+        assert proc.poll() is None, f"the run ended before writing {path}: {proc.stderr.read()}"
+        assert time.monotonic() < end, f"no {path} after {timeout:.0f} s"
+        time.sleep(0.05)
+
+
+@pytest.mark.slow
+def test_a_run_dir_in_use_refuses_a_second_writer_and_the_live_run_finishes_untouched(tmp_path, capsys):
+    from catmip_rl.training.run_dir import LOCK_NAME
+
+    iterations = ["--set", "iterations=20", "--set", "eval_every=0"]
+    live = _start_cli_run(tmp_path / "r", *iterations)
+    try:
+        _wait_for(tmp_path / "r" / "config.json", live)  # its first checkpoint may or may not be there yet
+        for resume in (["--resume"], []):  # resuming it, or starting it anew: both refused
+            assert cli(["train", "--preset", "tiny", "--run-dir", str(tmp_path / "r"), *resume]) == 2
+            err = capsys.readouterr().err.strip()
+            assert f"is in use by process {live.pid} (" in err and "\n" not in err and "Traceback" not in err
+        assert live.wait(timeout=600) == 0, live.stderr.read()
+    finally:
+        live.kill()
+    alone = train(
+        make_train_config("tiny", iterations=20, eval_every=0, threads=1), tmp_path / "alone", progress=False
+    )
+    latest = tmp_path / "r" / "checkpoints" / "latest.pt"
+    assert torch.load(latest, weights_only=False)["iteration"] == 20
+    assert torch.equal(_params(alone), _params(load_model(latest)))
+    assert not list((tmp_path / "r").rglob(".*.tmp*"))
+    assert (tmp_path / "r" / LOCK_NAME).exists()  # left (unlocked) for the next run: it resumes at once
+    train(make_train_config("tiny", iterations=21, eval_every=0), tmp_path / "r", resume=True, progress=False)
+
+
+@pytest.mark.slow
+def test_a_run_killed_at_any_moment_resumes_to_the_weights_of_an_uninterrupted_run(tmp_path):
+    import signal
+
+    cfg = make_train_config("tiny", iterations=6, eval_every=0, threads=1)
+    uninterrupted = _params(train(cfg, tmp_path / "straight", progress=False))
+    for k, wait_for in enumerate(("iter_000001.pt", "iter_000003.pt")):  # killed mid-run, twice
+        run = tmp_path / f"killed{k}"
+        proc = _start_cli_run(run, "--set", "iterations=6", "--set", "eval_every=0")
+        _wait_for(run / "checkpoints" / wait_for, proc)
+        proc.send_signal(signal.SIGKILL)
+        proc.wait()
+        resumed = train(cfg, run, resume=True, progress=False)  # no stale lock, no half-written file
+        assert torch.equal(_params(resumed), uninterrupted)
