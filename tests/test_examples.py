@@ -1,5 +1,6 @@
 """Every example and the demo run end to end on a tiny budget."""
 
+import csv
 import importlib.util
 import json
 import math
@@ -49,7 +50,7 @@ def test_demo_writes_results_and_gif(tmp_path):
 
 
 @pytest.mark.parametrize("algo", ["mappo", "ippo"])
-def test_mappo_torchrl_trains_saves_and_evaluates_through_its_factory(tmp_path, algo, capsys):
+def test_mappo_torchrl_trains_saves_and_evaluates_through_its_factory(tmp_path, algo, capsys, monkeypatch):
     out = tmp_path / algo
     history = _load(ROOT / "examples" / "mappo_torchrl.py").main(
         ["--algo", algo, "--iterations", "2", "--worlds", "8", "--events", "32", "--epochs", "2",
@@ -74,6 +75,13 @@ def test_mappo_torchrl_trains_saves_and_evaluates_through_its_factory(tmp_path, 
     code = cli(["eval", "--task", "task2", "--method", factory, "--episodes", "1",
                 "--out", str(tmp_path / "t2"), "--no-progress"])  # fmt: skip
     assert code == 2 and "was trained for" in capsys.readouterr().err
+    # its learning curve: docs/figures/marl_curves.py reads the run folder
+    curves = _load(ROOT / "docs" / "figures" / "marl_curves.py")
+    monkeypatch.setattr("sys.argv", ["marl_curves.py", str(out), "--out", str(tmp_path / "curves")])
+    curves.main()
+    rows = list(csv.DictReader((tmp_path / "curves.csv").open()))
+    assert [(r["algo"], int(r["iteration"])) for r in rows] == [(algo, 0), (algo, 1)]
+    assert (tmp_path / "curves.png").stat().st_size > 1000
 
 
 def test_evaluate_my_policy_plays_the_planners_maps_and_compares(tmp_path, capsys):
