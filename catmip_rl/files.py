@@ -13,7 +13,7 @@ from catmip_env.files import atomic_path
 
 __all__ = [
     "atomic_write_text", "atomic_write_csv", "open_csv_log", "write_csv_row", "check_new_dir",
-    "check_new_file",
+    "check_new_file", "check_not_dangling",
 ]  # fmt: skip
 
 
@@ -65,7 +65,7 @@ def check_new_dir(
     folder with files too. ``what`` names the path in messages (a flag: ``--out``); ``advice`` replaces
     the default "pick a new folder or pass --force" hint."""
     path = Path(path)
-    _check_not_dangling(path, what)
+    check_not_dangling(path, what)
     if path.exists() and not path.is_dir():
         raise FileExistsError(f"{what} {path} is a file, not a folder")
     if path.is_dir() and not force:
@@ -97,7 +97,7 @@ def _check_creatable(folder: Path, what: str) -> None:
     """``folder`` exists or can be created: its nearest existing ancestor is a folder we may write in."""
     p = folder.absolute()
     while not p.exists():
-        _check_not_dangling(p, what)
+        check_not_dangling(p, what)
         p = p.parent
     if not p.is_dir():
         raise NotADirectoryError(f"{what} {folder}: {p} is a file, so the folder cannot be created")
@@ -105,7 +105,7 @@ def _check_creatable(folder: Path, what: str) -> None:
         raise PermissionError(f"{what} {folder}: no permission to write in {p}")
 
 
-def _check_not_dangling(path: Path, what: str) -> None:
+def check_not_dangling(path: Path, what: str) -> None:
     """A symbolic link to nothing cannot become a folder (mkdir meets the link): refuse it up front."""
     if path.is_symlink() and not path.exists():
         raise FileExistsError(

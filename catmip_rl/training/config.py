@@ -32,6 +32,10 @@ _TYPES: dict[str, tuple[str, Callable[[Any], bool]]] = {
     "bool": ("true or false", lambda v: isinstance(v, bool)),
     "str | None": ("a string or null", lambda v: v is None or isinstance(v, str)),
     "dict[str, Any]": ("a JSON object {field: value}", lambda v: isinstance(v, dict)),
+    "list[dict[str, Any]]": (
+        "a JSON list of objects [{field: value}, ...]",
+        lambda v: isinstance(v, list) and all(isinstance(x, dict) for x in v),
+    ),
 }
 # and each numeric field's range (seeds: torch's generators take 64-bit seeds)
 _RANGES: dict[str, tuple[str, Callable[[Any], bool]]] = {
@@ -69,6 +73,13 @@ class TrainConfig:
     """catmip_env preset the training worlds come from."""
     env_overrides: dict[str, Any] = field(default_factory=dict)
     """EnvConfig field overrides (e.g. {"synchronous": true})."""
+    worlds: list[dict[str, Any]] = field(default_factory=list)
+    """A mixture of training worlds; empty (default): the one world ``env_preset`` + ``env_overrides``.
+    Each entry is a JSON object of EnvConfig overrides applied over that world, with two keys of its
+    own: "preset" (start from this catmip_env preset instead, without ``env_overrides``) and
+    "num_worlds" (episodes collected per iteration in this world; default ``num_worlds``). PPO iteration
+    k trains on world (k - 1) mod len(worlds); the warm start, if any, on the first; the evaluation stays
+    on ``env_preset`` + ``env_overrides``."""
     amat: dict[str, Any] = field(default_factory=dict)
     """AmatConfig field overrides (window must equal the env's window)."""
     num_worlds: int = 64
@@ -198,14 +209,36 @@ class TrainConfig:
                 f"TrainConfig.ray_address must be None, 'auto', 'host:port' or 'ray://host:port', "
                 f"got {self.ray_address!r}"
             )
-        env, amat = self.env_config(), self.amat_config()  # validates both
-        if amat.window != env.window:
-            raise ValueError(f"AMAT window {amat.window} differs from the env's goal window {env.window}")
-        if amat.local_size != env.local_size or amat.n_classes != env.num_classes:
-            raise ValueError("AMAT local_size / n_classes must match the env's local map and classes")
+        if self.worlds and self.collector != "local":
+            raise ValueError("TrainConfig.worlds (a mixture of worlds) needs collector 'local'")
+        amat = self.amat_config()  # validates it
+        for k, (env, _) in enumerate([(self.env_config(), 0), *self.world_configs()]):  # validates them
+            where = "the env's" if k == 0 else f"worlds[{k - 1}]'s"
+            if amat.window != env.window:
+                raise ValueError(f"AMAT window {amat.window} differs from {where} goal window {env.window}")
+            if amat.local_size != env.local_size or amat.n_classes != env.num_classes:
+                raise ValueError(f"AMAT local_size / n_classes must match {where} local map and classes")
 
     def env_config(self) -> EnvConfig:
         return make_config(self.env_preset, **self.env_overrides)
+
+    def world_configs(self) -> list[tuple[EnvConfig, int]]:
+        """(EnvConfig, episodes per iteration) of each training world (see ``worlds``); ValueError
+        naming a bad entry."""
+        if not self.worlds:
+            return [(self.env_config(), self.num_worlds)]
+        out = []
+        for k, entry in enumerate(self.worlds):
+            entry = dict(entry)
+            preset, n = entry.pop("preset", None), entry.pop("num_worlds", self.num_worlds)
+            if not _is_int(n) or n < 1:
+                raise ValueError(f"TrainConfig.worlds[{k}].num_worlds must be an int >= 1, got {n!r}")
+            try:
+                env = make_config(preset, **entry) if preset else self.env_config().replace(**entry)
+            except (ValueError, TypeError) as err:
+                raise ValueError(f"TrainConfig.worlds[{k}]: {err}") from None
+            out.append((env, n))
+        return out
 
     def eval_env_config(self) -> EnvConfig:
         """The training task with evaluation activation (0, 0)."""

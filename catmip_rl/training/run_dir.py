@@ -19,7 +19,7 @@ from pathlib import Path
 import torch
 
 from catmip_rl.checkpoint import initial_weights, resume_checkpoint
-from catmip_rl.files import check_new_dir
+from catmip_rl.files import check_new_dir, check_not_dangling
 from catmip_rl.training.config import TrainConfig
 
 __all__ = [
@@ -53,6 +53,7 @@ class RunDirLock:
         """Hold the run dir, or raise :class:`RunDirInUse` naming the process that holds it."""
         import fcntl  # POSIX; the training runs this project supports are on Linux and macOS
 
+        check_not_dangling(self.path.parent, "run dir")
         if self.path.parent.exists() and not self.path.parent.is_dir():
             raise NotADirectoryError(f"run dir {self.path.parent} is a file, not a folder")
         self.created = first_missing(self.path.parent)

@@ -54,7 +54,7 @@ METRICS = [
     "rollout/target_found_tick",
     "rollout/explored_fraction", "rollout/episode_ticks", "rollout/return_rescuer", "rollout/return_explorer",
     "rollout/decisions_per_episode", "rollout/stalls_per_episode", "rollout/stall_fraction_rescuer",
-    "rollout/stall_fraction_explorer",
+    "rollout/stall_fraction_explorer", "rollout/world",
     "loss/policy", "loss/value", "loss/entropy", "loss/rescue",
     "ppo/approx_kl", "ppo/clip_fraction", "ppo/grad_norm", "ppo/lr", "ppo/epochs", "ppo/early_stop",
     "ppo/bf16",
@@ -103,6 +103,11 @@ class Run:
     parallel: ParallelGradients | None = None  # the update's helper processes, started on the first batch
     init_source: dict | None = None  # where a new run's initial weights came from (init_from)
     rescue_labeler: RescueLabeler | None = None  # labels for the auxiliary rescue loss (cfg.rescue_coef)
+    worlds: list[Collector] | None = None  # a mixture of worlds (cfg.worlds): one each; collector = worlds[0]
+
+    def collector_for(self, iteration: int):
+        """The collector of PPO iteration ``iteration`` (1, 2, ...): the mixture's worlds take turns."""
+        return self.collector if self.worlds is None else self.worlds[(iteration - 1) % len(self.worlds)]
 
     def save(self, path: Path) -> None:
         save_training_checkpoint(
@@ -147,6 +152,9 @@ def build_run(cfg: TrainConfig, saved: dict | None = None) -> Run:
         from catmip_rl.adapters.ray_collect import RayRolloutCollector
 
         run.collector = RayRolloutCollector(cfg, model)
+    elif cfg.worlds:
+        run.worlds = [Collector(env, n, cfg.seed, cfg.gamma, str(device)) for env, n in cfg.world_configs()]
+        run.collector = run.worlds[0]
     else:
         run.collector = Collector(cfg.env_config(), cfg.num_worlds, cfg.seed, cfg.gamma, str(device))
     if cfg.rescue_coef > 0:
@@ -162,11 +170,12 @@ def ppo_iteration(run: Run, run_dir: Path) -> tuple[dict[str, float], list[dict[
     t0 = time.perf_counter()
     for group in run.opt.param_groups:
         group["lr"] = cfg.lr * lr_factor(it, cfg, run.elapsed)
-    rollout = run.collector.collect(
+    collector = run.collector_for(it)
+    rollout = collector.collect(
         run.model, first_episode=run.episodes, generator=run.gen,
         **({"labeler": run.rescue_labeler} if run.rescue_labeler is not None else {}),
     )  # fmt: skip
-    run.episodes += cfg.num_worlds
+    run.episodes += cfg.num_worlds if run.worlds is None else collector.engine.num_worlds
     t1 = time.perf_counter()
     n_classes = cfg.env_config().num_classes
     batch, info = build_batch(rollout, run.value_norm, cfg.gamma, cfg.lam, n_classes, run.device)
@@ -188,6 +197,8 @@ def ppo_iteration(run: Run, run_dir: Path) -> tuple[dict[str, float], list[dict[
     run.iteration = it
     row = {"iteration": it, "episodes": run.episodes, "samples": info["samples"], **stats}
     row |= {f"rollout/{k}": v for k, v in rollout.stats.items() if f"rollout/{k}" in METRICS}
+    if run.worlds is not None:
+        row["rollout/world"] = (it - 1) % len(run.worlds)
     row |= {"time/collect_s": t1 - t0, "time/advantage_s": t2 - t1, "time/update_s": t3 - t2}
     row["time/elapsed_min"] = run.elapsed / 60.0
     return row, epochs, rollout
@@ -282,7 +293,8 @@ def train(cfg: TrainConfig, run_dir: str | Path, resume: bool = False, progress:
             if log is not None:
                 log.close()
         run.close()
-        if not (finished or resume or latest.exists()):  # nothing to resume: leave the dir as it was
+        nothing_to_resume = not (finished or resume or latest.exists())
+        if nothing_to_resume:  # leave the dir as it was
             remove_run_files(run_dir, created)
-        lock.release()
+        lock.release(undo=nothing_to_resume)
     return run.model

@@ -248,3 +248,35 @@ def test_a_run_killed_at_any_moment_resumes_to_the_weights_of_an_uninterrupted_r
         proc.wait()
         resumed = train(cfg, run, resume=True, progress=False)  # no stale lock, no half-written file
         assert torch.equal(_params(resumed), uninterrupted)
+
+
+def test_a_mixture_of_worlds_takes_turns_and_resumes_exactly(tmp_path):
+    worlds = [{}, {"map_size": 14, "team": ["rescuer", "explorer", "explorer"], "num_worlds": 4}]
+    cfg = make_train_config("tiny", iterations=3, eval_every=0, worlds=worlds, threads=1)
+    assert [(env.map_size, env.num_robots, n) for env, n in cfg.world_configs()] == [(12, 2, 8), (14, 3, 4)]
+    straight = train(cfg, tmp_path / "a", progress=False)
+    rows = list(csv.DictReader((tmp_path / "a" / "metrics.csv").open()))
+    assert [(int(r["iteration"]), r["rollout/world"], int(r["episodes"])) for r in rows] == [
+        (1, "0", 8), (2, "1", 12), (3, "0", 20)
+    ]  # fmt: skip
+    ckpts = tmp_path / "a" / "checkpoints"
+    (ckpts / "latest.pt").write_bytes((ckpts / "iter_000002.pt").read_bytes())  # rewind to iteration 2
+    resumed = train(cfg, tmp_path / "a", resume=True, progress=False)  # iteration 3: world 0 again
+    assert torch.equal(_params(straight), _params(resumed))
+
+
+def test_a_mixture_of_worlds_is_checked(tmp_path):
+    with pytest.raises(ValueError, match=r"worlds must be a JSON list of objects"):
+        make_train_config("tiny", worlds={"map_size": 14})
+    with pytest.raises(ValueError, match=r"worlds\[0\].num_worlds must be an int >= 1"):
+        make_train_config("tiny", worlds=[{"num_worlds": 0}])
+    with pytest.raises(ValueError, match=r"worlds\[1\]: unknown EnvConfig field"):
+        make_train_config("tiny", worlds=[{}, {"map_sise": 14}])
+    with pytest.raises(ValueError, match=r"worlds\[0\]: unknown preset"):
+        make_train_config("tiny", worlds=[{"preset": "task9"}])
+    with pytest.raises(ValueError, match=r"AMAT window 7 differs from worlds\[0\]'s goal window 5"):
+        make_train_config("tiny", worlds=[{"window": 5}])
+    with pytest.raises(ValueError, match="needs collector 'local'"):
+        make_train_config("tiny", worlds=[{}], collector="ray")
+    task3 = make_train_config("tiny", worlds=[{"preset": "task3", "num_worlds": 2}]).world_configs()
+    assert task3[0][0].map_size == 32 and task3[0][1] == 2
