@@ -145,6 +145,11 @@ class TrainConfig:
     starts in the robot's heading (``window:PLANNER``), or along a heading-free one (E, S, W, N first,
     then straight on: ``window-noheading:PLANNER``), a label that depends only on what AMAT observes (no
     headings); measured, it taught no better (docs/paper-model.md, "A teacher that turns less")."""
+    warm_start_stay: bool = True
+    """Whether the teacher's "stay" labels are imitated. The window planner says "stay" when its planner
+    has no goal (no reachable frontier it may claim): a pause for the teacher, whose next decision
+    differs as the others move, but a state a deterministic student learns to stand still in, deciding
+    the same again at once (an argmax loop). False leaves those decisions unscored."""
     warm_start_rounds: int = 6
     """DAgger rounds (each collects num_worlds episodes with the current policy, labelled)."""
     warm_start_steps: int = 150
@@ -270,6 +275,7 @@ _STEP_CONTROL = {"epochs": 6, "minibatches": 4, "clip": 0.1, "target_kl": 0.01}
 _WARM_START = {"warm_start": "nearest", "warm_start_rounds": 12, "warm_start_steps": 300,
                "value_warmup_iterations": 5}  # fmt: skip
 _EVAL_64 = {"eval_episodes": 64, "eval_seed": 2025}
+_COMMS = [None, 4, 2]  # communication drawn per episode: full, sigma = 4, sigma = 2
 
 _TASK1 = TrainConfig(
     env_preset="task1",
@@ -335,6 +341,41 @@ TRAIN_PRESETS: dict[str, TrainConfig] = {
         **_STEP_CONTROL,
         **(_WARM_START | {"warm_start": ""}),
         **_EVAL_64,
+    ),
+    # one model for every team and map size (amat_general.pt): amat_paper.pt fine-tuned on a mixture of
+    # worlds that take turns (the paper's, Tasks 1-3's teams and map sizes, and a 26x26 four-robot world
+    # with SLAM noise), each with training activation and its communication range drawn per episode
+    # (full, 4, 2); evaluated on Task 3 (docs/training.md, "One model for every team and map size")
+    "general": TrainConfig(
+        env_preset="task3",
+        env_overrides={"activation": [2, 5]},
+        worlds=[
+            {"preset": "train", "comm_sigma_choices": _COMMS},
+            {"preset": "task1", "activation": [2, 5], "comm_sigma_choices": _COMMS},
+            {"preset": "task2", "activation": [2, 5], "comm_sigma_choices": _COMMS},
+            {
+                "preset": "task2",
+                "map_size": 26,
+                "team": ["rescuer", "explorer", "explorer", "random"],
+                "horizon_ticks": 450,
+                "activation": [2, 5],
+                "slam_noise": 0.05,
+                "comm_sigma_choices": _COMMS,
+                "num_worlds": 32,
+            },
+            {"preset": "task3", "activation": [2, 5], "comm_sigma_choices": _COMMS, "num_worlds": 16},
+        ],
+        init_from="paper",
+        precision="auto",
+        num_worlds=64,
+        iterations=100_000,
+        lr=1e-4,
+        eval_every=25,
+        eval_episodes=64,
+        eval_seed=2025,
+        checkpoint_every=10,
+        value_warmup_iterations=5,
+        **_STEP_CONTROL,
     ),
     # a minute-scale smoke run: a small map, two robots, a small AMAT
     "tiny": TrainConfig(

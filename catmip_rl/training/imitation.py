@@ -91,10 +91,18 @@ class RescueLabeler:
         return out
 
 
-def imitation_loss(model: AMAT, batch: dict[str, torch.Tensor]) -> tuple[torch.Tensor, dict[str, float]]:
-    """Mean cross-entropy of the active robots' labels under teacher forcing, and its accuracy."""
+def imitation_loss(
+    model: AMAT, batch: dict[str, torch.Tensor], skip_label: int | None = None
+) -> tuple[torch.Tensor, dict[str, float]]:
+    """Mean cross-entropy of the active robots' labels under teacher forcing, and its accuracy; decisions
+    labelled ``skip_label`` are not scored (they still feed the decoder as inputs)."""
     obs = {k: batch[k] for k in ("global_map", "local_map", "agent_class")}
     sel = batch["active"].bool()
+    if skip_label is not None:
+        sel = sel & (batch["label"] != skip_label)
+    if not sel.any():
+        zero = sum(p.sum() * 0.0 for p in model.parameters())  # no label in this batch: no step
+        return zero, {"imitation/loss": 0.0, "imitation/accuracy": 0.0}
     logits, _ = model.score(
         model.embed(obs), batch["label"], batch["order"], batch["agent_class"], sel, batch["action_mask"]
     )  # (K, A)
@@ -121,12 +129,14 @@ def dagger(
     deterministic: bool = False,
     on_round=None,
     follow_heading: bool = True,
+    imitate_stay: bool = True,
 ) -> tuple[int, list[dict[str, float]]]:
     """Train ``model`` by DAgger against the window-projected ``teacher`` planner; returns (episodes
     used, one log row per round). The policy's own actions in the rollouts are argmax with
     ``deterministic`` (as it will be evaluated), else sampled. ``on_round(row)`` is called after each
     round (logging, progress). ``follow_heading=False`` projects the teacher's goals along a
-    heading-free path (:class:`~catmip_env.window_planner.WindowPlanner`)."""
+    heading-free path (:class:`~catmip_env.window_planner.WindowPlanner`). ``imitate_stay=False`` leaves
+    the teacher's "stay" labels unscored (``TrainConfig.warm_start_stay``)."""
     if rounds < 1 or steps_per_round < 1 or batch_events < 1:
         raise ValueError("dagger: rounds, steps_per_round and batch_events must be >= 1")
     gen = generator if generator is not None else torch.Generator().manual_seed(seed)
@@ -135,6 +145,7 @@ def dagger(
     buffer = DemoBuffer(buffer_events)
     device = next(model.parameters()).device
     n_classes = model.config.n_classes
+    skip = None if imitate_stay else model.config.num_actions // 2  # the window's centre: "stay"
     opt = torch.optim.Adam(model.parameters(), lr=lr, eps=1e-5)
     episodes = first_episode
     log = []
@@ -151,7 +162,7 @@ def dagger(
         sums = {"imitation/loss": 0.0, "imitation/accuracy": 0.0}
         for _ in range(steps_per_round):
             idx = rng.integers(0, len(buffer), size=min(batch_events, len(buffer)))
-            loss, stats = imitation_loss(model, buffer.batch(idx, n_classes, device))
+            loss, stats = imitation_loss(model, buffer.batch(idx, n_classes, device), skip)
             opt.zero_grad(set_to_none=True)
             loss.backward()
             torch.nn.utils.clip_grad_norm_(model.parameters(), max_grad_norm)
@@ -210,6 +221,7 @@ def warm_start(cfg, model, collector, gen, run_dir, progress: bool, evaluate=Non
             model, collector, cfg.warm_start, cfg.warm_start_rounds, cfg.warm_start_steps,
             batch_events=cfg.warm_start_batch, lr=cfg.warm_start_lr, generator=gen, seed=cfg.seed,
             max_grad_norm=cfg.max_grad_norm, on_round=on_round, follow_heading=cfg.warm_start_heading,
+            imitate_stay=cfg.warm_start_stay,
         )  # fmt: skip
     finally:
         file.close()

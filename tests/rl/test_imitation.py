@@ -88,6 +88,30 @@ def test_dagger_fits_the_teacher():
     assert stats["imitation/accuracy"] > 4 * chance
 
 
+def test_stay_labels_can_be_left_unscored():
+    """The teacher says "stay" where its planner has no goal; with warm_start_stay=False those decisions
+    leave the loss (the others score as before) and a batch of stays alone gives a zero loss."""
+    _, _, r = _labelled(horizon=150, worlds=6, seed=4, teacher_prob=1.0)
+    buf = DemoBuffer(10_000)
+    buf.add(r)
+    stay = AmatConfig().num_actions // 2
+    labels, active = buf.arrays["label"], buf.arrays["active"]
+    assert (labels[active] == stay).any() and (labels[active] != stay).any()
+    torch.manual_seed(0)
+    model = AMAT(AmatConfig(embed_dim=32))
+    every = buf.batch(np.arange(len(buf)), 2, torch.device("cpu"))
+    moving = dict(every, active=every["active"] & (every["label"] != stay))
+    with torch.no_grad():
+        skipped, _ = imitation_loss(model, every, skip_label=stay)
+        expected, _ = imitation_loss(model, moving)
+        full, _ = imitation_loss(model, every)
+    assert torch.allclose(skipped, expected) and not torch.allclose(skipped, full)
+    only_stays = dict(every, label=torch.full_like(every["label"], stay))
+    zero, stats = imitation_loss(model, only_stays, skip_label=stay)
+    assert float(zero.detach()) == 0.0 and stats["imitation/accuracy"] == 0.0
+    zero.backward()  # a step on it changes nothing
+
+
 def test_the_heading_free_teacher_labels_the_warm_start(tmp_path, monkeypatch):
     import catmip_rl.training.imitation as imitation
 
