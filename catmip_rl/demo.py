@@ -59,8 +59,11 @@ def main(argv: list[str] | None = None) -> list[dict]:
         import shutil
 
         shutil.rmtree(run_dir)
+    # the warm start of task1-warm with 256 episodes a DAgger round (not 64) and the teacher's "stay" labels
+    # unscored: the short run's imitation then generalises instead of fitting its buffer (docs/training.md)
     cfg = make_train_config("task1-warm", iterations=args.iterations, threads=args.threads, eval_every=0,
-                            checkpoint_every=args.iterations)  # fmt: skip
+                            checkpoint_every=args.iterations, warm_start_worlds=256,
+                            warm_start_stay=False)  # fmt: skip
     print(
         f"[1/3] training AMAT on Task 1: {cfg.warm_start_rounds} imitation rounds, then {args.iterations} "
         f"PPO iterations x {cfg.num_worlds} episodes, {run_dir}"

@@ -248,10 +248,14 @@ def train(cfg: TrainConfig, run_dir: str | Path, resume: bool = False, progress:
         # (every checkpoint, iter_000000.pt included, is written after it: a resumed run never repeats it)
         if cfg.warm_start and not resume:
             evaluate_now = evaluate if run.evaluator else None
+            worlds = cfg.warm_start_worlds or cfg.num_worlds
+            dagger_collector = run.collector if worlds == cfg.num_worlds else Collector(
+                run.collector.engine.cfg, worlds, cfg.seed, cfg.gamma, str(run.device)
+            )  # fmt: skip
             run.elapsed = warm_start(
-                cfg, run.model, run.collector, run.gen, run_dir, progress, evaluate_now, log_scalars
+                cfg, run.model, dagger_collector, run.gen, run_dir, progress, evaluate_now, log_scalars
             )
-            run.episodes = cfg.warm_start_rounds * cfg.num_worlds
+            run.episodes = cfg.warm_start_rounds * worlds  # PPO's episodes follow the warm start's maps
             save(0)
         bar = None
         if progress:

@@ -152,6 +152,28 @@ def test_train_warm_starts_once_then_runs_ppo(tmp_path):
     assert [int(r["iteration"]) for r in rows] == [1, 2]
 
 
+def test_a_warm_start_can_collect_more_episodes_a_round_than_ppo(tmp_path, monkeypatch):
+    import catmip_rl.training.imitation as imitation
+
+    seen = []
+    real = imitation.dagger
+
+    def recording(model, collector, *args, **kwargs):
+        seen.append(collector.engine.num_worlds)
+        return real(model, collector, *args, **kwargs)
+
+    monkeypatch.setattr(imitation, "dagger", recording)
+    cfg = make_train_config("tiny", warm_start="nearest", warm_start_rounds=2, warm_start_steps=2,
+                            warm_start_worlds=12, iterations=1, eval_every=0)  # fmt: skip
+    train(cfg, tmp_path / "run", progress=False)
+    rounds = list(csv.DictReader((tmp_path / "run" / "warm_start.csv").open()))
+    assert seen == [12] and [int(r["episodes"]) for r in rounds] == [12, 24]
+    saved = torch.load(tmp_path / "run" / "checkpoints" / "latest.pt", weights_only=False)
+    assert saved["episodes"] == 24 + cfg.num_worlds  # PPO's maps follow the warm start's
+    with pytest.raises(ValueError, match="warm_start_worlds must be an int >= 0"):
+        make_train_config("tiny", warm_start_worlds=-1)
+
+
 @pytest.mark.parametrize("follow_heading", [True, False])
 def test_rescue_labeler_labels_only_rescuers_that_know_the_target_with_the_rescue_rule(follow_heading):
     cfg = make_config("task2", comm_sigma=2.0)  # rescuer, explorer and a third robot; partial news
