@@ -280,3 +280,24 @@ def test_a_mixture_of_worlds_is_checked(tmp_path):
         make_train_config("tiny", worlds=[{}], collector="ray")
     task3 = make_train_config("tiny", worlds=[{"preset": "task3", "num_worlds": 2}]).world_configs()
     assert task3[0][0].map_size == 32 and task3[0][1] == 2
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("preset", ["paper-warm-sync", "paper-warm-smallma", "general"])
+def test_the_issue_presets_build_and_train_an_iteration(preset, tmp_path):
+    """The variants' and the general model's presets as `catmip train` runs them, shrunk: a DAgger round
+    where they warm-start, then one PPO iteration (the general one from amat_paper.pt's weights)."""
+    cfg = make_train_config(preset)
+    small = {"num_worlds": 2, "iterations": 1, "eval_every": 0, "threads": 1, "warm_start_rounds": 1,
+             "warm_start_steps": 1}  # fmt: skip
+    if cfg.worlds:
+        small["worlds"] = [dict(w, num_worlds=2) for w in cfg.worlds]
+    run = tmp_path / preset
+    train(cfg.replace(**small), run, progress=False)
+    rows = list(csv.DictReader((run / "metrics.csv").open()))
+    assert [int(r["iteration"]) for r in rows] == [1] and float(rows[0]["samples"]) > 0
+    saved = TrainConfig.from_json((run / "config.json").read_text())
+    assert saved.env_config().synchronous == (preset == "paper-warm-sync")
+    assert saved.amat_config().window == (5 if preset == "paper-warm-smallma" else 7)
+    assert (run / "warm_start.csv").exists() == (preset != "general")
+    assert (run / "init_from.json").exists() == (preset == "general")
