@@ -400,7 +400,9 @@ TRAIN_PRESETS: dict[str, TrainConfig] = {
 # 5,604 PPO iterations after the warm start, amat_paper.pt's count, the LR decaying linearly over them
 _PAPER_WARM_5604 = TRAIN_PRESETS["paper-warm"].replace(iterations=5604)
 TRAIN_PRESETS["paper-warm-sync"] = _PAPER_WARM_5604.replace(env_overrides={"synchronous": True})
-TRAIN_PRESETS["paper-warm-smallma"] = _PAPER_WARM_5604.replace(env_overrides={"window": 5}, amat={"window": 5})
+TRAIN_PRESETS["paper-warm-smallma"] = _PAPER_WARM_5604.replace(
+    env_overrides={"window": 5}, amat={"window": 5}
+)
 
 #: presets that fine-tune a trained model: a new run of one needs ``init_from`` (``catmip train`` refuses it
 #: without; from fresh weights they would be a slow, unwarmed paper run)
