@@ -320,10 +320,14 @@ def plot_figure(curves_csv: str | Path, png: str | Path, title: str = "") -> Pat
         ax.set_ylim(0, 1.02)
         ax.grid(alpha=0.3)
     axes[0][0].set_ylabel("success rate")
-    axes[0][-1].legend(loc="lower right", fontsize=8)
+    handles, labels = axes[0][0].get_legend_handles_labels()
+    columns = min(len(labels), 4)
+    rows = -(-len(labels) // columns)  # below the panels, so that no curve is hidden
+    fig.set_size_inches(fig.get_size_inches()[0], 3.6 + 0.22 * rows)
+    fig.legend(handles, labels, loc="lower center", ncol=columns, fontsize=8, frameon=False)
     if title:
         fig.suptitle(title)
-    fig.tight_layout()
+    fig.tight_layout(rect=(0, 0.22 * rows / (3.6 + 0.22 * rows) + 0.02, 1, 1))
     with atomic_path(png) as tmp:
         fig.savefig(tmp, dpi=110)
     plt.close(fig)
