@@ -79,8 +79,8 @@ class TrainConfig:
     Each entry is a JSON object of EnvConfig overrides applied over that world, with two keys of its
     own: "preset" (start from this catmip_env preset instead, without ``env_overrides``) and
     "num_worlds" (episodes collected per iteration in this world; default ``num_worlds``). PPO iteration
-    k trains on world (k - 1) mod len(worlds); the warm start, if any, on the first; the evaluation stays
-    on ``env_preset`` + ``env_overrides``."""
+    k trains on world (k - 1) mod len(worlds); the warm start's DAgger rounds, if any, collect from every
+    world (a buffer each); the evaluation stays on ``env_preset`` + ``env_overrides``."""
     amat: dict[str, Any] = field(default_factory=dict)
     """AmatConfig field overrides (window must equal the env's window)."""
     num_worlds: int = 64

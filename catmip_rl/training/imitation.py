@@ -115,7 +115,7 @@ def imitation_loss(
 
 def dagger(
     model: AMAT,
-    collector: Collector,
+    collector: Collector | list[Collector],
     teacher: str,
     rounds: int,
     steps_per_round: int,
@@ -134,7 +134,9 @@ def dagger(
     """Train ``model`` by DAgger against the window-projected ``teacher`` planner; returns (episodes
     used, one log row per round). The policy's own actions in the rollouts are argmax with
     ``deterministic`` (as it will be evaluated), else sampled. ``on_round(row)`` is called after each
-    round (logging, progress). ``follow_heading=False`` projects the teacher's goals along a
+    round (logging, progress). A list of collectors (a mixture of worlds) collects from each every
+    round into a buffer of its own (their maps differ in size and team), and the steps take their
+    batches from the buffers in turn. ``follow_heading=False`` projects the teacher's goals along a
     heading-free path (:class:`~catmip_env.window_planner.WindowPlanner`). ``imitate_stay=False`` leaves
     the teacher's "stay" labels unscored (``TrainConfig.warm_start_stay``)."""
     if rounds < 1 or steps_per_round < 1 or batch_events < 1:
@@ -142,7 +144,8 @@ def dagger(
     gen = generator if generator is not None else torch.Generator().manual_seed(seed)
     rng = np.random.default_rng(seed)
     label_teacher = make_window_planner(teacher, seed=seed, follow_heading=follow_heading)
-    buffer = DemoBuffer(buffer_events)
+    collectors = collector if isinstance(collector, list) else [collector]
+    buffers = [DemoBuffer(buffer_events // len(collectors)) for _ in collectors]
     device = next(model.parameters()).device
     n_classes = model.config.n_classes
     skip = None if imitate_stay else model.config.num_actions // 2  # the window's centre: "stay"
@@ -152,30 +155,34 @@ def dagger(
     for r in range(rounds):
         t0 = time.perf_counter()
         beta = 0.5**r
-        rollout = collector.collect(
-            model, episodes, gen, deterministic=deterministic, labeler=label_teacher, teacher_prob=beta
-        )
-        episodes += collector.engine.num_worlds
-        buffer.add(rollout)
+        stats = []
+        for col, buffer in zip(collectors, buffers):
+            rollout = col.collect(
+                model, episodes, gen, deterministic=deterministic, labeler=label_teacher, teacher_prob=beta
+            )
+            episodes += col.engine.num_worlds
+            buffer.add(rollout)
+            stats.append(rollout.stats)
         t1 = time.perf_counter()
         model.train()
         sums = {"imitation/loss": 0.0, "imitation/accuracy": 0.0}
-        for _ in range(steps_per_round):
+        for step in range(steps_per_round):
+            buffer = buffers[step % len(buffers)]
             idx = rng.integers(0, len(buffer), size=min(batch_events, len(buffer)))
-            loss, stats = imitation_loss(model, buffer.batch(idx, n_classes, device), skip)
+            loss, step_stats = imitation_loss(model, buffer.batch(idx, n_classes, device), skip)
             opt.zero_grad(set_to_none=True)
             loss.backward()
             torch.nn.utils.clip_grad_norm_(model.parameters(), max_grad_norm)
             opt.step()
             for k in sums:
-                sums[k] += stats[k] / steps_per_round
+                sums[k] += step_stats[k] / steps_per_round
         row = {
             "round": r + 1,
             "episodes": episodes - first_episode,
             "beta": beta,
-            "buffer_events": len(buffer),
-            "rollout/success_rate": rollout.stats["success_rate"],
-            "rollout/success_by_100": rollout.stats["success_by_100"],
+            "buffer_events": sum(len(buf) for buf in buffers),
+            "rollout/success_rate": float(np.mean([st["success_rate"] for st in stats])),
+            "rollout/success_by_100": float(np.mean([st["success_by_100"] for st in stats])),
             **sums,
             "time/collect_s": t1 - t0,
             "time/update_s": time.perf_counter() - t1,

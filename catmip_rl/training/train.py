@@ -162,6 +162,20 @@ def build_run(cfg: TrainConfig, saved: dict | None = None) -> Run:
     return run
 
 
+def dagger_collectors(run: Run) -> list[Collector]:
+    """The collectors of the warm start's DAgger rounds: each training world's (one, or the mixture's),
+    with ``warm_start_worlds`` episodes a round where that is set (PPO's own collectors otherwise)."""
+    cfg = run.cfg
+    own = run.worlds if run.worlds is not None else [run.collector]
+    if not cfg.warm_start_worlds:
+        return own
+    return [
+        c if c.engine.num_worlds == cfg.warm_start_worlds
+        else Collector(c.engine.cfg, cfg.warm_start_worlds, cfg.seed, cfg.gamma, str(run.device))
+        for c in own
+    ]  # fmt: skip
+
+
 def ppo_iteration(run: Run, run_dir: Path) -> tuple[dict[str, float], list[dict[str, float]], Rollout]:
     """One PPO iteration (``run.iteration + 1``): the LR for it, one episode per world, async GAE, the
     update. Returns its metrics row (without evaluation), the per-epoch PPO statistics and the
@@ -248,14 +262,12 @@ def train(cfg: TrainConfig, run_dir: str | Path, resume: bool = False, progress:
         # (every checkpoint, iter_000000.pt included, is written after it: a resumed run never repeats it)
         if cfg.warm_start and not resume:
             evaluate_now = evaluate if run.evaluator else None
-            worlds = cfg.warm_start_worlds or cfg.num_worlds
-            dagger_collector = run.collector if worlds == cfg.num_worlds else Collector(
-                run.collector.engine.cfg, worlds, cfg.seed, cfg.gamma, str(run.device)
-            )  # fmt: skip
+            collectors = dagger_collectors(run)
             run.elapsed = warm_start(
-                cfg, run.model, dagger_collector, run.gen, run_dir, progress, evaluate_now, log_scalars
+                cfg, run.model, collectors, run.gen, run_dir, progress, evaluate_now, log_scalars
             )
-            run.episodes = cfg.warm_start_rounds * worlds  # PPO's episodes follow the warm start's maps
+            per_round = sum(c.engine.num_worlds for c in collectors)
+            run.episodes = cfg.warm_start_rounds * per_round  # PPO's episodes follow the warm start's maps
             save(0)
         bar = None
         if progress:

@@ -159,7 +159,7 @@ def test_a_warm_start_can_collect_more_episodes_a_round_than_ppo(tmp_path, monke
     real = imitation.dagger
 
     def recording(model, collector, *args, **kwargs):
-        seen.append(collector.engine.num_worlds)
+        seen.append([c.engine.num_worlds for c in collector])
         return real(model, collector, *args, **kwargs)
 
     monkeypatch.setattr(imitation, "dagger", recording)
@@ -167,7 +167,7 @@ def test_a_warm_start_can_collect_more_episodes_a_round_than_ppo(tmp_path, monke
                             warm_start_worlds=12, iterations=1, eval_every=0)  # fmt: skip
     train(cfg, tmp_path / "run", progress=False)
     rounds = list(csv.DictReader((tmp_path / "run" / "warm_start.csv").open()))
-    assert seen == [12] and [int(r["episodes"]) for r in rounds] == [12, 24]
+    assert seen == [[12]] and [int(r["episodes"]) for r in rounds] == [12, 24]
     saved = torch.load(tmp_path / "run" / "checkpoints" / "latest.pt", weights_only=False)
     assert saved["episodes"] == 24 + cfg.num_worlds  # PPO's maps follow the warm start's
     with pytest.raises(ValueError, match="warm_start_worlds must be an int >= 0"):

@@ -301,3 +301,19 @@ def test_the_issue_presets_build_and_train_an_iteration(preset, tmp_path):
     assert saved.amat_config().window == (5 if preset == "paper-warm-smallma" else 7)
     assert (run / "warm_start.csv").exists() == (preset != "general")
     assert (run / "init_from.json").exists() == (preset == "general")
+
+
+def test_a_warm_start_on_a_mixture_imitates_in_every_world(tmp_path):
+    worlds = [{}, {"map_size": 14, "team": ["rescuer", "explorer", "explorer"], "num_worlds": 4}]
+    cfg = make_train_config("tiny", worlds=worlds, warm_start="nearest", warm_start_rounds=2,
+                            warm_start_steps=4, iterations=1, eval_every=0, threads=1)  # fmt: skip
+    train(cfg, tmp_path / "a", progress=False)
+    rounds = list(csv.DictReader((tmp_path / "a" / "warm_start.csv").open()))
+    assert [int(r["episodes"]) for r in rounds] == [12, 24]  # 8 + 4 episodes a round
+    assert int(rounds[-1]["buffer_events"]) > 0
+    saved = torch.load(tmp_path / "a" / "checkpoints" / "latest.pt", weights_only=False)
+    assert saved["episodes"] == 24 + 8  # then PPO iteration 1 in world 0
+    sized = cfg.replace(warm_start_worlds=6)
+    train(sized, tmp_path / "b", progress=False)
+    rounds = list(csv.DictReader((tmp_path / "b" / "warm_start.csv").open()))
+    assert [int(r["episodes"]) for r in rounds] == [12, 24]  # 6 in each world
