@@ -39,11 +39,11 @@ from catmip_env.events import EventEngine, random_valid_actions
 from catmip_env.play import play
 from catmip_rl.amat.fast import FastAmat
 from catmip_rl.amat.model import AMAT, decision_order
-from catmip_rl.training.config import make_train_config
 from catmip_rl.training.memory import keep_freed_memory
 from catmip_rl.training.parallel_update import ParallelGradients
 from catmip_rl.training.ppo import SampleBatch, ppo_loss
 from catmip_rl.training.precision import native_bf16
+from catmip_rl.training.presets import make_train_config
 from catmip_rl.training.update import loss_kwargs, make_optimizer
 
 TOKEN_INPUTS = ("global_map", "local_map", "agent_class")

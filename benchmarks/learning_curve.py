@@ -28,8 +28,9 @@ from catmip_env.planners import make_planner
 from catmip_env.play import episode_metrics, play
 from catmip_rl.cli import parse_set
 from catmip_rl.files import atomic_write_csv, atomic_write_text
-from catmip_rl.training.config import TrainConfig, make_train_config
+from catmip_rl.training.config import TrainConfig
 from catmip_rl.training.precision import native_bf16
+from catmip_rl.training.presets import make_train_config
 
 PLANNER_LINES = ("nearest", "rrt", "random-rescue", "random-uniform")
 
@@ -151,7 +152,7 @@ def _draw(runs, cfgs, groups, lines, rows, out: Path, capability: str) -> None:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument(
-        "--preset", default="task1", help="training preset (catmip_rl.training.config.TRAIN_PRESETS)"
+        "--preset", default="task1", help="training preset (catmip_rl.training.presets.TRAIN_PRESETS)"
     )
     ap.add_argument("--minutes", type=float, default=30.0, help="wall-clock budget of the training run")
     ap.add_argument("--threads", type=int, default=2, help="torch threads (1 to run two curves side by side)")

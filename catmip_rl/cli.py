@@ -24,7 +24,8 @@ from typing import Any
 
 from catmip_rl.cli_args import CPUS, USER_ERRORS, parse_set
 from catmip_rl.cli_parser import DEFAULT_PRESET, build_parser
-from catmip_rl.training.config import FINE_TUNING_PRESETS, TRAIN_PRESETS, TrainConfig
+from catmip_rl.training.config import TrainConfig
+from catmip_rl.training.presets import FINE_TUNING_PRESETS, TRAIN_PRESETS
 
 __all__ = ["main", "build_parser", "parse_set", "CPUS", "DEFAULT_PRESET"]
 

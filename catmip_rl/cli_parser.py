@@ -24,7 +24,7 @@ from catmip_rl.cli_args import (
     checked,
     set_item,
 )  # fmt: skip
-from catmip_rl.training.config import TRAIN_PRESETS
+from catmip_rl.training.presets import TRAIN_PRESETS
 
 __all__ = ["DEFAULT_PRESET", "Formatter", "Parser", "build_parser", "version"]
 
@@ -79,7 +79,7 @@ def add_train(sub) -> None:
                         "tensorboard/, checkpoints/). A new run needs a new or empty --run-dir.")  # fmt: skip
     tr.add_argument(
         "--preset", choices=sorted(TRAIN_PRESETS),
-        help=f"training recipe (training.config.TRAIN_PRESETS); default {DEFAULT_PRESET} (the Task-1 "
+        help=f"training recipe (training.presets.TRAIN_PRESETS); default {DEFAULT_PRESET} (the Task-1 "
         "world: 12 DAgger rounds, then 2,000 PPO iterations, ~40 min on one CPU thread as the shipped model "
         "was trained; the preset itself runs 2 threads), or with --resume the run's own config. tiny: a "
         "smoke run (seconds); small: minutes; paper, paper-sync, paper-smallma: the paper's recipe (62,500 "

@@ -51,7 +51,7 @@ def main(argv: list[str] | None = None) -> list[dict]:
     torch.set_num_threads(args.threads)
 
     # 1. a short training run (a fresh one every time: the folder is replaced)
-    from catmip_rl.training.config import make_train_config
+    from catmip_rl.training.presets import make_train_config
     from catmip_rl.training.train import train
 
     run_dir = out / "train"

@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 
 from catmip_rl.evaluation.evaluate import EvalSetting, evaluate
-from catmip_rl.training.config import make_train_config
+from catmip_rl.training.presets import make_train_config
 from catmip_rl.training.train import train
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -1,11 +1,12 @@
 """Training AMAT: one PPO iteration is collect → GAE → PPO update, run by ``train.train``.
 
-* ``config`` — :class:`TrainConfig` and the presets;
+* ``config`` — :class:`TrainConfig`, validated when built; ``presets`` — the recipes (``--preset NAME``);
 * ``collect`` — the asynchronous rollout of B worlds (the event engine + AMAT's decisions);
 * ``gae`` — asynchronous GAE over decision events and the PPO batch built from a rollout;
-* ``ppo`` — the clipped loss, value normalisation and the update over epochs and minibatches;
+* ``ppo`` — the clipped loss and value normalisation; ``update`` — epochs over minibatches, step control;
 * ``parallel_update`` — the update's gradients computed by several CPU processes;
 * ``imitation`` — the DAgger warm start from a planner;
 * ``precision``, ``memory`` — bf16 autocast choice and allocator tuning;
+* ``run_dir`` — one writer per run folder, the checks before a run starts;
 * ``train`` — builds the parts, then runs the loop (logs, evaluation, checkpoints).
 """

@@ -1,4 +1,5 @@
-"""Training configuration: one frozen dataclass, presets in Python, saved as JSON in every run dir."""
+"""Training configuration: one frozen dataclass, validated when built, saved as JSON in every run dir
+(its presets: catmip_rl.training.presets)."""
 
 from __future__ import annotations
 
@@ -13,7 +14,7 @@ from typing import Any
 from catmip_env import EnvConfig, make_config
 from catmip_rl.amat.model import AmatConfig
 
-__all__ = ["TrainConfig", "TRAIN_PRESETS", "FINE_TUNING_PRESETS", "make_train_config"]
+__all__ = ["TrainConfig"]
 
 
 def _is_int(v: Any) -> bool:
@@ -270,146 +271,3 @@ class TrainConfig:
     @classmethod
     def from_json(cls, text: str) -> TrainConfig:
         return cls().replace(**json.loads(text))
-
-
-# the Task-1 world (15x15, rescuer + explorer) with training activation (2, 5), d = 64; step control:
-# at most 6 epochs x 4 minibatches, stopped once a minibatch's approx-KL exceeds 0.01 (docs/training.md,
-# "Step control"); ~2 s an iteration on one thread (~1 s once a warm start makes the KL target stop it)
-# what the Task-1 experiments found (docs/training.md, "Does it learn?"): step control, and the warm start
-_STEP_CONTROL = {"epochs": 6, "minibatches": 4, "clip": 0.1, "target_kl": 0.01}
-_WARM_START = {"warm_start": "nearest", "warm_start_rounds": 12, "warm_start_steps": 300,
-               "value_warmup_iterations": 5}  # fmt: skip
-_EVAL_64 = {"eval_episodes": 64, "eval_seed": 2025}
-_COMMS = [None, 4, 2]  # communication drawn per episode: full, sigma = 4, sigma = 2
-
-_TASK1 = TrainConfig(
-    env_preset="task1",
-    env_overrides={"activation": [2, 5]},
-    amat={"embed_dim": 64},
-    num_worlds=64,
-    iterations=600,
-    lr=3e-4,
-    eval_every=10,
-    checkpoint_every=20,
-    **_STEP_CONTROL,
-    **_EVAL_64,
-)
-
-TRAIN_PRESETS: dict[str, TrainConfig] = {
-    # the paper's recipe; on CPU the update's gradients come from two single-threaded processes
-    "paper": TrainConfig(update_processes=2),
-    "paper-sync": TrainConfig(env_overrides={"synchronous": True}, update_processes=2),
-    "paper-smallma": TrainConfig(env_overrides={"window": 5}, amat={"window": 5}, update_processes=2),
-    # minutes on 2 cores: a 12x12 map, two robots, d = 64, more and larger PPO steps than the paper;
-    # the slow learning test trains it and checks it beats the random policy clearly
-    "small": TrainConfig(
-        env_overrides={"map_size": 12, "team": ["rescuer", "explorer"], "horizon_ticks": 80},
-        amat={"embed_dim": 64},
-        num_worlds=64,
-        iterations=100,
-        epochs=6,
-        minibatches=4,
-        lr=5e-4,
-        clip=0.1,
-        eval_every=20,
-        checkpoint_every=20,
-    ),
-    "task1": _TASK1,
-    # task1 after an imitation warm start: DAgger against the window-projected Nearest planner, then
-    # PPO with a value warm-up (the README demo; the shipped amat_task1.pt is this recipe with a 40-minute
-    # budget); iterations stop early on the KL target, ~1 s each on one thread
-    "task1-warm": _TASK1.replace(iterations=2000, **_WARM_START),
-    # the paper's training world and AMAT (Table 2, d = 192) with the Task-1 findings: an imitation
-    # warm start, then PPO under step control (docs/training.md); to ship as amat_paper.pt
-    "paper-warm": TrainConfig(
-        precision="auto",  # bf16 where it measures faster: 1.6x for d = 192 on AVX-512-BF16
-        num_worlds=64,
-        iterations=3000,
-        lr=2e-4,
-        eval_every=25,
-        checkpoint_every=10,
-        **_STEP_CONTROL,
-        **_WARM_START,
-        **_EVAL_64,
-    ),
-    # paper-warm's model sharpened: fine-tuned (--init-from a paper-warm run) by the same PPO with lr 1e-4 and
-    # a tenth of the entropy bonus, so that the argmax the protocol evaluates is the policy's clear choice;
-    # its first 5 iterations train the value head alone (the warm_start_* fields are paper-warm's, unused)
-    "paper-sharp": TrainConfig(
-        precision="auto",
-        num_worlds=64,
-        iterations=3000,
-        lr=1e-4,
-        entropy_coef=0.001,
-        eval_every=25,
-        checkpoint_every=10,
-        **_STEP_CONTROL,
-        **(_WARM_START | {"warm_start": ""}),
-        **_EVAL_64,
-    ),
-    # one model for every team and map size (amat_general.pt): amat_paper.pt fine-tuned on a mixture of
-    # worlds that take turns (the paper's, Tasks 1-3's teams and map sizes, and a 26x26 four-robot world
-    # with SLAM noise), each with training activation and its communication range drawn per episode
-    # (full, 4, 2); evaluated on Task 3 (docs/training.md, "One model for every team and map size")
-    "general": TrainConfig(
-        env_preset="task3",
-        env_overrides={"activation": [2, 5]},
-        worlds=[
-            {"preset": "train", "comm_sigma_choices": _COMMS},
-            {"preset": "task1", "activation": [2, 5], "comm_sigma_choices": _COMMS},
-            {"preset": "task2", "activation": [2, 5], "comm_sigma_choices": _COMMS},
-            {
-                "preset": "task2",
-                "map_size": 26,
-                "team": ["rescuer", "explorer", "explorer", "random"],
-                "horizon_ticks": 450,
-                "activation": [2, 5],
-                "slam_noise": 0.05,
-                "comm_sigma_choices": _COMMS,
-                "num_worlds": 32,
-            },
-            {"preset": "task3", "activation": [2, 5], "comm_sigma_choices": _COMMS, "num_worlds": 16},
-        ],
-        init_from="paper",
-        precision="auto",
-        num_worlds=64,
-        iterations=100_000,
-        lr=1e-4,
-        eval_every=25,
-        eval_episodes=64,
-        eval_seed=2025,
-        checkpoint_every=10,
-        value_warmup_iterations=5,
-        **_STEP_CONTROL,
-    ),
-    # a minute-scale smoke run: a small map, two robots, a small AMAT
-    "tiny": TrainConfig(
-        env_overrides={"map_size": 12, "team": ["rescuer", "explorer"], "horizon_ticks": 60},
-        amat={"embed_dim": 32},
-        num_worlds=8,
-        iterations=2,
-        epochs=2,
-        eval_every=1,
-        eval_episodes=4,
-        checkpoint_every=1,
-    ),
-}
-
-
-# amat_paper.pt's recipe (paper-warm) for the paper's two other systems (Figs. 5 and 11) with its compute:
-# 5,604 PPO iterations after the warm start, amat_paper.pt's count, the LR decaying linearly over them
-_PAPER_WARM_5604 = TRAIN_PRESETS["paper-warm"].replace(iterations=5604)
-TRAIN_PRESETS["paper-warm-sync"] = _PAPER_WARM_5604.replace(env_overrides={"synchronous": True})
-TRAIN_PRESETS["paper-warm-smallma"] = _PAPER_WARM_5604.replace(
-    env_overrides={"window": 5}, amat={"window": 5}
-)
-
-#: presets that fine-tune a trained model: a new run of one needs ``init_from`` (``catmip train`` refuses it
-#: without; from fresh weights they would be a slow, unwarmed paper run)
-FINE_TUNING_PRESETS = ("paper-sharp",)
-
-
-def make_train_config(preset: str = "paper", **overrides: Any) -> TrainConfig:
-    if preset not in TRAIN_PRESETS:
-        raise ValueError(f"unknown training preset {preset!r}; known: {sorted(TRAIN_PRESETS)}")
-    return TRAIN_PRESETS[preset].replace(**overrides) if overrides else TRAIN_PRESETS[preset]

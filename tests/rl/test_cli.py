@@ -25,7 +25,7 @@ from catmip_rl.checkpoint import SHIPPED_DIR, CheckpointError, load_model, read_
 from catmip_rl.cli import CPUS, DEFAULT_PRESET, build_parser, main
 from catmip_rl.evaluation.methods import parse_method
 from catmip_rl.files import open_csv_log
-from catmip_rl.training.config import TRAIN_PRESETS, make_train_config
+from catmip_rl.training.presets import TRAIN_PRESETS, make_train_config
 
 SHIPPED = SHIPPED_DIR / "amat_task1.pt"
 

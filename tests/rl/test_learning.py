@@ -6,7 +6,7 @@ import torch
 
 from catmip_env.events import EventEngine, random_valid_actions
 from catmip_rl.amat.model import AMAT
-from catmip_rl.training.config import make_train_config
+from catmip_rl.training.presets import make_train_config
 from catmip_rl.training.train import evaluate_policy, train
 
 

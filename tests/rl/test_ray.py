@@ -16,7 +16,8 @@ from catmip_rl.adapters.ray_collect import merge_stats
 from catmip_rl.amat.model import AMAT
 from catmip_rl.cli import main as cli
 from catmip_rl.training.collect import Collector
-from catmip_rl.training.config import TrainConfig, make_train_config
+from catmip_rl.training.config import TrainConfig
+from catmip_rl.training.presets import make_train_config
 from catmip_rl.training.train import train
 
 

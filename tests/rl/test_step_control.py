@@ -5,7 +5,7 @@ import pytest
 import torch
 
 from catmip_rl.amat.model import AmatConfig
-from catmip_rl.training.config import make_train_config
+from catmip_rl.training.presets import make_train_config
 from catmip_rl.training.update import lr_factor, make_optimizer, ppo_update
 from tests.rl.helpers import shaken_model
 from tests.rl.test_sparse_conv import _batch

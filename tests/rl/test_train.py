@@ -8,7 +8,8 @@ import torch
 
 from catmip_rl.checkpoint import load_model
 from catmip_rl.cli import main as cli
-from catmip_rl.training.config import TrainConfig, make_train_config
+from catmip_rl.training.config import TrainConfig
+from catmip_rl.training.presets import make_train_config
 from catmip_rl.training.train import METRICS, train
 
 
