@@ -37,6 +37,7 @@ from common import env_observation, machine_info, plot_scaling_panels, write_jso
 
 from catmip_env import BatchedEngine, EnvConfig, make_config  # noqa: E402
 from catmip_env.events import EventEngine, random_valid_actions  # noqa: E402
+from catmip_env.files import atomic_path  # noqa: E402 (the env benchmark stays torch-free)
 
 MAPS = (15, 20, 32, 64)
 TEAMS = (2, 3, 6, 12)
@@ -235,10 +236,9 @@ def plot(results: dict, path: Path) -> None:
     fig, axes = plt.subplots(2, 2, figsize=(10, 7.5))
     plot_scaling_panels(axes, results["curves"], results["settings"]["num_worlds"])
     fig.tight_layout()
-    tmp = path.with_name(path.stem + ".tmp.png")
-    fig.savefig(tmp, dpi=100)
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=100)
     plt.close(fig)
-    tmp.replace(path)
 
 
 def main(argv: list[str] | None = None) -> dict:

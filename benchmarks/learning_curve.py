@@ -26,8 +26,8 @@ import torch
 from catmip_env.events import EventEngine
 from catmip_env.planners import make_planner
 from catmip_env.play import episode_metrics, play
-from catmip_rl.cli import parse_set
-from catmip_rl.files import atomic_write_csv, atomic_write_text
+from catmip_rl.cli_args import parse_set
+from catmip_rl.files import atomic_savefig, atomic_write_csv, atomic_write_text
 from catmip_rl.training.config import TrainConfig
 from catmip_rl.training.precision import native_bf16
 from catmip_rl.training.presets import make_train_config
@@ -144,9 +144,7 @@ def _draw(runs, cfgs, groups, lines, rows, out: Path, capability: str) -> None:
             ax.grid(alpha=0.3)
         axes[g, 0].legend(fontsize=7, loc="lower right")
     fig.tight_layout()
-    tmp = out.with_name(out.name + ".tmp.png")
-    fig.savefig(tmp, dpi=110)
-    tmp.replace(out.with_suffix(".png"))
+    atomic_savefig(fig, out.with_suffix(".png"))
 
 
 def main() -> None:

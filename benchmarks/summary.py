@@ -15,6 +15,8 @@ from common import plot_scaling_panels, write_json
 from suite import NAMES, RunStatus
 from targets import Check, all_checks
 
+from catmip_rl.files import atomic_savefig
+
 __all__ = ["TITLES", "load_results", "machine_line", "plot_summary", "scaling_table", "write_summary"]
 
 
@@ -218,10 +220,7 @@ def plot_summary(results: dict[str, dict], checks: list[Check], path: Path) -> P
         ax.set_axis_off()
         ax.text(0.5, 0.5, "no targets", ha="center", va="center", transform=ax.transAxes)
     ax.set_title("Headline figures against their targets", fontsize=10)
-    tmp = path.with_name(path.stem + ".tmp.png")
-    fig.savefig(tmp, dpi=90)
-    plt.close(fig)
-    tmp.replace(path)
+    atomic_savefig(fig, path, dpi=90)
     print(f"wrote {path}")
     return path
 

@@ -12,8 +12,8 @@ from typing import Any
 from catmip_env.files import atomic_path
 
 __all__ = [
-    "atomic_write_text", "atomic_write_csv", "open_csv_log", "write_csv_row", "check_new_dir",
-    "check_new_file", "check_not_dangling",
+    "atomic_write_text", "atomic_write_csv", "atomic_savefig", "open_csv_log", "write_csv_row",
+    "check_new_dir", "check_new_file", "check_not_dangling",
 ]  # fmt: skip
 
 
@@ -33,6 +33,16 @@ def atomic_write_csv(path: str | Path, rows: list[dict[str, Any]]) -> Path:
         w.writerows(rows)
         f.flush()
         os.fsync(f.fileno())
+    return Path(path)
+
+
+def atomic_savefig(fig, path: str | Path, dpi: int = 110) -> Path:
+    """Save a matplotlib figure (the format from the suffix) atomically, then close it."""
+    import matplotlib.pyplot as plt
+
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=dpi)
+    plt.close(fig)
     return Path(path)
 
 

@@ -7,7 +7,7 @@ from typing import Any
 
 import numpy as np
 
-from catmip_env.files import atomic_path
+from catmip_rl.files import atomic_savefig
 
 __all__ = ["plot_paired", "plot_aggregate", "plot_profiles"]
 
@@ -22,10 +22,7 @@ def _pyplot():
 
 
 def _save(fig, path: Path) -> Path:
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=110)
-    _pyplot().close(fig)
-    return path
+    return atomic_savefig(fig, path)
 
 
 def plot_paired(rows: list[dict[str, Any]], path: Path) -> Path:

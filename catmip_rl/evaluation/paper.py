@@ -26,12 +26,11 @@ from typing import Any
 
 import numpy as np
 
-from catmip_env.files import atomic_path
 from catmip_rl.checkpoint import load_model
 from catmip_rl.evaluation.compare import success_interval
 from catmip_rl.evaluation.evaluate import EvalSetting, evaluate, progress_bar
 from catmip_rl.evaluation.methods import Method, make_policy, parse_runs
-from catmip_rl.files import atomic_write_csv, atomic_write_text
+from catmip_rl.files import atomic_savefig, atomic_write_csv, atomic_write_text
 
 __all__ = [
     "FIGURES", "DEFAULT_METHODS", "figure_settings", "run_figure", "marl_eval_json", "plot_figure",
@@ -328,7 +327,4 @@ def plot_figure(curves_csv: str | Path, png: str | Path, title: str = "") -> Pat
     if title:
         fig.suptitle(title)
     fig.tight_layout(rect=(0, 0.22 * rows / (3.6 + 0.22 * rows) + 0.02, 1, 1))
-    with atomic_path(png) as tmp:
-        fig.savefig(tmp, dpi=110)
-    plt.close(fig)
-    return Path(png)
+    return atomic_savefig(fig, png)

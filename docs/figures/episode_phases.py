@@ -21,8 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from catmip_env.files import atomic_path
-from catmip_rl.files import atomic_write_csv, atomic_write_text
+from catmip_rl.files import atomic_savefig, atomic_write_csv, atomic_write_text
 
 PHASES = (("target_found_tick", "target found"), ("rescuer_informed_tick", "a rescuer knows"),
           ("rescue_tick", "rescued"))  # fmt: skip
@@ -119,8 +118,7 @@ def main() -> None:
         row[0].set_ylabel("share of episodes")
         row[0].legend(fontsize=8, loc="lower right")
     fig.tight_layout()
-    with atomic_path(args.out.with_suffix(".png")) as tmp:
-        fig.savefig(tmp, dpi=100)
+    atomic_savefig(fig, args.out.with_suffix(".png"), dpi=100)
     print(markdown(rows))
     print(f"wrote {args.out.with_suffix('.csv')}, .md and .png")
 

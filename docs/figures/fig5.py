@@ -20,8 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from catmip_env.files import atomic_path
-from catmip_rl.files import atomic_write_csv
+from catmip_rl.files import atomic_savefig, atomic_write_csv
 
 PANELS = (
     ("eval_success", "evaluation: rescued by tick 100 (argmax)"),
@@ -104,8 +103,7 @@ def main() -> None:
     fig.suptitle(f"Fig. 5: training the three variants (moving average of {args.smooth} points)")
     fig.tight_layout()
     atomic_write_csv(args.out.with_suffix(".csv"), points)
-    with atomic_path(args.out.with_suffix(".png")) as tmp:
-        fig.savefig(tmp, dpi=110)
+    atomic_savefig(fig, args.out.with_suffix(".png"))
     print(f"wrote {args.out.with_suffix('.csv')} and {args.out.with_suffix('.png')}")
 
 

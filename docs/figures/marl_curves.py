@@ -19,8 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from catmip_env.files import atomic_path
-from catmip_rl.files import atomic_write_csv
+from catmip_rl.files import atomic_savefig, atomic_write_csv
 
 
 def read_run(run_dir: Path) -> tuple[dict, list[dict]]:
@@ -99,8 +98,7 @@ def main() -> None:
     )
     fig.tight_layout()
     atomic_write_csv(args.out.with_suffix(".csv"), table)
-    with atomic_path(args.out.with_suffix(".png")) as tmp:
-        fig.savefig(tmp, dpi=110)
+    atomic_savefig(fig, args.out.with_suffix(".png"))
     print(f"wrote {args.out.with_suffix('.csv')} and {args.out.with_suffix('.png')}")
 
 
