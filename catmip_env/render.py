@@ -5,7 +5,9 @@ only: free cells white, walls dark grey, obstacles black, target green, clues pi
 explored dimmed, robots as class-coloured triangles pointing along their heading, each robot's goal as
 a ring of its colour, and (optionally) communication links between neighbourhood members.
 :func:`save_gif` writes a list of frames (needs the ``render`` extra: ``imageio``);
-:func:`episode_frames` / :func:`render_episode` draw a policy playing one episode (one frame per tick).
+:func:`episode_frames` / :func:`render_episode` draw a policy playing one episode (one frame per tick),
+each frame captioned (:func:`add_caption`, the ``render`` extra's pillow) with the tick, the episode's
+state (:func:`episode_status`: searching, target found, rescued or not by the horizon) and a legend.
 """
 
 from __future__ import annotations
@@ -21,7 +23,10 @@ from catmip_env.events import EventEngine
 from catmip_env.files import atomic_path
 from catmip_env.play import Policy, play
 
-__all__ = ["render_world", "render_ansi", "save_gif", "episode_frames", "render_episode", "CLASS_COLOURS"]
+__all__ = [
+    "render_world", "render_ansi", "episode_status", "add_caption", "save_gif", "episode_frames",
+    "render_episode", "CLASS_COLOURS",
+]  # fmt: skip
 
 _FREE = np.array([255, 255, 255], np.uint8)
 _COLOURS = {
@@ -116,6 +121,71 @@ def render_ansi(engine, b: int = 0) -> str:
     return "\n".join("".join(row) for row in rows)
 
 
+def episode_status(engine, b: int = 0) -> str:
+    """One line on world ``b``'s episode: the tick and how the mission stands, e.g. "tick 37 / 300 ·
+    target found at tick 21" or, once it is over, "tick 52 / 300 · RESCUED at tick 52"."""
+    st, horizon = engine.state, engine.cfg.horizon_ticks
+    if st.rescue_tick[b] >= 0:
+        state = f"RESCUED at tick {st.rescue_tick[b]}"
+    elif st.done[b]:
+        state = f"NOT RESCUED by the horizon ({horizon} ticks)"
+    elif st.informed_tick[b] >= 0:
+        state = f"a rescuer knows the target (tick {st.informed_tick[b]})"
+    elif st.found_tick[b] >= 0:
+        state = f"target found at tick {st.found_tick[b]}"
+    else:
+        state = "searching"
+    return f"tick {st.ticks[b]} / {horizon} · {state}"
+
+
+def _legend(engine, b: int) -> list[tuple[str, str, tuple[int, int, int]]]:
+    """(shape, label, colour) of each legend entry: the classes in world ``b``, then the cell kinds."""
+    classes = sorted(set(engine.state.cls[b].tolist()))
+    robots = [("robot", engine.cfg.classes[c].name, CLASS_COLOURS[c % len(CLASS_COLOURS)]) for c in classes]
+    cells = [("ring", "goal", (90, 90, 90)), ("cell", "target", _COLOURS[TARGET]),
+             ("cell", "clue", _COLOURS[CLUE]), ("cell", "unexplored", (140, 140, 140)),
+             ("line", "radio link", (150, 150, 150))]  # fmt: skip
+    return [(shape, label, tuple(int(v) for v in colour)) for shape, label, colour in robots + cells]
+
+
+def add_caption(img: np.ndarray, engine, b: int = 0) -> np.ndarray:
+    """``img`` (a :func:`render_world` picture of world ``b``) with a strip below it: the
+    :func:`episode_status` line and a legend. The strip's height depends only on the width and the
+    classes in the world, so every frame of an episode has one shape. Needs pillow (``render`` extra)."""
+    try:
+        from PIL import Image, ImageDraw, ImageFont
+    except ImportError as err:  # pragma: no cover - depends on the extra
+        raise ImportError("captions need pillow: pip install 'catmip[render]' (or caption=False)") from err
+    font = ImageFont.load_default()
+    width, line, sw = img.shape[1], 14, 9  # pixels: the width, a text line, a legend swatch
+    rows: list[list[tuple[int, tuple]]] = [[]]  # legend entries flowed into rows: (x, entry)
+    x = 4
+    for entry in _legend(engine, b):
+        w = sw + 4 + int(font.getlength(entry[1])) + 10
+        if x + w > width and rows[-1]:
+            rows.append([])
+            x = 4
+        rows[-1].append((x, entry))
+        x += w
+    strip = Image.new("RGB", (width, 6 + line * (1 + len(rows))), (255, 255, 255))
+    draw = ImageDraw.Draw(strip)
+    draw.text((4, 3), episode_status(engine, b), fill=(0, 0, 0), font=font)
+    for k, row in enumerate(rows):
+        y = 3 + line * (k + 1)
+        for x, (shape, label, colour) in row:
+            box = (x, y + 1, x + sw, y + 1 + sw)
+            if shape == "robot":
+                draw.polygon([(x, y + 1), (x + sw, y + 1 + sw // 2), (x, y + 1 + sw)], fill=colour)
+            elif shape == "ring":
+                draw.ellipse(box, outline=colour, width=2)
+            elif shape == "line":
+                draw.line((x, y + 1 + sw // 2, x + sw, y + 1 + sw // 2), fill=colour, width=2)
+            else:
+                draw.rectangle(box, fill=colour, outline=(60, 60, 60))
+            draw.text((x + sw + 4, y), label, fill=(0, 0, 0), font=font)
+    return np.concatenate([img, np.asarray(strip, np.uint8)], axis=0)
+
+
 def save_gif(frames: Sequence[np.ndarray], path: str | Path, fps: int = 8) -> Path:
     """Write frames to an animated GIF at ``path`` (must end in ``.gif``; ``fps`` >= 1), atomically: a
     temporary file is renamed into place, and removed if writing fails."""
@@ -138,17 +208,22 @@ def save_gif(frames: Sequence[np.ndarray], path: str | Path, fps: int = 8) -> Pa
 
 
 def episode_frames(
-    engine: EventEngine, policy: Policy, episode: int = 0, max_frames: int = 400
+    engine: EventEngine, policy: Policy, episode: int = 0, max_frames: int = 400, caption: bool = True
 ) -> list[np.ndarray]:
     """Frames of ``policy`` playing episode index ``episode`` in world 0 of ``engine`` (a one-world
     engine; it is reset): the start, then one frame per tick (the engine pauses after every tick), until
-    the episode ends or there are ``max_frames``."""
+    the episode ends or there are ``max_frames``; ``caption``: each with :func:`add_caption`'s strip."""
+
+    def frame(eng: EventEngine) -> np.ndarray:
+        img = render_world(eng.world, 0)
+        return add_caption(img, eng.world, 0) if caption else img
+
     engine.reset(episode_indices=[episode])
-    frames = [render_world(engine.world, 0)]
+    frames = [frame(engine)]
     play(
         engine,
         policy,
-        on_event=lambda eng: frames.append(render_world(eng.world, 0)),
+        on_event=lambda eng: frames.append(frame(eng)),
         until=lambda _: len(frames) >= max_frames,
         max_ticks=1,
     )
@@ -162,6 +237,7 @@ def render_episode(
     episode: int = 0,
     fps: int = 8,
     max_frames: int = 400,
+    caption: bool = True,
 ) -> Path:
     """GIF at ``path`` of :func:`episode_frames` (``fps`` frames, i.e. ticks, per second)."""
-    return save_gif(episode_frames(engine, policy, episode, max_frames), path, fps=fps)
+    return save_gif(episode_frames(engine, policy, episode, max_frames, caption), path, fps=fps)

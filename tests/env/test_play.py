@@ -18,7 +18,7 @@ from catmip_env.play import (
     play,
     success_curve,
 )
-from catmip_env.render import episode_frames
+from catmip_env.render import episode_frames, episode_status
 
 
 def _records(rescue, found, explored, decisions, stalls, cls=(0, 1), informed=None) -> EpisodeRecords:
@@ -170,11 +170,31 @@ def test_until_stops_early_and_max_ticks_pauses_after_every_tick():
 
 def test_episode_frames_one_per_tick_until_the_end_or_max_frames():
     eng = EventEngine(make_config("task1"), 1, seed=0, goal_mode="cell")
-    frames = episode_frames(eng, make_planner("nearest"), episode=2, max_frames=6)
+    frames = episode_frames(eng, make_planner("nearest"), episode=2, max_frames=6, caption=False)
     assert len(frames) == 6 and frames[0].shape == (15 * 16, 15 * 16, 3) and frames[0].dtype == np.uint8
     assert eng.state.ticks[0] == 5 and not eng.state.done[0]
     frames = episode_frames(eng, make_planner("nearest"), episode=2, max_frames=10_000)
     assert eng.state.done[0] and len(frames) == eng.state.ticks[0] + 1
+    # captioned: the map, then a strip of one shape in every frame, whose text changes with the tick
+    assert {f.shape for f in frames} == {frames[0].shape} and frames[0].shape[0] > 15 * 16
+    strips = [f[15 * 16 :] for f in frames]
+    assert not np.array_equal(strips[0], strips[1]) and not np.array_equal(strips[-2], strips[-1])
+
+
+def test_the_caption_says_the_tick_and_how_the_mission_stands():
+    eng = EventEngine(make_config("task1"), 1, seed=0, goal_mode="cell")
+    eng.reset(episode_indices=[2])
+    assert episode_status(eng.world) == "tick 0 / 300 · searching"
+    seen = []
+    play(eng, make_planner("nearest"), on_event=lambda e: seen.append(episode_status(e.world)), max_ticks=1)
+    st = eng.state
+    assert st.rescue_tick[0] > st.found_tick[0] >= 0
+    assert f"tick {st.found_tick[0]} / 300 · target found at tick {st.found_tick[0]}" in seen or (
+        st.informed_tick[0] == st.found_tick[0]
+    )
+    assert seen[-1] == f"tick {st.rescue_tick[0]} / 300 · RESCUED at tick {st.rescue_tick[0]}"
+    st.rescue_tick[0], st.done[0] = -1, True
+    assert episode_status(eng.world).endswith("NOT RESCUED by the horizon (300 ticks)")
 
 
 def test_play_is_torch_free():
