@@ -16,7 +16,6 @@ This package never imports torch.
 
 from __future__ import annotations
 
-from catmip_env.compat import ENV_MOVES, install_aliases
 from catmip_env.config import EXPLORER, PRESETS, RESCUER, EnvConfig, RobotClass, make_config
 from catmip_env.events import EventEngine
 from catmip_env.layout import Layout, parse_layout
@@ -54,4 +53,3 @@ def _register() -> None:
 
 
 _register()
-install_aliases(ENV_MOVES)

@@ -21,7 +21,7 @@ from pettingzoo import ParallelEnv
 from pettingzoo.utils import parallel_to_aec, wrappers
 
 from catmip_env.config import EnvConfig, make_config
-from catmip_env.constants import PRIMITIVE_ACTIONS, STAY  # noqa: F401  (STAY: kept importable from here)
+from catmip_env.constants import PRIMITIVE_ACTIONS
 from catmip_env.events import GOAL_MODES, INVALID_ACTION_MODES, EventEngine
 from catmip_env.render import render_ansi, render_world
 from catmip_env.spaces import (

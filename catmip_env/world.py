@@ -38,7 +38,7 @@ from catmip_env.observe import observe as build_observations
 from catmip_env.rng import seed_state
 from catmip_env.state import WorldState
 
-__all__ = ["WorldState", "BatchedEngine", "StepResult"]
+__all__ = ["BatchedEngine", "StepResult"]
 
 
 class StepResult(NamedTuple):

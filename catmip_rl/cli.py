@@ -22,12 +22,12 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from catmip_rl.cli_args import CPUS, USER_ERRORS, parse_set
+from catmip_rl.cli_args import CPUS, USER_ERRORS
 from catmip_rl.cli_parser import DEFAULT_PRESET, build_parser
 from catmip_rl.training.config import TrainConfig
 from catmip_rl.training.presets import FINE_TUNING_PRESETS, TRAIN_PRESETS
 
-__all__ = ["main", "build_parser", "parse_set", "CPUS", "DEFAULT_PRESET"]
+__all__ = ["main"]
 
 # -- the commands ----------------------------------------------------------------------------------------
 _TRAIN_FLAGS = ("iterations", "num_worlds", "epochs", "minibatches", "micro_batch", "seed", "device",

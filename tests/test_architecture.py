@@ -86,6 +86,32 @@ def test_no_private_name_imported_across_modules(arch):
     assert not bad
 
 
+def _defined(path: Path) -> set[str]:
+    """Names a module defines at its top level (functions, classes, assignments), not ones it imports."""
+    out = set()
+    for node in ast.parse(path.read_text()).body:
+        if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef)):
+            out.add(node.name)
+        elif isinstance(node, (ast.Assign, ast.AnnAssign)):
+            targets = node.targets if isinstance(node, ast.Assign) else [node.target]
+            out |= {n.id for t in targets for n in ast.walk(t) if isinstance(n, ast.Name)}
+    return out
+
+
+def test_each_name_is_imported_from_the_module_that_defines_it(arch):
+    """One import path per name: inside the packages, ``from M import X`` takes X from the module that
+    defines it (or X is a submodule of package M), never from a module that only re-exports it."""
+    mods = arch.modules()
+    bad = []
+    for mod, path in mods.items():
+        for target, names, _ in arch.imports(path, mod):
+            if target in mods and target != mod:
+                ok = _defined(mods[target]) | {"__version__"}
+                bad += [f"{mod}: from {target} import {n}" for n in names
+                        if n not in ok and f"{target}.{n}" not in mods]  # fmt: skip
+    assert not bad
+
+
 def test_modules_stay_small(arch):
     """No module over MAX_LINES lines: a newcomer reads one file for one job."""
     sizes = {m: len(p.read_text().splitlines()) for m, p in arch.modules().items()}

@@ -11,12 +11,3 @@ Imports run one way: ``model`` imports ``layers`` (which imports ``small_attenti
 (which imports ``conv_kernels``, which imports ``numba_ops``); ``fast`` imports ``model``, ``fast_weights``,
 ``conv_kernels`` and ``numba_ops``; nothing in the package imports ``fast``.
 """
-
-from __future__ import annotations
-
-from catmip_rl.amat.layers import MLP, Attention, DecoderBlock, EncoderBlock
-from catmip_rl.amat.model import AMAT, INVALID_LOGIT, OBS_SCALE, AmatConfig, decision_order
-
-# the blocks too: ``catmip_rl.amat`` was the module holding them before it became this package
-__all__ = ["AMAT", "INVALID_LOGIT", "OBS_SCALE", "AmatConfig", "decision_order", "Attention", "EncoderBlock",
-           "DecoderBlock", "MLP"]  # fmt: skip

@@ -33,7 +33,7 @@ from catmip_env.constants import OBS_SCALE  # uint8 macro-observations: float = 
 from catmip_rl.amat.layers import BlockCache, DecoderBlock, EncoderBlock, layer_norm, linear
 from catmip_rl.amat.sparse_conv import global_conv_pool
 
-__all__ = ["AmatConfig", "AMAT", "decision_order", "OBS_SCALE", "INVALID_LOGIT"]
+__all__ = ["AmatConfig", "AMAT", "decision_order", "INVALID_LOGIT"]
 
 INVALID_LOGIT = -1e10
 
