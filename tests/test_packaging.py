@@ -92,3 +92,12 @@ def test_wheel_contents(tmp_path):
     assert any(n.endswith(".dist-info/licenses/LICENSE") for n in files)
     assert f"Version: {catmip_env.__version__}\n" in metadata
     assert "License-Expression: MIT\n" in metadata
+
+
+def test_the_citation_file_names_this_version_and_the_paper():
+    cff = (ROOT / "CITATION.cff").read_text()
+    top = [line for line in cff.splitlines() if ": " in line and not line.startswith(" ")]
+    fields = dict(line.split(": ", 1) for line in top)
+    assert fields["cff-version"] == "1.2.0" and fields["version"] == catmip_env.__version__
+    assert fields["license"] == _pyproject()["project"]["license"]
+    assert "Cooperative and Asynchronous Transformer-Based Mission Planning" in cff and "year: 2025" in cff
