@@ -18,8 +18,11 @@ OCCUPIED = 2
 CLUE_BIT = 4
 TARGET_BIT = 8
 
-# Headings, clockwise: 0 = east (+col), 1 = south (+row), 2 = west, 3 = north.
-HEADING_DELTAS = np.array([[0, 1], [1, 0], [0, -1], [-1, 0]], dtype=np.int64)
+# Headings and grid moves, clockwise: 0 = east (+col), 1 = south (+row), 2 = west, 3 = north, as
+# (row step, column step); the one direction table (searches try moves in this order)
+STEPS = ((0, 1), (1, 0), (0, -1), (-1, 0))
+STEP_ROW = np.array([dr for dr, _ in STEPS], dtype=np.int64)
+STEP_COL = np.array([dc for _, dc in STEPS], dtype=np.int64)
 
 # Primitive actions (Discrete(4)).
 TURN_LEFT = 0

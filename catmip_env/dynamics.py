@@ -31,6 +31,8 @@ from catmip_env.constants import (
     FORWARD,
     FREE,
     OCCUPIED,
+    STEP_COL,
+    STEP_ROW,
     TARGET_BIT,
     TURN_LEFT,
     TURN_RIGHT,
@@ -38,9 +40,6 @@ from catmip_env.constants import (
 from catmip_env.rng import uniform
 from catmip_env.sensing import RAY_NBLOCK, VIEW_BLOCKERS, VIEW_OFFSETS, sense_robot
 from catmip_env.state import KernelState
-
-_DR = np.array([0, 1, 0, -1], dtype=np.int64)
-_DC = np.array([1, 0, -1, 0], dtype=np.int64)
 
 
 class Rules(NamedTuple):
@@ -109,8 +108,8 @@ def move_robots(
             heading[b, i] = (heading[b, i] + 1) % 4
         elif a == FORWARD:
             h = heading[b, i]
-            r = pos[b, i, 0] + _DR[h]
-            c = pos[b, i, 1] + _DC[h]
+            r = pos[b, i, 0] + STEP_ROW[h]
+            c = pos[b, i, 1] + STEP_COL[h]
             g = grid[b, r, c]
             if g != FREE and g != CLUE:
                 rewards[b, i] += collision_penalty

@@ -24,7 +24,7 @@ import numpy as np
 from numba import njit
 
 from catmip_env.config import SPAWN_BOX, TARGET_EXCLUSION_BOX, EnvConfig
-from catmip_env.constants import CLUE, FREE, OBSTACLE, TARGET, WALL
+from catmip_env.constants import CLUE, FREE, OBSTACLE, STEPS, TARGET, WALL
 
 __all__ = ["Episode", "generate", "room_bounds", "reachable_from", "target_exclusion_side"]
 
@@ -73,7 +73,7 @@ def reachable_from(passable: np.ndarray, r0: int, c0: int) -> np.ndarray:
         k = queue[head]
         head += 1
         r, c = k // w, k % w
-        for dr, dc in ((0, 1), (1, 0), (0, -1), (-1, 0)):
+        for dr, dc in STEPS:
             rr, cc = r + dr, c + dc
             if 0 <= rr < h and 0 <= cc < w and passable[rr, cc] and not seen[rr, cc]:
                 seen[rr, cc] = True

@@ -12,9 +12,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-# row and column step of each heading / move direction: 0 = E, 1 = S, 2 = W, 3 = N
-STEP_ROW = np.array([0, 1, 0, -1], dtype=np.int64)
-STEP_COL = np.array([1, 0, -1, 0], dtype=np.int64)
+from catmip_env.constants import STEP_COL, STEP_ROW
+
 UNREACHED = -1
 
 

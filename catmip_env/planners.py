@@ -36,7 +36,7 @@ import math
 import numpy as np
 from numba import njit
 
-from catmip_env.constants import EXPLORED, OCCUPIED, TARGET_BIT
+from catmip_env.constants import EXPLORED, OCCUPIED, STEPS, TARGET_BIT
 from catmip_env.events import EventEngine
 from catmip_env.paths import bfs_from
 
@@ -376,7 +376,7 @@ class APF(Planner):
             if cells[r, c]:
                 break
             best, best_u = None, potential[r, c]
-            for dr, dc in ((0, 1), (1, 0), (0, -1), (-1, 0)):
+            for dr, dc in STEPS:
                 y, x = r + dr, c + dc
                 if ctx.dist[y, x] >= 0 and not ctx.blocked[y, x] and potential[y, x] < best_u:
                     best, best_u = (y, x), potential[y, x]
