@@ -1,7 +1,7 @@
 """The paper's Fig. 5 from training runs: success and return against training episodes, one line per
 variant (AMAT, Synch-AMAT, SmallMA).
 
-    python docs/figures/fig5.py AMAT=training/paper-warm Synch-AMAT=runs/sync SmallMA=runs/smallma \
+    python docs/figures/fig5.py AMAT=run-records/paper-warm Synch-AMAT=runs/sync SmallMA=runs/smallma \
         --out docs/figures/fig5
 
 Three panels, each a moving average over ``--smooth`` logged points: the periodic evaluation (rescued by

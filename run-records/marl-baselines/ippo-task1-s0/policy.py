@@ -1,6 +1,6 @@
 """The policy trained in this folder, as a ``catmip eval`` factory:
 
-    catmip eval --task TASK --method NAME=py:training/marl-baselines/ippo-task1-s0/policy.py:make_policy --out OUT
+    catmip eval --task TASK --method NAME=py:run-records/marl-baselines/ippo-task1-s0/policy.py:make_policy --out OUT
 """
 
 from pathlib import Path
