@@ -5,7 +5,7 @@ PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 DSTAMP := $(VENV)/.installed-distributed
 
-.PHONY: demo demo-env test test-fast test-distributed test-compat-lower lint bench bench-quick clean clean-cache
+.PHONY: demo demo-env test test-fast test-distributed test-compat-lower lint api bench bench-quick clean clean-cache
 
 # torch comes from the machine's CPU wheel first, so that nothing pulls a CUDA build
 $(STAMP): pyproject.toml
@@ -57,6 +57,10 @@ test-compat-lower:
 lint: $(STAMP)
 	$(PY) -m ruff check .
 	$(PY) -m ruff format --check .
+
+# the API reference, generated from the docstrings (pdoc): docs/api/index.html
+api: $(STAMP)
+	$(PY) docs/build_api.py --out docs/api
 
 # every benchmark, JSON per benchmark + benchmarks/results/SUMMARY.md and summary.png (bench-quick: short settings)
 bench: $(STAMP)

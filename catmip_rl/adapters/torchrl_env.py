@@ -32,7 +32,7 @@ class CatmipEnv(EnvBase):
     ``CatmipEnv(preset="train", num_worlds=1, seed=0, goal_mode="window", **EnvConfig_overrides)``
 
     The recommended TorchRL entry point. TorchRL's ``PettingZooWrapper`` over
-    ``catmip_env.search_rescue_v0`` works too (it passes ``check_env_specs``), but it steps one world
+    ``catmip_env.search_rescue_v0`` works too (it passes TorchRL's spec check), but it steps one world
     and, because the PettingZoo observation is itself a dict ``{"observation": {...}, "action_mask":
     ...}``, its keys come out double-nested: ``("robot", "observation", "observation", "global_map")``
     (group ``"robot"``; ``"agents"`` under ``MarlGroupMapType.ALL_IN_ONE_GROUP``), float32 maps and
@@ -79,7 +79,7 @@ class CatmipEnv(EnvBase):
     **Arguments**: ``preset`` (a ``catmip_env.PRESETS`` name or an ``EnvConfig``), ``num_worlds`` B,
     ``seed`` (episode ``k`` of a seed always has the same map), ``goal_mode``, ``invalid_action``
     (``"raise"`` or ``"stay"``), ``gamma`` (the engine's per-tick discount of macro-action returns;
-    the per-event reward above is undiscounted), ``device``, and any ``EnvConfig`` field as a keyword.
+    the per-event reward above is undiscounted), the torch device, and any ``EnvConfig`` field as a keyword.
 
     **Versions**: 1 — group-level done flags, ``"state"``, ``group_map``; 0 — the macro-observations,
     mask, active flags, per-robot reward, ``event_ticks`` and root done flags (all unchanged since).

@@ -90,12 +90,19 @@ class Attention(nn.Module):
 
 
 class MLP(nn.Sequential):
+    """The blocks' feed-forward layer: Linear(d, d), GELU, Linear(d, d)."""
+
     def __init__(self, d: int) -> None:
+        """Width ``d`` in and out."""
         super().__init__(nn.Linear(d, d), nn.GELU(), nn.Linear(d, d))
 
 
 class EncoderBlock(nn.Module):
+    """A post-norm transformer encoder block: masked self-attention over the robots' tokens, then the
+    MLP, each with a residual connection and LayerNorm."""
+
     def __init__(self, d: int, n_heads: int) -> None:
+        """Width ``d``, ``n_heads`` attention heads."""
         super().__init__()
         self.attn = Attention(d, n_heads)
         self.ln1 = nn.LayerNorm(d)
@@ -112,7 +119,11 @@ class EncoderBlock(nn.Module):
 
 
 class DecoderBlock(nn.Module):
+    """A post-norm decoder block: causal self-attention over the actions decided so far, cross-attention
+    from the encoder's representations to them, then the MLP, each with a residual and LayerNorm."""
+
     def __init__(self, d: int, n_heads: int) -> None:
+        """Width ``d``, ``n_heads`` attention heads."""
         super().__init__()
         self.self_attn = Attention(d, n_heads)
         self.ln1 = nn.LayerNorm(d)

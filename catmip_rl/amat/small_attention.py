@@ -105,6 +105,7 @@ class SmallAttention(torch.autograd.Function):
 
     @staticmethod
     def forward(ctx, q, k, v, allowed, n_heads):
+        """The attention output (B, Tq, d); keeps the attention weights for the backward pass."""
         b, tq, d = q.shape
         qn, kn, vn = _numpy(q), _numpy(k), _numpy(v)
         y = np.empty((b, tq, d), qn.dtype)
@@ -116,6 +117,7 @@ class SmallAttention(torch.autograd.Function):
 
     @staticmethod
     def backward(ctx, grad):
+        """Gradients of q, k and v from the output's (none for ``allowed`` and ``n_heads``)."""
         qn, kn, vn, p, n_heads, scale = ctx.saved
         gq, gk, gv = np.empty_like(qn), np.empty_like(kn), np.empty_like(vn)
         _backward(qn, kn, vn, p, _numpy(grad), n_heads, scale, gq, gk, gv)

@@ -182,6 +182,7 @@ class GlobalConvPool(torch.autograd.Function):
 
     @staticmethod
     def forward(ctx, gmap: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor, pool: int) -> torch.Tensor:
+        """The pooled convolution; keeps where each pooled maximum came from for the backward pass."""
         pooled, where = _conv_pool(gmap, weight, bias, pool)
         ctx.save_for_backward(gmap)
         ctx.where, ctx.k = where, weight.shape[-1]
@@ -189,6 +190,7 @@ class GlobalConvPool(torch.autograd.Function):
 
     @staticmethod
     def backward(ctx, grad: torch.Tensor):
+        """Gradients of the weight and bias (the map is data: none for it, nor for ``pool``)."""
         (gmap,) = ctx.saved_tensors
         d_weight = d_bias = None
         if ctx.needs_input_grad[1]:
