@@ -60,7 +60,8 @@ def main(argv: list[str] | None = None) -> list[dict]:
 
         shutil.rmtree(run_dir)
     # the warm start of task1-warm with 256 episodes a DAgger round (not 64) and the teacher's "stay" labels
-    # unscored: the short run's imitation then generalises instead of fitting its buffer (docs/training.md)
+    # unscored: the short run's imitation then generalises instead of fitting its buffer
+    # (docs/notes/training-experiments.md)
     cfg = make_train_config("task1-warm", iterations=args.iterations, threads=args.threads, eval_every=0,
                             checkpoint_every=args.iterations, warm_start_worlds=256,
                             warm_start_stay=False)  # fmt: skip

@@ -1,5 +1,6 @@
-"""docs/reproducing.md's figure tables are the committed summaries (docs/figures/paper/figN_summary.csv),
-as ``docs/figures/paper_tables.py --update`` writes them, and the splice replaces only the figure's table."""
+"""The figure tables of docs/reproducing.md and docs/tasks/ are the committed summaries
+(docs/figures/paper/figN_summary.csv), as ``docs/figures/paper_tables.py --update`` writes them, and the
+splice replaces only the figure's table."""
 
 from __future__ import annotations
 
@@ -19,13 +20,21 @@ def _tables_module():
     return module
 
 
-def test_reproducing_md_shows_the_committed_summaries():
+@pytest.mark.parametrize(
+    ("page", "shown"),
+    [("reproducing.md", [6, 7, 8, 9, 10, 11]), ("tasks/task1.md", [6]), ("tasks/task2.md", [7, 11]),
+     ("tasks/task3.md", [8])],
+)  # fmt: skip
+def test_the_pages_show_the_committed_summaries(page, shown):
     tables = _tables_module()
-    text = (ROOT / "docs" / "reproducing.md").read_text()
+    text = (ROOT / "docs" / page).read_text()
     figures = tables.figure_files(ROOT / "docs" / "figures" / "paper")
     assert [n for n, _ in figures] == [6, 7, 8, 9, 10, 11]
+    assert sorted(tables.figures_in(text)) == shown
     for n, path in figures:
-        assert tables.replace_table(text, n, tables.table(path, bold=True)) == text, f"figure {n} is stale"
+        if n in shown:
+            fresh = tables.replace_table(text, n, tables.table(path, bold=True))
+            assert fresh == text, f"figure {n} is stale"
 
 
 def test_replace_table_changes_only_that_figures_table():

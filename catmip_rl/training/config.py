@@ -146,7 +146,7 @@ class TrainConfig:
     """Whether the teacher projects a far goal into the window along the controller's own path, which
     starts in the robot's heading (``window:PLANNER``), or along a heading-free one (E, S, W, N first,
     then straight on: ``window-noheading:PLANNER``), a label that depends only on what AMAT observes (no
-    headings); measured, it taught no better (docs/paper-model.md, "A teacher that turns less")."""
+    headings); measured, it taught no better (docs/notes/paper-model.md, "A teacher that turns less")."""
     warm_start_stay: bool = True
     """Whether the teacher's "stay" labels are imitated. The window planner says "stay" when its planner
     has no goal (no reachable frontier it may claim): a pause for the teacher, whose next decision
@@ -155,7 +155,8 @@ class TrainConfig:
     warm_start_worlds: int = 0
     """Episodes each DAgger round collects (0 = ``num_worlds``). Collection is cheap beside the round's
     cross-entropy steps, and with few episodes a round's steps fit the buffer rather than the teacher
-    (measured on Task 1: 64 episodes a round imitate to 0.72 by tick 100, 256 to 0.98; docs/training.md)."""
+    (measured on Task 1: 64 episodes a round imitate to 0.72 by tick 100, 256 to 0.98;
+    docs/notes/training-experiments.md)."""
     warm_start_rounds: int = 6
     """DAgger rounds (each collects num_worlds episodes with the current policy, labelled)."""
     warm_start_steps: int = 150

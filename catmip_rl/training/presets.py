@@ -11,7 +11,7 @@ __all__ = ["TRAIN_PRESETS", "FINE_TUNING_PRESETS", "make_train_config"]
 # the Task-1 world (15x15, rescuer + explorer) with training activation (2, 5), d = 64; step control:
 # at most 6 epochs x 4 minibatches, stopped once a minibatch's approx-KL exceeds 0.01 (docs/training.md,
 # "Step control"); ~2 s an iteration on one thread (~1 s once a warm start makes the KL target stop it)
-# what the Task-1 experiments found (docs/training.md, "Does it learn?"): step control, and the warm start
+# what the Task-1 experiments found (docs/notes/training-experiments.md): step control, and the warm start
 _STEP_CONTROL = {"epochs": 6, "minibatches": 4, "clip": 0.1, "target_kl": 0.01}
 _WARM_START = {"warm_start": "nearest", "warm_start_rounds": 12, "warm_start_steps": 300,
                "value_warmup_iterations": 5}  # fmt: skip
@@ -86,7 +86,7 @@ TRAIN_PRESETS: dict[str, TrainConfig] = {
     # one model for every team and map size (amat_general.pt): amat_paper.pt fine-tuned on a mixture of
     # worlds that take turns (the paper's, Tasks 1-3's teams and map sizes, and a 26x26 four-robot world
     # with SLAM noise), each with training activation and its communication range drawn per episode
-    # (full, 4, 2); evaluated on Task 3 (docs/training.md, "One model for every team and map size")
+    # (full, 4, 2); evaluated on Task 3 (docs/notes/general-model.md)
     "general": TrainConfig(
         env_preset="task3",
         env_overrides={"activation": [2, 5]},

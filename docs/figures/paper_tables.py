@@ -1,10 +1,11 @@
 """The tables of docs/reproducing.md from the summaries ``catmip bench paper`` wrote: one markdown table per
 figure, a row per method and a column per panel, each cell "success by tick 100 / success by the horizon /
-mean rescue tick"; with ``--bold`` the best by-tick-100 value of each column is bold. With ``--update FILE``
-each figure's table in FILE (the first table after a heading that starts with "### Figure N") is replaced
-in place; otherwise the tables are printed.
+mean rescue tick"; with ``--bold`` the best by-tick-100 value of each column is bold. With ``--update FILE
+...`` the table of each figure a FILE has a heading for (the first table after a heading that starts
+with "### Figure N") is replaced in place; otherwise the tables are printed.
 
-    python docs/figures/paper_tables.py [--dir docs/figures/paper] [--bold] [--update docs/reproducing.md]
+    python docs/figures/paper_tables.py [--dir docs/figures/paper] [--bold] \
+        [--update docs/reproducing.md docs/tasks/task*.md]
 """
 
 from __future__ import annotations
@@ -38,6 +39,11 @@ def replace_table(text: str, figure: int, new_table: str) -> str:
     return text[: old.start()] + new_table + text[end:]
 
 
+def figures_in(text: str) -> set[int]:
+    """The figures a page has a "### Figure N" heading for."""
+    return {int(n) for n in re.findall(r"^### Figure (\d+)\b", text, flags=re.MULTILINE)}
+
+
 def figure_files(folder: Path) -> list[tuple[int, Path]]:
     found = [(int(p.stem[3:].split("_")[0]), p) for p in folder.glob("fig*_summary.csv")]
     return sorted(found)
@@ -47,7 +53,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--dir", type=Path, default=Path(__file__).parent / "paper", help="the figN_summary.csv")
     ap.add_argument("--bold", action="store_true", help="bold the best success by tick 100 of each column")
-    ap.add_argument("--update", type=Path, metavar="FILE", help="replace the tables in FILE, not print")
+    ap.add_argument("--update", type=Path, nargs="+", metavar="FILE", help="replace the tables in FILE(s)")
     args = ap.parse_args()
     figures = figure_files(args.dir)
     if not figures:
@@ -56,14 +62,15 @@ def main() -> None:
         for n, path in figures:
             print(f"### Figure {n}\n\n{table(path, args.bold)}\n")
         return
-    text = args.update.read_text()
-    try:
-        for n, path in figures:
+    for page in args.update:
+        text = page.read_text()
+        mine = [(n, path) for n, path in figures if n in figures_in(text)]
+        if not mine:
+            sys.exit(f"error: {page}: no '### Figure N' heading for any of figures {[n for n, _ in figures]}")
+        for n, path in mine:
             text = replace_table(text, n, table(path, args.bold))
-    except ValueError as err:
-        sys.exit(f"error: {args.update}: {err}")
-    atomic_write_text(args.update, text)
-    print(f"updated {len(figures)} tables in {args.update}")
+        atomic_write_text(page, text)
+        print(f"updated {len(mine)} tables in {page}")
 
 
 if __name__ == "__main__":
