@@ -39,12 +39,12 @@ from catmip_env.events import EventEngine, random_valid_actions
 from catmip_env.play import play
 from catmip_rl.amat.fast import FastAmat
 from catmip_rl.amat.model import AMAT, decision_order
+from catmip_rl.training.gae import SampleBatch
 from catmip_rl.training.memory import keep_freed_memory
 from catmip_rl.training.parallel_update import ParallelGradients
-from catmip_rl.training.ppo import SampleBatch, ppo_loss
+from catmip_rl.training.ppo import loss_kwargs, make_optimizer, ppo_loss
 from catmip_rl.training.precision import native_bf16
 from catmip_rl.training.presets import make_train_config
-from catmip_rl.training.update import loss_kwargs, make_optimizer
 
 TOKEN_INPUTS = ("global_map", "local_map", "agent_class")
 TASKS = ((2, 15, "task1"), (3, 20, "task2"), (6, 32, "task3"))  # (robots, map side, preset) of Tasks 1-3
@@ -194,7 +194,7 @@ def task2_training_batch(events: int, seed: int = 0) -> SampleBatch:
 
 def bench_training(model: AMAT, batch: SampleBatch, bf16: bool, steps: int, processes: int = 1) -> dict:
     """One PPO minibatch step as training runs it: ``ppo_loss`` forward, backward, grad-norm clip and
-    fused Adam (``training.update.make_optimizer``). One process on two threads, or ``processes``
+    fused Adam (``training.ppo.make_optimizer``). One process on two threads, or ``processes``
     single-threaded processes (``training.parallel_update``), each with one micro-batch of ``batch``'s
     events (so the step covers ``processes`` x as many events)."""
     torch.set_num_threads(2)

@@ -2,8 +2,9 @@
 
 * ``config`` — :class:`TrainConfig`, validated when built; ``presets`` — the recipes (``--preset NAME``);
 * ``collect`` — the asynchronous rollout of B worlds (the event engine + AMAT's decisions);
-* ``gae`` — asynchronous GAE over decision events and the PPO batch built from a rollout;
-* ``ppo`` — the clipped loss and value normalisation; ``update`` — epochs over minibatches, step control;
+* ``gae`` — asynchronous GAE over decision events, value normalisation and the PPO batch built from a
+  rollout;
+* ``ppo`` — the clipped loss and the update: epochs over minibatches, step control, the LR schedule;
 * ``parallel_update`` — the update's gradients computed by several CPU processes;
 * ``imitation`` — the DAgger warm start from a planner;
 * ``precision``, ``memory`` — bf16 autocast choice and allocator tuning;

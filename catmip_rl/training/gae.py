@@ -15,10 +15,14 @@ last one IS trained on: it holds the success reward, and for the rescuer it is t
 the target. A macro-action cut off by the horizon (truncation) is unfinished and is not trained on.
 Value targets are the lambda-returns ``A_k + V_k``.
 
-:func:`build_batch` runs it on a collector's rollout and gives PPO its flat sample batch.
+:func:`build_batch` runs it on a collector's rollout and gives PPO its flat :class:`SampleBatch`, with
+value targets normalised by :class:`ValueNorm` (the value head predicts normalised values).
 """
 
 from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
 
 import numpy as np
 import torch
@@ -26,9 +30,8 @@ from numba import njit
 
 from catmip_rl.amat.inputs import one_hot_class
 from catmip_rl.training.collect import Rollout
-from catmip_rl.training.ppo import SampleBatch, ValueNorm
 
-__all__ = ["async_gae", "build_batch"]
+__all__ = ["async_gae", "ValueNorm", "SampleBatch", "build_batch"]
 
 
 @njit(cache=True)
@@ -79,6 +82,70 @@ def async_gae(
                 a_next = a
                 v_next = values[t, b, i]
     return adv, ret, trainable
+
+
+class ValueNorm(torch.nn.Module):
+    """Running mean / variance of value targets (exponential moving average with debiasing, as in
+    MAPPO); the value head predicts normalised values."""
+
+    def __init__(self, beta: float = 0.99999, eps: float = 1e-5) -> None:
+        super().__init__()
+        self.beta, self.eps = beta, eps
+        self.register_buffer("mean", torch.zeros((), dtype=torch.float64))
+        self.register_buffer("mean_sq", torch.zeros((), dtype=torch.float64))
+        self.register_buffer("debias", torch.zeros((), dtype=torch.float64))
+
+    def _stats(self) -> tuple[torch.Tensor, torch.Tensor]:
+        d = self.debias.clamp_min(self.eps)
+        mean, mean_sq = self.mean / d, self.mean_sq / d
+        return mean, (mean_sq - mean**2).clamp_min(1e-2)
+
+    @torch.no_grad()
+    def update(self, x: torch.Tensor) -> None:
+        x = x.double()
+        w = self.beta
+        self.mean.mul_(w).add_(x.mean() * (1 - w))
+        self.mean_sq.mul_(w).add_((x**2).mean() * (1 - w))
+        self.debias.mul_(w).add_(1 - w)
+
+    def normalize(self, x: torch.Tensor) -> torch.Tensor:
+        mean, var = self._stats()
+        return ((x.double() - mean) / var.sqrt()).to(x.dtype)
+
+    def denormalize(self, x: torch.Tensor) -> torch.Tensor:
+        mean, var = self._stats()
+        return (x.double() * var.sqrt() + mean).to(x.dtype)
+
+
+@dataclass
+class SampleBatch:
+    """Flat training samples: one row = one decision event of one world (all robots)."""
+
+    global_map: torch.Tensor  # (M, N, 5+C, H, W) uint8
+    local_map: torch.Tensor  # (M, N, 4+C, L, L) uint8
+    agent_class: torch.Tensor  # (M, N, C) float
+    action_mask: torch.Tensor  # (M, N, A) bool
+    order: torch.Tensor  # (M, N) long
+    action: torch.Tensor  # (M, N) long
+    log_prob: torch.Tensor  # (M, N) old log-probs
+    value: torch.Tensor  # (M, N) old normalised values
+    advantage: torch.Tensor  # (M, N) (normalised over trainable entries)
+    target: torch.Tensor  # (M, N) normalised value targets
+    trainable: torch.Tensor  # (M, N) bool: active robots whose macro-action finished
+    rescue_label: torch.Tensor | None = None  # (M, N) long: the rescue rule's window action, -1 = none
+
+    def __len__(self) -> int:
+        return self.action.shape[0]
+
+    def map(self, fn: Callable[[torch.Tensor], torch.Tensor]) -> SampleBatch:
+        """A batch of ``fn(field)`` for every field that is set (optional fields stay None)."""
+        return SampleBatch(**{k: None if v is None else fn(v) for k, v in self.__dict__.items()})
+
+    def index(self, idx: torch.Tensor) -> SampleBatch:
+        return self.map(lambda v: v[idx])
+
+    def to(self, device) -> SampleBatch:
+        return self.map(lambda v: v.to(device))
 
 
 def build_batch(r: Rollout, value_norm: ValueNorm, gamma: float, lam: float, n_classes: int,

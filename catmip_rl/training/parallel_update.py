@@ -29,7 +29,8 @@ import torch
 import torch.multiprocessing as mp
 
 from catmip_rl.amat.model import AMAT, AmatConfig
-from catmip_rl.training.ppo import SampleBatch, accumulate_gradients
+from catmip_rl.training.gae import SampleBatch
+from catmip_rl.training.ppo import accumulate_gradients
 
 __all__ = ["ParallelGradients"]
 

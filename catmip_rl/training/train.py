@@ -3,8 +3,8 @@ one loop.
 
     build: config -> AMAT -> Adam -> value normaliser -> collector (B worlds) [-> checkpoint to resume]
     (warm start: DAgger rounds against a window-projected planner, ``training.imitation``)
-    loop:  LR (``update.lr_factor``) -> collect one episode per world (``collect``) -> async GAE and
-           the batch (``gae``) -> PPO epochs with a target-KL stop (``update``) -> log -> evaluate
+    loop:  LR (``ppo.lr_factor``) -> collect one episode per world (``collect``) -> async GAE and
+           the batch (``gae``) -> PPO epochs with a target-KL stop (``ppo``) -> log -> evaluate
            -> checkpoint (``catmip_rl.checkpoint``)
 
 Everything needed to continue a run exactly is saved atomically in ``RUN_DIR/checkpoints``; the
@@ -31,12 +31,11 @@ from catmip_rl.checkpoint import initial_weights, restore_training, save_trainin
 from catmip_rl.files import atomic_write_text, open_csv_log, write_csv_row
 from catmip_rl.training.collect import Collector, Rollout
 from catmip_rl.training.config import TrainConfig
-from catmip_rl.training.gae import build_batch
+from catmip_rl.training.gae import ValueNorm, build_batch
 from catmip_rl.training.imitation import RescueLabeler, warm_start
 from catmip_rl.training.memory import keep_freed_memory
 from catmip_rl.training.parallel_update import ParallelGradients
-from catmip_rl.training.ppo import ValueNorm
-from catmip_rl.training.precision import choose_bf16
+from catmip_rl.training.ppo import choose_bf16, loss_kwargs, lr_factor, make_optimizer, ppo_update
 from catmip_rl.training.run_dir import (
     RunDirLock,
     check_run,
@@ -44,7 +43,6 @@ from catmip_rl.training.run_dir import (
     stopped_note,
     tensorboard_writer,
 )
-from catmip_rl.training.update import loss_kwargs, lr_factor, make_optimizer, ppo_update
 
 __all__ = ["train", "evaluate_policy", "Run", "build_run", "ppo_iteration", "METRICS", "EPOCH_METRICS"]
 

@@ -163,8 +163,7 @@ def test_a_rescued_worlds_last_decisions_are_trained_with_advantage_r_minus_v():
     """A rescue completes every robot's macro-action (docs/design.md#asynchronous-gae): the rescuer's
     decision that reached the target is in the batch with advantage R - V (normalised with the rest), a
     truncated world's last decisions are not."""
-    from catmip_rl.training.gae import async_gae, build_batch
-    from catmip_rl.training.ppo import ValueNorm
+    from catmip_rl.training.gae import ValueNorm, async_gae, build_batch
 
     cfg = make_config("task1", map_size=10, horizon_ticks=100)
     col = Collector(cfg, 8, seed=0)

@@ -6,10 +6,9 @@ import pytest
 import torch
 
 from catmip_rl.training.parallel_update import ParallelGradients
-from catmip_rl.training.ppo import accumulate_gradients
+from catmip_rl.training.ppo import accumulate_gradients, loss_kwargs, make_optimizer, ppo_update
 from catmip_rl.training.presets import make_train_config
 from catmip_rl.training.train import train
-from catmip_rl.training.update import loss_kwargs, make_optimizer, ppo_update
 from tests.rl.helpers import shaken_model
 from tests.rl.test_sparse_conv import _batch
 

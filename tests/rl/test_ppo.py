@@ -6,7 +6,8 @@ from torchrl.objectives import ClipPPOLoss
 
 from catmip_rl.adapters import keys as K
 from catmip_rl.adapters.torchrl_actor import AmatActor, AmatCritic
-from catmip_rl.training.ppo import SampleBatch, ValueNorm, ppo_loss
+from catmip_rl.training.gae import SampleBatch, ValueNorm
+from catmip_rl.training.ppo import ppo_loss
 from tests.rl.helpers import shaken_model
 
 from .test_amat import _obs

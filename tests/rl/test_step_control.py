@@ -5,8 +5,8 @@ import pytest
 import torch
 
 from catmip_rl.amat.model import AmatConfig
+from catmip_rl.training.ppo import lr_factor, make_optimizer, ppo_update
 from catmip_rl.training.presets import make_train_config
-from catmip_rl.training.update import lr_factor, make_optimizer, ppo_update
 from tests.rl.helpers import shaken_model
 from tests.rl.test_sparse_conv import _batch
 
@@ -116,22 +116,21 @@ def test_precision_auto_follows_the_cpu_and_bf16_reaches_every_gradient(monkeypa
 def test_auto_precision_measures_and_takes_bf16_only_when_clearly_faster(monkeypatch, tmp_path):
     import json
 
-    from catmip_rl.training import precision
+    from catmip_rl.training import ppo, precision
     from catmip_rl.training.train import train
-    from catmip_rl.training.update import loss_kwargs
 
     model = shaken_model(AmatConfig(embed_dim=32)).train()
     batch = _batch(worlds=2)
-    kw = loss_kwargs(make_train_config("tiny"), False)
-    timing = precision.measure_bf16(model, batch, kw, events=8, repeats=1)
+    kw = ppo.loss_kwargs(make_train_config("tiny"), False)
+    timing = ppo.measure_bf16(model, batch, kw, events=8, repeats=1)
     assert timing["fp32_s"] > 0 and timing["bf16_s"] > 0
     assert all(p.grad is None for p in model.parameters())
     monkeypatch.setattr(precision, "native_bf16", lambda: True)
     for fp32_s, bf16_s, expected in ((1.0, 0.5, True), (1.0, 0.95, False)):
-        monkeypatch.setattr(precision, "measure_bf16", lambda *a, t=(fp32_s, bf16_s), **k: dict(
+        monkeypatch.setattr(ppo, "measure_bf16", lambda *a, t=(fp32_s, bf16_s), **k: dict(
             fp32_s=t[0], bf16_s=t[1]))  # fmt: skip
-        assert precision.choose_bf16("auto", "cpu", model, batch, kw)[0] is expected
-    assert precision.choose_bf16("fp32", "cpu", model, batch, kw)[0] is False
+        assert ppo.choose_bf16("auto", "cpu", model, batch, kw)[0] is expected
+    assert ppo.choose_bf16("fp32", "cpu", model, batch, kw)[0] is False
     train(
         make_train_config("tiny", precision="auto", iterations=1, eval_every=0),
         tmp_path / "r",
@@ -144,17 +143,17 @@ def test_auto_precision_measures_and_takes_bf16_only_when_clearly_faster(monkeyp
 def test_a_resumed_run_keeps_the_precision_auto_chose(monkeypatch, tmp_path):
     import json
 
-    from catmip_rl.training import precision
+    from catmip_rl.training import ppo, precision
     from catmip_rl.training.train import train
 
     monkeypatch.setattr(precision, "native_bf16", lambda: True)
-    monkeypatch.setattr(precision, "measure_bf16", lambda *a, **k: {"fp32_s": 1.0, "bf16_s": 0.5})
+    monkeypatch.setattr(ppo, "measure_bf16", lambda *a, **k: {"fp32_s": 1.0, "bf16_s": 0.5})
     cfg = make_train_config("tiny", precision="auto", iterations=1, eval_every=0)
     train(cfg, tmp_path / "r", progress=False)
     saved = torch.load(tmp_path / "r" / "checkpoints" / "latest.pt", weights_only=False)
     assert saved["bf16"] is True
     # the machine now measures the other way: the resumed run does not measure again, nor switch
-    monkeypatch.setattr(precision, "measure_bf16", lambda *a, **k: {"fp32_s": 0.5, "bf16_s": 1.0})
+    monkeypatch.setattr(ppo, "measure_bf16", lambda *a, **k: {"fp32_s": 0.5, "bf16_s": 1.0})
     train(cfg.replace(iterations=2), tmp_path / "r", resume=True, progress=False)
     assert torch.load(tmp_path / "r" / "checkpoints" / "latest.pt", weights_only=False)["bf16"] is True
     assert json.loads((tmp_path / "r" / "precision.json").read_text())["bf16"] is True
