@@ -7,7 +7,7 @@
 * :mod:`catmip_env.search_rescue_v0` — the PettingZoo Parallel env (``parallel_env()``, ``env()``).
 
 Layers, lowest first: ``constants`` / ``config`` / ``rng`` → ``state`` → the numba kernels (``mapgen``,
-``sensing``, ``paths``, ``dynamics``, ``macro``, ``observe``) → ``world`` (:class:`BatchedEngine`) →
+``sensing``, ``bfs``, ``dynamics``, ``macro``, ``observe``) → ``world`` (:class:`BatchedEngine`) →
 ``events`` (:class:`EventEngine`) → ``planners`` / ``window_planner`` → ``play`` (the episode loop and
 its metrics) → ``search_rescue_v0`` (PettingZoo), ``render``, ``demo``.
 
@@ -16,9 +16,9 @@ This package never imports torch.
 
 from __future__ import annotations
 
+from catmip_env.ascii_maps import Layout, parse_layout
 from catmip_env.config import EXPLORER, PRESETS, RESCUER, EnvConfig, RobotClass, make_config
 from catmip_env.events import EventEngine
-from catmip_env.layout import Layout, parse_layout
 from catmip_env.planners import make_planner
 from catmip_env.state import WorldState
 from catmip_env.world import BatchedEngine, StepResult

@@ -142,7 +142,7 @@ class EnvConfig:
     rescue_reward: float = 300.0
     """Team reward scale on success: rescue_reward * (1 - 0.9 t/h)."""
     layout: str | None = None
-    """Optional fixed ASCII map (see :mod:`catmip_env.layout`); replaces map generation."""
+    """Optional fixed ASCII map (see :mod:`catmip_env.ascii_maps`); replaces map generation."""
     max_ma_ticks: int = 10
     """Macro level: a macro-action ends after this many ticks (the paper studies 5 / 10 / 20)."""
     activation: tuple[int, int] = (2, 5)
@@ -181,7 +181,7 @@ class EnvConfig:
     def map_shape(self) -> tuple[int, int]:
         """(rows, cols) of the world grid: the layout's shape, or (S, S)."""
         if self.layout is not None:
-            from catmip_env.layout import parse_layout
+            from catmip_env.ascii_maps import parse_layout
 
             return parse_layout(self.layout).grid.shape
         return (self.map_size, self.map_size)
@@ -327,7 +327,7 @@ def _validate(cfg: EnvConfig) -> None:
     if act[0] < 0 or act[1] < act[0]:
         fail(f"activation must be (t_min, t_max) ints with 0 <= t_min <= t_max, got {act!r}")
     if cfg.layout is not None:
-        from catmip_env.layout import parse_layout
+        from catmip_env.ascii_maps import parse_layout
 
         lay = parse_layout(cfg.layout)
         if lay.num_robots != cfg.num_robots:

@@ -20,6 +20,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from catmip_env.ascii_maps import parse_layout
 from catmip_env.config import EnvConfig
 from catmip_env.constants import (
     CLUE,
@@ -32,7 +33,6 @@ from catmip_env.constants import (
     local_channels,
 )
 from catmip_env.dynamics import Rules, perceive_at_reset, tick
-from catmip_env.layout import parse_layout
 from catmip_env.mapgen import Episode, generate
 from catmip_env.observe import observe as build_observations
 from catmip_env.rng import seed_state

@@ -12,7 +12,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from catmip_rl.amat.small_attention import small_attention
+from catmip_rl.amat.kernels.small_attention import small_attention
 
 __all__ = [
     "Attention", "MLP", "EncoderBlock", "DecoderBlock", "BlockCache", "linear", "layer_norm",
@@ -81,7 +81,7 @@ class Attention(nn.Module):
         else:
             q, k, v = self.q(query), self.k(key), self.v(value)
         if q.dtype == torch.float32 and q.device.type == "cpu" and torch.is_grad_enabled():
-            # training on CPU: a few tokens per event (catmip_rl.amat.small_attention)
+            # training on CPU: a few tokens per event (catmip_rl.amat.kernels.small_attention)
             y = small_attention(q, k, v, allowed, self.n_heads)
         else:
             q, k, v = self.split(q), self.split(k), self.split(v)

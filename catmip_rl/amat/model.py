@@ -30,8 +30,8 @@ import torch.nn.functional as F
 from torch import nn
 
 from catmip_env.constants import OBS_SCALE  # uint8 macro-observations: float = value * OBS_SCALE
+from catmip_rl.amat.kernels.sparse_conv import global_conv_pool
 from catmip_rl.amat.layers import BlockCache, DecoderBlock, EncoderBlock, layer_norm, linear
-from catmip_rl.amat.sparse_conv import global_conv_pool
 
 __all__ = ["AmatConfig", "AMAT", "decision_order", "INVALID_LOGIT"]
 
@@ -163,7 +163,7 @@ class AMAT(nn.Module):
         gmap, lmap, cls = obs["global_map"], obs["local_map"], obs["agent_class"]
         b, n = gmap.shape[:2]
         if gmap.dtype == torch.uint8 and gmap.device.type == "cpu" and torch.is_grad_enabled():
-            # training on CPU: sparse conv + pool with a winning-cell backward (catmip_rl.amat.sparse_conv)
+            # training on CPU: sparse conv + pool with a winning-cell backward (amat.kernels.sparse_conv)
             g = global_conv_pool(gmap, self.global_conv.weight, self.global_conv.bias, self.config.pool)
         else:
             g = _as_float(gmap).flatten(0, 1)  # (B*N, 5+C, S, S)

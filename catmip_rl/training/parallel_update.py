@@ -55,7 +55,7 @@ def _unpack(flat: torch.Tensor, params: list[torch.Tensor]) -> list[torch.Tensor
 
 def _helper(conn, config: dict[str, Any], params: torch.Tensor, grads: torch.Tensor, loss_kwargs) -> None:
     """A helper process: one torch thread, a copy of the model, commands from ``conn``."""
-    from catmip_rl.training.memory import keep_freed_memory
+    from catmip_rl.training.allocator import keep_freed_memory
 
     torch.set_num_threads(1)
     keep_freed_memory()

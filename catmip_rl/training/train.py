@@ -29,11 +29,11 @@ import torch
 from catmip_rl.amat.model import AMAT
 from catmip_rl.checkpoint import initial_weights, restore_training, save_training_checkpoint
 from catmip_rl.files import atomic_write_text, open_csv_log, write_csv_row
+from catmip_rl.training.allocator import keep_freed_memory
 from catmip_rl.training.collect import Collector, Rollout
 from catmip_rl.training.config import TrainConfig
 from catmip_rl.training.gae import ValueNorm, build_batch
 from catmip_rl.training.imitation import RescueLabeler, warm_start
-from catmip_rl.training.memory import keep_freed_memory
 from catmip_rl.training.parallel_update import ParallelGradients
 from catmip_rl.training.ppo import choose_bf16, loss_kwargs, lr_factor, make_optimizer, ppo_update
 from catmip_rl.training.run_dir import (

@@ -1,11 +1,11 @@
-"""The few-token attention used in training (catmip_rl.amat.small_attention) against torch's SDPA."""
+"""The few-token attention used in training (catmip_rl.amat.kernels.small_attention) against torch's SDPA."""
 
 import pytest
 import torch
 import torch.nn.functional as F
 
+from catmip_rl.amat.kernels.small_attention import small_attention
 from catmip_rl.amat.model import AmatConfig, decision_order
-from catmip_rl.amat.small_attention import small_attention
 from tests.rl.helpers import shaken_model
 
 

@@ -9,7 +9,7 @@ import pytest
 CHILD = """
 import resource, sys
 import numpy as np
-from catmip_rl.training.memory import keep_freed_memory
+from catmip_rl.training.allocator import keep_freed_memory
 if sys.argv[1] == "on":
     assert keep_freed_memory()
 def step():  # like a training step: eight 16 MB activations alive at once, then all freed
@@ -37,6 +37,6 @@ def test_keep_freed_memory_stops_page_faults_on_repeated_large_blocks():
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="glibc malloc tuning is Linux-only")
 def test_keep_freed_memory_can_be_turned_off():
     env = {**os.environ, "CATMIP_KEEP_HEAP": "0"}
-    code = "from catmip_rl.training.memory import keep_freed_memory; print(keep_freed_memory())"
+    code = "from catmip_rl.training.allocator import keep_freed_memory; print(keep_freed_memory())"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, env=env)
     assert out.stdout.strip() == "False"

@@ -1,5 +1,5 @@
-"""Numba kernels of AMAT's sparse convolutions, shared by batch-1 inference (``fast``) and the training
-path's global conv + pool (``sparse_conv``).
+"""Numba kernels of AMAT's sparse convolutions, shared by batch-1 inference (``batch1.fast_amat``) and the
+training path's global conv + pool (``sparse_conv``).
 
 The convolutions on the maps are linear, so they are split by input channel, and the maps are sparse. A
 channel whose most common value is ``m`` contributes ``m * conv(ones)`` (:func:`ones_conv`, precomputed
@@ -10,7 +10,7 @@ are convolved densely (:func:`conv_rows`). Exact for any input. The shared chann
 (explored, occupied, target) are convolved once, for robot 0 (:func:`shared_base`); another robot adds
 the convolution of the cells where its channels differ, or convolves its own when that is cheaper
 (:func:`robot_conv`). Weights come in the layouts of :func:`conv_weights`; a kernel's ``w`` argument is
-any namedtuple with its fields (:class:`ConvWeights`, or ``FastWeights`` of ``fast_weights``).
+any namedtuple with its fields (:class:`ConvWeights`, or ``FastWeights`` of ``batch1.snapshot``).
 """
 
 from __future__ import annotations
@@ -19,7 +19,7 @@ from collections import namedtuple
 
 import numpy as np
 
-from catmip_rl.amat.numba_ops import copy, fill, kernel
+from catmip_rl.amat.kernels.numba_ops import copy, fill, kernel
 
 __all__ = [
     "RUN_MAX", "ConvWeights", "conv_weights", "ones_conv", "add_planes", "shared_base", "robot_conv",

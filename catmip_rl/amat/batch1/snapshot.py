@@ -1,7 +1,7 @@
-"""The weights snapshot of :class:`~catmip_rl.amat.fast.FastAmat`: an ``AMAT.state_dict()`` copied into
-numpy float32 arrays in the layouts its numba kernels read (:class:`FastWeights`).
+"""The weights snapshot of :class:`~catmip_rl.amat.batch1.fast_amat.FastAmat`: an ``AMAT.state_dict()``
+copied into numpy float32 arrays in the layouts its numba kernels read (:class:`FastWeights`).
 
-Convolutions go to the sparse kernels' layouts (:func:`~catmip_rl.amat.conv_kernels.conv_weights`), the
+Convolutions go to the sparse kernels' layouts (:func:`~catmip_rl.amat.kernels.conv.conv_weights`), the
 local CNN's activations and LayerNorms channel-last, per-block tensors stacked along axis 0, q/k/v
 projections of one input concatenated; the class tokens, the macro-action embeddings and the decoder's
 first-block input and q/k/v projections, which depend only on (class, previous action), are tabulated.
@@ -16,9 +16,9 @@ from typing import Any
 
 import numpy as np
 
-from catmip_rl.amat.conv_kernels import conv_weights
+from catmip_rl.amat.kernels.conv import conv_weights
+from catmip_rl.amat.kernels.numba_ops import LN_EPS
 from catmip_rl.amat.model import AmatConfig
-from catmip_rl.amat.numba_ops import LN_EPS
 
 __all__ = ["FastWeights", "extract_weights"]
 

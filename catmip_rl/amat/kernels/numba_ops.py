@@ -1,10 +1,11 @@
-"""Small numba kernels of :class:`~catmip_rl.amat.fast.FastAmat` on float32 vectors and matrices: matrix
-products in register tiles, LayerNorm, exact GELU, one query's softmax attention, class tokens.
+"""Small numba kernels of :class:`~catmip_rl.amat.batch1.fast_amat.FastAmat` on float32 vectors and
+matrices: matrix products in register tiles, LayerNorm, exact GELU, one query's softmax attention,
+class tokens.
 
-Every FastAmat kernel (here, in ``conv_kernels`` and in ``fast``) is compiled by the one decorator
+Every FastAmat kernel (here, in ``kernels.conv`` and in ``batch1.fast_amat``) is compiled by the one decorator
 :data:`kernel`, so they all share its options; numba resolves a kernel's calls to kernels of other
 modules at compile time and compiles them into the caller. Numba's on-disk cache does not see those
-callees change: after editing a kernel here or in ``conv_kernels``, delete the ``*.nbi`` / ``*.nbc``
+callees change: after editing a kernel here or in ``kernels.conv``, delete the ``*.nbi`` / ``*.nbc``
 files in ``catmip_rl/amat/__pycache__`` so that its callers in other modules are recompiled too.
 """
 

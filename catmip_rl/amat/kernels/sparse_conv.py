@@ -6,7 +6,7 @@ backward, on the sparse uint8 global maps (docs/design.md#observations, #amat).
 ``weight`` and ``bias`` (the maps are data: no input gradient), at a fraction of the dense cost:
 
 * forward — per decision event, the robots' global convolutions by the shared/sparse split of
-  ``conv_kernels`` (the belief channels that merged robots share are convolved once, the robot stamps
+  ``kernels.conv`` (the belief channels that merged robots share are convolved once, the robot stamps
   and goal as the few cells they are; exact for any input, dense where that is cheaper), then the max
   pool, keeping the winning cell of every (robot, channel, bin);
 * backward — max pooling passes each bin's gradient to its winning cell alone, so the weight gradient
@@ -19,7 +19,7 @@ threads: the results do not depend on the thread count. Ties inside a bin go to 
 row-major order, as torch's pool; because the sums run in another order than torch's convolution, a
 near-tie can pick another cell than the dense path would (values agree to float32 rounding either way).
 
-The convolution kernels are ``conv_kernels``' (shared with ``FastAmat``); this module adds the pool that
+The convolution kernels are ``kernels.conv``' (shared with ``FastAmat``); this module adds the pool that
 remembers its winners, the weight gradient, the thread-pool chunking and the autograd ``Function``.
 """
 
@@ -33,7 +33,7 @@ import torch
 from numba import njit
 
 from catmip_env.constants import OBS_SCALE
-from catmip_rl.amat.conv_kernels import conv_weights, ones_conv, robot_conv, shared_base
+from catmip_rl.amat.kernels.conv import conv_weights, ones_conv, robot_conv, shared_base
 
 __all__ = ["global_conv_pool", "global_conv_pool_winners", "GlobalConvPool", "CHUNKS"]
 
@@ -80,7 +80,7 @@ def _pool_argmax(x, g, pooled, where):
 @_jit
 def _forward(w, gmap, scale, ones, g, pooled, where, m0, m1):
     """Events m0 .. m1-1 of gmap (M, N, C, S, S): pooled and where (M * N, O, g, g) of their robots
-    (``conv_kernels``' shared base + per-robot convolution, into buffers reused across events)."""
+    (``kernels.conv``' shared base + per-robot convolution, into buffers reused across events)."""
     n, _, h, wd = gmap.shape[1:]
     zero = np.zeros((h, wd), gmap.dtype)
     base = np.empty((h, wd, w.g_b.size), np.float32)

@@ -9,13 +9,13 @@ values equal to float32 rounding), in one numba call, without torch. What makes 
 
 * the convolutions on the maps are linear and the maps sparse: each input channel adds its majority
   value times a precomputed convolution of ones plus precomputed run kernels for the runs of cells that
-  differ, and the global map's shared belief channels are convolved once per world (``conv_kernels``);
+  differ, and the global map's shared belief channels are convolved once per world (``kernels.conv``);
 * d-sized matrix products in register tiles (``numba_ops``); the decoder's first-block input and q/k/v
-  projections, which depend only on (class, previous action), are tabulated (``fast_weights``); exact
+  projections, which depend only on (class, previous action), are tabulated (``snapshot``); exact
   GELU by a branch-free rational erf (error below 1e-7).
 
 This module holds :class:`FastAmat` and the network's kernels (embed, encode, decode, the whole
-decision); the weights snapshot is ``fast_weights``, the kernels it calls ``conv_kernels`` and
+decision); the weights snapshot is ``snapshot``, the kernels it calls ``kernels.conv`` and
 ``numba_ops``.
 """
 
@@ -28,7 +28,8 @@ from typing import Any
 import numpy as np
 
 from catmip_env.constants import OBS_SCALE
-from catmip_rl.amat.conv_kernels import (
+from catmip_rl.amat.batch1.snapshot import extract_weights
+from catmip_rl.amat.kernels.conv import (
     add_planes,
     conv_rows,
     global_conv_all,
@@ -37,9 +38,7 @@ from catmip_rl.amat.conv_kernels import (
     robot_conv,
     shared_base,
 )
-from catmip_rl.amat.fast_weights import extract_weights
-from catmip_rl.amat.model import INVALID_LOGIT, AmatConfig
-from catmip_rl.amat.numba_ops import (
+from catmip_rl.amat.kernels.numba_ops import (
     add_ln,
     attend,
     class_token,
@@ -53,6 +52,7 @@ from catmip_rl.amat.numba_ops import (
     one_hot,
     relu,
 )
+from catmip_rl.amat.model import INVALID_LOGIT, AmatConfig
 
 __all__ = ["FastAmat"]
 
