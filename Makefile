@@ -69,7 +69,7 @@ bench: $(STAMP)
 bench-quick: $(STAMP)
 	$(PY) benchmarks/run_all.py --quick
 
-# numba keys each cached kernel on its own file only: after editing a kernel that others call, drop the cache
+# drop numba's compiled kernels (the packages already do when their sources change: catmip_env/numba_cache.py)
 clean-cache:
 	find . -path ./$(VENV) -prune -o \( -name '*.nbi' -o -name '*.nbc' \) -exec rm -f {} +
 

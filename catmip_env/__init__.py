@@ -16,12 +16,18 @@ This package never imports torch.
 
 from __future__ import annotations
 
-from catmip_env.ascii_maps import Layout, parse_layout
-from catmip_env.config import EXPLORER, PRESETS, RESCUER, EnvConfig, RobotClass, make_config
-from catmip_env.events import EventEngine
-from catmip_env.planners import make_planner
-from catmip_env.state import WorldState
-from catmip_env.world import BatchedEngine, StepResult
+from pathlib import Path
+
+from catmip_env.numba_cache import refresh
+
+refresh(Path(__file__).parent)  # before any kernel loads its cache (catmip_env.numba_cache)
+
+from catmip_env.ascii_maps import Layout, parse_layout  # noqa: E402
+from catmip_env.config import EXPLORER, PRESETS, RESCUER, EnvConfig, RobotClass, make_config  # noqa: E402
+from catmip_env.events import EventEngine  # noqa: E402
+from catmip_env.planners import make_planner  # noqa: E402
+from catmip_env.state import WorldState  # noqa: E402
+from catmip_env.world import BatchedEngine, StepResult  # noqa: E402
 
 __version__ = "0.1.0"
 

@@ -14,8 +14,14 @@ The package is grouped by what each part does (``docs/architecture.md`` draws it
 
 from __future__ import annotations
 
+from pathlib import Path
+
 from catmip_env import __version__  # one version for the whole distribution (pyproject reads it there)
-from catmip_rl.amat.model import AMAT, AmatConfig, decision_order
-from catmip_rl.checkpoint import load_model, save_model
+from catmip_env.numba_cache import refresh
+
+refresh(Path(__file__).parent)  # before any kernel loads its cache (catmip_env.numba_cache)
+
+from catmip_rl.amat.model import AMAT, AmatConfig, decision_order  # noqa: E402
+from catmip_rl.checkpoint import load_model, save_model  # noqa: E402
 
 __all__ = ["AMAT", "AmatConfig", "__version__", "decision_order", "load_model", "save_model"]

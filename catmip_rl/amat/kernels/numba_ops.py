@@ -4,9 +4,8 @@ class tokens.
 
 Every FastAmat kernel (here, in ``kernels.conv`` and in ``batch1.fast_amat``) is compiled by the one decorator
 :data:`kernel`, so they all share its options; numba resolves a kernel's calls to kernels of other
-modules at compile time and compiles them into the caller. Numba's on-disk cache does not see those
-callees change: after editing a kernel here or in ``kernels.conv``, delete the ``*.nbi`` / ``*.nbc``
-files in ``catmip_rl/amat/__pycache__`` so that its callers in other modules are recompiled too.
+modules at compile time and compiles them into the caller (numba's on-disk cache would not see those
+callees change; ``catmip_env.numba_cache`` drops the package's caches when its sources change).
 """
 
 from __future__ import annotations

@@ -1,0 +1,47 @@
+"""Numba's on-disk cache kept in step with the sources of a package.
+
+Numba keys a cached kernel on its own source file only: when a kernel calls one from another module
+(the dynamics call the sensing kernels, FastAmat calls ``kernels.conv``) and only the callee's file
+changes, the caller's cache still holds the old callee compiled in, and runs it. :func:`refresh` closes
+that gap, once per import of a package: it hashes the package's sources and, when the hash differs from
+the one recorded with the caches, deletes the package's cached kernels (they recompile on first use)
+and records the new hash. An installed package never changes, so it never pays.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from pathlib import Path
+
+from catmip_env.files import atomic_path
+
+__all__ = ["refresh"]
+
+STAMP = "numba_sources.sha256"
+
+
+def sources_digest(root: Path) -> str:
+    """SHA-256 of every ``.py`` file under ``root`` (relative names and contents, in sorted order)."""
+    h = hashlib.sha256()
+    for path in sorted(root.rglob("*.py")):
+        h.update(str(path.relative_to(root)).encode() + b"\0" + path.read_bytes() + b"\0")
+    return h.hexdigest()
+
+
+def refresh(root: str | Path) -> bool:
+    """Delete the cached numba kernels (``__pycache__/*.nbi``, ``*.nbc``) under the package folder
+    ``root`` if its sources changed since they were recorded; True if it deleted. A folder it cannot
+    write (a read-only install) is left as it is."""
+    root = Path(root)
+    stamp = root / "__pycache__" / STAMP
+    digest = sources_digest(root)
+    try:
+        if stamp.exists() and stamp.read_text() == digest:
+            return False
+        for cached in [*root.rglob("__pycache__/*.nbi"), *root.rglob("__pycache__/*.nbc")]:
+            cached.unlink(missing_ok=True)
+        with atomic_path(stamp) as tmp:
+            tmp.write_text(digest)
+    except OSError:
+        return False
+    return True
