@@ -21,7 +21,7 @@ $(DSTAMP): $(STAMP)
 
 # train AMAT for a few minutes on Task 1, evaluate it (and the shipped model) against the planners
 demo: $(STAMP)
-	$(PY) -m catmip_rl.demo --out out/demo
+	$(PY) -m catmip_rl.cli.demo --out out/demo
 
 # the planners only (no torch needed): the catmip_env demo
 demo-env: $(STAMP)

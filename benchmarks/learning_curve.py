@@ -26,7 +26,7 @@ import torch
 from catmip_env.events import EventEngine
 from catmip_env.planners import make_planner
 from catmip_env.play import episode_metrics, play
-from catmip_rl.cli_args import parse_set
+from catmip_rl.cli.args import parse_set
 from catmip_rl.files import atomic_savefig, atomic_write_csv, atomic_write_text
 from catmip_rl.training.config import TrainConfig
 from catmip_rl.training.precision import native_bf16

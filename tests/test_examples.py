@@ -69,7 +69,7 @@ def test_mappo_torchrl_trains_saves_and_evaluates_through_its_factory(tmp_path, 
     assert [e["map_hash"] for e in mine] == [e["map_hash"] for e in nearest]
     assert len((out / "metrics.csv").read_text().splitlines()) == 3
     # the saved factory refuses a task of another map size with one line
-    from catmip_rl.cli import main as cli
+    from catmip_rl.cli.main import main as cli
 
     factory = f"py:{out / 'policy.py'}:make_policy"
     code = cli(["eval", "--task", "task2", "--method", factory, "--episodes", "1",
@@ -91,7 +91,7 @@ def test_evaluate_my_policy_plays_the_planners_maps_and_compares(tmp_path, capsy
     assert "| task1-full-noise0-ma10 | greedy | nearest | 12 |" in capsys.readouterr().out
     assert (tmp_path / "compare" / "paired.csv").exists()
     # the same file as a method of the command line, from outside the repository
-    from catmip_rl.cli import main as cli
+    from catmip_rl.cli.main import main as cli
 
     out = tmp_path / "cli"
     assert cli(["eval", "--method", f"greedy=py:{example}:make_policy", "--episodes", "12", "--out", str(out),

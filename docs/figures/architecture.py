@@ -28,8 +28,7 @@ ENV_GROUPS = {
     "env: play": ("play", "map_sets", "render", "demo"),
     "env: PettingZoo": ("search_rescue_v0", "spaces"),
 }
-RL_TOP = {"__init__": "rl: checkpoint", "checkpoint": "rl: checkpoint", "files": "rl: checkpoint",
-          "cli": "rl: cli", "cli_parser": "rl: cli", "cli_args": "rl: cli", "demo": "rl: cli"}  # fmt: skip
+RL_TOP = {"__init__": "rl: checkpoint", "checkpoint": "rl: checkpoint", "files": "rl: checkpoint"}
 # where each group's box is drawn (x, y of its centre, in box units)
 POSITION = {
     "env: config": (0, 0), "env: state": (0, 1), "env: numba kernels": (0, 2), "env: world": (0, 3),

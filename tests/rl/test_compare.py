@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from catmip_rl.cli import main
+from catmip_rl.cli.main import main
 from catmip_rl.evaluation.compare import compare, load_results, mcnemar_p, paired_difference
 
 

@@ -14,7 +14,7 @@ from catmip_env.map_sets import map_hash
 from catmip_env.play import success_curve
 from catmip_rl import AMAT, AmatConfig, save_model
 from catmip_rl.amat.model import decision_order
-from catmip_rl.cli import main as cli
+from catmip_rl.cli.main import main as cli
 from catmip_rl.evaluation.evaluate import EvalSetting, evaluate, render_episode
 from catmip_rl.evaluation.execution import GOAL_BYTES, AmatExecutor, message_bytes
 from catmip_rl.evaluation.methods import Method, parse_method, parse_runs

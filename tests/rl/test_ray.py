@@ -14,7 +14,7 @@ import torch
 
 from catmip_rl.adapters.ray_collect import merge_stats
 from catmip_rl.amat.model import AMAT
-from catmip_rl.cli import main as cli
+from catmip_rl.cli.main import main as cli
 from catmip_rl.training.collect import Collector
 from catmip_rl.training.config import TrainConfig
 from catmip_rl.training.presets import make_train_config

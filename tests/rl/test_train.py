@@ -7,7 +7,7 @@ import pytest
 import torch
 
 from catmip_rl.checkpoint import load_model
-from catmip_rl.cli import main as cli
+from catmip_rl.cli.main import main as cli
 from catmip_rl.training.config import TrainConfig
 from catmip_rl.training.presets import make_train_config
 from catmip_rl.training.train import METRICS, train

@@ -15,7 +15,7 @@ from tensordict.nn import TensorDictModule
 from catmip_env import search_rescue_v0
 from catmip_rl.adapters import keys as K
 from catmip_rl.adapters.torchrl_policy import TorchRLPolicy
-from catmip_rl.cli import main
+from catmip_rl.cli.main import main
 from catmip_rl.evaluation.evaluate import EvalSetting, evaluate, render_episode
 from catmip_rl.evaluation.methods import amat_label, parse_method
 from catmip_rl.evaluation.user_policy import PolicyError

@@ -2,7 +2,7 @@
 
 ``train`` flags map onto :class:`~catmip_rl.training.config.TrainConfig` fields; ``--set field=value``
 reaches any field (values are JSON: ``--set env_overrides='{"comm_sigma": 4.0}'``). The parser is in
-``cli_parser``, the argument types in ``cli_args``.
+``parser``, the argument types in ``args``.
 
 Bad input never starts work and never shows a traceback: argparse types check every value (one line
 naming the flag), each command checks its paths before running (checkpoints are read with
@@ -22,8 +22,8 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from catmip_rl.cli_args import CPUS, USER_ERRORS
-from catmip_rl.cli_parser import DEFAULT_PRESET, build_parser
+from catmip_rl.cli.args import CPUS, USER_ERRORS
+from catmip_rl.cli.parser import DEFAULT_PRESET, build_parser
 from catmip_rl.training.config import TrainConfig
 from catmip_rl.training.presets import FINE_TUNING_PRESETS, TRAIN_PRESETS
 

@@ -1,6 +1,6 @@
 """The README's main job: train AMAT briefly on Task 1, then evaluate it against the planners.
 
-    python -m catmip_rl.demo [--iterations 60] [--episodes 64] [--out out/demo]
+    python -m catmip_rl.cli.demo [--iterations 60] [--episodes 64] [--out out/demo]
 
 1. ``catmip train --preset task1-warm`` shortened: its 12 DAgger rounds against the window-projected
    Nearest planner, then ``--iterations`` PPO iterations (a few minutes on 2 cores) into ``OUT/train``

@@ -1,6 +1,6 @@
-"""``catmip``'s argument parser: the subcommands, their flags and help (``cli`` runs the commands).
+"""``catmip``'s argument parser: the subcommands, their flags and help (``main`` runs the commands).
 
-Every numeric flag is typed (``cli_args``), so argparse itself names a bad flag; errors are one line
+Every numeric flag is typed (``args``), so argparse itself names a bad flag; errors are one line
 (:class:`Parser`), and defaults are shown in ``--help`` (:class:`Formatter`).
 """
 
@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import argparse
 
-from catmip_rl.cli_args import (
+from catmip_rl.cli.args import (
     CPUS,
     NON_NEGATIVE_FLOAT,
     NON_NEGATIVE_INT,
