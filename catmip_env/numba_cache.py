@@ -3,9 +3,11 @@
 Numba keys a cached kernel on its own source file only: when a kernel calls one from another module
 (the dynamics call the sensing kernels, FastAmat calls ``kernels.conv``) and only the callee's file
 changes, the caller's cache still holds the old callee compiled in, and runs it. :func:`refresh` closes
-that gap, once per import of a package: it hashes the package's sources and, when the hash differs from
-the one recorded with the caches, deletes the package's cached kernels (they recompile on first use)
-and records the new hash. An installed package never changes, so it never pays.
+that gap, once per import of a package: it hashes the package's kernel sources (every file that mentions
+numba, ``njit`` or a ``@kernel`` decorator: the kernels and the types they take) and, when the hash
+differs from the one recorded with the caches, deletes the package's cached kernels (they recompile on
+first use) and records the new hash. An installed package never changes, so it never pays; an edit
+to a file without kernels costs no recompilation.
 """
 
 from __future__ import annotations
@@ -20,11 +22,17 @@ __all__ = ["refresh"]
 STAMP = "numba_sources.sha256"
 
 
+KERNEL_MARKS = (b"numba", b"njit", b"@kernel")
+
+
 def sources_digest(root: Path) -> str:
-    """SHA-256 of every ``.py`` file under ``root`` (relative names and contents, in sorted order)."""
+    """SHA-256 of the kernel sources under ``root``: the ``.py`` files that mention numba, ``njit`` or
+    ``@kernel`` (relative names and contents, in sorted order)."""
     h = hashlib.sha256()
     for path in sorted(root.rglob("*.py")):
-        h.update(str(path.relative_to(root)).encode() + b"\0" + path.read_bytes() + b"\0")
+        text = path.read_bytes()
+        if any(mark in text for mark in KERNEL_MARKS):
+            h.update(str(path.relative_to(root)).encode() + b"\0" + text + b"\0")
     return h.hexdigest()
 
 

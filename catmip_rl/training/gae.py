@@ -31,7 +31,7 @@ from numba import njit
 from catmip_rl.amat.inputs import one_hot_class
 from catmip_rl.training.collect import Rollout
 
-__all__ = ["async_gae", "ValueNorm", "SampleBatch", "build_batch"]
+__all__ = ["async_gae", "ValueNorm", "SampleBatch", "build_batch", "explained_variance"]
 
 
 @njit(cache=True)
@@ -150,7 +150,9 @@ class SampleBatch:
 
 def build_batch(r: Rollout, value_norm: ValueNorm, gamma: float, lam: float, n_classes: int,
                 device: torch.device) -> tuple[SampleBatch, dict[str, float]]:  # fmt: skip
-    """Async GAE on a rollout and the flat sample batch (rows = valid events)."""
+    """Async GAE on a rollout and the flat sample batch (rows = valid events), with ``samples`` (trainable
+    robot decisions) and ``ppo/explained_variance`` (of the returns by the values that predicted them,
+    1 - Var(R - V) / Var(R) over the trainable decisions; NaN with fewer than two)."""
     values = value_norm.denormalize(torch.from_numpy(r.value).double()).numpy()
     adv, ret, trainable = async_gae(
         r.active,
@@ -164,6 +166,7 @@ def build_batch(r: Rollout, value_norm: ValueNorm, gamma: float, lam: float, n_c
         lam,
     )
     rows = r.valid
+    explained = explained_variance(ret[rows][trainable[rows]], values[rows][trainable[rows]])
     ret_t = torch.from_numpy(ret[rows]).float()
     train_t = torch.from_numpy(trainable[rows])
     if train_t.any():
@@ -186,4 +189,12 @@ def build_batch(r: Rollout, value_norm: ValueNorm, gamma: float, lam: float, n_c
         trainable=train_t,
         rescue_label=None if r.label is None else torch.from_numpy(r.label[rows]),
     ).to(device)
-    return batch, {"samples": float(train_t.sum())}
+    return batch, {"samples": float(train_t.sum()), "ppo/explained_variance": explained}
+
+
+def explained_variance(returns: np.ndarray, values: np.ndarray) -> float:
+    """1 - Var(returns - values) / Var(returns): 1 when the values predict the returns, 0 when they do
+    no better than their mean, below 0 when worse; NaN for fewer than two returns or constant returns."""
+    if returns.size < 2 or np.var(returns) == 0:
+        return float("nan")
+    return float(1.0 - np.var(returns - values) / np.var(returns))

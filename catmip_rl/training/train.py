@@ -55,7 +55,7 @@ METRICS = [
     "rollout/stall_fraction_explorer", "rollout/world",
     "loss/policy", "loss/value", "loss/entropy", "loss/rescue",
     "ppo/approx_kl", "ppo/clip_fraction", "ppo/grad_norm", "ppo/lr", "ppo/epochs", "ppo/early_stop",
-    "ppo/bf16",
+    "ppo/bf16", "ppo/explained_variance",
     "eval/success_rate", "eval/success_by_100", "eval/rescue_tick", "eval/target_found_tick",
     "eval/explored_fraction", "eval/decisions_per_episode", "eval/stalls_per_episode",
     "eval/stall_fraction_rescuer", "eval/stall_fraction_explorer",
@@ -207,7 +207,7 @@ def ppo_iteration(run: Run, run_dir: Path) -> tuple[dict[str, float], list[dict[
     t3 = time.perf_counter()
     run.elapsed += t3 - t0
     run.iteration = it
-    row = {"iteration": it, "episodes": run.episodes, "samples": info["samples"], **stats}
+    row = {"iteration": it, "episodes": run.episodes, **info, **stats}
     row |= {f"rollout/{k}": v for k, v in rollout.stats.items() if f"rollout/{k}" in METRICS}
     if run.worlds is not None:
         row["rollout/world"] = (it - 1) % len(run.worlds)

@@ -58,13 +58,16 @@ def test_a_changed_callee_is_recompiled_into_its_callers(tmp_path):
 def test_refresh_deletes_only_when_the_sources_change(tmp_path):
     pkg = tmp_path / "p"
     (pkg / "__pycache__").mkdir(parents=True)
-    (pkg / "a.py").write_text("x = 1\n")
+    (pkg / "a.py").write_text("from numba import njit\n")
+    (pkg / "b.py").write_text("y = 1\n")
     cached = pkg / "__pycache__" / "a.f-1.py311.nbi"
     cached.write_text("index")
     assert refresh(pkg) and not cached.exists()  # no record yet: the caches' sources are unknown
     cached.write_text("index")
     assert not refresh(pkg) and cached.exists()  # unchanged sources: the cache stays
     digest = sources_digest(pkg)
-    (pkg / "a.py").write_text("x = 2\n")
+    (pkg / "b.py").write_text("y = 2\n")  # no kernel in it: the kernels' caches stay valid
+    assert sources_digest(pkg) == digest and not refresh(pkg) and cached.exists()
+    (pkg / "a.py").write_text("from numba import njit  # edited\n")
     assert sources_digest(pkg) != digest
     assert refresh(pkg) and not cached.exists()

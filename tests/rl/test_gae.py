@@ -5,7 +5,7 @@ import pytest
 import torch
 from torchrl.objectives.value.functional import generalized_advantage_estimate
 
-from catmip_rl.training.gae import async_gae
+from catmip_rl.training.gae import async_gae, explained_variance
 
 TRUNCATED = np.zeros(1, bool)  # one world that reached the horizon
 RESCUED = np.ones(1, bool)
@@ -130,3 +130,15 @@ def test_worlds_of_one_batch_are_told_apart():
     _, _, trainable = async_gae(*two, np.concatenate([final, final]), np.array([True, False]), 1.0, 0.5)
     assert trainable[3, 0, 0] and not trainable[3, 1, 0]
     assert trainable[2, 0, 1] and not trainable[2, 1, 1]
+
+
+def test_explained_variance_reads_how_well_values_predict_returns():
+    rng = np.random.default_rng(0)
+    returns = rng.normal(10.0, 3.0, 500)
+    assert explained_variance(returns, returns) == 1.0
+    assert explained_variance(returns, np.full(500, returns.mean())) == pytest.approx(0.0, abs=1e-12)
+    noisy = returns + rng.normal(0.0, 3.0, 500)  # errors as large as the returns' spread
+    assert explained_variance(returns, noisy) == pytest.approx(0.0, abs=0.25)
+    assert explained_variance(returns, -returns) < -1
+    assert np.isnan(explained_variance(returns[:1], returns[:1]))
+    assert np.isnan(explained_variance(np.ones(5), np.zeros(5)))

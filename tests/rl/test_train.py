@@ -27,6 +27,7 @@ def test_cli_tiny_two_iterations(tmp_path):
     rows = list(csv.DictReader((run / "metrics.csv").open()))
     assert [int(r["iteration"]) for r in rows] == [1, 2]
     assert set(rows[0]) == set(METRICS) and rows[1]["eval/success_rate"] != ""
+    assert all(float(r["ppo/explained_variance"]) <= 1 for r in rows)  # logged every iteration
     assert (run / "checkpoints" / "latest.pt").exists() and list((run / "tensorboard").iterdir())
     saved = torch.load(run / "checkpoints" / "latest.pt", weights_only=False)
     assert saved["iteration"] == 2 and saved["episodes"] == 16
