@@ -48,7 +48,7 @@ def run(
         shutil.rmtree(tmp, ignore_errors=True)
     # the last iteration is reported: the first includes numba/torch warm-up
     events = rollout.num_samples
-    world_ticks = rollout.stats["episode_ticks"] * rollout.valid.shape[1]
+    world_ticks = rollout.stats["mean_episode_ticks"] * rollout.valid.shape[1]
     out = {
         "epochs": epochs,
         "threads": threads,

@@ -31,8 +31,9 @@ import torch
 from tensordict import TensorDict
 from torchrl.collectors import BaseCollector
 
+from catmip_env.play import EpisodeRecords
 from catmip_rl.amat.model import AMAT
-from catmip_rl.training.collect import STEP_FIELDS, Collector, Rollout
+from catmip_rl.training.collect import STEP_FIELDS, Collector, Rollout, episode_stats
 from catmip_rl.training.config import TrainConfig
 
 __all__ = ["ShardCollector", "RayRolloutCollector", "import_ray", "RAY_MISSING"]
@@ -52,30 +53,6 @@ def import_ray() -> Any:
 def _sampling_seed(seed: int, first_episode: int) -> int:
     """Seed of a worker's sampling generator for the shard starting at ``first_episode``."""
     return int(np.random.SeedSequence([seed, first_episode]).generate_state(1, np.uint64)[0])
-
-
-def _stat_weights(collector: Collector, stats: dict[str, float]) -> dict[str, float]:
-    """How many worlds / robots each of ``episode_stats``' means is over (to merge shards)."""
-    st = collector.engine.state
-    b = collector.engine.num_worlds
-    w = {k: float(b) for k in stats}
-    w["rescue_tick"] = float((st.rescue_tick >= 0).sum())
-    w["target_found_tick"] = float((st.found_tick >= 0).sum())
-    for k, cls in enumerate(collector.engine.cfg.classes):
-        w[f"return_{cls.name}"] = float((st.cls == k).sum())
-        d = collector.tracker.decisions[st.cls == k]
-        w[f"stall_fraction_{cls.name}"] = float((d - (d > 0)).sum())  # its denominator: ended macro-actions
-    return w
-
-
-def merge_stats(stats: list[dict[str, float]], weights: list[dict[str, float]]) -> dict[str, float]:
-    """Weighted means of the shards' episode statistics (NaN where no shard has a sample)."""
-    out = {}
-    for key in stats[0]:
-        total = sum(w[key] for w in weights)
-        num = sum(s[key] * w[key] for s, w in zip(stats, weights) if w[key] > 0)
-        out[key] = num / total if total > 0 else float("nan")
-    return out
 
 
 class ShardCollector(BaseCollector):
@@ -132,10 +109,10 @@ class ShardCollector(BaseCollector):
         data["terminated"] = torch.from_numpy(r.terminated)
         data["steps"] = torch.full((b,), t, dtype=torch.int64)
         data["episode"] = torch.arange(first, first + b)
-        # worker-level means and what they average over, repeated per world so that batches stack
-        weights = _stat_weights(self.collector, r.stats)
-        data["stats"] = {k: torch.full((b,), v, dtype=torch.float64) for k, v in r.stats.items()}
-        data["stats_weight"] = {k: torch.full((b,), v, dtype=torch.float64) for k, v in weights.items()}
+        # the episodes' records, one row per world: the driver concatenates them and computes the
+        # statistics once, as the local collector does
+        data["records"] = {k: torch.from_numpy(v) for k, v in vars(r.records).items()}
+        data["returns"] = torch.from_numpy(r.returns)
         return TensorDict(data, batch_size=[b], device="cpu")
 
     def iterator(self) -> Iterator[TensorDict]:
@@ -252,16 +229,16 @@ class RayRolloutCollector:
             raise RuntimeError(f"ray workers returned episodes {episodes.tolist()} out of order")
         t = int(td["steps"].max())
         arrays = {k: np.ascontiguousarray(td[k][:, :t].numpy().swapaxes(0, 1)) for k in STEP_FIELDS}
-        share = len(episodes) // self.workers
-        rows = range(0, len(episodes), share)
-        stats = [{k: float(v[i]) for k, v in td["stats"].items()} for i in rows]
-        weights = [{k: float(v[i]) for k, v in td["stats_weight"].items()} for i in rows]
+        records = EpisodeRecords(**{k: v.numpy().copy() for k, v in td["records"].items()})
+        returns = td["returns"].numpy().copy()
         return Rollout(
             **arrays,
             label=None,
             final_return=td["final_return"].numpy().copy(),
             terminated=td["terminated"].numpy().copy(),
-            stats=merge_stats(stats, weights),
+            records=records,
+            returns=returns,
+            stats=episode_stats(records, returns, self.cfg.env_config()),
         )
 
     def close(self) -> None:

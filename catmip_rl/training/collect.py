@@ -20,7 +20,7 @@ import torch
 from catmip_env import EnvConfig
 from catmip_env.decision_stats import DecisionTracker
 from catmip_env.events import EventEngine
-from catmip_env.play import decision_metrics, episode_metrics, episode_records
+from catmip_env.play import EpisodeRecords, decision_metrics, episode_metrics, episode_records
 from catmip_rl.amat.inputs import macro_observation
 from catmip_rl.amat.model import AMAT, decision_order
 
@@ -46,7 +46,9 @@ class Rollout:
     label: np.ndarray | None  # (T, B, N) int64 the teacher's window actions (collect(labeler=...))
     final_return: np.ndarray  # (B, N) float64 each robot's last macro-action's return
     terminated: np.ndarray  # (B,) bool the episode ended in a rescue (its last macro-actions are trained)
-    stats: dict[str, float]
+    records: EpisodeRecords  # the B episodes' records (catmip_env.play), decisions and stalls included
+    returns: np.ndarray  # (B, N) float64 each robot's episode return
+    stats: dict[str, float]  # episode_stats of records and returns: what the training log shows
 
     @property
     def steps(self) -> int:
@@ -58,35 +60,24 @@ class Rollout:
 
 
 # the (T, B, ...) arrays of a Rollout, one row per decision event: the collector's storage
-STEP_FIELDS = tuple(f.name for f in fields(Rollout) if f.name not in ("label", "final_return", "terminated",
-                                                                       "stats"))  # fmt: skip
+_PER_EPISODE = ("label", "final_return", "terminated", "records", "returns", "stats")
+STEP_FIELDS = tuple(f.name for f in fields(Rollout) if f.name not in _PER_EPISODE)
 
 
-def episode_stats(
-    engine: EventEngine, returns: np.ndarray, tracker: DecisionTracker | None = None
-) -> dict[str, float]:
-    """The training logs' episode statistics, from the metrics every evaluation uses
-    (``catmip_env.play``): success by the horizon and by tick 100, rescue / target-found ticks (NaN
-    when none), explored fraction, episode ticks, return per class, and with ``tracker`` decisions and
-    stalls per episode (and per class)."""
-    records = episode_records(engine, tracker)
-    m = episode_metrics(records, engine.cfg.horizon_ticks)
-    nan = float("nan")
-    out = {
-        "success_rate": m["success_rate"],
-        "success_by_100": m["success_by_100"],
-        "rescue_tick": nan if m["mean_rescue_tick"] is None else m["mean_rescue_tick"],
-        "target_found_rate": m["target_found_rate"],
-        "target_found_tick": nan if m["mean_target_found_tick"] is None else m["mean_target_found_tick"],
-        "explored_fraction": m["mean_explored_fraction"],
-        "episode_ticks": float(records.ticks.mean()),
-    }
-    for k, cls in enumerate(engine.cfg.classes):
+def episode_stats(records: EpisodeRecords, returns: np.ndarray, cfg: EnvConfig) -> dict[str, float]:
+    """The training logs' episode statistics, under the names of the metrics every evaluation uses
+    (``catmip_env.play.episode_metrics``: ``success_rate``, ``success_by_100``, ``mean_rescue_tick``,
+    ``mean_target_found_tick``, ... with NaN where a mean has no episode), plus ``mean_episode_ticks``,
+    the mean episode return of each class (``return_<class>``) and the decisions and stalls per episode
+    (``decision_metrics``)."""
+    m = episode_metrics(records, cfg.horizon_ticks)
+    m = {k: v for k, v in m.items() if k not in ("episodes", "horizon")}
+    out = {k: float("nan") if v is None else float(v) for k, v in m.items()}
+    out["mean_episode_ticks"] = float(records.ticks.mean())
+    for k, cls in enumerate(cfg.classes):
         sel = records.cls == k
-        out[f"return_{cls.name}"] = float(returns[sel].mean()) if sel.any() else nan
-    if tracker is not None:
-        out |= decision_metrics(records, engine.cfg.classes)
-    return out
+        out[f"return_{cls.name}"] = float(returns[sel].mean()) if sel.any() else float("nan")
+    return out | decision_metrics(records, cfg.classes)
 
 
 class Collector:
@@ -183,10 +174,13 @@ class Collector:
             s["ma_return"][t + 1, going] = ev.ma_rewards[going]
             s["ma_ticks"][t + 1, going] = ev.ma_ticks[going]
             t += 1
+        records = episode_records(eng, self.tracker)
         return Rollout(
             **{k: v[:t] for k, v in s.items()},
             final_return=self._final.copy(),
             label=self._label[:t].copy() if labeler is not None else None,
             terminated=self._terminated.copy(),
-            stats=episode_stats(eng, returns, self.tracker),
+            records=records,
+            returns=returns,
+            stats=episode_stats(records, returns, eng.cfg),
         )

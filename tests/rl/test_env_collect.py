@@ -147,7 +147,7 @@ def test_collector_samples_and_bookkeeping():
         sel = eng.state.cls == k
         if sel.any():
             assert np.isclose(ret[sel].mean(), r.stats[f"return_{cls.name}"])
-    assert 0 <= r.stats["success_rate"] <= 1 and r.stats["episode_ticks"] > 0
+    assert 0 <= r.stats["success_rate"] <= 1 and r.stats["mean_episode_ticks"] > 0
 
 
 def test_collection_is_deterministic():
@@ -191,3 +191,22 @@ def test_a_rescued_worlds_last_decisions_are_trained_with_advantage_r_minus_v():
                 )
                 if st.cls[b, i] == 0:  # the rescuer's last macro-action holds the success reward
                     assert r.final_return[b, i] > 100
+
+
+def test_shards_merged_as_records_give_the_whole_batchs_statistics():
+    """What the Ray collector does with its workers' shards: concatenate their episode records and
+    compute the statistics once; they equal those of one collector over all the worlds."""
+    from catmip_env.play import EpisodeRecords
+    from catmip_rl.training.collect import episode_stats
+
+    cfg = make_config("task1", map_size=10, horizon_ticks=60)
+    model = AMAT(AmatConfig(embed_dim=32))
+    whole = Collector(cfg, 4, seed=3).collect(model, 0, deterministic=True)
+    shards = [Collector(cfg, 2, seed=3).collect(model, first, deterministic=True) for first in (0, 2)]
+    records = EpisodeRecords.concat([r.records for r in shards])
+    returns = np.concatenate([r.returns for r in shards])
+    merged = episode_stats(records, returns, cfg)
+    assert merged.keys() == whole.stats.keys()
+    for key, value in whole.stats.items():
+        assert merged[key] == pytest.approx(value, rel=1e-12, nan_ok=True), key
+    assert {"mean_rescue_tick", "mean_target_found_tick", "mean_explored_fraction"} <= merged.keys()

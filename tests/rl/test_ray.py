@@ -12,7 +12,6 @@ import numpy as np
 import pytest
 import torch
 
-from catmip_rl.adapters.ray_collect import merge_stats
 from catmip_rl.amat.model import AMAT
 from catmip_rl.cli.main import main as cli
 from catmip_rl.training.collect import Collector
@@ -83,7 +82,7 @@ def test_cli_ray_training_and_exact_resume(ray_cluster, tmp_path):
     rows = list(csv.DictReader((run / "metrics.csv").open()))
     assert [int(r["iteration"]) for r in rows] == [1, 2]
     assert all(
-        float(r["samples"]) > 0 and not math.isnan(float(r["rollout/explored_fraction"])) for r in rows
+        float(r["samples"]) > 0 and not math.isnan(float(r["rollout/mean_explored_fraction"])) for r in rows
     )
     assert rows[1]["eval/success_rate"] != ""
     ckpts = run / "checkpoints"
@@ -114,10 +113,3 @@ def test_ray_config_errors_and_missing_extra(tmp_path, monkeypatch):
     cfg = make_train_config("tiny", collector="ray", iterations=1)
     with pytest.raises(RuntimeError, match=r"pip install 'catmip\[distributed\]'"):
         train(cfg, tmp_path / "r", progress=False)
-
-
-def test_merge_stats_weights_each_shard_by_its_samples():
-    stats = [{"rate": 0.5, "tick": 10.0}, {"rate": 0.0, "tick": float("nan")}]
-    weights = [{"rate": 4.0, "tick": 2.0}, {"rate": 4.0, "tick": 0.0}]
-    assert merge_stats(stats, weights) == {"rate": 0.25, "tick": 10.0}
-    assert math.isnan(merge_stats(stats[1:], weights[1:])["tick"])
