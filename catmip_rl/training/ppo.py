@@ -1,7 +1,7 @@
 """PPO for AMAT (docs/design.md#ppo-recipe), the loss and the update in one place.
 
 * :func:`ppo_loss` — clipped policy loss over active robots, clipped Huber value loss on normalised
-  values, entropy bonus (a few lines on purpose: ``tests/rl/test_ppo.py`` checks that its policy term
+  values, entropy bonus (a few lines on purpose: ``tests/rl/training/test_ppo.py`` checks that its policy term
   equals TorchRL's ``ClipPPOLoss`` with :class:`~catmip_rl.adapters.torchrl_actor.AmatActor` on the same
   batch); :func:`accumulate_gradients` — its backward over a minibatch's micro-batches;
 * :func:`ppo_update` — epochs over minibatches of one iteration's batch

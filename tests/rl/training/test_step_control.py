@@ -7,8 +7,8 @@ import torch
 from catmip_rl.amat.model import AmatConfig
 from catmip_rl.training.ppo import lr_factor, make_optimizer, ppo_update
 from catmip_rl.training.presets import make_train_config
+from tests.rl.amat.test_sparse_conv import _batch
 from tests.rl.helpers import shaken_model
-from tests.rl.test_sparse_conv import _batch
 
 
 def _params(model, value_head: bool):

@@ -9,8 +9,8 @@ from catmip_rl.training.parallel_update import ParallelGradients
 from catmip_rl.training.ppo import accumulate_gradients, loss_kwargs, make_optimizer, ppo_update
 from catmip_rl.training.presets import make_train_config
 from catmip_rl.training.train import train
+from tests.rl.amat.test_sparse_conv import _batch
 from tests.rl.helpers import shaken_model
-from tests.rl.test_sparse_conv import _batch
 
 
 def _updated(cfg, batch, processes):

@@ -8,9 +8,8 @@ from catmip_rl.adapters import keys as K
 from catmip_rl.adapters.torchrl_actor import AmatActor, AmatCritic
 from catmip_rl.training.gae import SampleBatch, ValueNorm
 from catmip_rl.training.ppo import ppo_loss
+from tests.rl.amat.test_amat import _obs
 from tests.rl.helpers import shaken_model
-
-from .test_amat import _obs
 
 
 def _setup(b=6, n=3, seed=0):
