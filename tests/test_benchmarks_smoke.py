@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import csv
 import importlib.util
 import json
 import re
@@ -135,38 +134,3 @@ def test_a_failed_benchmark_keeps_its_targets_in_the_count(run_all, tmp_path):
     checks = json.loads((tmp_path / "run_all.json").read_text())["checks"]
     assert any(c["bench"] == "amat" and c["status"] == "not measured" for c in checks)
     assert png is not None and png.stat().st_size > 5_000
-
-
-def test_learning_curve_trains_on_a_budget_and_plots(tmp_path):
-    """Two iterations of the tiny preset after a warm start (the budget is not what ends it), then the
-    plot of its evaluations."""
-    run = tmp_path / "tiny-warm"
-    script = str(BENCH / "learning_curve.py")
-    env = {"PYTHONPATH": str(ROOT), "PATH": "/usr/bin:/bin"}
-    train = [sys.executable, script, "--preset", "tiny", "--minutes", "30", "--threads", "1",
-             "--set", "warm_start=nearest", "--set", "warm_start_rounds=1", "--set", "warm_start_steps=2",
-             "--set", "iterations=2", "--run-dir", str(run)]  # fmt: skip
-    subprocess.run(train, check=True, env=env, cwd=tmp_path, capture_output=True)
-    out = tmp_path / "curve"
-    subprocess.run([sys.executable, script, "--plot", str(run), "--out", str(out)], check=True, env=env,
-                   cwd=tmp_path, capture_output=True)  # fmt: skip
-    rows = (out.with_suffix(".csv")).read_text().splitlines()
-    assert rows[0].startswith("run,phase,step,minutes,success_rate,success_by_100")
-    assert any(",warm start," in r for r in rows) and any(",ppo," in r for r in rows)
-    meta = json.loads(out.with_suffix(".json").read_text())
-    assert {"nearest", "rrt", "random-rescue", "random-uniform"} <= set(meta["planners"]) and meta[
-        "cpu_capability"
-    ]
-    assert out.with_suffix(".png").stat().st_size > 10_000
-    # a fine-tuning run on another world continues the first run's clock, in a row of its own
-    tuned = tmp_path / "tiny-comm"
-    subprocess.run([*train[:8], "--set", "iterations=1", "--set", f"init_from={json.dumps(str(run))}",
-                    "--set", 'env_overrides={"map_size": 12, "team": ["rescuer", "explorer"], '
-                    '"horizon_ticks": 60, "comm_sigma_choices": [null, 2]}', "--run-dir", str(tuned)],
-                   check=True, env=env, cwd=tmp_path, capture_output=True)  # fmt: skip
-    subprocess.run([sys.executable, script, "--plot", str(run), str(tuned), "--out", str(out)], check=True,
-                   env=env, cwd=tmp_path, capture_output=True)  # fmt: skip
-    rows = list(csv.DictReader(out.with_suffix(".csv").open()))
-    end = max(float(r["minutes"]) for r in rows if r["run"] == run.name and r["phase"] == "ppo")
-    assert min(float(r["minutes"]) for r in rows if r["run"] == tuned.name) > end
-    assert set(json.loads(out.with_suffix(".json").read_text())["planners_by_run"]) == {run.name, tuned.name}

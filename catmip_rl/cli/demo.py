@@ -23,7 +23,7 @@ from pathlib import Path
 import torch
 
 from catmip_rl.evaluation.evaluate import EvalSetting, evaluate, render_episode
-from catmip_rl.evaluation.paper import plot_figure
+from catmip_rl.evaluation.plots import plot_figure
 from catmip_rl.files import atomic_write_csv, atomic_write_text
 
 SHIPPED = Path(__file__).parent / "models" / "amat_task1.pt"

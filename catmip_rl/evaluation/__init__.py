@@ -4,6 +4,7 @@
 * ``user_policy`` — your policy at the PettingZoo or engine level, checked at every call;
 * ``execution`` — decentralised AMAT execution (per-neighbourhood decisions, message sizes);
 * ``evaluate`` — settings and the evaluation itself (frozen map sets checked);
-* ``compare`` (+ ``compare_plots``) — paired per-map differences and across-seed statistics with CIs;
+* ``compare`` — paired per-map differences and across-seed statistics with CIs;
+* ``plots`` — every plot the evaluation commands draw (the paper figures, ``catmip compare``'s);
 * ``paper`` — the paper's figures: every method on every panel, tables and plots.
 """

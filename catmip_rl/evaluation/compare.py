@@ -147,7 +147,7 @@ class Comparison:
         """compare.md and, where there is something to show, paired.csv / .png (two methods on the same
         maps), aggregate.csv / .png and profile.png (any method), improvement.csv (a method with several
         runs), each atomic, in ``out``; the files written."""
-        from catmip_rl.evaluation.compare_plots import plot_aggregate, plot_paired, plot_profiles
+        from catmip_rl.evaluation.plots import plot_aggregate, plot_paired, plot_profiles
 
         out = Path(out)
         out.mkdir(parents=True, exist_ok=True)

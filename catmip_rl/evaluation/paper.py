@@ -16,7 +16,6 @@ sigma = 2, panels = Tasks 1-3; 11 = Task 2, panels = longest macro-action 5 / 10
 
 from __future__ import annotations
 
-import csv
 import json
 import multiprocessing
 from concurrent.futures import ProcessPoolExecutor
@@ -30,10 +29,11 @@ from catmip_rl.checkpoint import load_model
 from catmip_rl.evaluation.compare import success_interval
 from catmip_rl.evaluation.evaluate import EvalSetting, evaluate, progress_bar
 from catmip_rl.evaluation.methods import Method, make_policy, parse_runs
-from catmip_rl.files import atomic_savefig, atomic_write_csv, atomic_write_text
+from catmip_rl.evaluation.plots import check_matplotlib, plot_figure
+from catmip_rl.files import atomic_write_csv, atomic_write_text
 
 __all__ = [
-    "FIGURES", "DEFAULT_METHODS", "figure_settings", "run_figure", "marl_eval_json", "plot_figure",
+    "FIGURES", "DEFAULT_METHODS", "figure_settings", "run_figure", "marl_eval_json",
     "summary_markdown", "summary_table", "summary_cell",
 ]  # fmt: skip
 
@@ -108,7 +108,7 @@ def run_figure(
     ``LABEL/NAME/runK/``) and the figure shows their mean, with a 95 % CI over runs and maps. Bad
     arguments (figure, methods, an unreadable AMAT checkpoint, episodes, seed, jobs) raise before any run
     starts."""
-    _matplotlib()  # fail now rather than after the evaluations
+    check_matplotlib()  # fail now rather than after the evaluations
     panels = figure_settings(figure)
     groups: list[list[Method]] = [parse_runs(m) for m in (methods or DEFAULT_METHODS)]
     names = [runs[0].name for runs in groups]
@@ -276,55 +276,3 @@ def marl_eval_json(runs: list[tuple[str, str, str, int]], figure: int) -> dict[s
             "absolute_metrics": absolute,
         }
     return data
-
-
-def _matplotlib():
-    """The matplotlib module, or an ImportError that names the extra providing it."""
-    try:
-        import matplotlib
-    except ImportError as err:
-        msg = "catmip bench paper draws figures with matplotlib: pip install 'catmip[rl]'"
-        raise ImportError(msg) from err
-    return matplotlib
-
-
-def plot_figure(curves_csv: str | Path, png: str | Path, title: str = "") -> Path:
-    """Success rate vs mission time, one panel per setting, one line per method (paper layout)."""
-    matplotlib = _matplotlib()
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    with open(curves_csv) as f:
-        rows = list(csv.DictReader(f))
-    panels = list(dict.fromkeys(r["panel"] for r in rows))
-    methods = list(dict.fromkeys(r["method"] for r in rows))
-    fig, axes = plt.subplots(1, len(panels), figsize=(4.2 * len(panels), 3.6), sharey=True, squeeze=False)
-    colours = plt.get_cmap("tab10" if len(methods) <= 10 else "tab20")
-    runs = {r["method"]: int(r.get("runs") or 1) for r in rows}
-    for ax, panel in zip(axes[0], panels):
-        for k, method in enumerate(methods):
-            pts = [
-                (int(r["tick"]), float(r["success_rate"]))
-                for r in rows
-                if r["panel"] == panel and r["method"] == method
-            ]
-            if not pts:
-                continue
-            t, v = np.array(pts).T
-            label = method + (f" (mean of {runs[method]} runs)" if runs[method] > 1 else "")
-            style = "--" if method.endswith("(sampled)") else "-"
-            ax.plot(t, v, style, color=colours(k % colours.N), lw=1.6, label=label)
-        ax.set_title(panel)
-        ax.set_xlabel("mission time (ticks)")
-        ax.set_ylim(0, 1.02)
-        ax.grid(alpha=0.3)
-    axes[0][0].set_ylabel("success rate")
-    handles, labels = axes[0][0].get_legend_handles_labels()
-    columns = min(len(labels), 4)
-    rows = -(-len(labels) // columns)  # below the panels, so that no curve is hidden
-    fig.set_size_inches(fig.get_size_inches()[0], 3.6 + 0.22 * rows)
-    fig.legend(handles, labels, loc="lower center", ncol=columns, fontsize=8, frameon=False)
-    if title:
-        fig.suptitle(title)
-    fig.tight_layout(rect=(0, 0.22 * rows / (3.6 + 0.22 * rows) + 0.02, 1, 1))
-    return atomic_savefig(fig, png)

@@ -3,32 +3,22 @@ group, and an arrow wherever a module of one group imports one of another (lazy 
 
     python docs/figures/architecture.py [--out docs/figures/architecture.png]
 
-``tests/test_architecture.py`` reads the same graph (:func:`import_graph`) and checks the rules the
-picture shows: no import cycle, no private name imported across modules, the layers point one way.
+The groups and the import graph are those ``tests/test_architecture.py`` checks (no import cycle, no
+private name imported across modules, each name from the module that defines it, the layers point one
+way), from ``tests/architecture_graph.py``.
 """
 
 from __future__ import annotations
 
 import argparse
-import ast
+import sys
 import textwrap
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[2]
-PACKAGES = ("catmip_env", "catmip_rl")
+sys.path.insert(0, str(ROOT))
+from tests.architecture_graph import group, group_edges, import_graph  # noqa: E402
 
-# catmip_env is one flat folder, layered: its groups, lowest first (catmip_rl's groups are its folders)
-ENV_GROUPS = {
-    "env: config": ("constants", "config", "rng", "ascii_maps", "files", "numba_cache", "__init__"),
-    "env: state": ("state",),
-    "env: numba kernels": ("mapgen", "sensing", "bfs", "dynamics", "macro", "observe"),
-    "env: world": ("world",),
-    "env: events": ("events", "decision_stats"),
-    "env: planners": ("planners", "window_planner"),
-    "env: play": ("play", "map_sets", "render", "demo"),
-    "env: PettingZoo": ("search_rescue_v0", "spaces"),
-}
-RL_TOP = {"__init__": "rl: checkpoint", "checkpoint": "rl: checkpoint", "files": "rl: checkpoint"}
 # where each group's box is drawn (x, y of its centre, in box units)
 POSITION = {
     "env: config": (0, 0), "env: state": (0, 1), "env: numba kernels": (0, 2), "env: world": (0, 3),
@@ -36,77 +26,6 @@ POSITION = {
     "rl: amat": (2.2, 3), "rl: training": (2.2, 5), "rl: checkpoint": (3.4, 6.5), "rl: evaluation": (2, 7),
     "rl: adapters": (4, 4), "rl: cli": (3.4, 8),
 }  # fmt: skip
-
-
-def modules(root: Path = ROOT) -> dict[str, Path]:
-    """Dotted module name -> file, for every module of the two packages."""
-    out = {}
-    for pkg in PACKAGES:
-        for path in sorted((root / pkg).rglob("*.py")):
-            parts = path.relative_to(root).with_suffix("").parts
-            out[".".join(parts)] = path
-    return out
-
-
-def group(module: str) -> str:
-    """The box a module is drawn in (KeyError for a module no group names: add it to ENV_GROUPS)."""
-    pkg, *rest = module.split(".")
-    if pkg == "catmip_rl":
-        return f"rl: {rest[0]}" if len(rest) > 1 else RL_TOP[rest[0]]
-    name = rest[0] if rest else "__init__"
-    return next(g for g, names in ENV_GROUPS.items() if name in names)
-
-
-def imports(path: Path, module: str) -> list[tuple[str, list[str], bool]]:
-    """(imported module, names taken from it, lazy) for every import statement in the file; ``lazy``:
-    inside a function (imported only when that runs)."""
-    out = []
-    tree = ast.parse(path.read_text(), str(path))
-    nested = {id(n) for f in ast.walk(tree) if isinstance(f, (ast.FunctionDef, ast.AsyncFunctionDef))
-              for n in ast.walk(f)}  # fmt: skip
-    for node in ast.walk(tree):
-        lazy = id(node) in nested
-        if isinstance(node, ast.Import):
-            out += [(a.name, [], lazy) for a in node.names]
-        elif isinstance(node, ast.ImportFrom):
-            base = node.module or ""
-            if node.level:  # relative: resolve against this module's package
-                pkg = module.split(".")[: len(module.split(".")) - node.level + (path.name == "__init__.py")]
-                base = ".".join(pkg + ([base] if base else []))
-            out.append((base, [a.name for a in node.names], lazy))
-    return out
-
-
-def import_graph(root: Path = ROOT, lazy: bool = True) -> dict[str, set[str]]:
-    """module -> the project modules it imports (``from pkg import submodule`` counts as the submodule);
-    without ``lazy``, only the imports at module level."""
-    mods = modules(root)
-    graph: dict[str, set[str]] = {m: set() for m in mods}
-    for mod, path in mods.items():
-        for target, names, is_lazy in imports(path, mod):
-            if is_lazy and not lazy:
-                continue
-            for name in names:
-                if f"{target}.{name}" in mods:
-                    graph[mod].add(f"{target}.{name}")
-            if target in mods and not all(f"{target}.{n}" in mods for n in names or ["?"]):
-                graph[mod].add(target)
-    for mod in graph:
-        graph[mod].discard(mod)
-    return graph
-
-
-def group_edges(graph: dict[str, set[str]]) -> set[tuple[str, str]]:
-    """(importing group, imported group) pairs; package __init__ re-exports are left out (they only
-    gather names for users)."""
-    edges = set()
-    for mod, targets in graph.items():
-        if mod.endswith("__init__"):
-            continue
-        for t in targets:
-            if not t.endswith("__init__") and group(mod) != group(t):
-                edges.add((group(mod), group(t)))
-    return edges
 
 
 def reduce_edges(edges: set[tuple[str, str]]) -> set[tuple[str, str]]:

@@ -1,8 +1,8 @@
 """Success rate vs wall-clock while training AMAT, against the planning baselines on the same maps.
 
-    python benchmarks/learning_curve.py --preset task1 --minutes 40 --run-dir runs/curve-ppo
-    python benchmarks/learning_curve.py --preset task1-warm --minutes 40 --run-dir runs/curve-warm
-    python benchmarks/learning_curve.py --plot runs/curve-ppo runs/curve-warm --out OUT
+    python docs/figures/learning_curve.py --preset task1 --minutes 40 --run-dir runs/curve-ppo
+    python docs/figures/learning_curve.py --preset task1-warm --minutes 40 --run-dir runs/curve-warm
+    python docs/figures/learning_curve.py --plot runs/curve-ppo runs/curve-warm --out OUT
 
 A training run is ``catmip train`` with a wall-clock budget (``budget_minutes``: the LR decays over it)
 whose periodic evaluation (argmax and sampled actions, evaluation activation (0, 0), the preset's fixed
@@ -158,7 +158,7 @@ def main() -> None:
     ap.add_argument("--run-dir", help="the training run's directory")
     ap.add_argument("--resume", action="store_true", help="continue the run in --run-dir")
     ap.add_argument("--plot", nargs="+", type=Path, metavar="RUN_DIR", help="plot finished runs instead")
-    ap.add_argument("--out", default="benchmarks/results/learning_curve", help="OUT.csv / OUT.png (--plot)")
+    ap.add_argument("--out", default="docs/figures/learning_curve", help="OUT.csv / OUT.png (--plot)")
     args = ap.parse_args()
     if args.plot:
         plot(args.plot, Path(args.out))

@@ -1,7 +1,10 @@
-"""The plots of ``catmip compare``: paired differences, aggregate intervals, performance profiles."""
+"""Every plot the evaluation commands draw: ``catmip bench paper``'s success-vs-time figure
+(:func:`plot_figure`, also the demo's) and ``catmip compare``'s paired differences, aggregate intervals
+and performance profiles."""
 
 from __future__ import annotations
 
+import csv
 from pathlib import Path
 from typing import Any
 
@@ -9,10 +12,21 @@ import numpy as np
 
 from catmip_rl.files import atomic_savefig
 
-__all__ = ["plot_paired", "plot_aggregate", "plot_profiles"]
+__all__ = ["check_matplotlib", "plot_figure", "plot_paired", "plot_aggregate", "plot_profiles"]
+
+
+def check_matplotlib() -> None:
+    """Nothing if matplotlib imports; else an ImportError that names the extra providing it (a command
+    calls this before its evaluations, so that it fails before the work, not after)."""
+    try:
+        import matplotlib  # noqa: F401
+    except ImportError as err:
+        raise ImportError("the plots need matplotlib: pip install 'catmip[rl]'") from err
 
 
 def _pyplot():
+    """matplotlib's pyplot on the Agg backend (see :func:`check_matplotlib`)."""
+    check_matplotlib()
     import matplotlib
 
     matplotlib.use("Agg")
@@ -77,3 +91,42 @@ def plot_profiles(scores: dict[str, np.ndarray], path: Path) -> Path:
     )  # fmt: skip
     ax.legend(loc="lower left", fontsize=8)
     return _save(fig, path)
+
+
+def plot_figure(curves_csv: str | Path, png: str | Path, title: str = "") -> Path:
+    """Success rate vs mission time, one panel per setting, one line per method (paper layout)."""
+    plt = _pyplot()
+    with open(curves_csv) as f:
+        rows = list(csv.DictReader(f))
+    panels = list(dict.fromkeys(r["panel"] for r in rows))
+    methods = list(dict.fromkeys(r["method"] for r in rows))
+    fig, axes = plt.subplots(1, len(panels), figsize=(4.2 * len(panels), 3.6), sharey=True, squeeze=False)
+    colours = plt.get_cmap("tab10" if len(methods) <= 10 else "tab20")
+    runs = {r["method"]: int(r.get("runs") or 1) for r in rows}
+    for ax, panel in zip(axes[0], panels):
+        for k, method in enumerate(methods):
+            pts = [
+                (int(r["tick"]), float(r["success_rate"]))
+                for r in rows
+                if r["panel"] == panel and r["method"] == method
+            ]
+            if not pts:
+                continue
+            t, v = np.array(pts).T
+            label = method + (f" (mean of {runs[method]} runs)" if runs[method] > 1 else "")
+            style = "--" if method.endswith("(sampled)") else "-"
+            ax.plot(t, v, style, color=colours(k % colours.N), lw=1.6, label=label)
+        ax.set_title(panel)
+        ax.set_xlabel("mission time (ticks)")
+        ax.set_ylim(0, 1.02)
+        ax.grid(alpha=0.3)
+    axes[0][0].set_ylabel("success rate")
+    handles, labels = axes[0][0].get_legend_handles_labels()
+    columns = min(len(labels), 4)
+    rows = -(-len(labels) // columns)  # below the panels, so that no curve is hidden
+    fig.set_size_inches(fig.get_size_inches()[0], 3.6 + 0.22 * rows)
+    fig.legend(handles, labels, loc="lower center", ncol=columns, fontsize=8, frameon=False)
+    if title:
+        fig.suptitle(title)
+    fig.tight_layout(rect=(0, 0.22 * rows / (3.6 + 0.22 * rows) + 0.02, 1, 1))
+    return atomic_savefig(fig, png)

@@ -1,0 +1,95 @@
+"""The structure tests/test_architecture.py checks and docs/figures/architecture.py draws: every module
+of catmip_env and catmip_rl, the group (layer) it belongs to, and the import graph between them (lazy
+imports included, marked)."""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+PACKAGES = ("catmip_env", "catmip_rl")
+
+# catmip_env is one flat folder, layered: its groups, lowest first (catmip_rl's groups are its folders)
+ENV_GROUPS = {
+    "env: config": ("constants", "config", "rng", "ascii_maps", "files", "numba_cache", "__init__"),
+    "env: state": ("state",),
+    "env: numba kernels": ("mapgen", "sensing", "bfs", "dynamics", "macro", "observe"),
+    "env: world": ("world",),
+    "env: events": ("events", "decision_stats"),
+    "env: planners": ("planners", "window_planner"),
+    "env: play": ("play", "map_sets", "render", "demo"),
+    "env: PettingZoo": ("search_rescue_v0", "spaces"),
+}
+RL_TOP = {"__init__": "rl: checkpoint", "checkpoint": "rl: checkpoint", "files": "rl: checkpoint"}
+
+
+def modules(root: Path = ROOT) -> dict[str, Path]:
+    """Dotted module name -> file, for every module of the two packages."""
+    out = {}
+    for pkg in PACKAGES:
+        for path in sorted((root / pkg).rglob("*.py")):
+            parts = path.relative_to(root).with_suffix("").parts
+            out[".".join(parts)] = path
+    return out
+
+
+def group(module: str) -> str:
+    """The box a module is drawn in (KeyError for a module no group names: add it to ENV_GROUPS)."""
+    pkg, *rest = module.split(".")
+    if pkg == "catmip_rl":
+        return f"rl: {rest[0]}" if len(rest) > 1 else RL_TOP[rest[0]]
+    name = rest[0] if rest else "__init__"
+    return next(g for g, names in ENV_GROUPS.items() if name in names)
+
+
+def imports(path: Path, module: str) -> list[tuple[str, list[str], bool]]:
+    """(imported module, names taken from it, lazy) for every import statement in the file; ``lazy``:
+    inside a function (imported only when that runs)."""
+    out = []
+    tree = ast.parse(path.read_text(), str(path))
+    nested = {id(n) for f in ast.walk(tree) if isinstance(f, (ast.FunctionDef, ast.AsyncFunctionDef))
+              for n in ast.walk(f)}  # fmt: skip
+    for node in ast.walk(tree):
+        lazy = id(node) in nested
+        if isinstance(node, ast.Import):
+            out += [(a.name, [], lazy) for a in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            base = node.module or ""
+            if node.level:  # relative: resolve against this module's package
+                pkg = module.split(".")[: len(module.split(".")) - node.level + (path.name == "__init__.py")]
+                base = ".".join(pkg + ([base] if base else []))
+            out.append((base, [a.name for a in node.names], lazy))
+    return out
+
+
+def import_graph(root: Path = ROOT, lazy: bool = True) -> dict[str, set[str]]:
+    """module -> the project modules it imports (``from pkg import submodule`` counts as the submodule);
+    without ``lazy``, only the imports at module level."""
+    mods = modules(root)
+    graph: dict[str, set[str]] = {m: set() for m in mods}
+    for mod, path in mods.items():
+        for target, names, is_lazy in imports(path, mod):
+            if is_lazy and not lazy:
+                continue
+            for name in names:
+                if f"{target}.{name}" in mods:
+                    graph[mod].add(f"{target}.{name}")
+            if target in mods and not all(f"{target}.{n}" in mods for n in names or ["?"]):
+                graph[mod].add(target)
+    for mod in graph:
+        graph[mod].discard(mod)
+    return graph
+
+
+def group_edges(graph: dict[str, set[str]]) -> set[tuple[str, str]]:
+    """(importing group, imported group) pairs; package __init__ re-exports are left out (they only
+    gather names for users)."""
+    edges = set()
+    for mod, targets in graph.items():
+        if mod.endswith("__init__"):
+            continue
+        for t in targets:
+            if not t.endswith("__init__") and group(mod) != group(t):
+                edges.add((group(mod), group(t)))
+    return edges
