@@ -23,17 +23,13 @@ from pathlib import Path
 from typing import Any
 
 from catmip_rl.cli.args import CPUS, USER_ERRORS
-from catmip_rl.cli.parser import DEFAULT_PRESET, build_parser
+from catmip_rl.cli.parser import DEFAULT_PRESET, TRAIN_FLAGS, build_parser
 from catmip_rl.training.config import TrainConfig
 from catmip_rl.training.presets import FINE_TUNING_PRESETS, TRAIN_PRESETS
 
 __all__ = ["main"]
 
 # -- the commands ----------------------------------------------------------------------------------------
-_TRAIN_FLAGS = ("iterations", "num_worlds", "epochs", "minibatches", "micro_batch", "seed", "device",
-                "threads", "update_processes", "eval_every", "eval_episodes", "checkpoint_every", "lr",
-                "collector", "ray_workers", "ray_address", "warm_start", "init_from", "target_kl",
-                "precision")  # fmt: skip
 
 
 def _config(base: TrainConfig, overrides: dict[str, Any]) -> TrainConfig:
@@ -62,9 +58,7 @@ def _train(args: argparse.Namespace) -> int:
 
     RunDirLock(args.run_dir).check_free()  # a live run's dir: say so before reading its checkpoint
     overrides = dict(args.set)
-    overrides |= {name: getattr(args, name) for name in _TRAIN_FLAGS if getattr(args, name) is not None}
-    if args.minutes is not None:
-        overrides["budget_minutes"] = args.minutes
+    overrides |= {name: getattr(args, name) for name in TRAIN_FLAGS if getattr(args, name) is not None}
     if args.preset is None and args.resume:  # continue the run with its own config
         base = TrainConfig.from_json(resume_checkpoint(args.run_dir)["config"])
     else:

@@ -7,26 +7,40 @@ Every numeric flag is typed (``args``), so argparse itself names a bad flag; err
 from __future__ import annotations
 
 import argparse
+import dataclasses
+import re
 
 from catmip_rl.cli.args import (
     CPUS,
-    NON_NEGATIVE_FLOAT,
     NON_NEGATIVE_INT,
-    POSITIVE_FLOAT,
     POSITIVE_INT,
     PROBABILITY,
     UP_TO_CPUS,
     check_comm,
-    check_device,
     check_method,
     check_methods,
     check_runs,
     checked,
     set_item,
 )  # fmt: skip
+from catmip_rl.training.config import TrainConfig, check_field, field_docs
 from catmip_rl.training.presets import TRAIN_PRESETS
 
-__all__ = ["DEFAULT_PRESET", "Formatter", "Parser", "build_parser", "version"]
+__all__ = ["DEFAULT_PRESET", "TRAIN_FLAGS", "Formatter", "Parser", "build_parser", "version"]
+
+#: the TrainConfig fields ``catmip train`` has a flag for, and the flag; each flag's help is its field's
+#: docstring and its check the field's own; every other field: ``--set FIELD=VALUE``
+TRAIN_FLAGS = {
+    name: "--" + name.replace("_", "-")
+    for name in ("iterations", "num_worlds", "epochs", "minibatches", "micro_batch", "lr", "seed", "device",
+                 "threads", "update_processes", "warm_start", "init_from", "target_kl", "precision")
+} | {"budget_minutes": "--minutes"} | {
+    name: "--" + name.replace("_", "-")
+    for name in ("eval_every", "eval_episodes", "checkpoint_every", "collector", "ray_workers", "ray_address")
+}  # fmt: skip
+METAVARS = {"warm_start": "PLANNER", "init_from": "MODEL", "device": "{cpu,cuda,cuda:N}",
+            "precision": "{fp32,bf16,auto}", "collector": "{local,ray}",
+            "ray_address": "ADDRESS", "budget_minutes": "MINUTES"}  # fmt: skip
 
 DEFAULT_PRESET = "task1-warm"
 """``catmip train`` without ``--preset``: the Task-1 recipe (~40 minutes on one CPU thread, as the shipped
@@ -96,54 +110,50 @@ def add_train(sub) -> None:
     g = tr.add_argument_group(
         f"overrides of the preset (default: the preset's value; {DEFAULT_PRESET}'s shown)"
     )
-    g.add_argument("--iterations", type=POSITIVE_INT, help="PPO iterations (the LR decays to 0 over them)")
-    g.add_argument("--num-worlds", type=POSITIVE_INT, help="worlds (= episodes) collected per iteration")
-    g.add_argument("--epochs", type=POSITIVE_INT, help="PPO epochs per iteration")
-    g.add_argument("--minibatches", type=POSITIVE_INT, help="minibatches per epoch (1 = full batch)")
-    g.add_argument(
-        "--micro-batch", type=NON_NEGATIVE_INT, help="events per forward/backward pass (0 = whole)"
-    )
-    g.add_argument("--lr", type=POSITIVE_FLOAT, help="Adam learning rate (decays linearly to 0)")
-    g.add_argument("--seed", type=NON_NEGATIVE_INT, help="seed of the training worlds and the sampling")
-    g.add_argument("--device", type=checked(check_device), help="cpu | cuda | cuda:N")
-    g.add_argument("--threads", type=UP_TO_CPUS, help="torch CPU threads")
-    g.add_argument("--update-processes", type=UP_TO_CPUS,
-                   help="CPU processes computing the update's gradients (1 thread each if > 1)")  # fmt: skip
-    g.add_argument(
-        "--warm-start",
-        metavar="PLANNER",
-        help="DAgger warm start from a planner's goals (projected into the window): nearest, rrt...",
-    )
-    g.add_argument(
-        "--init-from",
-        metavar="MODEL",
-        help="start a new run from these weights (fine-tuning): a model file, a training checkpoint or "
-        "run dir (with its value normaliser), or a shipped model's name",
-    )
-    g.add_argument("--target-kl", type=NON_NEGATIVE_FLOAT,
-                   help="stop an iteration's PPO epochs past this approx-KL (0 = never)")  # fmt: skip
-    g.add_argument("--precision", choices=["fp32", "bf16", "auto"],
-                   help="PPO update precision (auto: bf16 where the CPU has it natively)")  # fmt: skip
-    g.add_argument("--minutes", type=NON_NEGATIVE_FLOAT,
-                   help="wall-clock budget: stop after it, decaying the LR over it (0 = none)")  # fmt: skip
-    g.add_argument("--eval-every", type=NON_NEGATIVE_INT, help="iterations between evaluations (0 = never)")
-    g.add_argument("--eval-episodes", type=POSITIVE_INT, help="episodes (fixed maps) of each evaluation")
-    g.add_argument("--checkpoint-every", type=NON_NEGATIVE_INT, help="iterations between checkpoints")
-    g.add_argument("--collector", choices=["local", "ray"], help="collect here or on Ray workers")
-    g.add_argument(
-        "--ray-workers", type=POSITIVE_INT, help="Ray workers (each collects num_worlds / N worlds)"
-    )
-    g.add_argument("--ray-address", help="Ray cluster to join: auto | HOST:PORT | ray://HOST:PORT")
+    preset = TRAIN_PRESETS[DEFAULT_PRESET]
+    kinds = {f.name: f.type for f in dataclasses.fields(TrainConfig)}
+    for name, flag in TRAIN_FLAGS.items():
+        value = getattr(preset, name)
+        shown = "none" if value in (None, "") else value
+        g.add_argument(
+            flag, dest=name, metavar=METAVARS.get(name), type=train_value(name, kinds[name]),
+            help=f"{_first_sentence(field_docs()[name])} ({DEFAULT_PRESET}: {shown})",
+        )  # fmt: skip
     g.add_argument("--set", action="append", default=[], type=set_item, metavar="FIELD=VALUE",
                    help="any TrainConfig field, value as JSON (repeatable)")  # fmt: skip
-    preset = TRAIN_PRESETS[DEFAULT_PRESET]
-    for action in g._group_actions:  # each flag's value in the default preset
-        field = "budget_minutes" if action.dest == "minutes" else action.dest
-        if action.dest != "set":
-            value = getattr(preset, field)
-            action.help += f" ({DEFAULT_PRESET}: {'none' if value in (None, '') else value})"
     tr.add_argument("--no-progress", action="store_true", help="no progress bar")
     tr.set_defaults(name="train")
+
+
+def _first_sentence(doc: str) -> str:
+    """A field docstring's first sentence, without reST markup, as a flag's help (% escaped for argparse)."""
+    text = doc.replace("``", "").replace("%", "%%")
+    end = re.search(r"\.(\s|$)", text)
+    return text[: end.start()] if end else text
+
+
+def train_value(name: str, kind: str):
+    """The argparse type of the flag of TrainConfig field ``name`` (annotated ``kind``): the text as the
+    field's type, checked by the field's own check (``training.config.check_field``); threads and
+    processes also at most this machine's CPU count."""
+    convert = {"int": int, "float": float}.get(kind, str)
+
+    def parse(text: str):
+        try:
+            value = convert(text)
+        except ValueError:
+            noun = "an int" if convert is int else "a number"
+            raise argparse.ArgumentTypeError(f"expected {noun}, got {text!r}") from None
+        if name in ("threads", "update_processes"):
+            value = UP_TO_CPUS(text)
+        try:
+            check_field(name, value)
+        except ValueError as err:
+            raise argparse.ArgumentTypeError(str(err)) from None
+        return value
+
+    parse.__name__ = f"TrainConfig.{name}"
+    return parse
 
 
 def add_setting_flags(p: argparse.ArgumentParser) -> None:

@@ -3,18 +3,24 @@
 
 from __future__ import annotations
 
+import ast
 import dataclasses
 import json
 import math
 import numbers
+import re
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from functools import cache
+from pathlib import Path
 from typing import Any
 
 from catmip_env import EnvConfig, make_config
+from catmip_env.planners import PLANNERS
 from catmip_rl.amat.model import AmatConfig
+from catmip_rl.training.precision import PRECISIONS
 
-__all__ = ["TrainConfig"]
+__all__ = ["TrainConfig", "check_field", "field_docs"]
 
 
 def _is_int(v: Any) -> bool:
@@ -55,16 +61,42 @@ _RANGES: dict[str, tuple[str, Callable[[Any], bool]]] = {
 }  # fmt: skip
 
 
-def _check_fields(cfg: TrainConfig) -> None:
-    """Each field of its annotated type (an int field a real int, never a bool; a float field a finite
-    number) and in its range, or a ValueError naming the field: "TrainConfig.eval_seed must be an int
-    >= 0 and < 2**64, got 1.5"."""
-    for f in dataclasses.fields(cfg):
-        v = getattr(cfg, f.name)
-        noun, is_type = _TYPES[f.type]
-        bound, within = _RANGES.get(f.name, ("", None))
-        if not is_type(v) or (within is not None and not within(v)):
-            raise ValueError(f"TrainConfig.{f.name} must be {noun}{' ' * bool(bound)}{bound}, got {v!r}")
+# and the string fields that take a few values only
+_VALUES: dict[str, tuple[str, Callable[[Any], bool]]] = {
+    "device": ("cpu, cuda or cuda:N", lambda v: re.fullmatch(r"cpu|cuda(:\d+)?", v) is not None),
+    "precision": (", ".join(PRECISIONS[:-1]) + " or " + PRECISIONS[-1], lambda v: v in PRECISIONS),
+    "collector": ("local or ray", lambda v: v in ("local", "ray")),
+    "warm_start": (f"'' or a planner name {sorted(PLANNERS)}", lambda v: v == "" or v in PLANNERS),
+    "ray_address": ("None, 'auto', 'host:port' or 'ray://host:port'", lambda v: v != ""),
+}
+
+
+def check_field(name: str, value: Any) -> None:
+    """A ValueError naming the field unless ``value`` is of the field's annotated type (an int field a
+    real int, never a bool; a float field a finite number) and in its range or values: "TrainConfig.
+    eval_seed must be an int >= 0 and < 2**64, got 1.5". The one check of a field's value, for the
+    config and for ``catmip train``'s flags."""
+    kind = {f.name: f.type for f in dataclasses.fields(TrainConfig)}[name]
+    noun, is_type = _TYPES[kind]
+    bound, within = _RANGES.get(name, ("", None))
+    if not is_type(value) or (within is not None and not within(value)):
+        raise ValueError(f"TrainConfig.{name} must be {noun}{' ' * bool(bound)}{bound}, got {value!r}")
+    if name in _VALUES and value is not None and not _VALUES[name][1](value):
+        raise ValueError(f"TrainConfig.{name} must be {_VALUES[name][0]}, got {value!r}")
+
+
+@cache
+def field_docs() -> dict[str, str]:
+    """Each documented TrainConfig field's docstring (the string under it in this file), whitespace
+    collapsed: the help of ``catmip train``'s flags."""
+    tree = ast.parse(Path(__file__).read_text())
+    body = next(n for n in tree.body if isinstance(n, ast.ClassDef) and n.name == "TrainConfig").body
+    docs = {}
+    for node, after in zip(body, body[1:]):
+        documented = isinstance(after, ast.Expr) and isinstance(after.value, ast.Constant)
+        if isinstance(node, ast.AnnAssign) and documented:
+            docs[node.target.id] = " ".join(str(after.value.value).split())
+    return docs
 
 
 @dataclass(frozen=True)
@@ -102,14 +134,19 @@ class TrainConfig:
     """Decision events per forward/backward pass: a minibatch's gradient is accumulated over its
     micro-batches (the same gradient, in bounded memory and faster on CPU caches); 0 = one pass."""
     lr: float = 1e-4
+    """Adam learning rate (decays linearly to 0 over the run)."""
     adam_eps: float = 1e-5
+    """Adam epsilon."""
     clip: float = 0.05
     """PPO ratio clip epsilon."""
     value_clip: float = 0.05
     """Clip of the value prediction around the old value (normalised units)."""
     huber_delta: float = 10.0
+    """Delta of the Huber value loss."""
     entropy_coef: float = 0.01
+    """Weight of the entropy bonus."""
     value_coef: float = 1.0
+    """Weight of the value loss."""
     rescue_coef: float = 0.0
     """Weight of an auxiliary cross-entropy toward the planners' rescue rule (projected into the window)
     for active rescuers that know the target (catmip_rl.training.imitation.RescueLabeler); 0 = the
@@ -119,12 +156,15 @@ class TrainConfig:
     controller's own path, which starts in the robot's heading (``window:nearest``), or along a
     heading-free one (``window-noheading:nearest``): a label that depends only on what AMAT observes."""
     max_grad_norm: float = 10.0
+    """Gradient-norm clip of each step."""
     gamma: float = 1.0
     """Discount per tick."""
     lam: float = 0.95
     """GAE lambda along each robot's activations."""
     seed: int = 0
+    """Seed of the training worlds, the initial weights and the sampling."""
     device: str = "cpu"
+    """Where the model trains: cpu, cuda or cuda:N."""
     threads: int = 2
     """torch CPU threads."""
     precision: str = "fp32"
@@ -162,15 +202,19 @@ class TrainConfig:
     warm_start_steps: int = 150
     """Cross-entropy gradient steps per DAgger round, on minibatches of warm_start_batch events."""
     warm_start_batch: int = 256
+    """Events per cross-entropy step of the warm start."""
     warm_start_lr: float = 1e-3
+    """Adam learning rate of the warm start."""
     value_warmup_iterations: int = 0
     """First PPO iterations that train the value head alone (the policy stays as imitated)."""
     eval_every: int = 50
     """Iterations between evaluations (0 = never)."""
     eval_episodes: int = 32
+    """Episodes (fixed maps) of each evaluation."""
     eval_seed: int = 12_345
     """Seed of the fixed evaluation map set."""
     checkpoint_every: int = 50
+    """Iterations between checkpoints, and one at the end (0 = none: the run cannot be resumed)."""
     collector: str = "local"
     """Where episodes are collected: "local" (this process) or "ray" (Ray workers, the distributed extra)."""
     ray_workers: int = 2
@@ -179,47 +223,28 @@ class TrainConfig:
     """Ray cluster to join ("auto", "host:port", "ray://host:port"); None starts a local one on loopback."""
 
     def __post_init__(self) -> None:
-        _check_fields(self)
-        if self.warm_start:
-            from catmip_env.planners import PLANNERS
-
-            if self.collector != "local":
-                raise ValueError(
-                    "TrainConfig.warm_start needs collector 'local' (DAgger labels decisions with a planner "
-                    "in this process); warm-start locally, then --resume with --collector ray "
-                    "--set warm_start=''"
-                )
-            if self.warm_start not in PLANNERS:
-                raise ValueError(
-                    f"TrainConfig.warm_start must be '' or a planner name {sorted(PLANNERS)}, "
-                    f"got {self.warm_start!r}"
-                )
+        for f in dataclasses.fields(self):
+            check_field(f.name, getattr(self, f.name))
+        if self.warm_start and self.collector != "local":
+            raise ValueError(
+                "TrainConfig.warm_start needs collector 'local' (DAgger labels decisions with a planner "
+                "in this process); warm-start locally, then --resume with --collector ray "
+                "--set warm_start=''"
+            )
         if self.rescue_coef > 0 and self.collector != "local":
             raise ValueError(
                 "TrainConfig.rescue_coef > 0 needs collector 'local' (the rescue rule labels decisions in "
                 "this process); set rescue_coef = 0 with --collector ray"
             )
-        if self.device not in ("cpu", "cuda") and not self.device.startswith("cuda:"):
-            raise ValueError(f"device must be cpu or cuda[:i], got {self.device!r}")
         if self.update_processes > 1 and self.device != "cpu":
             raise ValueError(
                 f"update_processes = {self.update_processes} computes gradients in CPU processes; with "
                 f"device {self.device!r} set update_processes = 1"
             )
-        from catmip_rl.training.precision import use_bf16
-
-        use_bf16(self.precision, self.device)  # validates
-        if self.collector not in ("local", "ray"):
-            raise ValueError(f"TrainConfig.collector must be 'local' or 'ray', got {self.collector!r}")
         if self.collector == "ray" and self.num_worlds % self.ray_workers:
             raise ValueError(
                 f"num_worlds ({self.num_worlds}) must be divisible by ray_workers ({self.ray_workers}): "
                 "each Ray worker collects an equal share of the worlds"
-            )
-        if self.ray_address == "":
-            raise ValueError(
-                f"TrainConfig.ray_address must be None, 'auto', 'host:port' or 'ray://host:port', "
-                f"got {self.ray_address!r}"
             )
         if self.worlds and self.collector != "local":
             raise ValueError("TrainConfig.worlds (a mixture of worlds) needs collector 'local'")
