@@ -9,12 +9,11 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import math
-import numbers
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
-import numpy as np
+from catmip_env.fields import BOOL, INT, NUMBER, STR, Rule, check, is_int, is_number, is_str
 
 __all__ = ["EnvConfig", "RobotClass", "PRESETS", "EXPLORER", "RESCUER", "make_config", "MAX_MAP_SIZE"]
 
@@ -29,22 +28,9 @@ VIEW_SIZE = 7
 MAX_MAP_SIZE = 512
 
 
-def _is_int(v: Any) -> bool:
-    return isinstance(v, int) and not isinstance(v, bool)
-
-
-def _is_bool(v: Any) -> bool:
-    return isinstance(v, (bool, np.bool_))
-
-
-def _is_number(v: Any) -> bool:
-    """A finite real number (ints too; not a bool)."""
-    return isinstance(v, numbers.Real) and not isinstance(v, bool) and math.isfinite(v)
-
-
 def _is_comm_range(v: Any) -> bool:
     """A communication range: None (full communication) or a finite number > 0."""
-    return v is None or (_is_number(v) and v > 0)
+    return v is None or (is_number(v) and v > 0)
 
 
 _LISTS = {"team": "class names", "random_classes": "class names", "activation": "two ints [t_min, t_max]",
@@ -55,7 +41,7 @@ _LISTS = {"team": "class names", "random_classes": "class names", "activation": 
 def _as_tuple(name: str, value: Any) -> tuple:
     """A list or tuple field value as a tuple; anything else (a string too) raises naming the field."""
     if not isinstance(value, (list, tuple)):
-        raise ValueError(f"EnvConfig: {name} must be a list of {_LISTS[name]}, got {value!r}")
+        raise ValueError(f"EnvConfig.{name} must be a list of {_LISTS[name]}, got {value!r}")
     return tuple(value)
 
 
@@ -71,17 +57,10 @@ class RobotClass:
     """Whether this class completes the mission by standing next to the known target."""
 
     def __post_init__(self) -> None:
-        if not isinstance(self.name, str) or not self.name:
-            raise ValueError(f"RobotClass.name must be a non-empty string, got {self.name!r}")
-        if not _is_int(self.ticks_per_action) or self.ticks_per_action < 1:
-            raise ValueError(
-                f"RobotClass {self.name!r}: ticks_per_action must be an int >= 1, "
-                f"got {self.ticks_per_action!r}"
-            )
-        if not _is_bool(self.can_rescue):
-            raise ValueError(
-                f"RobotClass {self.name!r}: can_rescue must be true or false, got {self.can_rescue!r}"
-            )
+        check("RobotClass", "name", self.name, STR("(not empty)", bool))
+        owner = f"RobotClass({self.name!r})"
+        check(owner, "ticks_per_action", self.ticks_per_action, INT(">= 1", lambda v: v >= 1))
+        check(owner, "can_rescue", self.can_rescue, BOOL)
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> RobotClass:
@@ -223,57 +202,54 @@ class EnvConfig:
         return cls().replace(**data)
 
 
-def _check_types(cfg: EnvConfig, fail) -> None:
-    """Each field of its type, before any range check compares values (a string where a number belongs
-    is named here, not met as a TypeError)."""
-    for name in ("map_size", "horizon_ticks", "local_size", "window", "max_ma_ticks"):
-        if not _is_int(getattr(cfg, name)):
-            fail(f"{name} must be an int, got {getattr(cfg, name)!r}")
-    for name in (
-        "wall_prob",
-        "slam_noise",
-        "step_reward",
-        "collision_penalty",
-        "find_reward",
-        "rescue_reward",
-    ):
-        if not _is_number(getattr(cfg, name)):
-            fail(f"{name} must be a finite number, got {getattr(cfg, name)!r}")
-    if cfg.comm_sigma is not None and not _is_number(cfg.comm_sigma):
-        fail(f"comm_sigma must be None (full communication) or a finite number > 0, got {cfg.comm_sigma!r}")
-    choices = cfg.comm_sigma_choices
-    if not isinstance(choices, (list, tuple)) or not all(map(_is_comm_range, choices)):
-        fail(
-            "comm_sigma_choices must be a list of finite numbers > 0 or null (full communication), "
-            f"got {choices!r}"
-        )
-    if cfg.num_obstacles is not None and not _is_int(cfg.num_obstacles):
-        fail(f"num_obstacles must be None or an int >= 0, got {cfg.num_obstacles!r}")
-    for name in ("team", "random_classes"):
-        v = getattr(cfg, name)
-        if not isinstance(v, (list, tuple)) or not all(isinstance(x, str) for x in v):
-            fail(f"{name} must be a list of class names, got {v!r}")
-    if not isinstance(cfg.classes, (list, tuple)) or not all(isinstance(c, RobotClass) for c in cfg.classes):
-        fail(f"classes must be a list of RobotClass, got {cfg.classes!r}")
-    if cfg.layout is not None and not isinstance(cfg.layout, str):
-        fail(
-            "layout must be None or one string holding the ASCII map (rows separated by newlines), "
-            f"got a value of type {type(cfg.layout).__name__}"
-        )
-    if not _is_bool(cfg.synchronous):
-        fail(f"synchronous must be true or false, got {cfg.synchronous!r}")
-    act = cfg.activation
-    if not isinstance(act, (list, tuple)) or len(act) != 2 or not all(_is_int(x) for x in act):
-        fail(f"activation must be (t_min, t_max) ints with 0 <= t_min <= t_max, got {act!r}")
+def _list_of(item: Callable[[Any], bool], length: int | None = None) -> Callable[[Any], bool]:
+    return lambda v: isinstance(v, (list, tuple)) and length in (None, len(v)) and all(map(item, v))
+
+
+def _odd(v: int) -> bool:
+    return v >= 1 and v % 2 == 1
+
+
+def _probability(v: float) -> bool:
+    return 0.0 <= v <= 1.0
+
+
+# every field's type and range (catmip_env.fields); the checks across fields are in _validate
+_RULES: dict[str, Rule] = {
+    "map_size": INT(f"in [10, {MAX_MAP_SIZE}]", lambda v: 10 <= v <= MAX_MAP_SIZE),
+    "team": Rule("a list of class names", _list_of(is_str)),
+    "random_classes": Rule("a list of class names", _list_of(is_str)),
+    "classes": Rule("a list of RobotClass", _list_of(lambda c: isinstance(c, RobotClass))),
+    "horizon_ticks": INT(">= 1", lambda v: v >= 1),
+    "num_obstacles": Rule("None or an int", lambda v: v is None or is_int(v),
+                          ">= 0", lambda v: v is None or v >= 0),
+    "wall_prob": NUMBER("in [0, 1]", _probability),
+    "comm_sigma": Rule("None (full communication) or a finite number", lambda v: v is None or is_number(v),
+                       "> 0", lambda v: v is None or v > 0),
+    "comm_sigma_choices": Rule("a list of finite numbers > 0 or null (full communication)",
+                               _list_of(_is_comm_range)),
+    "slam_noise": NUMBER("in [0, 1]", _probability),
+    "local_size": INT("that is odd and >= 1", _odd),
+    "window": INT("that is odd and >= 1", _odd),
+    "step_reward": NUMBER,
+    "collision_penalty": NUMBER,
+    "find_reward": NUMBER(">= 0", lambda v: v >= 0),
+    "rescue_reward": NUMBER(">= 0", lambda v: v >= 0),
+    "max_ma_ticks": INT(">= 1", lambda v: v >= 1),
+    "synchronous": BOOL,
+    "activation": Rule("a list of two ints", _list_of(is_int, 2), "[t_min, t_max] with 0 <= t_min <= t_max",
+                       lambda a: 0 <= a[0] <= a[1]),
+    "layout": Rule("None or one string holding the ASCII map (rows separated by newlines)",
+                   lambda v: v is None or isinstance(v, str)),
+}  # fmt: skip
 
 
 def _validate(cfg: EnvConfig) -> None:
     def fail(msg: str) -> None:
         raise ValueError(f"EnvConfig: {msg}")
 
-    _check_types(cfg, fail)
-    if not 10 <= cfg.map_size <= MAX_MAP_SIZE:
-        fail(f"map_size must be an int in [10, {MAX_MAP_SIZE}], got {cfg.map_size!r}")
+    for f in dataclasses.fields(cfg):
+        check("EnvConfig", f.name, getattr(cfg, f.name), _RULES[f.name])
     if not cfg.classes:
         fail("classes must name at least one RobotClass")
     names = [c.name for c in cfg.classes]
@@ -297,35 +273,13 @@ def _validate(cfg: EnvConfig) -> None:
             f"{cfg.num_robots} robots do not fit the {SPAWN_BOX}x{SPAWN_BOX} spawn box "
             f"({SPAWN_BOX * SPAWN_BOX} cells)"
         )
-    if cfg.horizon_ticks < 1:
-        fail(f"horizon_ticks must be an int >= 1, got {cfg.horizon_ticks!r}")
     if cfg.comm_sigma is not None and cfg.comm_sigma_choices:
         fail(
             f"give comm_sigma ({cfg.comm_sigma!r}) or comm_sigma_choices ({cfg.comm_sigma_choices!r}), not "
             "both: with choices every episode draws its range from them"
         )
-    if cfg.num_obstacles is not None and cfg.num_obstacles < 0:
-        fail(f"num_obstacles must be None or an int >= 0, got {cfg.num_obstacles!r}")
     if cfg.layout is None and cfg.obstacles > (cfg.map_size - 2) ** 2 // 4:
         fail(f"num_obstacles={cfg.obstacles} is too many for a {cfg.map_size}x{cfg.map_size} map")
-    if not 0.0 <= cfg.wall_prob <= 1.0:
-        fail(f"wall_prob must be a probability in [0, 1], got {cfg.wall_prob!r}")
-    if cfg.comm_sigma is not None and not cfg.comm_sigma > 0:
-        fail(f"comm_sigma must be None (full communication) or > 0, got {cfg.comm_sigma!r}")
-    if not 0.0 <= cfg.slam_noise <= 1.0:
-        fail(f"slam_noise must be a probability in [0, 1], got {cfg.slam_noise!r}")
-    for name in ("local_size", "window"):
-        v = getattr(cfg, name)
-        if v < 1 or v % 2 == 0:
-            fail(f"{name} must be an odd int >= 1, got {v!r}")
-    for name in ("find_reward", "rescue_reward"):
-        if getattr(cfg, name) < 0:
-            fail(f"{name} must be >= 0, got {getattr(cfg, name)!r}")
-    if cfg.max_ma_ticks < 1:
-        fail(f"max_ma_ticks must be an int >= 1, got {cfg.max_ma_ticks!r}")
-    act = cfg.activation
-    if act[0] < 0 or act[1] < act[0]:
-        fail(f"activation must be (t_min, t_max) ints with 0 <= t_min <= t_max, got {act!r}")
     if cfg.layout is not None:
         from catmip_env.ascii_maps import parse_layout
 

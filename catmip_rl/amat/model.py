@@ -30,6 +30,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from catmip_env.constants import OBS_SCALE  # uint8 macro-observations: float = value * OBS_SCALE
+from catmip_env.fields import INT, check
 from catmip_rl.amat.kernels.sparse_conv import global_conv_pool
 from catmip_rl.amat.layers import BlockCache, DecoderBlock, EncoderBlock, layer_norm, linear
 
@@ -58,10 +59,11 @@ class AmatConfig:
     """C: robot classes (the class one-hot size)."""
 
     def __post_init__(self) -> None:
+        odd, positive = INT("that is odd and >= 1", lambda v: v >= 1 and v % 2), INT(">= 1", lambda v: v >= 1)
         for name in ("window", "local_size", "pool", "embed_dim", "n_heads", "n_blocks", "n_classes"):
-            v, odd = getattr(self, name), name in ("window", "local_size")
-            if not isinstance(v, int) or isinstance(v, bool) or v < 1 or (odd and v % 2 == 0):
-                raise ValueError(f"AmatConfig.{name} must be an {'odd ' * odd}int >= 1, got {v!r}")
+            check(
+                "AmatConfig", name, getattr(self, name), odd if name in ("window", "local_size") else positive
+            )
         if self.embed_dim % self.n_heads:
             raise ValueError(f"embed_dim {self.embed_dim} is not divisible by n_heads {self.n_heads}")
 

@@ -6,8 +6,6 @@ from __future__ import annotations
 import ast
 import dataclasses
 import json
-import math
-import numbers
 import re
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -16,6 +14,7 @@ from pathlib import Path
 from typing import Any
 
 from catmip_env import EnvConfig, make_config
+from catmip_env.fields import BOOL, INT, NUMBER, STR, Rule, check, is_str
 from catmip_env.planners import PLANNERS
 from catmip_rl.amat.model import AmatConfig
 from catmip_rl.training.precision import PRECISIONS
@@ -23,23 +22,15 @@ from catmip_rl.training.precision import PRECISIONS
 __all__ = ["TrainConfig", "check_field", "field_docs"]
 
 
-def _is_int(v: Any) -> bool:
-    return isinstance(v, int) and not isinstance(v, bool)
-
-
-def _is_number(v: Any) -> bool:
-    return isinstance(v, numbers.Real) and not isinstance(v, bool) and math.isfinite(v)
-
-
 # what each annotated type admits (annotations are strings: from __future__ import annotations)
-_TYPES: dict[str, tuple[str, Callable[[Any], bool]]] = {
-    "int": ("an int", _is_int),
-    "float": ("a finite number", _is_number),
-    "str": ("a string", lambda v: isinstance(v, str)),
-    "bool": ("true or false", lambda v: isinstance(v, bool)),
-    "str | None": ("a string or null", lambda v: v is None or isinstance(v, str)),
-    "dict[str, Any]": ("a JSON object {field: value}", lambda v: isinstance(v, dict)),
-    "list[dict[str, Any]]": (
+_TYPES: dict[str, Rule] = {
+    "int": INT,
+    "float": NUMBER,
+    "str": STR,
+    "bool": BOOL,
+    "str | None": Rule("a string or null", lambda v: v is None or is_str(v)),
+    "dict[str, Any]": Rule("a JSON object {field: value}", lambda v: isinstance(v, dict)),
+    "list[dict[str, Any]]": Rule(
         "a JSON list of objects [{field: value}, ...]",
         lambda v: isinstance(v, list) and all(isinstance(x, dict) for x in v),
     ),
@@ -59,30 +50,34 @@ _RANGES: dict[str, tuple[str, Callable[[Any], bool]]] = {
     "gamma": ("in (0, 1]", lambda v: 0 < v <= 1),
     "lam": ("in [0, 1]", lambda v: 0 <= v <= 1),
 }  # fmt: skip
-
-
 # and the string fields that take a few values only
-_VALUES: dict[str, tuple[str, Callable[[Any], bool]]] = {
-    "device": ("cpu, cuda or cuda:N", lambda v: re.fullmatch(r"cpu|cuda(:\d+)?", v) is not None),
-    "precision": (", ".join(PRECISIONS[:-1]) + " or " + PRECISIONS[-1], lambda v: v in PRECISIONS),
-    "collector": ("local or ray", lambda v: v in ("local", "ray")),
-    "warm_start": (f"'' or a planner name {sorted(PLANNERS)}", lambda v: v == "" or v in PLANNERS),
-    "ray_address": ("None, 'auto', 'host:port' or 'ray://host:port'", lambda v: v != ""),
+_VALUES: dict[str, Rule] = {
+    "device": Rule("cpu, cuda or cuda:N", lambda v: is_str(v) and re.fullmatch(r"cpu|cuda(:\d+)?", v)),
+    "precision": Rule(", ".join(PRECISIONS[:-1]) + " or " + PRECISIONS[-1], lambda v: v in PRECISIONS),
+    "collector": Rule("local or ray", lambda v: v in ("local", "ray")),
+    "warm_start": Rule(f"'' or a planner name {sorted(PLANNERS)}", lambda v: v == "" or v in PLANNERS),
+    "ray_address": Rule(
+        "None, 'auto', 'host:port' or 'ray://host:port'", lambda v: v is None or (is_str(v) and v != "")
+    ),
 }
+
+
+@cache
+def _rules() -> dict[str, Rule]:
+    """Every field's rule (catmip_env.fields): its type, range or values."""
+    out = {}
+    for f in dataclasses.fields(TrainConfig):
+        rule = _VALUES.get(f.name) or _TYPES[f.type]
+        out[f.name] = rule(*_RANGES[f.name]) if f.name in _RANGES else rule
+    return out
 
 
 def check_field(name: str, value: Any) -> None:
     """A ValueError naming the field unless ``value`` is of the field's annotated type (an int field a
     real int, never a bool; a float field a finite number) and in its range or values: "TrainConfig.
     eval_seed must be an int >= 0 and < 2**64, got 1.5". The one check of a field's value, for the
-    config and for ``catmip train``'s flags."""
-    kind = {f.name: f.type for f in dataclasses.fields(TrainConfig)}[name]
-    noun, is_type = _TYPES[kind]
-    bound, within = _RANGES.get(name, ("", None))
-    if not is_type(value) or (within is not None and not within(value)):
-        raise ValueError(f"TrainConfig.{name} must be {noun}{' ' * bool(bound)}{bound}, got {value!r}")
-    if name in _VALUES and value is not None and not _VALUES[name][1](value):
-        raise ValueError(f"TrainConfig.{name} must be {_VALUES[name][0]}, got {value!r}")
+    config and for ``catmip train``'s flags (the same validator as EnvConfig's: catmip_env.fields)."""
+    check("TrainConfig", name, value, _rules()[name])
 
 
 @cache
@@ -268,8 +263,7 @@ class TrainConfig:
         for k, entry in enumerate(self.worlds):
             entry = dict(entry)
             preset, n = entry.pop("preset", None), entry.pop("num_worlds", self.num_worlds)
-            if not _is_int(n) or n < 1:
-                raise ValueError(f"TrainConfig.worlds[{k}].num_worlds must be an int >= 1, got {n!r}")
+            check(f"TrainConfig.worlds[{k}]", "num_worlds", n, INT(">= 1", lambda v: v >= 1))
             try:
                 env = make_config(preset, **entry) if preset else self.env_config().replace(**entry)
             except (ValueError, TypeError) as err:
