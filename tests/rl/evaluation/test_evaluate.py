@@ -111,6 +111,32 @@ def test_distributed_execution_equals_centralised_under_full_communication(task)
     assert compared > 40
 
 
+@pytest.mark.parametrize("setting", [("task2", "full"), ("task3", "2")])
+def test_the_batch1_runtime_decides_as_the_torch_batch(setting):
+    """AmatExecutor's argmax decisions on FastAmat (one neighbourhood at a time) equal the padded torch
+    batch's, with the same neighbourhood rows and so the same message counts."""
+    model = _sharp_model()
+    cfg = EvalSetting(*setting).env_config()
+    engines = [EventEngine(cfg, 4, seed=2) for _ in range(2)]
+    fast, torch_batch = AmatExecutor(model), AmatExecutor(model, fast=False)
+    assert fast.fast is not None and torch_batch.fast is None
+    for eng in engines:
+        eng.reset()
+    decided = 0
+    for _ in range(30):
+        if engines[0].state.done.all():
+            break
+        a, b = fast.act(engines[0]), torch_batch.act(engines[1])
+        active = engines[0].active & ~engines[0].state.done[:, None]
+        np.testing.assert_array_equal(a[active], b[active])
+        decided += int(active.sum())
+        for eng in engines:
+            eng.step(a)
+    assert decided > 30
+    np.testing.assert_array_equal(fast.messages, torch_batch.messages)
+    np.testing.assert_array_equal(fast.bytes_embedding, torch_batch.bytes_embedding)
+
+
 def test_distributed_execution_splits_neighbourhoods():
     """Under partial communication each neighbourhood decides on its own members' tokens only, and
     the messages are counted per neighbourhood."""
