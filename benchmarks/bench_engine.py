@@ -21,13 +21,13 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 import numpy as np  # noqa: E402
 from common import machine_info, write_json  # noqa: E402
 
-from catmip_env import BatchedEngine, make_config, search_rescue_v0  # noqa: E402
+from catmip_env import BatchedWorld, make_config, search_rescue_v0  # noqa: E402
 
 TASKS = ("task1", "task2", "task3")
 
 
 def bench_engine(preset: str, num_worlds: int, seconds: float, **overrides) -> dict:
-    eng = BatchedEngine(make_config(preset, **overrides), num_worlds, seed=0)
+    eng = BatchedWorld(make_config(preset, **overrides), num_worlds, seed=0)
     eng.reset()
     rng = np.random.default_rng(0)
     pool = rng.integers(0, 4, size=(64, num_worlds, eng.num_robots))
@@ -82,8 +82,8 @@ def bench_pettingzoo(preset: str, seconds: float, **overrides) -> dict:
 def startup_seconds() -> float:
     """Wall time of a fresh process that imports catmip_env, resets and steps a Task 2 engine."""
     code = (
-        "import numpy as np; from catmip_env import BatchedEngine, make_config;"
-        "e = BatchedEngine(make_config('task2'), 4, seed=0); e.reset(); e.step(np.zeros((4, 3), int))"
+        "import numpy as np; from catmip_env import BatchedWorld, make_config;"
+        "e = BatchedWorld(make_config('task2'), 4, seed=0); e.reset(); e.step(np.zeros((4, 3), int))"
     )
     t0 = time.perf_counter()
     subprocess.run([sys.executable, "-c", code], check=True)

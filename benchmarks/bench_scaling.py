@@ -9,7 +9,7 @@ overridden:
 * team size N in 2, 3, 6, 12 on a fixed 32x32 map (1 rescuer + N - 1 explorers; the spawn box holds
   at most 16 robots, so N = 12 fits S = 32).
 
-Per point: world-ticks/s of ``BatchedEngine`` (B = 64, uniformly random primitive actions, resets in the
+Per point: world-ticks/s of ``BatchedWorld`` (B = 64, uniformly random primitive actions, resets in the
 timed loop, as ``bench_engine.py``), decision events/s of ``EventEngine`` (B = 64, uniformly random valid
 window goals, whose drawing is timed apart and excluded, as ``bench_events.py``), and the batch-1 AMAT
 decision latency (Table 2 model, every robot active, embed -> encode -> argmax autoregressive decode, as
@@ -35,7 +35,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 import numpy as np  # noqa: E402
 from common import env_observation, machine_info, plot_scaling_panels, write_json  # noqa: E402
 
-from catmip_env import BatchedEngine, EnvConfig, make_config  # noqa: E402
+from catmip_env import BatchedWorld, EnvConfig, make_config  # noqa: E402
 from catmip_env.events import EventEngine, random_valid_actions  # noqa: E402
 from catmip_env.files import atomic_path  # noqa: E402 (the env benchmark stays torch-free)
 
@@ -68,7 +68,7 @@ class Clocks:
 
 def engine_rate(cfg: EnvConfig, num_worlds: int, seconds: float) -> dict[str, float]:
     """World-ticks per wall second and per CPU second of the primitive engine, random actions."""
-    eng = BatchedEngine(cfg, num_worlds, seed=0)
+    eng = BatchedWorld(cfg, num_worlds, seed=0)
     eng.reset()
     pool = np.random.default_rng(0).integers(0, 4, size=(64, num_worlds, eng.num_robots))
     for k in range(20):

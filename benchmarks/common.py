@@ -136,7 +136,7 @@ def plot_scaling_panels(axes: Any, curves: dict[str, list[dict]], num_worlds: in
                 "engine_world_ticks_per_s",
                 "engine_world_ticks_per_cpu_s",
                 "o",
-                "BatchedEngine world-ticks/s",
+                "BatchedWorld world-ticks/s",
             ),
             (top, "events_per_s", "events_per_cpu_s", "s", "EventEngine decision events/s"),
             (bottom, "amat_ms", "amat_cpu_ms", "o", "AMAT (torch)"),

@@ -1,13 +1,13 @@
 """catmip_env: the CATMiP search-and-rescue world for heterogeneous robot teams (numpy + numba).
 
 * :class:`EnvConfig`, :class:`RobotClass`, :data:`PRESETS` — task definitions (``task1`` ... ``train``);
-* :class:`BatchedEngine` — B worlds stepped in one call (struct of arrays, numba kernels);
+* :class:`BatchedWorld` — B worlds stepped in one call (struct of arrays, numba kernels);
 * :class:`EventEngine` — the same worlds advanced from one decision event to the next (macro-actions);
 * :func:`make_planner` — the classical planning baselines (``nearest``, ``rrt``, ...);
 * :mod:`catmip_env.search_rescue_v0` — the PettingZoo Parallel env (``parallel_env()``, ``env()``).
 
 Layers, lowest first: ``constants`` / ``config`` / ``rng`` → ``state`` → the numba kernels (``mapgen``,
-``sensing``, ``bfs``, ``dynamics``, ``macro``, ``observe``) → ``world`` (:class:`BatchedEngine`) →
+``sensing``, ``bfs``, ``dynamics``, ``macro``, ``observe``) → ``world`` (:class:`BatchedWorld`) →
 ``events`` (:class:`EventEngine`) → ``planners`` / ``window_planner`` → ``play`` (the episode loop and
 its metrics) → ``search_rescue_v0`` (PettingZoo), ``render``, ``demo``.
 
@@ -27,7 +27,7 @@ from catmip_env.config import EXPLORER, PRESETS, RESCUER, EnvConfig, RobotClass,
 from catmip_env.events import EventEngine  # noqa: E402
 from catmip_env.planners import make_planner  # noqa: E402
 from catmip_env.state import WorldState  # noqa: E402
-from catmip_env.world import BatchedEngine, StepResult  # noqa: E402
+from catmip_env.world import BatchedWorld, StepResult  # noqa: E402
 
 __version__ = "0.1.0"
 
@@ -35,7 +35,7 @@ __all__ = [
     "EXPLORER",
     "PRESETS",
     "RESCUER",
-    "BatchedEngine",
+    "BatchedWorld",
     "EnvConfig",
     "EventEngine",
     "Layout",

@@ -28,7 +28,7 @@ from catmip_env.macro import (
     assign_goals,
     start_activation,
 )
-from catmip_env.world import BatchedEngine
+from catmip_env.world import BatchedWorld
 
 __all__ = ["EventEngine", "EventResult", "GOAL_MODES", "random_valid_actions"]
 
@@ -54,7 +54,7 @@ class EventResult(NamedTuple):
 
 
 class EventEngine:
-    """Macro-action layer over a :class:`BatchedEngine`: goals, controller, activation, masks.
+    """Macro-action layer over a :class:`BatchedWorld`: goals, controller, activation, masks.
 
     ``goal_mode="window"``: action ``a`` in ``[0, D*D)`` is the goal offset
     ``(a // D - D//2, a % D - D//2)`` from the robot (row-major; the centre means stay here).
@@ -82,7 +82,7 @@ class EventEngine:
             )
         if not 0.0 < gamma <= 1.0:
             raise ValueError(f"gamma must be in (0, 1], got {gamma!r}")
-        self.world = BatchedEngine(cfg, num_worlds, seed)
+        self.world = BatchedWorld(cfg, num_worlds, seed)
         self.cfg = cfg
         self.goal_mode = goal_mode
         self.invalid_action = invalid_action

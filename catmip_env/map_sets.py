@@ -32,7 +32,7 @@ import numpy as np
 
 from catmip_env.config import make_config
 from catmip_env.files import atomic_path
-from catmip_env.world import BatchedEngine
+from catmip_env.world import BatchedWorld
 
 __all__ = [
     "FROZEN_SEEDS", "HELDOUT_SEED", "MANIFEST_EPISODES", "MapSetMismatch", "MapSetReport", "check_maps",
@@ -50,7 +50,7 @@ HERE = Path(__file__).resolve().parent / "frozen_maps"
 
 def map_hash(engine, b: int) -> str:
     """CRC-32 (hex) of world ``b``'s map, target and start poses: equal hashes = the same episode.
-    ``engine``: a ``BatchedEngine`` or an ``EventEngine`` just reset (start poses are read)."""
+    ``engine``: a ``BatchedWorld`` or an ``EventEngine`` just reset (start poses are read)."""
     st = engine.state
     parts = (st.grid[b], st.target[b], st.pos[b], st.heading[b], st.cls[b])
     return f"{zlib.crc32(b''.join(np.ascontiguousarray(p).tobytes() for p in parts)):08x}"
@@ -58,7 +58,7 @@ def map_hash(engine, b: int) -> str:
 
 def map_hashes(task: str, seed: int, episodes: int) -> list[str]:
     """The hashes of maps 0 .. episodes-1 of ``seed`` for a task preset, generated here and now."""
-    eng = BatchedEngine(make_config(task), num_worlds=episodes, seed=seed)
+    eng = BatchedWorld(make_config(task), num_worlds=episodes, seed=seed)
     eng.reset(episode_indices=np.arange(episodes))
     return [map_hash(eng, b) for b in range(episodes)]
 

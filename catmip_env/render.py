@@ -68,7 +68,7 @@ def _line(img: np.ndarray, p0: tuple[float, float], p1: tuple[float, float], col
 
 
 def render_world(engine, b: int = 0, cell: int = 16, links: bool = True) -> np.ndarray:
-    """Picture of world ``b`` of a :class:`~catmip_env.world.BatchedEngine` (uint8, H x W x 3)."""
+    """Picture of world ``b`` of a :class:`~catmip_env.world.BatchedWorld` (uint8, H x W x 3)."""
     st = engine.state
     grid = st.grid[b]
     h, w = grid.shape

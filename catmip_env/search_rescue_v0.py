@@ -39,7 +39,7 @@ from catmip_env.spaces import (
     robot_observations,
     state_space,
 )
-from catmip_env.world import BatchedEngine
+from catmip_env.world import BatchedWorld
 
 __all__ = ["SearchRescueEnv", "parallel_env", "env", "raw_env", "LEVELS", "OBS_FORMATS", "integer_action"]
 
@@ -178,7 +178,7 @@ class SearchRescueEnv(ParallelEnv):
             self.world = self.engine.world
             self.num_actions = self.engine.num_actions
         else:
-            self.engine = self.world = BatchedEngine(config, num_worlds=1, seed=None)
+            self.engine = self.world = BatchedWorld(config, num_worlds=1, seed=None)
             self.num_actions = len(PRIMITIVE_ACTIONS)
         n = config.num_robots
         self.possible_agents = [f"robot_{i}" for i in range(n)]

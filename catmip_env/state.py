@@ -1,6 +1,6 @@
 """World state: the struct of arrays of B worlds, and the same arrays as one value for the numba kernels.
 
-* :class:`WorldState` — the engine's state (``BatchedEngine.state``): one dataclass of arrays, B worlds
+* :class:`WorldState` — the engine's state (``BatchedWorld.state``): one dataclass of arrays, B worlds
   of N robots on H x W maps. Its fields are allocated once and never rebound (the dataclass is frozen):
   code changes the state by writing *into* the arrays.
 * :class:`KernelState` — the same arrays as one ``typing.NamedTuple`` (``WorldState.kernel``), which

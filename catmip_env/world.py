@@ -1,6 +1,7 @@
-"""The batched world engine: B independent worlds as one struct of arrays, stepped in one call.
+"""The batched world (:class:`BatchedWorld`): B independent worlds as one struct of arrays, stepped one
+tick per call.
 
->>> eng = BatchedEngine(PRESETS["task2"], num_worlds=64, seed=0)
+>>> eng = BatchedWorld(PRESETS["task2"], num_worlds=64, seed=0)
 >>> eng.reset()                                   # every world draws its episode's map
 >>> res = eng.step(actions)                       # actions: (B, N) ints in [0, 4)
 >>> res.rewards, res.terminated, res.truncated    # (B, N), (B,), (B,)
@@ -38,7 +39,7 @@ from catmip_env.observe import observe as build_observations
 from catmip_env.rng import seed_state
 from catmip_env.state import WorldState
 
-__all__ = ["BatchedEngine", "StepResult"]
+__all__ = ["BatchedWorld", "StepResult"]
 
 
 class StepResult(NamedTuple):
@@ -49,7 +50,7 @@ class StepResult(NamedTuple):
     truncated: np.ndarray  # (B,) bool horizon reached without success on this tick
 
 
-class BatchedEngine:
+class BatchedWorld:
     """B independent worlds of one :class:`EnvConfig`, advanced one primitive tick per call.
 
     Worlds whose episode is over (``done``) are frozen by :meth:`step` until :meth:`reset` starts

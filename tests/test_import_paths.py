@@ -13,11 +13,11 @@ import pytest
 def test_top_level_names():
     import catmip_env
     import catmip_rl
-    from catmip_env import BatchedEngine, EventEngine, make_planner, search_rescue_v0
+    from catmip_env import BatchedWorld, EventEngine, make_planner, search_rescue_v0
     from catmip_rl import AMAT, AmatConfig, load_model, save_model
 
     assert catmip_rl.AMAT is AMAT and catmip_rl.load_model is load_model and save_model and AmatConfig
-    assert catmip_env.BatchedEngine is BatchedEngine and catmip_env.EventEngine is EventEngine
+    assert catmip_env.BatchedWorld is BatchedWorld and catmip_env.EventEngine is EventEngine
     assert make_planner("nearest").name == "nearest"
     assert callable(search_rescue_v0.parallel_env)
 

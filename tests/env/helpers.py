@@ -15,7 +15,7 @@ from pettingzoo.test import (
     state_test,
 )
 
-from catmip_env import BatchedEngine, EnvConfig, make_config, search_rescue_v0
+from catmip_env import BatchedWorld, EnvConfig, make_config, search_rescue_v0
 
 #: PettingZoo env variants the conformance tests run (each with every preset).
 COMM_NOISE = {
@@ -47,19 +47,19 @@ def layout_config(layout: str, team=("rescuer", "explorer"), **overrides) -> Env
     return EnvConfig(layout=layout, team=tuple(team), horizon_ticks=200).replace(**overrides)
 
 
-def layout_engine(layout: str, team=("rescuer", "explorer"), seed=0, **overrides) -> BatchedEngine:
-    eng = BatchedEngine(layout_config(layout, team, **overrides), num_worlds=1, seed=seed)
+def layout_engine(layout: str, team=("rescuer", "explorer"), seed=0, **overrides) -> BatchedWorld:
+    eng = BatchedWorld(layout_config(layout, team, **overrides), num_worlds=1, seed=seed)
     eng.reset()
     return eng
 
 
-def preset_engine(preset: str, num_worlds: int = 4, seed: int = 0, **overrides) -> BatchedEngine:
-    eng = BatchedEngine(make_config(preset, **overrides), num_worlds=num_worlds, seed=seed)
+def preset_engine(preset: str, num_worlds: int = 4, seed: int = 0, **overrides) -> BatchedWorld:
+    eng = BatchedWorld(make_config(preset, **overrides), num_worlds=num_worlds, seed=seed)
     eng.reset()
     return eng
 
 
-def random_actions(rng: np.random.Generator, eng: BatchedEngine) -> np.ndarray:
+def random_actions(rng: np.random.Generator, eng: BatchedWorld) -> np.ndarray:
     return rng.integers(0, 4, size=(eng.num_worlds, eng.num_robots))
 
 

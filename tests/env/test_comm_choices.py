@@ -4,13 +4,13 @@ reproducible, and an episode that drew a range plays exactly as with that range 
 import numpy as np
 import pytest
 
-from catmip_env import BatchedEngine, make_config
+from catmip_env import BatchedWorld, make_config
 
 CHOICES = (None, 4.0, 2.0)
 
 
 def _engine(cfg, episodes, num_worlds=None):
-    eng = BatchedEngine(cfg, num_worlds=num_worlds or len(episodes), seed=3)
+    eng = BatchedWorld(cfg, num_worlds=num_worlds or len(episodes), seed=3)
     eng.reset(episode_indices=np.asarray(episodes))
     return eng
 

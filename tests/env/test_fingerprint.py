@@ -8,7 +8,7 @@ import hashlib
 import numpy as np
 import pytest
 
-from catmip_env import BatchedEngine, make_config
+from catmip_env import BatchedWorld, make_config
 from catmip_env.events import EventEngine
 from catmip_env.planners import make_planner
 
@@ -32,7 +32,7 @@ def fingerprint(name: str, level: str) -> str:
     cfg = make_config(PRESET[name], horizon_ticks=150, **SETTINGS[name])
     h = hashlib.sha256()
     if level == "tick":
-        eng = BatchedEngine(cfg, num_worlds=6, seed=11)
+        eng = BatchedWorld(cfg, num_worlds=6, seed=11)
         eng.reset()
         rng = np.random.default_rng(5)
         while not eng.state.done.all():

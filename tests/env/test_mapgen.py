@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from catmip_env import PRESETS, BatchedEngine, make_config
+from catmip_env import PRESETS, BatchedWorld, make_config
 from catmip_env.config import SPAWN_BOX, TARGET_EXCLUSION_BOX
 from catmip_env.constants import CLUE, FREE, OBSTACLE, TARGET, WALL
 from catmip_env.mapgen import generate, room_bounds, target_exclusion_side
@@ -15,7 +15,7 @@ N_MAPS = 150
 
 def _maps(preset: str, n: int = N_MAPS, seed: int = 7, **overrides):
     cfg = make_config(preset, **overrides)
-    eng = BatchedEngine(cfg, num_worlds=1, seed=seed)
+    eng = BatchedWorld(cfg, num_worlds=1, seed=seed)
     for k in range(n):
         rng, _ = eng.episode_streams(k)
         yield cfg, generate(cfg, rng)
@@ -96,14 +96,14 @@ def test_obstacles_avoid_doorway_zones():
 
 def test_map_stream_depends_only_on_seed_and_episode():
     cfg = PRESETS["task2"]
-    a = BatchedEngine(cfg, 1, seed=3)
-    b = BatchedEngine(cfg, 5, seed=3)
+    a = BatchedWorld(cfg, 1, seed=3)
+    b = BatchedWorld(cfg, 5, seed=3)
     ep_a = generate(cfg, a.episode_streams(4)[0])
     ep_b = generate(cfg, b.episode_streams(4)[0])
     assert np.array_equal(ep_a.grid, ep_b.grid) and np.array_equal(ep_a.robots, ep_b.robots)
     other = generate(cfg, a.episode_streams(5)[0])
     assert not np.array_equal(ep_a.grid, other.grid)
-    c = BatchedEngine(cfg, 1, seed=4)
+    c = BatchedWorld(cfg, 1, seed=4)
     assert not np.array_equal(ep_a.grid, generate(cfg, c.episode_streams(4)[0]).grid)
 
 

@@ -228,11 +228,11 @@ def test_informed_tick_is_the_first_tick_a_rescuer_knows_the_target():
     the sighting: on the primitive engine (the tick kernel: random walks on a two-room map whose
     target is in the far room) and on the event engine (the macro kernel, Nearest's goals, paused
     after every tick)."""
-    from catmip_env import BatchedEngine
+    from catmip_env import BatchedWorld
 
     from .helpers import TWO_ROOMS, layout_config
 
-    eng = BatchedEngine(layout_config(TWO_ROOMS, comm_sigma=1.0, horizon_ticks=3000), num_worlds=8, seed=5)
+    eng = BatchedWorld(layout_config(TWO_ROOMS, comm_sigma=1.0, horizon_ticks=3000), num_worlds=8, seed=5)
     eng.reset()
     rng = np.random.default_rng(0)
     first = _first_informed(eng, lambda: eng.step(rng.integers(0, 4, size=(8, 2))), 3000)

@@ -1,9 +1,9 @@
-"""The batched engine: whole-episode determinism, batch independence, resets and input checks."""
+"""The batched world: whole-episode determinism, batch independence, resets and input checks."""
 
 import numpy as np
 import pytest
 
-from catmip_env import BatchedEngine, make_config
+from catmip_env import BatchedWorld, make_config
 from catmip_env.state import WorldState
 
 from .helpers import random_actions
@@ -24,7 +24,7 @@ def _rollout(eng, ticks, seed):
 @pytest.mark.parametrize("kw", [{}, {"comm_sigma": 2.0, "slam_noise": 0.05}])
 def test_same_seed_same_everything_over_whole_episodes(kw):
     cfg = make_config("task1", horizon_ticks=120, **kw)
-    e1, e2 = BatchedEngine(cfg, 6, seed=9), BatchedEngine(cfg, 6, seed=9)
+    e1, e2 = BatchedWorld(cfg, 6, seed=9), BatchedWorld(cfg, 6, seed=9)
     e1.reset()
     e2.reset()
     t1, t2 = _rollout(e1, 400, 0), _rollout(e2, 400, 0)  # >3 episodes per world
@@ -39,9 +39,9 @@ def test_same_seed_same_everything_over_whole_episodes(kw):
 def test_a_world_does_not_depend_on_its_batch():
     """Episode k of seed s evolves identically alone or inside a batch of other worlds."""
     cfg = make_config("task2", comm_sigma=3.0, slam_noise=0.05)
-    big = BatchedEngine(cfg, 5, seed=4)
+    big = BatchedWorld(cfg, 5, seed=4)
     big.reset(episode_indices=[10, 11, 12, 13, 14])
-    solo = BatchedEngine(cfg, 1, seed=4)
+    solo = BatchedWorld(cfg, 1, seed=4)
     solo.reset(episode_indices=[12])
     rng = np.random.default_rng(0)
     for _ in range(150):
@@ -54,7 +54,7 @@ def test_a_world_does_not_depend_on_its_batch():
 
 
 def test_reset_numbering_and_partial_resets():
-    eng = BatchedEngine(make_config("task1"), 3, seed=0)
+    eng = BatchedWorld(make_config("task1"), 3, seed=0)
     assert eng.reset().tolist() == [0, 1, 2]
     assert eng.state.episode.tolist() == [0, 1, 2]
     eng.reset(worlds=np.array([False, True, False]))
@@ -67,7 +67,7 @@ def test_reset_numbering_and_partial_resets():
 
 
 def test_engine_input_errors():
-    eng = BatchedEngine(make_config("task1"), 2, seed=0)
+    eng = BatchedWorld(make_config("task1"), 2, seed=0)
     eng.reset()
     with pytest.raises(ValueError, match="shape"):
         eng.step(np.zeros((2, 3), np.int64))
@@ -82,11 +82,11 @@ def test_engine_input_errors():
     with pytest.raises(ValueError, match="seed"):
         eng.seed(-3)
     with pytest.raises(ValueError, match="num_worlds"):
-        BatchedEngine(make_config("task1"), 0)
+        BatchedWorld(make_config("task1"), 0)
 
 
 def test_read_outs():
-    eng = BatchedEngine(make_config("task2"), 2, seed=0)
+    eng = BatchedWorld(make_config("task2"), 2, seed=0)
     eng.reset()
     frac = eng.explored_fraction()
     assert frac.shape == (2,) and (0 < frac).all() and (frac < 0.5).all()
