@@ -33,16 +33,8 @@ def _is_comm_range(v: Any) -> bool:
     return v is None or (is_number(v) and v > 0)
 
 
-_LISTS = {"team": "class names", "random_classes": "class names", "activation": "two ints [t_min, t_max]",
-          "classes": "robot classes",
-          "comm_sigma_choices": "communication ranges (numbers > 0, or null)"}  # fmt: skip
-
-
-def _as_tuple(name: str, value: Any) -> tuple:
-    """A list or tuple field value as a tuple; anything else (a string too) raises naming the field."""
-    if not isinstance(value, (list, tuple)):
-        raise ValueError(f"EnvConfig.{name} must be a list of {_LISTS[name]}, got {value!r}")
-    return tuple(value)
+# the fields that hold lists: stored as tuples (hashable, immutable), whatever list they were given as
+_LISTS = ("team", "random_classes", "activation", "classes", "comm_sigma_choices")
 
 
 @dataclass(frozen=True)
@@ -131,7 +123,7 @@ class EnvConfig:
 
     # -- derived -------------------------------------------------------------------------------
     def __post_init__(self) -> None:
-        for name in _LISTS:  # lists given directly (not through replace) become tuples: hashable, immutable
+        for name in _LISTS:  # JSON lists become tuples; anything else is left for _validate to name
             if isinstance(getattr(self, name), list):
                 object.__setattr__(self, name, tuple(getattr(self, name)))
         _validate(self)
@@ -177,10 +169,7 @@ class EnvConfig:
         unknown = sorted(set(overrides) - names)
         if unknown:
             raise ValueError(f"unknown EnvConfig field(s) {unknown}; valid fields: {sorted(names)}")
-        for name in _LISTS:  # JSON lists -> tuples
-            if name in overrides:
-                overrides[name] = _as_tuple(name, overrides[name])
-        if "classes" in overrides:
+        if isinstance(overrides.get("classes"), (list, tuple)):  # JSON objects -> RobotClass
             try:
                 overrides["classes"] = tuple(
                     c if isinstance(c, RobotClass) else RobotClass.from_dict(c) for c in overrides["classes"]
@@ -219,7 +208,7 @@ _RULES: dict[str, Rule] = {
     "map_size": INT(f"in [10, {MAX_MAP_SIZE}]", lambda v: 10 <= v <= MAX_MAP_SIZE),
     "team": Rule("a list of class names", _list_of(is_str)),
     "random_classes": Rule("a list of class names", _list_of(is_str)),
-    "classes": Rule("a list of RobotClass", _list_of(lambda c: isinstance(c, RobotClass))),
+    "classes": Rule("a list of robot classes", _list_of(lambda c: isinstance(c, RobotClass))),
     "horizon_ticks": INT(">= 1", lambda v: v >= 1),
     "num_obstacles": Rule("None or an int", lambda v: v is None or is_int(v),
                           ">= 0", lambda v: v is None or v >= 0),

@@ -7,23 +7,21 @@ import argparse
 import json
 import math
 import os
-import re
 from typing import Any
 
 __all__ = [
-    "POSITIVE_INT", "NON_NEGATIVE_INT", "POSITIVE_FLOAT", "NON_NEGATIVE_FLOAT", "PROBABILITY", "CPUS",
-    "UP_TO_CPUS", "checked", "check_device", "check_comm", "check_method", "check_methods", "check_runs",
-    "parse_set", "set_item", "USER_ERRORS",
+    "POSITIVE_INT", "NON_NEGATIVE_INT", "PROBABILITY", "CPUS", "UP_TO_CPUS", "checked", "check_comm",
+    "check_method", "check_methods", "check_runs", "parse_set", "set_item", "USER_ERRORS",
 ]  # fmt: skip
 
 USER_ERRORS = (ValueError, OSError, ImportError)
 """What bad input raises (a bad value, path, or missing extra): one line and exit code 2."""
 
 
-def _number(kind: type, low: float, strict: bool = False, below: float | None = None, bound: str = ""):
-    """An argparse type: ``kind(text)``, finite, ``>= low`` (``> low`` if ``strict``), ``< below``;
-    ``bound`` words the range in messages instead."""
-    bound = bound or f"{'>' if strict else '>='} {low:g}" + ("" if below is None else f" and < {below:g}")
+def _number(kind: type, low: float, below: float | None = None, bound: str = ""):
+    """An argparse type: ``kind(text)``, finite, ``>= low``, ``< below``; ``bound`` words the range in
+    messages instead."""
+    bound = bound or f">= {low:g}" + ("" if below is None else f" and < {below:g}")
     noun = "an int" if kind is int else "a number"
 
     def parse(text: str):
@@ -32,7 +30,7 @@ def _number(kind: type, low: float, strict: bool = False, below: float | None = 
         except ValueError:
             value = None
         finite = value is not None and (kind is int or math.isfinite(value))  # huge ints: no float
-        ok = finite and (value > low if strict else value >= low)
+        ok = finite and value >= low
         if not ok or (below is not None and value >= below):
             raise argparse.ArgumentTypeError(f"expected {noun} {bound}, got {text!r}")
         return value
@@ -43,8 +41,6 @@ def _number(kind: type, low: float, strict: bool = False, below: float | None = 
 
 POSITIVE_INT = _number(int, 1)
 NON_NEGATIVE_INT = _number(int, 0)
-POSITIVE_FLOAT = _number(float, 0, strict=True)
-NON_NEGATIVE_FLOAT = _number(float, 0)
 PROBABILITY = _number(float, 0, below=1)
 CPUS = os.cpu_count() or 1
 """This machine's CPU count: flags that start threads or processes take at most this many."""
@@ -63,11 +59,6 @@ def checked(validate):
 
     parse.__name__ = validate.__name__
     return parse
-
-
-def check_device(text: str) -> None:
-    if re.fullmatch(r"cpu|cuda(:\d+)?", text) is None:
-        raise ValueError(f"expected cpu, cuda or cuda:N, got {text!r}")
 
 
 def check_comm(text: str) -> None:

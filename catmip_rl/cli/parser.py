@@ -31,12 +31,11 @@ __all__ = ["DEFAULT_PRESET", "TRAIN_FLAGS", "Formatter", "Parser", "build_parser
 #: the TrainConfig fields ``catmip train`` has a flag for, and the flag; each flag's help is its field's
 #: docstring and its check the field's own; every other field: ``--set FIELD=VALUE``
 TRAIN_FLAGS = {
-    name: "--" + name.replace("_", "-")
+    name: {"budget_minutes": "--minutes"}.get(name, "--" + name.replace("_", "-"))
     for name in ("iterations", "num_worlds", "epochs", "minibatches", "micro_batch", "lr", "seed", "device",
-                 "threads", "update_processes", "warm_start", "init_from", "target_kl", "precision")
-} | {"budget_minutes": "--minutes"} | {
-    name: "--" + name.replace("_", "-")
-    for name in ("eval_every", "eval_episodes", "checkpoint_every", "collector", "ray_workers", "ray_address")
+                 "threads", "update_processes", "warm_start", "init_from", "target_kl", "precision",
+                 "budget_minutes", "eval_every", "eval_episodes", "checkpoint_every", "collector",
+                 "ray_workers", "ray_address")
 }  # fmt: skip
 METAVARS = {"warm_start": "PLANNER", "init_from": "MODEL", "device": "{cpu,cuda,cuda:N}",
             "precision": "{fp32,bf16,auto}", "collector": "{local,ray}",

@@ -28,6 +28,7 @@ __all__ = [
     "message_bytes",
     "decide_neighbourhoods",
     "decide_neighbourhoods_fast",
+    "active_neighbourhoods",
     "decide_by_neighbourhood",
 ]
 
@@ -121,12 +122,7 @@ def decide_neighbourhoods(
     actions = masks.argmax(-1).astype(np.int64)
     if not active.any():
         return actions, np.zeros(0, np.int64), np.zeros((0, n), np.bool_)
-    # one row per neighbourhood (= component label, its lowest id) with an active member
-    bb, ii = np.nonzero(active)
-    has_active = np.zeros((b, n), np.bool_)
-    has_active[bb, comp[bb, ii]] = True
-    b_of_row, label = np.nonzero(has_active)
-    member = comp[b_of_row] == label[:, None]  # (R, N), members in ascending id
+    b_of_row, member = active_neighbourhoods(active, comp)
     r = len(b_of_row)
     slot = np.cumsum(member, axis=1) - 1  # position of each member inside its row
     row_idx, robot = np.nonzero(member)
@@ -161,6 +157,18 @@ def decide_neighbourhoods(
     return actions, b_of_row, member
 
 
+def active_neighbourhoods(active: np.ndarray, comp: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The neighbourhoods that decide at an event: one row per (world, component label = its lowest
+    robot id) with an active member, in world then label order: (world of each row (R,), its members
+    (R, N) bool, ascending id)."""
+    b, n = active.shape
+    bb, ii = np.nonzero(active)
+    has_active = np.zeros((b, n), np.bool_)
+    has_active[bb, comp[bb, ii]] = True
+    b_of_row, label = np.nonzero(has_active)
+    return b_of_row, comp[b_of_row] == label[:, None]
+
+
 def decide_neighbourhoods_fast(
     fast: FastAmat,
     global_map: np.ndarray,
@@ -173,19 +181,15 @@ def decide_neighbourhoods_fast(
     """:func:`decide_neighbourhoods` with argmax actions, each neighbourhood decided at batch 1 by
     ``fast`` (the batch-1 runtime, as a coordinator runs it): the same actions and rows in the same
     order, without padding every neighbourhood to the team's size."""
-    b, n = active.shape
     actions = masks.argmax(-1).astype(np.int64)
-    rows_b, rows_m = [], []
-    for w in np.flatnonzero(active.any(1)):
-        for label in np.unique(comp[w][active[w]]):
-            member = comp[w] == label
-            ids, act = np.flatnonzero(member), active[w][member]
-            chosen, _, _ = fast.decide(global_map[w][member], local_map[w][member], cls[w][member],
-                                       masks[w][member].astype(np.bool_), act)  # fmt: skip
-            actions[w, ids[act]] = chosen[act]
-            rows_b.append(w)
-            rows_m.append(member)
-    return actions, np.array(rows_b, np.int64), np.array(rows_m, np.bool_).reshape(-1, n)
+    b_of_row, member = active_neighbourhoods(active, comp)
+    for w, m in zip(b_of_row, member):
+        ids, act = np.flatnonzero(m), active[w][m]
+        chosen, _, _ = fast.decide(
+            global_map[w][m], local_map[w][m], cls[w][m], masks[w][m].astype(np.bool_), act
+        )
+        actions[w, ids[act]] = chosen[act]
+    return actions, b_of_row, member
 
 
 class AmatExecutor:

@@ -12,7 +12,14 @@ import numpy as np
 
 from catmip_rl.files import atomic_savefig
 
-__all__ = ["check_matplotlib", "plot_figure", "plot_paired", "plot_aggregate", "plot_profiles"]
+__all__ = [
+    "check_matplotlib",
+    "trailing_mean",
+    "plot_figure",
+    "plot_paired",
+    "plot_aggregate",
+    "plot_profiles",
+]
 
 
 def check_matplotlib() -> None:
@@ -22,6 +29,15 @@ def check_matplotlib() -> None:
         import matplotlib  # noqa: F401
     except ImportError as err:
         raise ImportError("the plots need matplotlib: pip install 'catmip[rl]'") from err
+
+
+def trailing_mean(values: np.ndarray, width: int) -> np.ndarray:
+    """The moving average of a learning curve: each point the mean of itself and up to ``width - 1``
+    points before it (the first points average what there is)."""
+    c = np.cumsum(np.insert(np.asarray(values, float), 0, 0.0))
+    end = np.arange(1, len(values) + 1)
+    start = np.maximum(0, end - width)
+    return (c[end] - c[start]) / (end - start)
 
 
 def _pyplot():

@@ -20,6 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
+from catmip_rl.evaluation.plots import trailing_mean
 from catmip_rl.files import atomic_savefig, atomic_write_csv
 
 PANELS = (
@@ -58,15 +59,6 @@ def read_points(name: str, run: Path) -> list[dict]:
     return points
 
 
-def smooth(x: np.ndarray, y: np.ndarray, width: int) -> tuple[np.ndarray, np.ndarray]:
-    """The points with a value, each the trailing mean of up to ``width`` of them."""
-    keep = ~np.isnan(y)
-    x, y = x[keep], y[keep]
-    c = np.cumsum(np.insert(y, 0, 0.0))
-    lo = np.maximum(0, np.arange(len(y)) + 1 - width)
-    return x, (c[1:] - c[lo]) / (np.arange(len(y)) + 1 - lo)
-
-
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("runs", nargs="+", help="NAME=RUN_DIR of catmip train runs")
@@ -91,7 +83,9 @@ def main() -> None:
         rows = [p for p in points if p["method"] == name]
         x = np.array([p["episodes"] for p in rows], float)
         for ax, (key, title) in zip(axes, PANELS):
-            sx, sy = smooth(x, np.array([p[key] for p in rows], float), args.smooth)
+            y = np.array([p[key] for p in rows], float)
+            keep = ~np.isnan(y)  # the points with a value
+            sx, sy = x[keep], trailing_mean(y[keep], args.smooth)
             ax.plot(sx, sy, color=plt.get_cmap("tab10")(k), lw=1.6, label=name)
             ax.set_title(title, fontsize=10)
     for ax in axes:

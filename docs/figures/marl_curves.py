@@ -19,6 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
+from catmip_rl.evaluation.plots import trailing_mean
 from catmip_rl.files import atomic_savefig, atomic_write_csv
 
 
@@ -32,16 +33,6 @@ def read_run(run_dir: Path) -> tuple[dict, list[dict]]:
     except (OSError, ValueError, KeyError) as err:
         sys.exit(f"error: {run_dir} is not a mappo_torchrl.py run folder ({type(err).__name__}: {err})")
     return config, rows
-
-
-def smooth(values: np.ndarray, width: int) -> np.ndarray:
-    """Trailing moving average (the first points average what there is)."""
-    cumsum = np.cumsum(np.insert(values, 0, 0.0))
-    out = np.empty(len(values))
-    for i in range(len(values)):
-        lo = max(0, i + 1 - width)
-        out[i] = (cumsum[i + 1] - cumsum[lo]) / (i + 1 - lo)
-    return out
 
 
 def main() -> None:
@@ -78,7 +69,7 @@ def main() -> None:
                 xs, ys = [], []
                 for rows in seeds:
                     x = np.cumsum([int(r["episodes"]) for r in rows])
-                    y = smooth(np.array([float(r[key]) for r in rows]), args.smooth)
+                    y = trailing_mean(np.array([float(r[key]) for r in rows]), args.smooth)
                     ax.plot(x, y, color=colours[algo], lw=0.6, alpha=0.45)
                     xs.append(x)
                     ys.append(y)
