@@ -43,8 +43,7 @@ from catmip_rl.amat.model import AMAT, decision_order
 from catmip_rl.training.allocator import keep_freed_memory
 from catmip_rl.training.gae import SampleBatch
 from catmip_rl.training.parallel_update import ParallelGradients
-from catmip_rl.training.ppo import loss_kwargs, make_optimizer, ppo_loss
-from catmip_rl.training.precision import native_bf16
+from catmip_rl.training.ppo import loss_kwargs, make_optimizer, native_bf16, ppo_loss
 from catmip_rl.training.presets import make_train_config
 
 TOKEN_INPUTS = ("global_map", "local_map", "agent_class")

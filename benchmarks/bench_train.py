@@ -24,7 +24,7 @@ from pathlib import Path
 import torch
 from common import write_json
 
-from catmip_rl.training.precision import native_bf16
+from catmip_rl.training.ppo import native_bf16
 from catmip_rl.training.presets import make_train_config
 from catmip_rl.training.train import build_run, ppo_iteration
 

@@ -24,7 +24,8 @@ from catmip_rl.files import atomic_write_text
 
 __all__ = [
     "save_model", "load_model", "atomic_torch_save", "read_checkpoint", "resolve_model", "shipped_models",
-    "CheckpointError", "SHIPPED_DIR", "resume_checkpoint", "initial_weights", "export_model", "model_from",
+    "CheckpointError", "SHIPPED_DIR", "resume_checkpoint", "initial_weights", "load_initial_weights",
+    "export_model", "model_from",
 ]  # fmt: skip
 
 FORMAT = "catmip-amat-v1"
@@ -217,15 +218,20 @@ def restore_training(
     optimizer: torch.optim.Optimizer,
     value_norm: torch.nn.Module,
     generator: torch.Generator,
-) -> tuple[int, int, float]:
+    precision: str,
+) -> tuple[int, int, float, bool | None]:
     """Load a checkpoint of :func:`save_training_checkpoint` into freshly built parts (and torch's
-    global RNG); returns (iteration, episodes, training seconds) to continue from."""
+    global RNG); returns (iteration, episodes, training seconds) to continue from, and the update's
+    precision the run chose (bf16 or not; None where the run's ``precision`` setting differs from
+    ``precision``: it is chosen again)."""
     model.load_state_dict(saved["model"])
     optimizer.load_state_dict(saved["optimizer"])
     value_norm.load_state_dict(saved["value_norm"])
     generator.set_state(saved["generator"])
     torch.set_rng_state(saved["torch_rng"])
-    return saved["iteration"], saved["episodes"], saved.get("elapsed_s", 0.0)
+    same_precision = json.loads(saved["config"]).get("precision", "fp32") == precision
+    bf16 = saved.get("bf16") if same_precision else None
+    return saved["iteration"], saved["episodes"], saved.get("elapsed_s", 0.0), bf16
 
 
 def _read_training_checkpoint(path: Path) -> dict:
@@ -309,6 +315,16 @@ def initial_weights(spec: str, config: AmatConfig) -> dict[str, Any]:
         "elapsed_min": None if own is None else _minutes_behind(own, state.get("init_from")),
     }
     return {"model": model.state_dict(), "value_norm": state.get("value_norm"), "source": source}
+
+
+def load_initial_weights(spec: str, model: AMAT, value_norm: torch.nn.Module) -> dict[str, Any]:
+    """Load :func:`initial_weights` ``spec`` into a new run's ``model`` (and ``value_norm`` where the
+    file has one); returns where they came from (its ``source``)."""
+    init = initial_weights(spec, model.config)
+    model.load_state_dict(init["model"])
+    if init["value_norm"] is not None:
+        value_norm.load_state_dict(init["value_norm"])
+    return init["source"]
 
 
 def export_model(source: str | Path, out: str | Path) -> tuple[Path, dict[str, Any]]:

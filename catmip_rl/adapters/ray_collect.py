@@ -184,6 +184,7 @@ class RayRolloutCollector:
 
         self.cfg = cfg
         self.workers = cfg.ray_workers
+        self.num_worlds = cfg.num_worlds  # episodes a collect() call plays, as Collector.num_worlds
         self.model = model
         on_cpu = all(p.device.type == "cpu" for p in model.parameters())
         self._mirror = model if on_cpu else copy.deepcopy(model).cpu()

@@ -7,7 +7,7 @@
 * ``ppo`` — the clipped loss and the update: epochs over minibatches, step control, the LR schedule;
 * ``parallel_update`` — the update's gradients computed by several CPU processes;
 * ``imitation`` — the DAgger warm start from a planner;
-* ``precision``, ``allocator`` — the CPU's bf16 check, and malloc tuning for the update's activations;
+* ``allocator`` — malloc tuning for the update's activations;
 * ``run_dir`` — one writer per run folder, the checks before a run starts;
 * ``train`` — builds the parts, then runs the loop (logs, evaluation, checkpoints).
 """

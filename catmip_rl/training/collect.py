@@ -105,6 +105,11 @@ class Collector:
         self._label = np.zeros((t, b, n), np.int64)
         self.tracker = DecisionTracker(b, n)
 
+    @property
+    def num_worlds(self) -> int:
+        """Episodes a :meth:`collect` call plays (one per world)."""
+        return self.engine.num_worlds
+
     @torch.no_grad()
     def collect(
         self,

@@ -17,7 +17,6 @@ from catmip_env import EnvConfig, make_config
 from catmip_env.fields import BOOL, INT, NUMBER, STR, Rule, check, is_str
 from catmip_env.planners import PLANNERS
 from catmip_rl.amat.model import AmatConfig
-from catmip_rl.training.precision import PRECISIONS
 
 __all__ = ["TrainConfig", "check_field", "field_docs"]
 
@@ -36,6 +35,8 @@ _TYPES: dict[str, Rule] = {
     ),
 }
 # and each numeric field's range (seeds: torch's generators take 64-bit seeds)
+PRECISIONS = ("fp32", "bf16", "auto")  # TrainConfig.precision (training.ppo resolves it)
+
 _RANGES: dict[str, tuple[str, Callable[[Any], bool]]] = {
     **dict.fromkeys(("num_worlds", "iterations", "epochs", "minibatches", "threads", "update_processes",
                      "eval_episodes", "warm_start_rounds", "warm_start_steps", "warm_start_batch",
@@ -164,7 +165,7 @@ class TrainConfig:
     """torch CPU threads."""
     precision: str = "fp32"
     """PPO update precision: "fp32", "bf16" (bfloat16 autocast) or "auto" (bf16 where the CPU has it
-    natively, catmip_rl.training.precision; else fp32)."""
+    natively, training.ppo.choose_bf16; else fp32)."""
     update_processes: int = 1
     """Processes computing the PPO update's gradients (CPU): 1 = this one, on ``threads`` threads; n > 1 =
     this one and n - 1 helpers, one thread each, sharing every minibatch's micro-batches (data parallel,

@@ -160,7 +160,7 @@ def dagger(
             rollout = col.collect(
                 model, episodes, gen, deterministic=deterministic, labeler=label_teacher, teacher_prob=beta
             )
-            episodes += col.engine.num_worlds
+            episodes += col.num_worlds
             buffer.add(rollout)
             stats.append(rollout.stats)
         t1 = time.perf_counter()

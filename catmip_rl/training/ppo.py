@@ -10,25 +10,35 @@
   exceeds ``cfg.target_kl``;
 * :func:`make_optimizer`, :func:`loss_kwargs`, :func:`lr_factor` — the optimiser, the loss's settings
   and the learning-rate schedule from a :class:`~catmip_rl.training.config.TrainConfig`;
-  :func:`choose_bf16` — the update's precision, "auto" measured on a PPO step (``precision``).
+  :func:`choose_bf16` — the update's precision (below).
+
+Precision on CPU: float32, or bfloat16 autocast where the CPU has it natively. On CPUs with native bf16
+instructions (AVX-512 BF16, AMX) a training step under bf16 autocast measured 1.6x the float32
+throughput; on AVX2-only CPUs torch emulates bf16 and the same step ran 14x slower (docs/benchmarks.md).
+Native bf16 is not enough either: a Task-1 update (d = 64) stopped early by the KL target, on
+minibatches of a few hundred events, ran only ~4 % faster in bf16. ``precision="auto"`` therefore
+measures both on the run's first batch where the CPU reports native bf16 and takes bf16 only if it is
+at least 10 % faster (:func:`choose_bf16`). Parameters, optimiser state, losses and the sparse global
+convolution stay float32 either way.
 """
 
 from __future__ import annotations
 
+import platform
 import time
+from functools import cache
 from typing import Any
 
 import torch
 import torch.nn.functional as F
 
 from catmip_rl.amat.model import AMAT
-from catmip_rl.training import precision
-from catmip_rl.training.config import TrainConfig
+from catmip_rl.training.config import PRECISIONS, TrainConfig
 from catmip_rl.training.gae import SampleBatch
 
 __all__ = [
     "ppo_loss", "accumulate_gradients", "make_optimizer", "loss_kwargs", "ppo_update", "lr_factor",
-    "measure_bf16", "choose_bf16",
+    "measure_bf16", "choose_bf16", "native_bf16", "use_bf16",
 ]  # fmt: skip
 
 
@@ -99,7 +109,7 @@ def accumulate_gradients(
     """Backward of ``ppo_loss`` over the micro-batches ``parts`` (index tensors into ``batch``), each
     averaged with the minibatch's ``count``, into the model's .grad (added to what is there); returns
     the loss parts summed over the micro-batches. ``bf16`` runs the forward under bfloat16 autocast
-    (``catmip_rl.training.precision``)."""
+    (module docstring: precision)."""
     sums: dict[str, float] = {}
     device = batch.action.device.type
     for part in parts:
@@ -123,7 +133,7 @@ def loss_kwargs(cfg: TrainConfig, bf16: bool | None = None) -> dict[str, float]:
     return {
         "clip": cfg.clip, "value_clip": cfg.value_clip, "huber_delta": cfg.huber_delta,
         "entropy_coef": cfg.entropy_coef, "value_coef": cfg.value_coef, "rescue_coef": cfg.rescue_coef,
-        "bf16": precision.use_bf16(cfg.precision, cfg.device) if bf16 is None else bf16,
+        "bf16": use_bf16(cfg.precision, cfg.device) if bf16 is None else bf16,
     }  # fmt: skip
 
 
@@ -224,9 +234,35 @@ def choose_bf16(setting: str, device: str, model, batch, loss_kwargs: dict, even
     """(bf16 or not, what decided it) for ``TrainConfig.precision`` ``setting``: "auto" on a CPU with
     native bf16 measures both on this batch and takes bf16 only if it is at least 10 % faster;
     everything else as ``precision.use_bf16``."""
-    native = precision.native_bf16()
+    native = native_bf16()
     if setting != "auto" or not device.startswith("cpu") or not native:
-        return precision.use_bf16(setting, device), {"precision": setting, "native_bf16": native}
+        return use_bf16(setting, device), {"precision": setting, "native_bf16": native}
     timing = measure_bf16(model, batch, loss_kwargs, events)
     bf16 = timing["bf16_s"] < 0.9 * timing["fp32_s"]
     return bf16, {"precision": setting, "native_bf16": True, **timing, "bf16": bf16}
+
+
+_NATIVE_FLAGS = ("avx512_bf16", "amx_bf16")
+
+
+@cache
+def native_bf16() -> bool:
+    """Whether this CPU executes bf16 natively (Linux: an ``avx512_bf16`` or ``amx_bf16`` flag in
+    /proc/cpuinfo; elsewhere False)."""
+    if platform.system() != "Linux":
+        return False
+    try:
+        with open("/proc/cpuinfo") as f:
+            flags = next((line for line in f if line.startswith("flags")), "")
+    except OSError:
+        return False
+    return any(flag in flags.split() for flag in _NATIVE_FLAGS)
+
+
+def use_bf16(precision: str, device: str) -> bool:
+    """Resolve a ``TrainConfig.precision`` for ``device`` by the CPU's flags: bf16 autocast or not."""
+    if precision not in PRECISIONS:
+        raise ValueError(f"precision must be one of {list(PRECISIONS)}, got {precision!r}")
+    if not device.startswith("cpu"):
+        return precision == "bf16"
+    return precision == "bf16" or (precision == "auto" and native_bf16())

@@ -20,14 +20,15 @@ from __future__ import annotations
 import json
 import math
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import torch
 
+from catmip_env.config import EnvConfig
 from catmip_rl.amat.model import AMAT
-from catmip_rl.checkpoint import initial_weights, restore_training, save_training_checkpoint
+from catmip_rl.checkpoint import load_initial_weights, restore_training, save_training_checkpoint
 from catmip_rl.files import atomic_write_text, open_csv_log, write_csv_row
 from catmip_rl.training.allocator import keep_freed_memory
 from catmip_rl.training.collect import Collector, Rollout
@@ -44,7 +45,10 @@ from catmip_rl.training.run_dir import (
     tensorboard_writer,
 )
 
-__all__ = ["train", "evaluate_policy", "Run", "build_run", "ppo_iteration", "METRICS", "EPOCH_METRICS"]
+__all__ = [
+    "train", "evaluate_policy", "Run", "build_run", "make_collectors", "ppo_iteration",
+    "METRICS", "EPOCH_METRICS",
+]  # fmt: skip
 
 METRICS = [
     "iteration", "episodes", "samples",
@@ -68,16 +72,12 @@ EPOCH_METRICS = ["iteration", "epoch", "loss/policy", "loss/value", "loss/entrop
 
 
 @torch.no_grad()
-def evaluate_policy(
-    model: AMAT, cfg: TrainConfig, device: torch.device, collector: Collector | None = None
-) -> dict[str, float]:
-    """Episodes of the training task with evaluation activation on a fixed map set: argmax actions
-    (the paper's protocol; success, ticks, decisions, stalls) and sampled actions (``sampled_*``, from
-    a generator seeded by ``cfg.eval_seed``). Pass the ``collector`` of a previous call to reuse it."""
-    if collector is None:
-        collector = Collector(cfg.eval_env_config(), cfg.eval_episodes, cfg.eval_seed, cfg.gamma, str(device))
+def evaluate_policy(model: AMAT, collector: Collector, seed: int) -> dict[str, float]:
+    """Episodes of ``collector`` (``make_collectors``' evaluator: the training task with evaluation
+    activation on a fixed map set): argmax actions (the paper's protocol; success, ticks, decisions,
+    stalls) and sampled actions (``sampled_*``, from a generator seeded by ``seed``)."""
     out = dict(collector.collect(model, first_episode=0, deterministic=True).stats)
-    gen = torch.Generator(device=device).manual_seed(cfg.eval_seed)
+    gen = torch.Generator(device=collector.device).manual_seed(seed)
     sampled = collector.collect(model, first_episode=0, generator=gen).stats
     out |= {f"sampled_{k}": sampled[k] for k in ("success_rate", "success_by_100")}
     return out
@@ -93,8 +93,6 @@ class Run:
     opt: torch.optim.Optimizer
     value_norm: ValueNorm
     gen: torch.Generator
-    collector: Any  # Collector, or adapters.ray_collect.RayRolloutCollector
-    evaluator: Collector | None
     iteration: int = 0
     episodes: int = 0
     elapsed: float = 0.0  # seconds of training so far (evaluation excluded): the time budget's clock
@@ -102,11 +100,15 @@ class Run:
     parallel: ParallelGradients | None = None  # the update's helper processes, started on the first batch
     init_source: dict | None = None  # where a new run's initial weights came from (init_from)
     rescue_labeler: RescueLabeler | None = None  # labels for the auxiliary rescue loss (cfg.rescue_coef)
-    worlds: list[Collector] | None = None  # a mixture of worlds (cfg.worlds): one each; collector = worlds[0]
+    # make_collectors: the training worlds, taking turns (Collectors, or one Ray collector); the warm
+    # start's (none without one, or on resume); the evaluator (None without evaluation)
+    collectors: list[Any] = field(default_factory=list)
+    dagger: list[Collector] = field(default_factory=list)
+    evaluator: Collector | None = None
 
     def collector_for(self, iteration: int):
-        """The collector of PPO iteration ``iteration`` (1, 2, ...): the mixture's worlds take turns."""
-        return self.collector if self.worlds is None else self.worlds[(iteration - 1) % len(self.worlds)]
+        """The collector of PPO iteration ``iteration`` (1, 2, ...): a mixture's worlds take turns."""
+        return self.collectors[(iteration - 1) % len(self.collectors)]
 
     def save(self, path: Path) -> None:
         save_training_checkpoint(
@@ -117,7 +119,7 @@ class Run:
 
     def close(self) -> None:
         if self.cfg.collector == "ray":
-            self.collector.close()  # stops the workers, and Ray if this run started it
+            self.collectors[0].close()  # stops the workers, and Ray if this run started it
         if self.parallel is not None:
             self.parallel.close()
 
@@ -130,49 +132,46 @@ def build_run(cfg: TrainConfig, saved: dict | None = None) -> Run:
     device = torch.device(cfg.device)
     torch.manual_seed(cfg.seed)
     gen = torch.Generator().manual_seed(cfg.seed)
-    model = AMAT(cfg.amat_config()).to(device)
-    evaluator = None
-    if cfg.eval_every:
-        evaluator = Collector(cfg.eval_env_config(), cfg.eval_episodes, cfg.eval_seed, cfg.gamma, str(device))
-    run = Run(cfg, device, model, make_optimizer(model, cfg), ValueNorm().to(device), gen, None, evaluator)
+    amat_config = cfg.amat_config()
+    model = AMAT(amat_config).to(device)
+    run = Run(cfg, device, model, make_optimizer(model, cfg), ValueNorm().to(device), gen)
     if saved is not None:
-        run.iteration, run.episodes, run.elapsed = restore_training(
-            saved, model, run.opt, run.value_norm, gen
+        run.iteration, run.episodes, run.elapsed, run.bf16 = restore_training(
+            saved, model, run.opt, run.value_norm, gen, cfg.precision
         )
-        same_precision = TrainConfig.from_json(saved["config"]).precision == cfg.precision
-        run.bf16 = saved.get("bf16") if same_precision else None
     elif cfg.init_from:
-        init = initial_weights(cfg.init_from, cfg.amat_config())
-        model.load_state_dict(init["model"])
-        if init["value_norm"] is not None:
-            run.value_norm.load_state_dict(init["value_norm"])
-        run.init_source = init["source"]
-    if cfg.collector == "ray":  # the same episodes, collected by Ray workers (adapters/ray_collect.py)
-        from catmip_rl.adapters.ray_collect import RayRolloutCollector
-
-        run.collector = RayRolloutCollector(cfg, model)
-    elif cfg.worlds:
-        run.worlds = [Collector(env, n, cfg.seed, cfg.gamma, str(device)) for env, n in cfg.world_configs()]
-        run.collector = run.worlds[0]
-    else:
-        run.collector = Collector(cfg.env_config(), cfg.num_worlds, cfg.seed, cfg.gamma, str(device))
+        run.init_source = load_initial_weights(cfg.init_from, model, run.value_norm)
+    run.collectors, run.dagger, run.evaluator = make_collectors(cfg, model, device, resume=saved is not None)
     if cfg.rescue_coef > 0:
         run.rescue_labeler = RescueLabeler(follow_heading=cfg.rescue_heading)
     return run
 
 
-def dagger_collectors(run: Run) -> list[Collector]:
-    """The collectors of the warm start's DAgger rounds: each training world's (one, or the mixture's),
-    with ``warm_start_worlds`` episodes a round where that is set (PPO's own collectors otherwise)."""
-    cfg = run.cfg
-    own = run.worlds if run.worlds is not None else [run.collector]
-    if not cfg.warm_start_worlds:
-        return own
-    return [
-        c if c.engine.num_worlds == cfg.warm_start_worlds
-        else Collector(c.engine.cfg, cfg.warm_start_worlds, cfg.seed, cfg.gamma, str(run.device))
-        for c in own
-    ]  # fmt: skip
+def make_collectors(
+    cfg: TrainConfig, model: AMAT, device: torch.device, resume: bool = False
+) -> tuple[list[Any], list[Collector], Collector | None]:
+    """A run's collectors: (the training worlds, which take turns: one, or the mixture's ``cfg.worlds``;
+    the warm start's, with ``warm_start_worlds`` episodes a round where that is set, else the training
+    worlds themselves (none on ``resume``); the evaluator, ``cfg.eval_episodes`` of the training task
+    with evaluation activation, or None)."""
+
+    def new(env: EnvConfig, n: int, seed: int = cfg.seed) -> Collector:
+        return Collector(env, n, seed, cfg.gamma, str(device))
+
+    specs = cfg.world_configs()
+    if cfg.collector == "ray":  # the same episodes, collected by Ray workers (adapters/ray_collect.py)
+        from catmip_rl.adapters.ray_collect import RayRolloutCollector
+
+        train_worlds = [RayRolloutCollector(cfg, model)]
+    else:
+        train_worlds = [new(env, n) for env, n in specs]
+    dagger = []
+    if cfg.warm_start and not resume:
+        n = cfg.warm_start_worlds
+        own = zip(train_worlds, specs)
+        dagger = train_worlds if not n else [c if c.num_worlds == n else new(env, n) for c, (env, _) in own]
+    evaluator = new(cfg.eval_env_config(), cfg.eval_episodes, cfg.eval_seed) if cfg.eval_every else None
+    return train_worlds, dagger, evaluator
 
 
 def ppo_iteration(run: Run, run_dir: Path) -> tuple[dict[str, float], list[dict[str, float]], Rollout]:
@@ -181,14 +180,12 @@ def ppo_iteration(run: Run, run_dir: Path) -> tuple[dict[str, float], list[dict[
     rollout it trained on."""
     cfg, it = run.cfg, run.iteration + 1
     t0 = time.perf_counter()
-    for group in run.opt.param_groups:
-        group["lr"] = cfg.lr * lr_factor(it, cfg, run.elapsed)
     collector = run.collector_for(it)
     rollout = collector.collect(
         run.model, first_episode=run.episodes, generator=run.gen,
         **({"labeler": run.rescue_labeler} if run.rescue_labeler is not None else {}),
     )  # fmt: skip
-    run.episodes += cfg.num_worlds if run.worlds is None else collector.engine.num_worlds
+    run.episodes += collector.num_worlds
     t1 = time.perf_counter()
     n_classes = cfg.env_config().num_classes
     batch, info = build_batch(rollout, run.value_norm, cfg.gamma, cfg.lam, n_classes, run.device)
@@ -200,6 +197,8 @@ def ppo_iteration(run: Run, run_dir: Path) -> tuple[dict[str, float], list[dict[
         atomic_write_text(run_dir / "precision.json", json.dumps(decision, indent=2))
     if run.parallel is None and cfg.update_processes > 1:  # data-parallel gradients (parallel_update.py)
         run.parallel = ParallelGradients(run.model, cfg.update_processes, **loss_kwargs(cfg, run.bf16))
+    for group in run.opt.param_groups:
+        group["lr"] = cfg.lr * lr_factor(it, cfg, run.elapsed)
     epochs: list[dict[str, float]] = []
     value_only = it <= cfg.value_warmup_iterations
     stats = ppo_update(run.model, run.opt, batch, cfg, run.gen, run.parallel, epochs, value_only, run.bf16)
@@ -210,8 +209,8 @@ def ppo_iteration(run: Run, run_dir: Path) -> tuple[dict[str, float], list[dict[
     run.iteration = it
     row = {"iteration": it, "episodes": run.episodes, **info, **stats}
     row |= {f"rollout/{k}": v for k, v in rollout.stats.items() if f"rollout/{k}" in METRICS}
-    if run.worlds is not None:
-        row["rollout/world"] = (it - 1) % len(run.worlds)
+    if cfg.worlds:
+        row["rollout/world"] = (it - 1) % len(run.collectors)
     row |= {"time/collect_s": t1 - t0, "time/advantage_s": t2 - t1, "time/update_s": t3 - t2}
     row["time/elapsed_min"] = run.elapsed / 60.0
     return row, epochs, rollout
@@ -245,7 +244,7 @@ def train(cfg: TrainConfig, run_dir: str | Path, resume: bool = False, progress:
                     tb.add_scalar(k, v, step)
 
     def evaluate() -> dict[str, float]:
-        return evaluate_policy(run.model, cfg, run.device, run.evaluator)
+        return evaluate_policy(run.model, run.evaluator, cfg.eval_seed)
 
     try:
         run_dir.mkdir(parents=True, exist_ok=True)
@@ -261,11 +260,10 @@ def train(cfg: TrainConfig, run_dir: str | Path, resume: bool = False, progress:
         # (every checkpoint, iter_000000.pt included, is written after it: a resumed run never repeats it)
         if cfg.warm_start and not resume:
             evaluate_now = evaluate if run.evaluator else None
-            collectors = dagger_collectors(run)
             run.elapsed = warm_start(
-                cfg, run.model, collectors, run.gen, run_dir, progress, evaluate_now, log_scalars
+                cfg, run.model, run.dagger, run.gen, run_dir, progress, evaluate_now, log_scalars
             )
-            per_round = sum(c.engine.num_worlds for c in collectors)
+            per_round = sum(c.num_worlds for c in run.dagger)
             run.episodes = cfg.warm_start_rounds * per_round  # PPO's episodes follow the warm start's maps
             save(0)
         bar = None

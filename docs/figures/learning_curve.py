@@ -29,7 +29,7 @@ from catmip_env.play import episode_metrics, play
 from catmip_rl.cli.args import parse_set
 from catmip_rl.files import atomic_savefig, atomic_write_csv, atomic_write_text
 from catmip_rl.training.config import TrainConfig
-from catmip_rl.training.precision import native_bf16
+from catmip_rl.training.ppo import native_bf16
 from catmip_rl.training.presets import make_train_config
 
 PLANNER_LINES = ("nearest", "rrt", "random-rescue", "random-uniform")

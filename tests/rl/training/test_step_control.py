@@ -94,13 +94,13 @@ def test_bad_step_control_values_are_refused():
 
 
 def test_precision_auto_follows_the_cpu_and_bf16_reaches_every_gradient(monkeypatch):
-    from catmip_rl.training import precision
+    from catmip_rl.training import ppo
 
-    monkeypatch.setattr(precision, "native_bf16", lambda: True)
-    assert precision.use_bf16("auto", "cpu") and not precision.use_bf16("fp32", "cpu")
-    monkeypatch.setattr(precision, "native_bf16", lambda: False)
-    assert not precision.use_bf16("auto", "cpu") and precision.use_bf16("bf16", "cpu")
-    assert not precision.use_bf16("auto", "cuda")
+    monkeypatch.setattr(ppo, "native_bf16", lambda: True)
+    assert ppo.use_bf16("auto", "cpu") and not ppo.use_bf16("fp32", "cpu")
+    monkeypatch.setattr(ppo, "native_bf16", lambda: False)
+    assert not ppo.use_bf16("auto", "cpu") and ppo.use_bf16("bf16", "cpu")
+    assert not ppo.use_bf16("auto", "cuda")
     with pytest.raises(ValueError, match="precision"):
         make_train_config("tiny", precision="fp16")
     cfg = make_train_config("paper", amat={"embed_dim": 32}, epochs=1, minibatches=1, lr=1e-3)
@@ -116,7 +116,7 @@ def test_precision_auto_follows_the_cpu_and_bf16_reaches_every_gradient(monkeypa
 def test_auto_precision_measures_and_takes_bf16_only_when_clearly_faster(monkeypatch, tmp_path):
     import json
 
-    from catmip_rl.training import ppo, precision
+    from catmip_rl.training import ppo
     from catmip_rl.training.train import train
 
     model = shaken_model(AmatConfig(embed_dim=32)).train()
@@ -125,7 +125,7 @@ def test_auto_precision_measures_and_takes_bf16_only_when_clearly_faster(monkeyp
     timing = ppo.measure_bf16(model, batch, kw, events=8, repeats=1)
     assert timing["fp32_s"] > 0 and timing["bf16_s"] > 0
     assert all(p.grad is None for p in model.parameters())
-    monkeypatch.setattr(precision, "native_bf16", lambda: True)
+    monkeypatch.setattr(ppo, "native_bf16", lambda: True)
     for fp32_s, bf16_s, expected in ((1.0, 0.5, True), (1.0, 0.95, False)):
         monkeypatch.setattr(ppo, "measure_bf16", lambda *a, t=(fp32_s, bf16_s), **k: dict(
             fp32_s=t[0], bf16_s=t[1]))  # fmt: skip
@@ -143,10 +143,10 @@ def test_auto_precision_measures_and_takes_bf16_only_when_clearly_faster(monkeyp
 def test_a_resumed_run_keeps_the_precision_auto_chose(monkeypatch, tmp_path):
     import json
 
-    from catmip_rl.training import ppo, precision
+    from catmip_rl.training import ppo
     from catmip_rl.training.train import train
 
-    monkeypatch.setattr(precision, "native_bf16", lambda: True)
+    monkeypatch.setattr(ppo, "native_bf16", lambda: True)
     monkeypatch.setattr(ppo, "measure_bf16", lambda *a, **k: {"fp32_s": 1.0, "bf16_s": 0.5})
     cfg = make_train_config("tiny", precision="auto", iterations=1, eval_every=0)
     train(cfg, tmp_path / "r", progress=False)
