@@ -11,6 +11,7 @@ import numpy as np
 
 from catmip_env import EnvConfig
 from catmip_env.events import EventEngine, random_valid_actions
+from catmip_env.files import atomic_path
 
 
 def cpu_times() -> tuple[int, int] | None:
@@ -62,12 +63,10 @@ def steal_percent(before: tuple[int, int] | None, after: tuple[int, int] | None)
 
 
 def write_json(path: str | Path, results: Any) -> Path:
-    """Write results as JSON atomically (temporary file, then rename) and say where."""
+    """Write results as JSON atomically (``catmip_env.files.atomic_path``) and say where."""
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_suffix(".tmp")
-    tmp.write_text(json.dumps(results, indent=2))
-    tmp.replace(path)
+    with atomic_path(path) as tmp:
+        tmp.write_text(json.dumps(results, indent=2))
     print(f"wrote {path}")
     return path
 

@@ -23,6 +23,7 @@ BENCHES = (
     Bench("amat", "bench_amat.py", ("--repeats", "30", "--train-steps", "3", "--bf16-steps", "1"), False),
     Bench("train", "bench_train.py", ("--iterations", "2", "--epochs", "2"), False),
     Bench("scaling", "bench_scaling.py", ("--seconds", "0.5"), True),
+    Bench("executor", "bench_executor.py", ("--events", "6"), False),
 )
 NAMES = tuple(b.name for b in BENCHES)
 

@@ -26,6 +26,7 @@ TITLES = {
     "amat": "AMAT (`bench_amat.py`)",
     "train": "Training iterations (`bench_train.py`, 2 threads)",
     "scaling": "Scaling (`bench_scaling.py`, 1 thread, B = 64 for the engines)",
+    "executor": "Evaluation decisions (`bench_executor.py`, 1 thread)",
 }
 
 

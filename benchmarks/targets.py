@@ -192,6 +192,20 @@ def train_checks(d: dict) -> list[Check]:
     return out
 
 
+def executor_checks(d: dict) -> list[Check]:
+    """AmatExecutor's default (FastAmat per neighbourhood) against its torch batch: the same actions
+    (every one) and no slower (the ratio torch / FastAmat per event, >= 1)."""
+    out = []
+    for r in d.get("results", []):
+        where = f"{r['setting']}, {r['worlds']} worlds"
+        note = f"FastAmat {r['fast_ms']:.1f} ms vs torch {r['torch_ms']:.1f} ms per event"
+        out.append(Check("executor", f"eval decisions, torch / FastAmat per event, {where}",
+                         r["torch_over_fast"], "x", 1.0, note=note))  # fmt: skip
+        out.append(Check("executor", f"eval decisions, same actions as torch, {where}",
+                         r["same_actions"], "decisions", r["decisions"]))  # fmt: skip
+    return out
+
+
 def all_checks(results: dict[str, dict]) -> list[Check]:
     out: list[Check] = []
     if "engine" in results:
@@ -202,4 +216,6 @@ def all_checks(results: dict[str, dict]) -> list[Check]:
         out += amat_checks(results["amat"], results.get("scaling"))
     if "train" in results:
         out += train_checks(results["train"])
+    if "executor" in results:
+        out += executor_checks(results["executor"])
     return out

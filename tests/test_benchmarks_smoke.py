@@ -95,6 +95,21 @@ def test_paper_targets_not_judged_on_other_world_counts(run_all, tmp_path):
     assert status["collection of 64 episodes"] == "n/a"
 
 
+def test_executor_checks_need_every_action_the_same_and_no_slowdown(run_all, tmp_path):
+    row = {"setting": "task2-full", "worlds": 64, "events": 5, "fast_ms": 40.0, "torch_ms": 60.0}
+    rows = [
+        row | {"torch_over_fast": 1.5, "decisions": 300, "same_actions": 300},
+        row | {"setting": "task3-full", "torch_over_fast": 0.9, "decisions": 200, "same_actions": 199},
+    ]
+    _write(tmp_path, executor={"machine": {}, "results": rows})  # fmt: skip
+    run_all.write_summary(tmp_path, {})
+    status = _status(tmp_path)
+    assert status["eval decisions, torch / FastAmat per event, task2-full, 64 worlds"] == "met"
+    assert status["eval decisions, same actions as torch, task2-full, 64 worlds"] == "met"
+    assert status["eval decisions, torch / FastAmat per event, task3-full, 64 worlds"] == "**unmet**"
+    assert status["eval decisions, same actions as torch, task3-full, 64 worlds"] == "**unmet**"
+
+
 @pytest.mark.slow
 def test_run_all_runs_every_benchmark(tmp_path):
     """Every benchmark script for real in its smallest setting, one subprocess each: all exit 0, every
@@ -102,13 +117,15 @@ def test_run_all_runs_every_benchmark(tmp_path):
     tiny = ["--seconds", "0.05", "--pass", "scaling=--maps 15 20 --teams 2 3",
             "--pass", "amat=--repeats 3 --train-steps 1 --bf16-steps 1",
             "--pass", "train=--iterations 1 --epochs 2 --worlds 8",
-            "--pass", "events=--decisions 10"]  # fmt: skip
+            "--pass", "events=--decisions 10", "--pass", "executor=--events 2"]  # fmt: skip
     cmd = [sys.executable, str(BENCH / "run_all.py"), "--quick", "--out-dir", str(tmp_path), *tiny]
     proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=900)
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
-    for name in ("engine", "events", "amat", "train", "scaling"):
+    for name in ("engine", "events", "amat", "train", "scaling", "executor"):
         data = json.loads((tmp_path / f"{name}.json").read_text())
         assert data["machine"]["cpu_capability"] and isinstance(data["machine"]["native_bf16"], bool), name
+    for row in json.loads((tmp_path / "executor.json").read_text())["results"]:
+        assert row["same_actions"] == row["decisions"] > 0, row  # FastAmat decides as the torch batch
     data = json.loads((tmp_path / "scaling.json").read_text())
     assert [r["map"] for r in data["curves"]["map_size"]] == [15, 20]
     assert [r["robots"] for r in data["curves"]["team_size"]] == [2, 3]

@@ -203,10 +203,10 @@ class AmatExecutor:
     centralised one exactly.
 
     Argmax decisions of a model on the CPU run on the batch-1 runtime (``FastAmat``, a snapshot of the
-    weights taken here), one neighbourhood at a time as a coordinator would: the same actions, 1.1-4x
-    faster per event than the padded torch batch (measured on 64 Task-2 / 32 Task-3 worlds, one thread;
-    docs/amat.md). ``fast=False``, sampled actions and a GPU model use the torch batch. The snapshot is
-    not updated: build a new executor after the model changes.
+    weights taken here), one neighbourhood at a time as a coordinator would: the same actions, 1.3-4x
+    faster per event than the padded torch batch (``benchmarks/bench_executor.py``: 64 Task-2 / 32
+    Task-3 worlds, one thread). ``fast=False``, sampled actions and a GPU model use the torch batch.
+    The snapshot is not updated: build a new executor after the model changes.
     """
 
     def __init__(
