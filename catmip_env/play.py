@@ -25,6 +25,7 @@ from catmip_env.events import EventEngine
 
 __all__ = [
     "Policy",
+    "WorldNotSupported",
     "EpisodeRecords",
     "episode_records",
     "play",
@@ -39,6 +40,12 @@ class Policy(Protocol):
 
     def act(self, engine: EventEngine) -> np.ndarray:  # (B, N) int goal actions
         ...
+
+
+class WorldNotSupported(ValueError):
+    """Raised by a policy (or its factory) built for other worlds than the one it is asked to play: e.g.
+    a network whose input size is one map size. ``catmip bench paper`` then leaves that method out of
+    that panel and says so; a single evaluation (``catmip eval``) reports it as an error."""
 
 
 @dataclass(frozen=True)

@@ -36,6 +36,7 @@ from torchrl.objectives.value.functional import vec_generalized_advantage_estima
 
 from catmip_env.config import EnvConfig
 from catmip_env.files import atomic_path
+from catmip_env.play import WorldNotSupported
 from catmip_rl.adapters import keys as K
 from catmip_rl.adapters.torchrl_policy import TorchRLPolicy
 from catmip_rl.files import atomic_write_text
@@ -252,7 +253,8 @@ def save_policy(actor: ProbabilisticActor, cfg: EnvConfig, folder: str | Path, i
 
 def load_policy(path: str | Path, env_config: EnvConfig, deterministic: bool = True) -> TorchRLPolicy:
     """The saved actor as an engine-level policy for ``env_config`` (argmax by default); a ValueError
-    naming the file when it is unreadable or was trained for other shapes."""
+    naming the file when it is unreadable, :class:`~catmip_env.play.WorldNotSupported` (a ValueError)
+    when it was trained for other shapes (another map size or team)."""
     path = Path(path)
     try:
         meta = json.loads(path.with_suffix(".json").read_text())
@@ -263,7 +265,7 @@ def load_policy(path: str | Path, env_config: EnvConfig, deterministic: bool = T
         raise ValueError(f"{path.with_suffix('.json')} is not a {FORMAT} policy file")
     want = _shapes(env_config)
     if meta["shapes"] != want:
-        raise ValueError(
+        raise WorldNotSupported(
             f"{path} was trained for {meta['shapes']}, this setting needs {want}: train on its task"
         )
     actor = make_actor(env_config, hidden=meta.get("hidden", 128))

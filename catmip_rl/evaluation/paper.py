@@ -25,6 +25,7 @@ from typing import Any
 
 import numpy as np
 
+from catmip_env.play import WorldNotSupported
 from catmip_rl.checkpoint import load_model
 from catmip_rl.evaluation.compare import success_interval
 from catmip_rl.evaluation.evaluate import EvalSetting, evaluate, progress_bar
@@ -105,9 +106,11 @@ def run_figure(
 ) -> Path:
     """Run every (panel, method) of ``figure``; returns the figure's folder. A method given as
     ``NAME=SPEC,SPEC,...`` has several training runs (:func:`parse_runs`): each plays the same maps (in
-    ``LABEL/NAME/runK/``) and the figure shows their mean, with a 95 % CI over runs and maps. Bad
-    arguments (figure, methods, an unreadable AMAT checkpoint, episodes, seed, jobs) raise before any run
-    starts."""
+    ``LABEL/NAME/runK/``) and the figure shows their mean, with a 95 % CI over runs and maps. A ``py:``
+    policy that cannot play a panel's world (``WorldNotSupported``) is left out of that panel: a method
+    plays each panel with those of its runs that can, and one none of whose runs can is listed as not
+    played in ``summary.md``. Bad arguments (figure, methods, an unreadable AMAT checkpoint, a broken
+    policy, episodes, seed, jobs) raise before any run starts."""
     check_matplotlib()  # fail now rather than after the evaluations
     panels = figure_settings(figure)
     groups: list[list[Method]] = [parse_runs(m) for m in (methods or DEFAULT_METHODS)]
@@ -117,23 +120,22 @@ def run_figure(
     for what, value, low in (("episodes", episodes, 1), ("seed", seed, 0), ("jobs", jobs, 1)):
         if not isinstance(value, int) or value < low:
             raise ValueError(f"{what} must be an int >= {low}, got {value!r}")
-    for m in (m for runs in groups for m in runs):  # an unreadable checkpoint or a broken policy fails here
-        if m.kind == "amat":
-            load_model(m.target)
-        elif m.kind == "py":
-            make_policy(m, panels[0][1].env_config(), seed)
+    plays, not_played = _check_methods(groups, panels, seed)  # a broken checkpoint or policy fails here
     fig_dir = Path(out) / f"fig{figure}"
     threads = 1 if jobs > 1 else 2
     tasks = [
         (m, st, episodes, seed, str(_run_dir(fig_dir / st.label / m.name, k, len(runs))), threads,
          allow_other_maps)
-        for _, st in panels for runs in groups for k, m in enumerate(runs)
+        for panel, st in panels for name in names for runs in [plays.get((panel, name), [])]
+        for k, m in enumerate(runs)
     ]  # fmt: skip
     results = iter(_map(tasks, jobs, progress, f"figure {figure}"))
     curve_rows, summary_rows, runs_written = [], [], []
     for panel, _setting in panels:
-        for runs in groups:
-            name, res = runs[0].name, [next(results) for _ in runs]
+        for name in names:
+            if (panel, name) not in plays:
+                continue
+            res = [next(results) for _ in plays[(panel, name)]]
             runs_written += [(panel, name, r["out"], k) for k, r in enumerate(res)]
             for label, curve_key, tick_key, prefix in (
                 (name, "curve", "rescue_tick", ""),  # the paper's protocol: argmax for AMAT
@@ -150,11 +152,41 @@ def run_figure(
     atomic_write_csv(fig_dir / "curves.csv", curve_rows)
     atomic_write_csv(fig_dir / "summary.csv", summary_rows)
     atomic_write_text(fig_dir / "marl_eval.json", json.dumps(marl_eval_json(runs_written, figure), indent=1))
-    atomic_write_text(fig_dir / "summary.md", summary_markdown(summary_rows))
+    atomic_write_text(fig_dir / "summary.md", summary_markdown(summary_rows, not_played))
     plot_figure(
         fig_dir / "curves.csv", fig_dir / f"fig{figure}.png", title=f"Fig. {figure}: {FIGURES[figure][0]}"
     )
     return fig_dir
+
+
+def _check_methods(
+    groups: list[list[Method]], panels: list, seed: int
+) -> tuple[dict[tuple[str, str], list[Method]], dict[tuple[str, str], str]]:
+    """Load every AMAT checkpoint and build every ``py:`` policy for every panel before any run starts
+    (an unreadable file or a broken policy raises here). Returns, per (panel, method), the method's runs
+    that can play the panel, and the pairs none of its runs can play with the reason
+    (:class:`~catmip_env.play.WorldNotSupported`, e.g. a CNN built for another map size): a method of
+    runs trained on different tasks plays each panel with the runs trained for its world."""
+    plays: dict[tuple[str, str], list[Method]] = {}
+    not_played: dict[tuple[str, str], str] = {}
+    for runs in groups:
+        for m in runs:
+            if m.kind == "amat":
+                load_model(m.target)
+        for panel, setting in panels:
+            able, why = [], ""
+            for m in runs:
+                try:
+                    if m.kind == "py":
+                        make_policy(m, setting.env_config(), seed)
+                    able.append(m)
+                except WorldNotSupported as exc:
+                    why = str(exc)
+            if able:
+                plays[(panel, runs[0].name)] = able
+            else:
+                not_played[(panel, runs[0].name)] = why
+    return plays, not_played
 
 
 def _run_dir(folder: Path, k: int, runs: int) -> Path:
@@ -230,7 +262,7 @@ def summary_table(rows: list[dict[str, Any]], bold: bool = False) -> str:
         cells = []
         for p in panels:
             r = at.get((m, p))
-            text = "" if r is None else summary_cell(r)
+            text = "—" if r is None else summary_cell(r)
             if r is not None and bold and _number(r["success_by_100"]) == best[p]:
                 text = f"**{text}**"
             cells.append(text)
@@ -238,14 +270,15 @@ def summary_table(rows: list[dict[str, Any]], bold: bool = False) -> str:
     return "\n".join(lines)
 
 
-def summary_markdown(rows: list[dict[str, Any]]) -> str:
-    """:func:`summary_table` and what its cells say."""
+def summary_markdown(rows: list[dict[str, Any]], not_played: dict[tuple[str, str], str] | None = None) -> str:
+    """:func:`summary_table` and what its cells say, with the (panel, method) pairs left out and why."""
     note = (
         "\nCells: success by tick 100 [95 % CI over the maps, or over training runs and maps for a method "
         "with several] / success by the horizon / mean rescue tick of rescued episodes. A method with "
-        "several training runs shows their mean.\n"
+        "several training runs shows their mean; — : not played (below).\n"
     )
-    return summary_table(rows) + "\n" + note
+    left_out = "".join(f"\n* {m} on {p}: not played ({why})" for (p, m), why in (not_played or {}).items())
+    return summary_table(rows) + "\n" + note + left_out + ("\n" if left_out else "")
 
 
 def marl_eval_json(runs: list[tuple[str, str, str, int]], figure: int) -> dict[str, Any]:

@@ -20,6 +20,10 @@ The level is read from the policy's ``level`` attribute (``"pettingzoo"`` or ``"
 ``D x D`` goal window; or ``"cell"``) says what the actions mean. A TorchRL ``TensorDictModule`` that
 reads ``CatmipEnv``'s keys is accepted too (:class:`~catmip_rl.adapters.torchrl_policy.TorchRLPolicy`).
 
+A factory whose policy cannot play the world it is given (e.g. a CNN built for one map size) raises
+:class:`catmip_env.play.WorldNotSupported`: ``catmip bench paper`` leaves the method out of that panel and
+says so in the figure's summary.
+
 Every way a policy can fail -- a missing file, no such factory, a wrong return type, a crash inside
 ``act``, an action its mask forbids -- raises :class:`PolicyError`, one line naming the policy and the
 problem (``catmip`` prints it and exits with code 2, writing nothing).
@@ -42,6 +46,7 @@ import numpy as np
 
 from catmip_env.config import EnvConfig
 from catmip_env.events import GOAL_MODES, EventEngine
+from catmip_env.play import WorldNotSupported
 from catmip_env.spaces import macro_infos, macro_observations, parse_actions
 
 __all__ = [
@@ -168,6 +173,8 @@ def make_user_policy(
         policy = factory(env_config, seed)
     except KeyboardInterrupt:
         raise
+    except WorldNotSupported as exc:  # a policy for other worlds: bench paper leaves this panel out
+        raise WorldNotSupported(f"policy {name} cannot play this world: {exc}") from None
     except Exception as exc:
         raise PolicyError(f"policy {name}: the factory raised {_describe(exc)}") from None
     if "tensordict" in sys.modules:  # a TorchRL module can only come from a process that imported it

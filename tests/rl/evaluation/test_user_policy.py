@@ -4,6 +4,7 @@ fail is one line (exit code 2) with nothing written."""
 
 from __future__ import annotations
 
+import csv
 import json
 import textwrap
 
@@ -85,6 +86,12 @@ POLICIES = textwrap.dedent(
 
     def make_missing(env_config, seed):
         return Missing()
+
+    def make_task1_only(env_config, seed):
+        from catmip_env.play import WorldNotSupported
+        if env_config.map_size != 15:
+            raise WorldNotSupported(f"built for 15x15 maps, not {env_config.map_size}")
+        return FirstAllowedEngine()
     '''
 )
 
@@ -209,6 +216,39 @@ def test_a_bad_policy_is_one_line_and_writes_nothing(policy_file, tmp_path, caps
                  "--no-progress", "--threads", "1"])  # fmt: skip
     err = capsys.readouterr().err
     assert code == 2 and message in err and len(err.strip().splitlines()) == 1, err
+    assert not out.exists()
+
+
+def test_a_policy_for_other_worlds_is_left_out_of_those_panels(policy_file, tmp_path, capsys):
+    """bench paper plays a policy on the panels it can play and says which it left out; a single
+    evaluation of a world it cannot play is a one-line error."""
+    fig = tmp_path / "paper"
+    mine = f"mine=py:{policy_file}:make_task1_only"
+    mix = f"mix=py:{policy_file}:make_task1_only,py:{policy_file}:make_engine"
+    assert main(["bench", "paper", "--figure", "9", "--methods", "nearest", "--method", mine, "--method", mix,
+                 "--episodes", "1", "--jobs", "1", "--out", str(fig)]) == 0  # fmt: skip
+    with open(fig / "fig9" / "summary.csv") as f:
+        runs = {(r["panel"], r["method"]): int(r["runs"]) for r in csv.DictReader(f)}
+    panels = ("Task 1", "Task 2", "Task 3")
+    # mix plays Task 1 with both of its runs, Tasks 2 and 3 with the one that can
+    assert runs == {**{(p, "nearest"): 1 for p in panels}, ("Task 1", "mine"): 1, ("Task 1", "mix"): 2,
+                    ("Task 2", "mix"): 1, ("Task 3", "mix"): 1}  # fmt: skip
+    md = (fig / "fig9" / "summary.md").read_text()
+    assert "| mine | " in md and "| — | — |" in md
+    assert (
+        "mine on Task 2: not played (policy mine cannot play this world: built for 15x15 maps, not 20)" in md
+    )
+    assert not (fig / "fig9" / "Task 3" / "mine").exists()
+    capsys.readouterr()
+    out = tmp_path / "eval"
+    code = main(["eval", "--task", "task2", "--method", f"py:{policy_file}:make_task1_only",
+                 "--episodes", "1", "--out", str(out), "--no-progress"])  # fmt: skip
+    err = capsys.readouterr().err
+    assert (
+        code == 2
+        and "cannot play this world: built for 15x15 maps, not 20" in err
+        and len(err.splitlines()) == 1
+    )
     assert not out.exists()
 
 
