@@ -83,10 +83,10 @@ TRAIN_PRESETS: dict[str, TrainConfig] = {
         **(_WARM_START | {"warm_start": ""}),
         **_EVAL_64,
     ),
-    # one model for every team and map size (amat_general.pt): amat_paper.pt fine-tuned on a mixture of
-    # worlds that take turns (the paper's, Tasks 1-3's teams and map sizes, and a 26x26 four-robot world
-    # with SLAM noise), each with training activation and its communication range drawn per episode
-    # (full, 4, 2); evaluated on Task 3 (docs/notes/general-model.md)
+    # towards one model for every team and map size (none ships yet): amat_paper.pt fine-tuned on a
+    # mixture of worlds that take turns (the paper's, Tasks 1-3's teams and map sizes, and a 26x26
+    # four-robot world with SLAM noise), each with training activation and its communication range drawn
+    # per episode (full, 4, 2); evaluated on Task 3 (docs/notes/general-model.md)
     "general": TrainConfig(
         env_preset="task3",
         env_overrides={"activation": [2, 5]},
