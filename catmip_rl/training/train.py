@@ -128,7 +128,7 @@ def build_run(cfg: TrainConfig, saved: dict | None = None) -> Run:
     """Build a run's parts from ``cfg`` (seeded by ``cfg.seed``), continuing from the training
     checkpoint ``saved`` if given, else starting from ``cfg.init_from``'s weights if set."""
     torch.set_num_threads(cfg.threads)
-    keep_freed_memory()  # reuse the step's large activations' pages (training.memory)
+    keep_freed_memory()  # reuse the step's large activations' pages (training.allocator)
     device = torch.device(cfg.device)
     torch.manual_seed(cfg.seed)
     gen = torch.Generator().manual_seed(cfg.seed)
