@@ -1,4 +1,5 @@
-"""training.allocator: glibc's malloc keeps freed large blocks, so repeated large allocations stop faulting."""
+"""training.allocator: glibc's malloc keeps freed large blocks, so repeated large allocations stop
+faulting."""
 
 import os
 import subprocess
