@@ -34,9 +34,8 @@ _TYPES: dict[str, Rule] = {
         lambda v: isinstance(v, list) and all(isinstance(x, dict) for x in v),
     ),
 }
-# and each numeric field's range (seeds: torch's generators take 64-bit seeds)
 PRECISIONS = ("fp32", "bf16", "auto")  # TrainConfig.precision (training.ppo resolves it)
-
+# and each numeric field's range (seeds: torch's generators take 64-bit seeds)
 _RANGES: dict[str, tuple[str, Callable[[Any], bool]]] = {
     **dict.fromkeys(("num_worlds", "iterations", "epochs", "minibatches", "threads", "update_processes",
                      "eval_episodes", "warm_start_rounds", "warm_start_steps", "warm_start_batch",

@@ -109,7 +109,7 @@ def accumulate_gradients(
     """Backward of ``ppo_loss`` over the micro-batches ``parts`` (index tensors into ``batch``), each
     averaged with the minibatch's ``count``, into the model's .grad (added to what is there); returns
     the loss parts summed over the micro-batches. ``bf16`` runs the forward under bfloat16 autocast
-    (module docstring: precision)."""
+    (the module's docstring says when that pays)."""
     sums: dict[str, float] = {}
     device = batch.action.device.type
     for part in parts:
@@ -233,7 +233,7 @@ def measure_bf16(model, batch, loss_kwargs: dict, events: int = 512, repeats: in
 def choose_bf16(setting: str, device: str, model, batch, loss_kwargs: dict, events: int = 512):
     """(bf16 or not, what decided it) for ``TrainConfig.precision`` ``setting``: "auto" on a CPU with
     native bf16 measures both on this batch and takes bf16 only if it is at least 10 % faster;
-    everything else as ``precision.use_bf16``."""
+    everything else as :func:`use_bf16`."""
     native = native_bf16()
     if setting != "auto" or not device.startswith("cpu") or not native:
         return use_bf16(setting, device), {"precision": setting, "native_bf16": native}
