@@ -25,7 +25,7 @@ from catmip_rl.files import atomic_write_text
 __all__ = [
     "save_model", "load_model", "atomic_torch_save", "read_checkpoint", "resolve_model", "shipped_models",
     "CheckpointError", "SHIPPED_DIR", "resume_checkpoint", "initial_weights", "load_initial_weights",
-    "export_model", "model_from",
+    "export_model", "model_from", "trained_synchronous",
 ]  # fmt: skip
 
 FORMAT = "catmip-amat-v1"
@@ -125,6 +125,19 @@ def load_model(path: str | Path, map_location: str | torch.device = "cpu") -> AM
     latest checkpoint) or the name of a shipped model (:func:`resolve_model`)."""
     path = _model_file(resolve_model(path))
     return model_from(read_checkpoint(path, map_location), path).to(map_location)
+
+
+def trained_synchronous(spec: str | Path) -> bool:
+    """Whether the model ``spec`` names (anything :func:`load_model` reads) was trained in the synchronous
+    world (Synch-CATMiP: every robot decides together every ``max_ma_ticks`` ticks), as the training
+    config in its checkpoint or exported file says; a file without one (a bare :func:`save_model`) was not."""
+    path = _model_file(resolve_model(spec))
+    blob = read_checkpoint(path)
+    if _is_training_checkpoint(blob):
+        train_config = json.loads(blob["config"])
+    else:
+        train_config = ((blob.get("extra") if isinstance(blob, dict) else None) or {}).get("train_config") or {}
+    return bool((train_config.get("env_overrides") or {}).get("synchronous", False))
 
 
 def model_from(blob: Any, path: Path) -> AMAT:

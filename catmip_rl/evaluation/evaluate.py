@@ -72,14 +72,16 @@ class EvalSetting:
         if not isinstance(self.max_ma_ticks, int) or self.max_ma_ticks < 1:
             raise ValueError(f"max_ma_ticks must be an int >= 1, got {self.max_ma_ticks!r}")
 
-    def env_config(self, window: int | None = None) -> EnvConfig:
-        """The task's evaluation config (activation (0, 0)); ``window`` = the policy's goal window D."""
+    def env_config(self, window: int | None = None, synchronous: bool = False) -> EnvConfig:
+        """The task's evaluation config (activation (0, 0)); ``window`` = the policy's goal window D;
+        ``synchronous``: every robot decides together every ``max_ma_ticks`` ticks (Synch-CATMiP)."""
         extra = {} if window is None else {"window": window}
         return make_config(
             self.task,
             comm_sigma=comm_sigma(self.comm),
             slam_noise=float(self.noise),
             max_ma_ticks=self.max_ma_ticks,
+            synchronous=synchronous,
             **extra,
         )
 
@@ -172,8 +174,9 @@ def evaluate(
     method = parse_method(method) if isinstance(method, str) else method
     if not isinstance(episodes, int) or episodes < 1:
         raise ValueError(f"episodes must be an int >= 1, got {episodes!r}")
-    policy, goal_mode, window = make_policy(method, setting.env_config(), seed, model, policy)
-    cfg = setting.env_config(window)
+    sync = method.synchronous
+    policy, goal_mode, window = make_policy(method, setting.env_config(None, sync), seed, model, policy)
+    cfg = setting.env_config(window, sync)
     engine = EventEngine(cfg, num_worlds=episodes, seed=seed, goal_mode=goal_mode)
     engine.reset(episode_indices=np.arange(episodes))
     maps = [map_hash(engine, e) for e in range(episodes)]
@@ -208,6 +211,7 @@ def evaluate(
     result.summary.update(
         method=method.name,
         method_kind=method.kind,
+        synchronous=method.synchronous,
         checkpoint=method.target if method.kind == "amat" else None,
         policy=method.target if method.kind in ("py", "policy") else None,
         setting=asdict(setting),
@@ -313,8 +317,9 @@ def render_episode(
     from catmip_env.search_rescue_v0 import SearchRescueEnv
 
     method = parse_method(method) if isinstance(method, str) else method
-    policy, goal_mode, window = make_policy(method, setting.env_config(), seed, model)
-    eng = EventEngine(setting.env_config(window), num_worlds=1, seed=seed, goal_mode=goal_mode)
+    sync = method.synchronous
+    policy, goal_mode, window = make_policy(method, setting.env_config(None, sync), seed, model)
+    eng = EventEngine(setting.env_config(window, sync), num_worlds=1, seed=seed, goal_mode=goal_mode)
     if isinstance(policy, PettingZooPolicy):
         policy.reset()
     fps = SearchRescueEnv.metadata["render_fps"] if fps is None else fps

@@ -4,6 +4,10 @@
     parse_method("window:nearest")                    # a planner projected into the goal window
     parse_method("amat:task1")                        # a shipped model, labelled amat_task1
     parse_method("mine=py:/path/to/mine.py:make_policy")  # your policy (user_policy)
+    parse_method("sync:nearest")                      # any method in the synchronous world
+
+A model trained in the synchronous world (Synch-AMAT, ``amat:sync``) plays in it: every robot decides
+together every ``max_ma_ticks`` ticks, the system it is.
 
 :func:`make_policy` builds the policy a :class:`Method` names for one evaluation setting.
 """
@@ -18,7 +22,7 @@ from catmip_env.config import EnvConfig
 from catmip_env.planners import PLANNERS, make_planner
 from catmip_env.window_planner import WINDOW_KINDS, make_window_planner
 from catmip_rl.amat.model import AMAT
-from catmip_rl.checkpoint import load_model, resolve_model
+from catmip_rl.checkpoint import load_model, resolve_model, trained_synchronous
 from catmip_rl.evaluation.execution import AmatExecutor
 from catmip_rl.evaluation.user_policy import load_factory, make_user_policy, parse_policy_source
 
@@ -27,11 +31,12 @@ __all__ = ["Method", "parse_method", "parse_runs", "make_policy", "amat_label", 
 METHOD_HELP = (
     "nearest | utility | rrt | apf | random-frontier | random-rescue (random window goals with the planners' "
     "rescue rule) | random-uniform (uniformly random valid window goals, no rescue rule: a learner's floor) "
-    "| "
-    "window:PLANNER (its goals projected into the 7x7 window) | window-noheading:PLANNER (projected along a "
-    "heading-free path) | amat:PATH (a model file, checkpoint or run dir) | amat:NAME (a shipped model) | "
-    "amat-guard:PATH (argmax with the loop guard) | py:FILE.py:FACTORY or py:package.module:FACTORY (your "
-    "policy: docs/benchmark-your-algorithm.md); NAME=METHOD names it on tables and plots"
+    "| window:PLANNER (its goals projected into the 7x7 window) | window-noheading:PLANNER (projected along "
+    "a heading-free path) | amat:PATH (a model file, checkpoint or run dir; one trained in the synchronous "
+    "world plays in it) | amat:NAME (a shipped model) | amat-guard:PATH (argmax with the loop guard) | "
+    "sync:METHOD (the method in the synchronous world: every robot decides together) | py:FILE.py:FACTORY "
+    "or py:package.module:FACTORY (your policy: docs/benchmark-your-algorithm.md); NAME=METHOD names it on "
+    "tables and plots"
 )
 
 
@@ -41,12 +46,14 @@ class Method:
     the goal window), "window-noheading" (the same along a heading-free path), "amat", "py" (a factory
     in a file or module) or "policy" (an object given to ``evaluate(policy=...)``); ``target`` the
     planner's name, the AMAT checkpoint path or the ``py:`` spec; ``loop_guard`` (AMAT) executes argmax
-    with the loop guard of :class:`AmatExecutor`."""
+    with the loop guard of :class:`AmatExecutor`; ``synchronous``: plays in the synchronous world (every
+    robot decides together every ``max_ma_ticks`` ticks), a ``sync:`` spec or a model trained in it."""
 
     name: str
     kind: str
     target: str
     loop_guard: bool = False
+    synchronous: bool = False
 
 
 def amat_label(path: str | Path) -> str:
@@ -70,6 +77,9 @@ def parse_method(spec: str) -> Method:
         name, spec = (s.strip() for s in spec.split("=", 1))
         if not name:
             raise ValueError(f"method {spec!r} has an empty name: write NAME={spec} or just {spec}")
+    if spec.startswith("sync:"):
+        inner = parse_method(spec[len("sync:") :])
+        return replace(inner, name=name or f"sync:{inner.name}", synchronous=True)
     if spec.startswith("py:"):
         src = parse_policy_source(spec)
         default = Path(src.source).stem if src.is_file else src.source.rsplit(".", 1)[-1]
@@ -81,7 +91,7 @@ def parse_method(spec: str) -> Method:
                 raise ValueError(f"amat method needs a checkpoint: {prefix}PATH")
             target = resolve_model(path)
             label = amat_label(target) + ("-guard" if guard else "")
-            return Method(name or label, "amat", str(target), loop_guard=guard)
+            return Method(name or label, "amat", str(target), guard, trained_synchronous(target))
     for kind in WINDOW_KINDS:
         if spec.startswith(kind + ":"):
             planner = spec[len(kind) + 1 :]

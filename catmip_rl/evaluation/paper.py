@@ -178,7 +178,7 @@ def _check_methods(
             for m in runs:
                 try:
                     if m.kind == "py":
-                        make_policy(m, setting.env_config(), seed)
+                        make_policy(m, setting.env_config(None, m.synchronous), seed)
                     able.append(m)
                 except WorldNotSupported as exc:
                     why = str(exc)

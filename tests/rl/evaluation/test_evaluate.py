@@ -350,3 +350,28 @@ def test_the_loop_guard_breaks_argmax_loops_of_a_policy_that_always_stays(tmp_pa
         assert guarded[f"stall_fraction_{cls}"] <= 0.55
     assert guarded["mean_explored_fraction"] > plain["mean_explored_fraction"]
     assert parse_method(f"amat-guard:{path}").loop_guard and not parse_method(f"amat:{path}").loop_guard
+
+
+def test_a_model_trained_synchronously_plays_synchronously_on_the_same_maps(ckpt, tmp_path):
+    sync_model = save_model(_sharp_model(), tmp_path / "sync.pt", extra={
+        "train_config": {"env_overrides": {"synchronous": True}}})  # fmt: skip
+    assert parse_method(f"amat:{sync_model}").synchronous and not parse_method(f"amat:{ckpt}").synchronous
+    sync_nearest = parse_method("sync:nearest")
+    assert (sync_nearest.name, sync_nearest.kind, sync_nearest.synchronous) == ("sync:nearest", "planner", True)
+    assert parse_method("S=sync:window:rrt") == Method("S", "window", "rrt", synchronous=True)
+    setting = EvalSetting("task2", "4", max_ma_ticks=5)
+    seen: dict[str, set] = {}
+
+    def hook(name):
+        return lambda eng: seen.setdefault(name, set()).add((eng.cfg.synchronous, int(eng.state.ticks[0]) % 5))
+
+    hashes = {}
+    for method in (f"amat:{sync_model}", "sync:nearest", "nearest", f"amat:{ckpt}"):
+        res = evaluate(method, setting, episodes=2, seed=3, engine_hook=hook(method), sampled_too=False)
+        hashes[method] = [r["map_hash"] for r in res.episodes]
+        assert res.summary["synchronous"] == (method in (f"amat:{sync_model}", "sync:nearest"))
+    assert len({tuple(h) for h in hashes.values()}) == 1
+    for method in (f"amat:{sync_model}", "sync:nearest"):  # every decision on the 5-tick beat
+        assert {sync for sync, _ in seen[method]} == {True}
+        assert {phase for _, phase in seen[method]} <= {0}, seen[method]
+    assert {sync for sync, _ in seen["nearest"]} == {False} and len(seen["nearest"]) > 1
