@@ -136,7 +136,8 @@ def trained_synchronous(spec: str | Path) -> bool:
     if _is_training_checkpoint(blob):
         train_config = json.loads(blob["config"])
     else:
-        train_config = ((blob.get("extra") if isinstance(blob, dict) else None) or {}).get("train_config") or {}
+        extra = (blob.get("extra") if isinstance(blob, dict) else None) or {}
+        train_config = extra.get("train_config") or {}
     return bool((train_config.get("env_overrides") or {}).get("synchronous", False))
 
 

@@ -21,6 +21,7 @@ import catmip_rl.evaluation.paper
 import catmip_rl.training.collect
 import catmip_rl.training.train
 from catmip_env.search_rescue_v0 import SearchRescueEnv
+from catmip_rl import AMAT, AmatConfig, save_model
 from catmip_rl.checkpoint import SHIPPED_DIR, CheckpointError, load_model, read_checkpoint, resume_checkpoint
 from catmip_rl.cli.args import CPUS
 from catmip_rl.cli.main import main
@@ -420,8 +421,11 @@ def test_shipped_models_load_by_name(tmp_path, monkeypatch):
     with pytest.raises(FileNotFoundError, match=r"shipped: paper, task1"):
         load_model("task9")
     monkeypatch.chdir(tmp_path)  # a path named like a shipped model wins: paths keep working
-    (tmp_path / "task1").mkdir()
+    save_model(AMAT(AmatConfig(embed_dim=32)), tmp_path / "task1")
     assert parse_method("amat:task1").target == "task1"
+    (tmp_path / "task2").mkdir()  # a folder without a checkpoint is named as such
+    with pytest.raises(FileNotFoundError, match=r"no AMAT checkpoint in the folder task2"):
+        parse_method("amat:task2")
 
 
 def test_version(capsys):

@@ -356,14 +356,15 @@ def test_a_model_trained_synchronously_plays_synchronously_on_the_same_maps(ckpt
     sync_model = save_model(_sharp_model(), tmp_path / "sync.pt", extra={
         "train_config": {"env_overrides": {"synchronous": True}}})  # fmt: skip
     assert parse_method(f"amat:{sync_model}").synchronous and not parse_method(f"amat:{ckpt}").synchronous
-    sync_nearest = parse_method("sync:nearest")
-    assert (sync_nearest.name, sync_nearest.kind, sync_nearest.synchronous) == ("sync:nearest", "planner", True)
+    assert parse_method("sync:nearest") == Method("sync:nearest", "planner", "nearest", synchronous=True)
     assert parse_method("S=sync:window:rrt") == Method("S", "window", "rrt", synchronous=True)
     setting = EvalSetting("task2", "4", max_ma_ticks=5)
     seen: dict[str, set] = {}
 
-    def hook(name):
-        return lambda eng: seen.setdefault(name, set()).add((eng.cfg.synchronous, int(eng.state.ticks[0]) % 5))
+    def hook(name):  # (the world's rule, the tick of each decision event modulo 5)
+        return lambda eng: seen.setdefault(name, set()).add(
+            (eng.cfg.synchronous, int(eng.state.ticks[0]) % 5)
+        )
 
     hashes = {}
     for method in (f"amat:{sync_model}", "sync:nearest", "nearest", f"amat:{ckpt}"):
