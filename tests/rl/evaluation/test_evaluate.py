@@ -361,10 +361,12 @@ def test_a_model_trained_synchronously_plays_synchronously_on_the_same_maps(ckpt
     setting = EvalSetting("task2", "4", max_ma_ticks=5)
     seen: dict[str, set] = {}
 
-    def hook(name):  # (the world's rule, the tick of each decision event modulo 5)
-        return lambda eng: seen.setdefault(name, set()).add(
-            (eng.cfg.synchronous, int(eng.state.ticks[0]) % 5)
-        )
+    def hook(name):  # (the world's rule, the tick of each decision event of a world that goes on, modulo 5)
+        def record(eng):
+            for t in eng.state.ticks[~eng.state.done]:
+                seen.setdefault(name, set()).add((eng.cfg.synchronous, int(t) % 5))
+
+        return record
 
     hashes = {}
     for method in (f"amat:{sync_model}", "sync:nearest", "nearest", f"amat:{ckpt}"):

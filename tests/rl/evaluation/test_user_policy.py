@@ -311,3 +311,26 @@ def test_a_policy_file_imports_the_modules_beside_it(tmp_path, capsys):
     )
     code = main(["eval", "--method", f"mine={tmp_path / 'pol.py'}:make", "--out", str(tmp_path / "o")])
     assert code == 2 and f"(your policy? write py:{tmp_path / 'pol.py'}:make)" in capsys.readouterr().err
+
+
+def test_sync_plays_a_policy_file_in_the_synchronous_world(tmp_path):
+    (tmp_path / "pol.py").write_text(
+        "from catmip_env.planners import make_planner\n"
+        "SEEN = []\n"
+        "def make(env_config, seed):\n"
+        "    SEEN.append(env_config.synchronous)\n"
+        "    policy = make_planner('nearest', seed=seed)\n"
+        "    policy.goal_mode = 'cell'\n"
+        "    return policy\n"
+    )
+    setting = EvalSetting("task1", max_ma_ticks=4)
+    ticks = set()  # the tick of every decision event of a world that goes on, modulo the beat
+
+    def hook(eng):
+        ticks.update(int(t) % 4 for t in eng.state.ticks[~eng.state.done])
+
+    res = evaluate(f"sync:py:{tmp_path / 'pol.py'}:make", setting, episodes=2, engine_hook=hook)
+    assert res.summary["synchronous"] and res.summary["method"] == "sync:pol" and ticks == {0}
+    plain = evaluate(f"py:{tmp_path / 'pol.py'}:make", setting, episodes=2)
+    assert not plain.summary["synchronous"]
+    assert [r["map_hash"] for r in res.episodes] == [r["map_hash"] for r in plain.episodes]
