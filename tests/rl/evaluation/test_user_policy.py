@@ -314,11 +314,11 @@ def test_a_policy_file_imports_the_modules_beside_it(tmp_path, capsys):
 
 
 def test_sync_plays_a_policy_file_in_the_synchronous_world(tmp_path):
+    seen = tmp_path / "seen.txt"  # the factory writes down the world it was asked to play
     (tmp_path / "pol.py").write_text(
         "from catmip_env.planners import make_planner\n"
-        "SEEN = []\n"
         "def make(env_config, seed):\n"
-        "    SEEN.append(env_config.synchronous)\n"
+        f"    open({str(seen)!r}, 'a').write(str(env_config.synchronous) + ' ')\n"
         "    policy = make_planner('nearest', seed=seed)\n"
         "    policy.goal_mode = 'cell'\n"
         "    return policy\n"
@@ -334,3 +334,4 @@ def test_sync_plays_a_policy_file_in_the_synchronous_world(tmp_path):
     plain = evaluate(f"py:{tmp_path / 'pol.py'}:make", setting, episodes=2)
     assert not plain.summary["synchronous"]
     assert [r["map_hash"] for r in res.episodes] == [r["map_hash"] for r in plain.episodes]
+    assert seen.read_text().split() == ["True", "False"]
