@@ -1,7 +1,8 @@
 """Seconds per training iteration of the paper recipe, split into collection / advantages / update.
 
     python benchmarks/bench_train.py [--iterations 2] [--epochs 10 2] [--worlds 64] [--bf16]
-                                     [--update-processes 2 1] [--out benchmarks/results/train.json]
+                                     [--update-processes 2 1] [--device cpu]
+                                     [--out benchmarks/results/train.json]
 
 One iteration = 64 ``train``-preset episodes (20x20, 3 robots, horizon 200, activation (2, 5)) collected
 by the async-aware collector, asynchronous GAE, and ``--epochs`` full-batch PPO epochs, on ``--threads``
@@ -9,7 +10,8 @@ torch threads (2 = the whole machine), the update's gradients computed by ``--up
 processes (2 = the recipe on CPU: two single-threaded processes; 1 = one process on ``--threads``).
 Reports env-steps/s end to end (decision events of all worlds per second of iteration, and world-ticks
 per second) for the 10-epoch recipe and a 2-epoch one, in fp32 and, with ``--bf16``, CPU bf16 autocast
-for the update (the PPO loss's forward pass, in one process; collection in fp32).
+for the update (the PPO loss's forward pass, in one process; collection in fp32). ``--device cuda``
+times the update on the GPU (one process; collection stays on the CPU's ``--threads``).
 """
 
 from __future__ import annotations
@@ -30,12 +32,14 @@ from catmip_rl.training.train import build_run, ppo_iteration
 
 
 def run(
-    epochs: int, iterations: int, threads: int, worlds: int = 64, bf16: bool = False, processes: int = 2
-) -> dict:
-    processes = 1 if bf16 else processes  # autocast runs in the training process only
+    epochs: int, iterations: int, threads: int, worlds: int = 64, bf16: bool = False, processes: int = 2,
+    device: str = "cpu",
+) -> dict:  # fmt: skip
+    # autocast runs in the training process only; the gradient processes are CPU ones
+    processes = 1 if bf16 or device != "cpu" else processes
     cfg = make_train_config("paper", iterations=iterations, epochs=epochs, threads=threads, num_worlds=worlds,
                             eval_every=0, checkpoint_every=0, update_processes=processes,
-                            precision="bf16" if bf16 else "fp32")  # fmt: skip
+                            precision="bf16" if bf16 else "fp32", device=device)  # fmt: skip
     tmp = Path(tempfile.mkdtemp(prefix="catmip_bench_"))
     run = build_run(cfg)
     try:
@@ -50,6 +54,7 @@ def run(
     events = rollout.num_samples
     world_ticks = rollout.stats["mean_episode_ticks"] * rollout.valid.shape[1]
     out = {
+        "device": device,
         "epochs": epochs,
         "threads": threads,
         "update_processes": processes,
@@ -67,7 +72,8 @@ def run(
         "world_ticks_per_s": world_ticks / iteration_s,
     }
     print(
-        f"{epochs:2d} epochs {out['precision']}, {processes} update proc.: {iteration_s:.1f} s/iteration "
+        f"{device}, {epochs:2d} epochs {out['precision']}, {processes} update proc.: "
+        f"{iteration_s:.1f} s/iteration "
         f"(collect {out['collect_s']:.1f}, adv. {out['advantage_s']:.2f}, update {out['update_s']:.1f}) "
         f"{out['events_per_s']:,.0f} decision events/s, {out['world_ticks_per_s']:,.0f} world-ticks/s",
         flush=True,
@@ -89,19 +95,23 @@ def main() -> None:
         default=[2],
         help="gradient processes of the update to time",
     )
+    ap.add_argument("--device", default="cpu", help="where the update runs: cpu, cuda or cuda:N")
     ap.add_argument("--out", default="benchmarks/results/train.json")
     args = ap.parse_args()
     runs = []
     for bf16 in (False, True) if args.bf16 else (False,):
         for processes in args.update_processes if not bf16 else (1,):
             for epochs in args.epochs:
-                runs.append(run(epochs, args.iterations, args.threads, args.worlds, bf16, processes))
+                runs.append(
+                    run(epochs, args.iterations, args.threads, args.worlds, bf16, processes, args.device)
+                )
     results = {
         "machine": {
             "python": platform.python_version(),
             "torch": torch.__version__,
             "cpu_capability": torch.backends.cpu.get_cpu_capability(),
             "native_bf16": native_bf16(),
+            "gpu": torch.cuda.get_device_name() if args.device != "cpu" else None,
         },  # fmt: skip
         "runs": runs,
     }

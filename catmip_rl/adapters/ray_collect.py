@@ -18,7 +18,6 @@ world, time padded to ``horizon_ticks + 1`` so that the workers' batches stack) 
 
 from __future__ import annotations
 
-import copy
 import datetime
 import functools
 import os
@@ -32,7 +31,7 @@ from tensordict import TensorDict
 from torchrl.collectors import BaseCollector
 
 from catmip_env.play import EpisodeRecords
-from catmip_rl.amat.model import AMAT
+from catmip_rl.amat.model import AMAT, cpu_mirror
 from catmip_rl.training.collect import STEP_FIELDS, Collector, Rollout, episode_stats
 from catmip_rl.training.config import TrainConfig
 
@@ -186,10 +185,9 @@ class RayRolloutCollector:
         self.workers = cfg.ray_workers
         self.num_worlds = cfg.num_worlds  # episodes a collect() call plays, as Collector.num_worlds
         self.model = model
-        on_cpu = all(p.device.type == "cpu" for p in model.parameters())
-        self._mirror = model if on_cpu else copy.deepcopy(model).cpu()
+        self._mirror = cpu_mirror(model)
         share = cfg.num_worlds // cfg.ray_workers
-        make = functools.partial(Collector, cfg.env_config(), share, cfg.seed, cfg.gamma, "cpu")
+        make = functools.partial(Collector, cfg.env_config(), share, cfg.seed, cfg.gamma)
         try:
             self._rc = RayCollector(
                 make,
@@ -220,8 +218,7 @@ class RayRolloutCollector:
         (``generator`` is unused: each worker seeds its own)."""
         if model is not self.model:
             raise ValueError("RayRolloutCollector.collect: pass the model it was built with")
-        if self._mirror is not model:
-            self._mirror.load_state_dict(model.state_dict())
+        cpu_mirror(model, self._mirror)  # the weights the workers fetch
         self._rc.update_policy_weights_()
         self._rc.map_fn("plan", [(first_episode, deterministic)] * self.workers)
         td = next(self._iter).reshape(-1)  # (W, B/W) -> (B,) worlds in episode order

@@ -20,6 +20,7 @@ global CNN through ``sparse_conv`` and attention through ``small_attention``.
 
 from __future__ import annotations
 
+import copy
 import json
 import math
 from dataclasses import asdict, dataclass
@@ -34,7 +35,7 @@ from catmip_env.fields import INT, check
 from catmip_rl.amat.kernels.sparse_conv import global_conv_pool
 from catmip_rl.amat.layers import BlockCache, DecoderBlock, EncoderBlock, layer_norm, linear
 
-__all__ = ["AmatConfig", "AMAT", "decision_order", "INVALID_LOGIT"]
+__all__ = ["AmatConfig", "AMAT", "decision_order", "cpu_mirror", "INVALID_LOGIT"]
 
 INVALID_LOGIT = -1e10
 
@@ -101,6 +102,18 @@ def decision_order(active: torch.Tensor, padding: torch.Tensor | None = None) ->
     if padding is not None:
         rank = rank + padding.long() * 2 * n
     return torch.argsort(rank, dim=-1)
+
+
+def cpu_mirror(model: AMAT, mirror: AMAT | None = None) -> AMAT:
+    """The policy to run on the CPU: ``model`` itself when its weights live there; else ``mirror`` (a
+    copy this returned before) or a new copy, on the CPU with ``model``'s current weights. Collection
+    plays it, so a model trained on a GPU still acts on the CPU cores, beside the numpy worlds."""
+    if all(p.device.type == "cpu" for p in model.parameters()):
+        return model
+    if mirror is None:
+        return copy.deepcopy(model).cpu()
+    mirror.load_state_dict(model.state_dict())
+    return mirror
 
 
 class AMAT(nn.Module):
@@ -323,7 +336,7 @@ class AMAT(nn.Module):
         pos = torch.empty_like(order).scatter_(1, order, torch.arange(n, device=order.device).expand(b, n))
         rows_o = (pos + torch.arange(b, device=order.device)[:, None] * n).flatten()[rows]
         if one_block:  # queries of unselected positions are never read: zeros
-            rep_o = tokens.new_zeros(b * n, d).index_copy(0, rows_o, rep_sel).view(b, n, d)
+            rep_o = rep_sel.new_zeros(b * n, d).index_copy(0, rows_o, rep_sel).view(b, n, d)
         else:
             rep_o = _gather(x, order)
         y = self._teacher_tokens(actions, order, agent_class.to(tokens.dtype))

@@ -22,7 +22,7 @@ from catmip_env.decision_stats import DecisionTracker
 from catmip_env.events import EventEngine
 from catmip_env.play import EpisodeRecords, decision_metrics, episode_metrics, episode_records
 from catmip_rl.amat.inputs import macro_observation
-from catmip_rl.amat.model import AMAT, decision_order
+from catmip_rl.amat.model import AMAT, cpu_mirror, decision_order
 
 __all__ = ["Rollout", "Collector", "episode_stats", "STEP_FIELDS"]
 
@@ -81,13 +81,12 @@ def episode_stats(records: EpisodeRecords, returns: np.ndarray, cfg: EnvConfig) 
 
 
 class Collector:
-    """Runs B worlds of ``cfg`` for one episode each per call, with a policy on ``device``."""
+    """Runs B worlds of ``cfg`` for one episode each per call, with the policy on the CPU (a model
+    trained on a GPU plays through its CPU copy, refreshed at every call: ``amat.model.cpu_mirror``)."""
 
-    def __init__(
-        self, cfg: EnvConfig, num_worlds: int, seed: int, gamma: float = 1.0, device: str = "cpu"
-    ) -> None:
+    def __init__(self, cfg: EnvConfig, num_worlds: int, seed: int, gamma: float = 1.0) -> None:
         self.engine = EventEngine(cfg, num_worlds, seed, goal_mode="window", gamma=gamma)
-        self.device = torch.device(device)
+        self._mirror: AMAT | None = None  # the CPU copy of a model that lives elsewhere
         eng = self.engine
         b, n, (h, w), c = eng.num_worlds, eng.num_robots, eng.shape, cfg.num_classes
         t = cfg.horizon_ticks + 1  # every event takes >= 1 tick, so no episode has more decisions
@@ -128,6 +127,7 @@ class Collector:
         (DAgger's mixture; drawn from ``generator``). Log-probs stay the policy's: a rollout with
         ``teacher_prob > 0`` is for imitation, not for PPO."""
         eng, s = self.engine, self._store
+        model = self._mirror = cpu_mirror(model, self._mirror)
         b_all = eng.num_worlds
         c = eng.cfg.num_classes
         eng.reset(episode_indices=np.arange(first_episode, first_episode + b_all))
@@ -148,25 +148,24 @@ class Collector:
             s["action_mask"][t, idx] = eng.masks[idx]
             s["active"][t, idx] = eng.active[idx]
             s["valid"][t, idx] = True
-            dev = self.device
-            obs = macro_observation(s["global_map"][t, idx], s["local_map"][t, idx], st.cls[idx], c, dev)
-            active = torch.from_numpy(s["active"][t, idx]).to(dev)
-            mask = torch.from_numpy(s["action_mask"][t, idx]).to(dev)
+            obs = macro_observation(s["global_map"][t, idx], s["local_map"][t, idx], st.cls[idx], c)
+            active = torch.from_numpy(s["active"][t, idx])
+            mask = torch.from_numpy(s["action_mask"][t, idx])
             rep, values = model.encode(model.embed(obs))
             order = decision_order(active)
             actions, logp = model.decode_autoregressive(
                 rep, mask, order, active, obs["agent_class"], deterministic=deterministic, generator=generator
             )
-            s["order"][t, idx] = order.cpu().numpy()
-            s["action"][t, idx] = actions.cpu().numpy()
+            s["order"][t, idx] = order.numpy()
+            s["action"][t, idx] = actions.numpy()
             if labeler is not None:
                 self._label[t, idx] = labeler.act(eng)[idx]
                 if teacher_prob > 0:
                     u = torch.rand(s["action"][t, idx].shape, generator=generator).numpy()
                     take = (u < teacher_prob) & s["active"][t, idx]
                     s["action"][t, idx] = np.where(take, self._label[t, idx], s["action"][t, idx])
-            s["log_prob"][t, idx] = logp.cpu().numpy()
-            s["value"][t, idx] = values[..., 0].cpu().numpy()
+            s["log_prob"][t, idx] = logp.numpy()
+            s["value"][t, idx] = values[..., 0].numpy()
             full = np.zeros((b_all, eng.num_robots), np.int64)
             full[idx] = s["action"][t, idx]
             self.tracker.before_step(eng)

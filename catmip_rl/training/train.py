@@ -77,7 +77,7 @@ def evaluate_policy(model: AMAT, collector: Collector, seed: int) -> dict[str, f
     activation on a fixed map set): argmax actions (the paper's protocol; success, ticks, decisions,
     stalls) and sampled actions (``sampled_*``, from a generator seeded by ``seed``)."""
     out = dict(collector.collect(model, first_episode=0, deterministic=True).stats)
-    gen = torch.Generator(device=collector.device).manual_seed(seed)
+    gen = torch.Generator().manual_seed(seed)
     sampled = collector.collect(model, first_episode=0, generator=gen).stats
     out |= {f"sampled_{k}": sampled[k] for k in ("success_rate", "success_by_100")}
     return out
@@ -134,29 +134,30 @@ def build_run(cfg: TrainConfig, saved: dict | None = None) -> Run:
     gen = torch.Generator().manual_seed(cfg.seed)
     amat_config = cfg.amat_config()
     model = AMAT(amat_config).to(device)
-    run = Run(cfg, device, model, make_optimizer(model, cfg), ValueNorm().to(device), gen)
+    # the value normaliser stays on the CPU, where the batch is built (gae.build_batch), then moved to device
+    run = Run(cfg, device, model, make_optimizer(model, cfg), ValueNorm(), gen)
     if saved is not None:
         run.iteration, run.episodes, run.elapsed, run.bf16 = restore_training(
             saved, model, run.opt, run.value_norm, gen, cfg.precision
         )
     elif cfg.init_from:
         run.init_source = load_initial_weights(cfg.init_from, model, run.value_norm)
-    run.collectors, run.dagger, run.evaluator = make_collectors(cfg, model, device, resume=saved is not None)
+    run.collectors, run.dagger, run.evaluator = make_collectors(cfg, model, resume=saved is not None)
     if cfg.rescue_coef > 0:
         run.rescue_labeler = RescueLabeler(follow_heading=cfg.rescue_heading)
     return run
 
 
 def make_collectors(
-    cfg: TrainConfig, model: AMAT, device: torch.device, resume: bool = False
+    cfg: TrainConfig, model: AMAT, resume: bool = False
 ) -> tuple[list[Any], list[Collector], Collector | None]:
     """A run's collectors: (the training worlds, which take turns: one, or the mixture's ``cfg.worlds``;
     the warm start's, with ``warm_start_worlds`` episodes a round where that is set, else the training
     worlds themselves (none on ``resume``); the evaluator, ``cfg.eval_episodes`` of the training task
-    with evaluation activation, or None)."""
+    with evaluation activation, or None). They play on the CPU wherever ``model`` trains."""
 
     def new(env: EnvConfig, n: int, seed: int = cfg.seed) -> Collector:
-        return Collector(env, n, seed, cfg.gamma, str(device))
+        return Collector(env, n, seed, cfg.gamma)
 
     specs = cfg.world_configs()
     if cfg.collector == "ray":  # the same episodes, collected by Ray workers (adapters/ray_collect.py)
