@@ -106,11 +106,12 @@ def decision_order(active: torch.Tensor, padding: torch.Tensor | None = None) ->
 
 def cpu_mirror(model: AMAT, mirror: AMAT | None = None) -> AMAT:
     """The policy to run on the CPU: ``model`` itself when its weights live there; else ``mirror`` (a
-    copy this returned before) or a new copy, on the CPU with ``model``'s current weights. Collection
-    plays it, so a model trained on a GPU still acts on the CPU cores, beside the numpy worlds."""
+    copy this returned before, of a model of the same config) or a new copy, on the CPU with
+    ``model``'s current weights. Collection plays it, so a model trained on a GPU still acts on the CPU
+    cores, beside the numpy worlds."""
     if all(p.device.type == "cpu" for p in model.parameters()):
         return model
-    if mirror is None:
+    if mirror is None or mirror is model or mirror.config != model.config:
         return copy.deepcopy(model).cpu()
     mirror.load_state_dict(model.state_dict())
     return mirror

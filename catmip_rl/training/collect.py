@@ -127,7 +127,9 @@ class Collector:
         (DAgger's mixture; drawn from ``generator``). Log-probs stay the policy's: a rollout with
         ``teacher_prob > 0`` is for imitation, not for PPO."""
         eng, s = self.engine, self._store
-        model = self._mirror = cpu_mirror(model, self._mirror)
+        policy = cpu_mirror(model, self._mirror)
+        if policy is not model:  # a CPU copy of a model on another device, refreshed by the next call
+            model = self._mirror = policy
         b_all = eng.num_worlds
         c = eng.cfg.num_classes
         eng.reset(episode_indices=np.arange(first_episode, first_episode + b_all))

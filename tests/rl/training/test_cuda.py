@@ -66,6 +66,17 @@ def test_collection_plays_the_gpu_models_current_weights(tmp_path):
         np.testing.assert_allclose(on_gpu.value, here.value, rtol=1e-5, atol=1e-6)
 
 
+def test_a_collector_copies_a_gpu_model_and_leaves_a_cpu_one_alone():
+    cfg = make_train_config("tiny")
+    on_cpu = build_run(cfg).model
+    before = _params(on_cpu)
+    on_gpu = build_run(cfg.replace(seed=1, device="cuda")).model
+    col = Collector(cfg.env_config(), 2, seed=0)
+    col.collect(on_cpu, 0, deterministic=True)
+    col.collect(on_gpu, 0, deterministic=True)  # its CPU copy is new, not the CPU model refreshed
+    assert torch.equal(_params(on_cpu), before) and not torch.equal(before, _params(on_gpu))
+
+
 def test_a_gpu_run_resumes_exports_and_loads_on_the_cpu(tmp_path):
     cfg = make_train_config("tiny", iterations=2, eval_every=1, checkpoint_every=1, device="cuda")
     a = train(cfg, tmp_path / "a", progress=False)
