@@ -12,14 +12,14 @@ import hashlib
 import json
 import os
 import zipfile
-from dataclasses import asdict
+from dataclasses import asdict, replace
 from pathlib import Path
 from typing import Any
 
 import torch
 
 from catmip_env.files import atomic_path
-from catmip_rl.amat.model import AMAT, AmatConfig
+from catmip_rl.amat.model import AMAT, AmatConfig, finer_pool
 from catmip_rl.files import atomic_write_text
 
 __all__ = [
@@ -308,7 +308,13 @@ def initial_weights(spec: str, config: AmatConfig) -> dict[str, Any]:
         model = model_from(blob, path)
     except (OSError, ValueError) as err:
         raise ValueError(f"init_from: {err}") from None
-    if model.config != config:
+    weights = model.state_dict()
+    if model.config != config and model.config == replace(config, pool=model.config.pool):
+        try:  # only the pooled grid differs: a finer one starts from the coarse model's weights
+            weights = finer_pool(weights, model.config.pool, config.pool)
+        except ValueError as err:
+            raise ValueError(f"init_from {spec!r}: {err}") from None
+    elif model.config != config:
         theirs, ours = asdict(model.config), asdict(config)
         diff = ", ".join(f"{k} {theirs[k]!r} there vs {ours[k]!r} here" for k in ours if theirs[k] != ours[k])
         raise ValueError(
@@ -328,7 +334,9 @@ def initial_weights(spec: str, config: AmatConfig) -> dict[str, Any]:
         "iteration": state.get("iteration"),
         "elapsed_min": None if own is None else _minutes_behind(own, state.get("init_from")),
     }
-    return {"model": model.state_dict(), "value_norm": state.get("value_norm"), "source": source}
+    if model.config.pool != config.pool:
+        source["pool"] = [model.config.pool, config.pool]
+    return {"model": weights, "value_norm": state.get("value_norm"), "source": source}
 
 
 def load_initial_weights(spec: str, model: AMAT, value_norm: torch.nn.Module) -> dict[str, Any]:

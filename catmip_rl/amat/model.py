@@ -35,7 +35,7 @@ from catmip_env.fields import INT, check
 from catmip_rl.amat.kernels.sparse_conv import global_conv_pool
 from catmip_rl.amat.layers import BlockCache, DecoderBlock, EncoderBlock, layer_norm, linear
 
-__all__ = ["AmatConfig", "AMAT", "decision_order", "cpu_mirror", "INVALID_LOGIT"]
+__all__ = ["AmatConfig", "AMAT", "decision_order", "cpu_mirror", "finer_pool", "INVALID_LOGIT"]
 
 INVALID_LOGIT = -1e10
 
@@ -115,6 +115,28 @@ def cpu_mirror(model: AMAT, mirror: AMAT | None = None) -> AMAT:
         return copy.deepcopy(model).cpu()
     mirror.load_state_dict(model.state_dict())
     return mirror
+
+
+def finer_pool(state: dict[str, torch.Tensor], pool: int, new_pool: int) -> dict[str, torch.Tensor]:
+    """``state`` (an AMAT state dict with pooled grid ``pool``) for a model whose grid is ``new_pool``,
+    a multiple of it: each coarse cell's global LayerNorm weights are copied to the k x k fine cells it
+    covers (k = new_pool / pool) and its ``obs_fc1`` input weights are split evenly among them. The two
+    models agree wherever every fine k x k block of the pooled features repeats its coarse cell, and
+    otherwise the fine model starts from the coarse model's reading of a map."""
+    if new_pool % pool:
+        raise ValueError(f"pool {new_pool} is not a multiple of {pool}: no cell-by-cell correspondence")
+    k, out = new_pool // pool, dict(state)
+
+    def spread(x: torch.Tensor) -> torch.Tensor:  # (..., G, G) -> (..., kG, kG)
+        return x.repeat_interleave(k, dim=-2).repeat_interleave(k, dim=-1)
+
+    for name in ("global_ln.weight", "global_ln.bias"):
+        out[name] = spread(state[name])
+    w, channels = state["obs_fc1.weight"], state["global_ln.weight"].shape[0]
+    n_g = channels * pool * pool  # obs_fc1's input: the pooled global features, then the local ones
+    w_g = spread(w[:, :n_g].reshape(w.shape[0], channels, pool, pool)) / (k * k)
+    out["obs_fc1.weight"] = torch.cat([w_g.flatten(1), w[:, n_g:]], dim=1)
+    return out
 
 
 class AMAT(nn.Module):

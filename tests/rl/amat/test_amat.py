@@ -4,7 +4,7 @@ import pytest
 import torch
 import torch.nn.functional as F
 
-from catmip_rl.amat.model import AMAT, AmatConfig, decision_order
+from catmip_rl.amat.model import AMAT, AmatConfig, decision_order, finer_pool
 from tests.rl.helpers import shaken_model
 
 
@@ -169,6 +169,26 @@ def test_initialisation():
     assert w.abs().max() < 0.05
     w = m.obs_fc1.weight  # followed by GELU: gain sqrt(2), orthogonal rows
     assert torch.allclose(w @ w.t(), 2 * torch.eye(w.shape[0]), atol=1e-4)
+
+
+@pytest.mark.parametrize("grad", [False, True])  # with grad on CPU, the global CNN runs in sparse_conv
+def test_a_finer_pooled_grid_reads_a_map_as_the_coarse_model_where_it_repeats_the_coarse_cells(grad):
+    coarse = shaken_model(AmatConfig(embed_dim=32, pool=2))
+    with torch.no_grad():  # the global CNN copies map channel 0 (a centre tap), so pooled cells follow its maxima
+        w = torch.zeros_like(coarse.global_conv.weight)
+        w[:, 0, 3, 3] = torch.linspace(-1, 1, w.shape[0])
+        coarse.global_conv.weight.copy_(w)
+    fine = AMAT(AmatConfig(embed_dim=32, pool=4))
+    fine.load_state_dict(finer_pool(coarse.state_dict(), 2, 4))
+    obs = _obs(2, 3, 8)
+    with torch.set_grad_enabled(grad):
+        assert not torch.allclose(coarse.embed(obs), fine.embed(obs), atol=1e-3)  # the fine grid sees more
+        # channel 0 constant over each coarse 4x4 cell: every fine 2x2 cell repeats its coarse cell
+        blocks = torch.randint(0, 5, (2, 3, 2, 2), generator=torch.Generator().manual_seed(3), dtype=torch.uint8)
+        obs["global_map"][:, :, 0] = blocks.repeat_interleave(4, -2).repeat_interleave(4, -1)
+        assert torch.allclose(coarse.embed(obs), fine.embed(obs), atol=1e-5)
+    with pytest.raises(ValueError, match="pool 6 is not a multiple of 4"):
+        finer_pool(fine.state_dict(), 4, 6)
 
 
 @pytest.mark.parametrize(
