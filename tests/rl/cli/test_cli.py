@@ -418,8 +418,9 @@ def test_shipped_models_load_by_name(tmp_path, monkeypatch):
     assert Path(parse_method("amat:task1").target) == SHIPPED
     assert parse_method("best=amat-guard:task1").loop_guard
     assert load_model("paper").config.embed_dim == 192  # the Table-2 size
+    assert load_model("smallma").config.window == 5  # SmallMA, D = 5
     assert parse_method("amat:sync").synchronous and not parse_method("amat:paper").synchronous  # Synch-AMAT
-    with pytest.raises(FileNotFoundError, match=r"shipped: paper, sync, task1"):
+    with pytest.raises(FileNotFoundError, match=r"shipped: paper, smallma, sync, task1"):
         load_model("task9")
     monkeypatch.chdir(tmp_path)  # a path named like a shipped model wins: paths keep working
     save_model(AMAT(AmatConfig(embed_dim=32)), tmp_path / "task1")
