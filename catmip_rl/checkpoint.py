@@ -300,8 +300,10 @@ def initial_weights(spec: str, config: AmatConfig) -> dict[str, Any]:
     checkpoint), a model file or a shipped model's name. The value normaliser (the value head predicts in
     its units) comes from a training checkpoint or a file of :func:`export_model`. ``source`` says where
     they came from: the spec, the file, its SHA-256, the iteration and the training minutes behind the
-    weights (counting the runs they came from in turn; None where unknown). Raises ``ValueError`` (the
-    message starts with "init_from") if the file is missing, unreadable or not an AMAT of ``config``."""
+    weights (counting the runs they came from in turn; None where unknown), and ``pool`` [theirs, ours]
+    where a model whose pooled grid divides ``config.pool`` (and is otherwise ``config``) was spread over
+    the finer grid (:func:`~catmip_rl.amat.model.finer_pool`). Raises ``ValueError`` (the message starts
+    with "init_from") if the file is missing, unreadable or not an AMAT of ``config``."""
     try:
         path = _model_file(resolve_model(spec))
         blob = read_checkpoint(path)
