@@ -174,9 +174,8 @@ def test_initialisation():
 @pytest.mark.parametrize("grad", [False, True])  # with grad on CPU, the global CNN runs in sparse_conv
 def test_a_finer_pooled_grid_reads_a_map_as_the_coarse_model_where_it_repeats_the_coarse_cells(grad):
     coarse = shaken_model(AmatConfig(embed_dim=32, pool=2))
-    with (
-        torch.no_grad()
-    ):  # the global CNN copies map channel 0 (a centre tap), so pooled cells follow its maxima
+    # the global CNN copies map channel 0 (a centre tap), so pooled cells follow its maxima
+    with torch.no_grad():
         w = torch.zeros_like(coarse.global_conv.weight)
         w[:, 0, 3, 3] = torch.linspace(-1, 1, w.shape[0])
         coarse.global_conv.weight.copy_(w)
@@ -186,9 +185,8 @@ def test_a_finer_pooled_grid_reads_a_map_as_the_coarse_model_where_it_repeats_th
     with torch.set_grad_enabled(grad):
         assert not torch.allclose(coarse.embed(obs), fine.embed(obs), atol=1e-3)  # the fine grid sees more
         # channel 0 constant over each coarse 4x4 cell: every fine 2x2 cell repeats its coarse cell
-        blocks = torch.randint(
-            0, 5, (2, 3, 2, 2), generator=torch.Generator().manual_seed(3), dtype=torch.uint8
-        )
+        gen = torch.Generator().manual_seed(3)
+        blocks = torch.randint(0, 5, (2, 3, 2, 2), generator=gen, dtype=torch.uint8)
         obs["global_map"][:, :, 0] = blocks.repeat_interleave(4, -2).repeat_interleave(4, -1)
         assert torch.allclose(coarse.embed(obs), fine.embed(obs), atol=1e-5)
     with pytest.raises(ValueError, match="pool 6 is not a multiple of 4"):
