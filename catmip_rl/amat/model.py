@@ -121,8 +121,9 @@ def finer_pool(state: dict[str, torch.Tensor], pool: int, new_pool: int) -> dict
     """``state`` (an AMAT state dict with pooled grid ``pool``) for a model whose grid is ``new_pool``,
     a multiple of it: each coarse cell's global LayerNorm weights are copied to the k x k fine cells it
     covers (k = new_pool / pool) and its ``obs_fc1`` input weights are split evenly among them. The two
-    models agree wherever every fine k x k block of the pooled features repeats its coarse cell, and
-    otherwise the fine model starts from the coarse model's reading of a map."""
+    models agree wherever every fine k x k block of the pooled features repeats its coarse cell;
+    elsewhere the fine model averages the fine cells where the coarse one read their maximum, so it
+    is a starting point close to the coarse model, not the same function."""
     if new_pool % pool:
         raise ValueError(f"pool {new_pool} is not a multiple of {pool}: no cell-by-cell correspondence")
     k, out = new_pool // pool, dict(state)
