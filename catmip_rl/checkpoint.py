@@ -311,7 +311,7 @@ def initial_weights(spec: str, config: AmatConfig) -> dict[str, Any]:
     except (OSError, ValueError) as err:
         raise ValueError(f"init_from: {err}") from None
     weights = model.state_dict()
-    if model.config != config and model.config == replace(config, pool=model.config.pool):
+    if model.config.pool != config.pool and model.config == replace(config, pool=model.config.pool):
         try:  # only the pooled grid differs: a finer one starts from the coarse model's weights
             weights = finer_pool(weights, model.config.pool, config.pool)
         except ValueError as err:

@@ -111,7 +111,7 @@ def cpu_mirror(model: AMAT, mirror: AMAT | None = None) -> AMAT:
     cores, beside the numpy worlds."""
     if all(p.device.type == "cpu" for p in model.parameters()):
         return model
-    if mirror is None or mirror is model or mirror.config != model.config:
+    if mirror is None or mirror.config != model.config:
         return copy.deepcopy(model).cpu()
     mirror.load_state_dict(model.state_dict())
     return mirror
