@@ -19,7 +19,9 @@ from typing import Any
 import torch
 
 from catmip_env.files import atomic_path
-from catmip_rl.amat.model import AMAT, AmatConfig, finer_pool
+from catmip_rl.amat.model import AMAT, AmatConfig
+from catmip_rl.amat.pointer import make_model
+from catmip_rl.amat.weights import finer_pool
 from catmip_rl.files import atomic_write_text
 
 __all__ = [
@@ -148,7 +150,7 @@ def model_from(blob: Any, path: Path) -> AMAT:
     if not isinstance(blob, dict) or blob.get("format") != FORMAT:
         raise ValueError(f"{path} is not an AMAT checkpoint (expected format {FORMAT!r})")
     try:
-        model = AMAT(AmatConfig.from_dict(blob["config"]))
+        model = make_model(AmatConfig.from_dict(blob["config"]))
     except (TypeError, ValueError, KeyError, AttributeError) as err:
         raise CheckpointError(f"{path} holds no valid AMAT config: {err}") from None
     state = blob.get("state_dict")
@@ -302,7 +304,7 @@ def initial_weights(spec: str, config: AmatConfig) -> dict[str, Any]:
     they came from: the spec, the file, its SHA-256, the iteration and the training minutes behind the
     weights (counting the runs they came from in turn; None where unknown), and ``pool`` [theirs, ours]
     where a model whose pooled grid divides ``config.pool`` (and is otherwise ``config``) was spread over
-    the finer grid (:func:`~catmip_rl.amat.model.finer_pool`). Raises ``ValueError`` (the message starts
+    the finer grid (:func:`~catmip_rl.amat.weights.finer_pool`). Raises ``ValueError`` (the message starts
     with "init_from") if the file is missing, unreadable or not an AMAT of ``config``."""
     try:
         path = _model_file(resolve_model(spec))

@@ -31,7 +31,8 @@ from tensordict import TensorDict
 from torchrl.collectors import BaseCollector
 
 from catmip_env.play import EpisodeRecords
-from catmip_rl.amat.model import AMAT, cpu_mirror
+from catmip_rl.amat.model import AMAT
+from catmip_rl.amat.weights import cpu_mirror
 from catmip_rl.training.collect import STEP_FIELDS, Collector, Rollout, episode_stats
 from catmip_rl.training.config import TrainConfig
 

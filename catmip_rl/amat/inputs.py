@@ -25,14 +25,18 @@ def macro_observation(
     local_map: np.ndarray,
     classes: np.ndarray,
     num_classes: int,
+    neighbourhood: np.ndarray | None = None,
     device: torch.device | str | None = None,
 ) -> dict[str, torch.Tensor]:
     """The model's ``obs`` dict from numpy arrays of any common leading shape (the arrays are shared,
     not copied, on CPU): ``global_map`` (..., 5+C, S, S), ``local_map`` (..., 4+C, L, L), class indices
-    (...) → ``agent_class`` (..., C)."""
+    (...) → ``agent_class`` (..., C), and the communication components (...) → ``neighbourhood`` if
+    given (read by the cell-goal model, ``amat.pointer``; the window model ignores it)."""
     obs = {
         "global_map": torch.from_numpy(global_map),
         "local_map": torch.from_numpy(local_map),
         "agent_class": one_hot_class(classes, num_classes),
     }
+    if neighbourhood is not None:
+        obs["neighbourhood"] = torch.from_numpy(np.asarray(neighbourhood, np.int64))
     return obs if device is None else {k: v.to(device) for k, v in obs.items()}

@@ -20,7 +20,6 @@ global CNN through ``sparse_conv`` and attention through ``small_attention``.
 
 from __future__ import annotations
 
-import copy
 import json
 import math
 from dataclasses import asdict, dataclass
@@ -35,9 +34,10 @@ from catmip_env.fields import INT, check
 from catmip_rl.amat.kernels.sparse_conv import global_conv_pool
 from catmip_rl.amat.layers import BlockCache, DecoderBlock, EncoderBlock, layer_norm, linear
 
-__all__ = ["AmatConfig", "AMAT", "decision_order", "cpu_mirror", "finer_pool", "INVALID_LOGIT"]
+__all__ = ["AmatConfig", "AMAT", "decision_order", "gather_robots", "as_float", "INVALID_LOGIT", "GOAL_KINDS"]
 
 INVALID_LOGIT = -1e10
+GOAL_KINDS = ("window", "cell")
 
 
 @dataclass(frozen=True)
@@ -58,15 +58,25 @@ class AmatConfig:
     """Encoder and decoder blocks."""
     n_classes: int = 2
     """C: robot classes (the class one-hot size)."""
+    goals: str = "window"
+    """"window": D*D goals around the robot (the paper's AMAT); "cell": any cell of the map, scored by a
+    pointer head over per-cell features (``amat.pointer``, the planners' action space)."""
+    cell_channels: int = 32
+    """Goals "cell": width of the per-cell feature maps."""
+    cell_layers: int = 4
+    """Goals "cell": convolutions of the per-cell encoder (dilations 1, 1, 2, 4, ...)."""
 
     def __post_init__(self) -> None:
         odd, positive = INT("that is odd and >= 1", lambda v: v >= 1 and v % 2), INT(">= 1", lambda v: v >= 1)
-        for name in ("window", "local_size", "pool", "embed_dim", "n_heads", "n_blocks", "n_classes"):
+        for name in ("window", "local_size", "pool", "embed_dim", "n_heads", "n_blocks", "n_classes",
+                     "cell_channels", "cell_layers"):  # fmt: skip
             check(
                 "AmatConfig", name, getattr(self, name), odd if name in ("window", "local_size") else positive
             )
         if self.embed_dim % self.n_heads:
             raise ValueError(f"embed_dim {self.embed_dim} is not divisible by n_heads {self.n_heads}")
+        if self.goals not in GOAL_KINDS:
+            raise ValueError(f"AmatConfig.goals must be one of {list(GOAL_KINDS)}, got {self.goals!r}")
 
     @property
     def num_actions(self) -> int:
@@ -104,42 +114,6 @@ def decision_order(active: torch.Tensor, padding: torch.Tensor | None = None) ->
     return torch.argsort(rank, dim=-1)
 
 
-def cpu_mirror(model: AMAT, mirror: AMAT | None = None) -> AMAT:
-    """The policy to run on the CPU: ``model`` itself when its weights live there; else ``mirror`` (a
-    copy this returned before, of a model of the same config) or a new copy, on the CPU with
-    ``model``'s current weights. Collection plays it, so a model trained on a GPU still acts on the CPU
-    cores, beside the numpy worlds."""
-    if all(p.device.type == "cpu" for p in model.parameters()):
-        return model
-    if mirror is None or mirror.config != model.config:
-        return copy.deepcopy(model).cpu()
-    mirror.load_state_dict(model.state_dict())
-    return mirror
-
-
-def finer_pool(state: dict[str, torch.Tensor], pool: int, new_pool: int) -> dict[str, torch.Tensor]:
-    """``state`` (an AMAT state dict with pooled grid ``pool``) for a model whose grid is ``new_pool``,
-    a multiple of it: each coarse cell's global LayerNorm weights are copied to the k x k fine cells it
-    covers (k = new_pool / pool) and its ``obs_fc1`` input weights are split evenly among them. The two
-    models agree wherever every fine k x k block of the pooled features repeats its coarse cell;
-    elsewhere the fine model averages the fine cells where the coarse one read their maximum, so it
-    is a starting point close to the coarse model, not the same function."""
-    if new_pool % pool:
-        raise ValueError(f"pool {new_pool} is not a multiple of {pool}: no cell-by-cell correspondence")
-    k, out = new_pool // pool, dict(state)
-
-    def spread(x: torch.Tensor) -> torch.Tensor:  # (..., G, G) -> (..., kG, kG)
-        return x.repeat_interleave(k, dim=-2).repeat_interleave(k, dim=-1)
-
-    for name in ("global_ln.weight", "global_ln.bias"):
-        out[name] = spread(state[name])
-    w, channels = state["obs_fc1.weight"], state["global_ln.weight"].shape[0]
-    n_g = channels * pool * pool  # obs_fc1's input: the pooled global features, then the local ones
-    w_g = spread(w[:, :n_g].reshape(w.shape[0], channels, pool, pool)) / (k * k)
-    out["obs_fc1.weight"] = torch.cat([w_g.flatten(1), w[:, n_g:]], dim=1)
-    return out
-
-
 class AMAT(nn.Module):
     """Embedder, encoder with per-token value head, macro-action embedder, causal decoder, policy
     head. Tensor-in / tensor-out; see the module docstring for the data flow."""
@@ -147,6 +121,10 @@ class AMAT(nn.Module):
     def __init__(self, config: AmatConfig | None = None) -> None:
         super().__init__()
         cfg = self.config = config or AmatConfig()
+        if cfg.goals != "window" and type(self) is AMAT:
+            raise ValueError(
+                f"AmatConfig.goals={cfg.goals!r} is amat.pointer.PointerAMAT: build it with make_model"
+            )
         d, c, g, l = cfg.embed_dim, cfg.n_classes, cfg.pool, cfg.local_size
         # -- macro-observation embedder ---------------------------------------------------------
         self.global_conv = nn.Conv2d(cfg.global_channels, 32, 7, stride=1, padding=3)
@@ -165,23 +143,32 @@ class AMAT(nn.Module):
         self.enc_blocks = nn.ModuleList(EncoderBlock(d, cfg.n_heads) for _ in range(cfg.n_blocks))
         self.value_head = nn.Sequential(nn.Linear(d, d), nn.GELU(), nn.LayerNorm(d), nn.Linear(d, 1))
         # -- macro-action embedder and decoder -----------------------------------------------------
+        self._build_decoder()
+        self._init_weights()
+
+    def _build_decoder(self) -> None:
+        """The decoder and its policy head over the D*D window goals."""
+        cfg, d = self.config, self.config.embed_dim
         self.action_enc = nn.Linear(cfg.num_actions + 1, d, bias=False)  # index 0: start token
-        self.dec_class_enc = nn.Linear(c, d)
+        self.dec_class_enc = nn.Linear(cfg.n_classes, d)
         self.dec_ln = nn.LayerNorm(d)
         self.dec_blocks = nn.ModuleList(DecoderBlock(d, cfg.n_heads) for _ in range(cfg.n_blocks))
         self.policy_head = nn.Sequential(
             nn.Linear(d, d), nn.GELU(), nn.LayerNorm(d), nn.Linear(d, cfg.num_actions)
         )
-        self._init_weights()
 
     # -- initialisation ---------------------------------------------------------------------------
-    def _init_weights(self) -> None:
-        """Orthogonal weights, zero biases; gain sqrt(2) for layers followed by an activation (directly
-        or after a LayerNorm), 0.01 for the rest (attention projections, second MLP layers, heads)."""
-        activated = {
+    def _activated_layers(self) -> set[nn.Module]:
+        """Layers followed by an activation (directly or after a LayerNorm): initialised with gain sqrt(2)."""
+        return {
             self.global_conv, self.local_conv1, self.local_conv2, self.obs_fc1, self.obs_fc2, self.class_enc,
             self.value_head[0], self.action_enc, self.dec_class_enc, self.policy_head[0],
         }  # fmt: skip
+
+    def _init_weights(self) -> None:
+        """Orthogonal weights, zero biases; gain sqrt(2) for layers followed by an activation (directly
+        or after a LayerNorm), 0.01 for the rest (attention projections, second MLP layers, heads)."""
+        activated = self._activated_layers()
         for block in [*self.enc_blocks, *self.dec_blocks]:
             activated.add(block.mlp[0])
         for m in self.modules():
@@ -205,11 +192,11 @@ class AMAT(nn.Module):
             # training on CPU: sparse conv + pool with a winning-cell backward (amat.kernels.sparse_conv)
             g = global_conv_pool(gmap, self.global_conv.weight, self.global_conv.bias, self.config.pool)
         else:
-            g = _as_float(gmap).flatten(0, 1)  # (B*N, 5+C, S, S)
+            g = as_float(gmap).flatten(0, 1)  # (B*N, 5+C, S, S)
             g = F.conv2d(g, self.global_conv.weight, self.global_conv.bias, padding=3)  # (B*N, 32, S, S)
             g = _max_pool(g, self.config.pool)  # (B*N, 32, G, G)
         g = F.relu(layer_norm(g, self.global_ln), inplace=True).flatten(1)  # (B*N, 32 G^2)
-        x = _as_float(lmap).flatten(0, 1)  # (B*N, 4+C, L, L)
+        x = as_float(lmap).flatten(0, 1)  # (B*N, 4+C, L, L)
         x = F.conv2d(x, self.local_conv1.weight, self.local_conv1.bias, padding=1)
         # in place: LayerNorm's backward does not need its output
         x = F.relu(layer_norm(x, self.local_ln1), inplace=True)
@@ -245,7 +232,7 @@ class AMAT(nn.Module):
         of the robot at position k - 1 (the start token at 0) and its own robot's class."""
         act_o = torch.gather(actions.clamp_min(0), 1, order)  # (B, N)
         prev = torch.cat([torch.zeros_like(act_o[:, :1]), act_o[:, :-1] + 1], dim=1)  # shifted, 0 = start
-        return self._action_tokens(prev, _gather(cls, order))
+        return self._action_tokens(prev, gather_robots(cls, order))
 
     def decode_parallel(
         self,
@@ -257,7 +244,7 @@ class AMAT(nn.Module):
     ) -> torch.Tensor:
         """Teacher-forced logits (B, N, A) in robot order, in one pass; masked actions get -1e10."""
         n = rep.shape[1]
-        rep_o = _gather(rep, order)  # (B, N, d) decision order
+        rep_o = gather_robots(rep, order)  # (B, N, d) decision order
         x = self._teacher_tokens(actions, order, agent_class.to(rep.dtype))
         causal = torch.ones(n, n, dtype=torch.bool, device=rep.device).tril()[None, None]
         for block in self.dec_blocks:
@@ -293,9 +280,11 @@ class AMAT(nn.Module):
         if steps == 0:
             return actions, log_probs
         order_a = order[:, :steps]  # (B, K): the first K positions hold the active robots
-        rep_o = _gather(rep, order_a)  # (B, K, d)
-        cls_tok = F.gelu(linear(_gather(agent_class.to(rep.dtype), order_a), self.dec_class_enc))  # (B, K, d)
-        mask_o = _gather(mask, order_a)  # (B, K, A)
+        rep_o = gather_robots(rep, order_a)  # (B, K, d)
+        cls_tok = F.gelu(
+            linear(gather_robots(agent_class.to(rep.dtype), order_a), self.dec_class_enc)
+        )  # (B, K, d)
+        mask_o = gather_robots(mask, order_a)  # (B, K, A)
         caches = [BlockCache(blk, rep_o) for blk in self.dec_blocks]
         emb = self.action_enc.weight.t()  # (A + 1, d): one-hot @ W == row lookup
         head = self.policy_head
@@ -362,7 +351,7 @@ class AMAT(nn.Module):
         if one_block:  # queries of unselected positions are never read: zeros
             rep_o = rep_sel.new_zeros(b * n, d).index_copy(0, rows_o, rep_sel).view(b, n, d)
         else:
-            rep_o = _gather(x, order)
+            rep_o = gather_robots(x, order)
         y = self._teacher_tokens(actions, order, agent_class.to(tokens.dtype))
         causal = torch.ones(n, n, dtype=torch.bool, device=tokens.device).tril()[None, None]
         last = len(self.dec_blocks) - 1
@@ -387,13 +376,14 @@ def _max_pool(x: torch.Tensor, g: int) -> torch.Tensor:
     return x.view(n, c, hh, g, ww // g).amax(-1).view(n, c, g, hh // g, g).amax(3)
 
 
-def _gather(x: torch.Tensor, index: torch.Tensor) -> torch.Tensor:
+def gather_robots(x: torch.Tensor, index: torch.Tensor) -> torch.Tensor:
     """x (B, N, ...) reordered along dim 1 by index (B, K)."""
     idx = index.view(*index.shape, *([1] * (x.dim() - 2))).expand(*index.shape, *x.shape[2:])
     return torch.gather(x, 1, idx)
 
 
-def _as_float(x: torch.Tensor) -> torch.Tensor:
+def as_float(x: torch.Tensor) -> torch.Tensor:
+    """A macro-observation as float: uint8 scaled by OBS_SCALE, other dtypes cast."""
     if x.dtype == torch.uint8:
         return x.float() * OBS_SCALE
     return x.float() if not x.is_floating_point() else x

@@ -189,7 +189,7 @@ def evaluate(
     sampled = None
     if isinstance(policy, AmatExecutor) and sampled_too:  # the same maps with sampled actions
         gen = torch.Generator().manual_seed(seed)
-        sampler = AmatExecutor(policy.model, False, gen, policy.loop_guard)
+        sampler = policy.sampler(gen)
         engine.reset(episode_indices=np.arange(episodes))
         sampled = _play_maps(sampler, engine, bar, None)
     if bar is not None:

@@ -22,6 +22,7 @@ from catmip_rl.amat.model import AMAT, AmatConfig, decision_order
 
 __all__ = [
     "AmatExecutor",
+    "CellGoalExecutor",
     "GOAL_BYTES",
     "embed_robot",
     "coordinate",
@@ -226,6 +227,10 @@ class AmatExecutor:
         self.messages = self.bytes_embedding = self.bytes_raw = None
         self._last_action = self._last_pose = None
 
+    def sampler(self, generator: torch.Generator) -> AmatExecutor:
+        """The same model and loop guard with sampled actions drawn from ``generator``."""
+        return type(self)(self.model, False, generator, self.loop_guard)
+
     def reset_counters(self, num_worlds: int, num_robots: int = 0) -> None:
         """Zero the message counters (and the loop guard's memory) for a new batch of episodes."""
         self.messages = np.zeros(num_worlds, np.int64)
@@ -288,3 +293,46 @@ class AmatExecutor:
             self.messages[b] += len(others) + n_goals
             self.bytes_embedding[b] += len(others) * sizes["embedding"] + n_goals * GOAL_BYTES
             self.bytes_raw[b] += len(others) * sizes["raw_float32"] + n_goals * GOAL_BYTES
+
+
+class CellGoalExecutor(AmatExecutor):
+    """Distributed execution of a cell-goal AMAT (``amat.pointer``) over an :class:`EventEngine` in cell
+    goal mode, with the same message accounting (a goal message is the cell index, H * W <= 65,536).
+
+    One batched pass over the worlds with an active robot: the model attends and decodes inside each
+    neighbourhood only (its ``neighbourhood`` input), which is each neighbourhood deciding on its own.
+    """
+
+    def __init__(self, model: AMAT, deterministic: bool = True, generator: torch.Generator | None = None,
+                 loop_guard: bool = False) -> None:  # fmt: skip
+        super().__init__(model, deterministic, generator, loop_guard, fast=False)
+
+    @torch.no_grad()
+    def act(self, engine: EventEngine) -> np.ndarray:
+        """Cell goal actions (B, N) of the active robots of live worlds (others: their current goal)."""
+        if engine.goal_mode != "cell":
+            raise ValueError(
+                f"a cell-goal AMAT needs an EventEngine with goal_mode='cell', got {engine.goal_mode!r}"
+            )
+        if self.messages is None or self._last_action.shape != (engine.num_worlds, engine.num_robots):
+            self.reset_counters(engine.num_worlds, engine.num_robots)
+        st = engine.state
+        active = engine.active & ~st.done[:, None]
+        masks = self._guarded_masks(engine, active) if self.loop_guard else engine.masks
+        actions = masks.argmax(-1).astype(np.int64)
+        if not active.any():
+            return actions
+        w = np.flatnonzero(active.any(1))
+        obs = macro_observation(
+            engine.obs_global[w], engine.obs_local[w], st.cls[w], self.model.config.n_classes, st.comp[w]
+        )
+        act = torch.from_numpy(active[w])
+        rep, _ = self.model.encode(self.model.embed(obs))
+        chosen, _ = self.model.decode_autoregressive(
+            rep, torch.from_numpy(masks[w]), decision_order(act), act, obs["agent_class"],
+            deterministic=self.deterministic, generator=self.generator,
+        )  # fmt: skip
+        actions[w] = chosen.numpy()
+        self._last_action[active] = actions[active]
+        self._count(engine, *active_neighbourhoods(active, st.comp), active)
+        return actions

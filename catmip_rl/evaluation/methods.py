@@ -23,7 +23,7 @@ from catmip_env.planners import PLANNERS, make_planner
 from catmip_env.window_planner import WINDOW_KINDS, make_window_planner
 from catmip_rl.amat.model import AMAT
 from catmip_rl.checkpoint import load_model, resolve_model, trained_synchronous
-from catmip_rl.evaluation.execution import AmatExecutor
+from catmip_rl.evaluation.execution import AmatExecutor, CellGoalExecutor
 from catmip_rl.evaluation.user_policy import load_factory, make_user_policy, parse_policy_source
 
 __all__ = ["Method", "parse_method", "parse_runs", "make_policy", "amat_label", "METHOD_HELP"]
@@ -138,4 +138,6 @@ def make_policy(
         wrapped = make_user_policy(factory, env_config, seed, method.name)
         return wrapped, wrapped.goal_mode, None
     model = model if model is not None else load_model(method.target)
+    if model.config.goals == "cell":
+        return CellGoalExecutor(model, loop_guard=method.loop_guard), "cell", None
     return AmatExecutor(model, loop_guard=method.loop_guard), "window", model.config.window

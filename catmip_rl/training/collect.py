@@ -22,7 +22,8 @@ from catmip_env.decision_stats import DecisionTracker
 from catmip_env.events import EventEngine
 from catmip_env.play import EpisodeRecords, decision_metrics, episode_metrics, episode_records
 from catmip_rl.amat.inputs import macro_observation
-from catmip_rl.amat.model import AMAT, cpu_mirror, decision_order
+from catmip_rl.amat.model import AMAT, decision_order
+from catmip_rl.amat.weights import cpu_mirror
 
 __all__ = ["Rollout", "Collector", "episode_stats", "STEP_FIELDS"]
 
@@ -34,6 +35,7 @@ class Rollout:
     global_map: np.ndarray  # (T, B, N, 5+C, H, W) uint8
     local_map: np.ndarray  # (T, B, N, 4+C, L, L) uint8
     agent_class: np.ndarray  # (T, B, N) int64 class index
+    neighbourhood: np.ndarray  # (T, B, N) int64 communication component (the lowest robot id in it)
     action_mask: np.ndarray  # (T, B, N, A) bool
     active: np.ndarray  # (T, B, N) bool
     order: np.ndarray  # (T, B, N) int64
@@ -43,7 +45,7 @@ class Rollout:
     ma_return: np.ndarray  # (T, B, N) float64 return of the macro-action that ended at row t
     ma_ticks: np.ndarray  # (T, B, N) int64 its duration
     valid: np.ndarray  # (T, B) bool
-    label: np.ndarray | None  # (T, B, N) int64 the teacher's window actions (collect(labeler=...))
+    label: np.ndarray | None  # (T, B, N) int64 the teacher's actions (collect(labeler=...))
     final_return: np.ndarray  # (B, N) float64 each robot's last macro-action's return
     terminated: np.ndarray  # (B,) bool the episode ended in a rescue (its last macro-actions are trained)
     records: EpisodeRecords  # the B episodes' records (catmip_env.play), decisions and stalls included
@@ -82,10 +84,13 @@ def episode_stats(records: EpisodeRecords, returns: np.ndarray, cfg: EnvConfig) 
 
 class Collector:
     """Runs B worlds of ``cfg`` for one episode each per call, with the policy on the CPU (a model
-    trained on a GPU plays through its CPU copy, refreshed at every call: ``amat.model.cpu_mirror``)."""
+    trained on a GPU plays through its CPU copy, refreshed at every call: ``amat.weights.cpu_mirror``).
+    ``goal_mode`` is the model's (``AmatConfig.goals``): "window" or "cell"."""
 
-    def __init__(self, cfg: EnvConfig, num_worlds: int, seed: int, gamma: float = 1.0) -> None:
-        self.engine = EventEngine(cfg, num_worlds, seed, goal_mode="window", gamma=gamma)
+    def __init__(
+        self, cfg: EnvConfig, num_worlds: int, seed: int, gamma: float = 1.0, goal_mode: str = "window"
+    ) -> None:
+        self.engine = EventEngine(cfg, num_worlds, seed, goal_mode=goal_mode, gamma=gamma)
         self._mirror: AMAT | None = None  # the CPU copy of a model that lives elsewhere
         eng = self.engine
         b, n, (h, w), c = eng.num_worlds, eng.num_robots, eng.shape, cfg.num_classes
@@ -93,8 +98,9 @@ class Collector:
         l = cfg.local_size
         shapes = {  # per (T, B) row: trailing shape and dtype of each STEP_FIELDS array
             "global_map": ((n, 5 + c, h, w), np.uint8), "local_map": ((n, 4 + c, l, l), np.uint8),
-            "agent_class": ((n,), np.int64), "action_mask": ((n, eng.num_actions), np.bool_),
-            "active": ((n,), np.bool_), "order": ((n,), np.int64), "action": ((n,), np.int64),
+            "agent_class": ((n,), np.int64), "neighbourhood": ((n,), np.int64),
+            "action_mask": ((n, eng.num_actions), np.bool_), "active": ((n,), np.bool_),
+            "order": ((n,), np.int64), "action": ((n,), np.int64),
             "log_prob": ((n,), np.float32), "value": ((n,), np.float32), "ma_return": ((n,), np.float64),
             "ma_ticks": ((n,), np.int64), "valid": ((), np.bool_),
         }  # fmt: skip
@@ -121,11 +127,11 @@ class Collector:
     ) -> Rollout:
         """One episode per world (episode indices ``first_episode + b``); returns the samples.
 
-        ``labeler.act(engine)`` (e.g. a :class:`~catmip_env.window_planner.WindowPlanner`), if given,
-        labels every event's active robots with its window actions (``Rollout.label``); each active
-        robot then executes the label instead of the policy's action with probability ``teacher_prob``
-        (DAgger's mixture; drawn from ``generator``). Log-probs stay the policy's: a rollout with
-        ``teacher_prob > 0`` is for imitation, not for PPO."""
+        ``labeler.act(engine)`` (e.g. a :class:`~catmip_env.window_planner.WindowPlanner`, or a planner
+        for cell goals), if given, labels every event's active robots with its actions
+        (``Rollout.label``); each active robot then executes the label instead of the policy's action
+        with probability ``teacher_prob`` (DAgger's mixture; drawn from ``generator``). Log-probs stay
+        the policy's: a rollout with ``teacher_prob > 0`` is for imitation, not for PPO."""
         eng, s = self.engine, self._store
         policy = cpu_mirror(model, self._mirror)
         if policy is not model:  # a CPU copy of a model on another device, refreshed by the next call
@@ -147,10 +153,13 @@ class Collector:
             s["global_map"][t, idx] = eng.obs_global[idx]
             s["local_map"][t, idx] = eng.obs_local[idx]
             s["agent_class"][t, idx] = st.cls[idx]
+            s["neighbourhood"][t, idx] = st.comp[idx]
             s["action_mask"][t, idx] = eng.masks[idx]
             s["active"][t, idx] = eng.active[idx]
             s["valid"][t, idx] = True
-            obs = macro_observation(s["global_map"][t, idx], s["local_map"][t, idx], st.cls[idx], c)
+            obs = macro_observation(
+                s["global_map"][t, idx], s["local_map"][t, idx], st.cls[idx], c, s["neighbourhood"][t, idx]
+            )
             active = torch.from_numpy(s["active"][t, idx])
             mask = torch.from_numpy(s["action_mask"][t, idx])
             rep, values = model.encode(model.embed(obs))

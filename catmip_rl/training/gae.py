@@ -133,6 +133,7 @@ class SampleBatch:
     target: torch.Tensor  # (M, N) normalised value targets
     trainable: torch.Tensor  # (M, N) bool: active robots whose macro-action finished
     rescue_label: torch.Tensor | None = None  # (M, N) long: the rescue rule's window action, -1 = none
+    neighbourhood: torch.Tensor | None = None  # (M, N) long communication component (the cell-goal model's)
 
     def __len__(self) -> int:
         return self.action.shape[0]
@@ -179,6 +180,7 @@ def build_batch(r: Rollout, value_norm: ValueNorm, gamma: float, lam: float, n_c
         global_map=torch.from_numpy(r.global_map[rows]),
         local_map=torch.from_numpy(r.local_map[rows]),
         agent_class=one_hot_class(r.agent_class[rows], n_classes),
+        neighbourhood=torch.from_numpy(r.neighbourhood[rows]),
         action_mask=torch.from_numpy(r.action_mask[rows]),
         order=torch.from_numpy(r.order[rows]),
         action=torch.from_numpy(r.action[rows]),

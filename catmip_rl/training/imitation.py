@@ -25,9 +25,10 @@ import torch
 
 from catmip_env.constants import TARGET_BIT
 from catmip_env.events import EventEngine
+from catmip_env.planners import make_planner
 from catmip_env.window_planner import make_window_planner, window_method_name
 from catmip_rl.amat.inputs import one_hot_class
-from catmip_rl.amat.model import AMAT
+from catmip_rl.amat.model import AMAT, INVALID_LOGIT
 from catmip_rl.files import open_csv_log, write_csv_row
 from catmip_rl.training.collect import Collector, Rollout
 
@@ -39,7 +40,7 @@ WARM_START_METRICS = [
     "eval/sampled_success_rate", "eval/sampled_success_by_100", "time/collect_s", "time/update_s",
     "time/elapsed_min",
 ]  # fmt: skip
-_KEYS = ("global_map", "local_map", "agent_class", "action_mask", "active", "order", "label")
+_KEYS = ("global_map", "local_map", "agent_class", "neighbourhood", "action_mask", "active", "order", "label")
 
 
 @dataclass
@@ -95,18 +96,22 @@ def imitation_loss(
     model: AMAT, batch: dict[str, torch.Tensor], skip_label: int | None = None
 ) -> tuple[torch.Tensor, dict[str, float]]:
     """Mean cross-entropy of the active robots' labels under teacher forcing, and its accuracy; decisions
-    labelled ``skip_label`` are not scored (they still feed the decoder as inputs)."""
-    obs = {k: batch[k] for k in ("global_map", "local_map", "agent_class")}
+    labelled ``skip_label`` are not scored (they still feed the decoder as inputs), nor are labels the
+    model's own mask rules out (the cell-goal model narrows the environment's mask: ``amat.pointer``)."""
+    obs = {k: batch[k] for k in ("global_map", "local_map", "agent_class", "neighbourhood") if k in batch}
     sel = batch["active"].bool()
     if skip_label is not None:
         sel = sel & (batch["label"] != skip_label)
-    if not sel.any():
+    if sel.any():
+        logits, _ = model.score(
+            model.embed(obs), batch["label"], batch["order"], batch["agent_class"], sel, batch["action_mask"]
+        )  # (K, A)
+        target = batch["label"][sel]
+        inside = logits.gather(1, target[:, None])[:, 0] > INVALID_LOGIT / 2
+        logits, target = logits[inside], target[inside]
+    if not sel.any() or len(target) == 0:
         zero = sum(p.sum() * 0.0 for p in model.parameters())  # no label in this batch: no step
         return zero, {"imitation/loss": 0.0, "imitation/accuracy": 0.0}
-    logits, _ = model.score(
-        model.embed(obs), batch["label"], batch["order"], batch["agent_class"], sel, batch["action_mask"]
-    )  # (K, A)
-    target = batch["label"][sel]
     loss = torch.nn.functional.cross_entropy(logits.float(), target)
     with torch.no_grad():
         acc = (logits.argmax(-1) == target).float().mean()
@@ -143,11 +148,16 @@ def dagger(
         raise ValueError("dagger: rounds, steps_per_round and batch_events must be >= 1")
     gen = generator if generator is not None else torch.Generator().manual_seed(seed)
     rng = np.random.default_rng(seed)
-    label_teacher = make_window_planner(teacher, seed=seed, follow_heading=follow_heading)
+    if model.config.goals == "cell":  # the planner itself: the same action space, nothing projected
+        label_teacher = make_planner(teacher, seed=seed)
+    else:
+        label_teacher = make_window_planner(teacher, seed=seed, follow_heading=follow_heading)
     collectors = collector if isinstance(collector, list) else [collector]
     buffers = [DemoBuffer(buffer_events // len(collectors)) for _ in collectors]
     device = next(model.parameters()).device
     n_classes = model.config.n_classes
+    if not imitate_stay and model.config.goals != "window":
+        raise ValueError("imitate_stay=False is for window goals (a cell model's 'stay' is the robot's cell)")
     skip = None if imitate_stay else model.config.num_actions // 2  # the window's centre: "stay"
     opt = torch.optim.Adam(model.parameters(), lr=lr, eps=1e-5)
     episodes = first_episode
@@ -204,7 +214,8 @@ def warm_start(cfg, model, collector, gen, run_dir, progress: bool, evaluate=Non
     if progress:
         from tqdm import tqdm
 
-        teacher = window_method_name(cfg.warm_start, cfg.warm_start_heading)
+        cell = model.config.goals == "cell"  # the planner itself, or its goals projected into the window
+        teacher = cfg.warm_start if cell else window_method_name(cfg.warm_start, cfg.warm_start_heading)
         bar = tqdm(total=cfg.warm_start_rounds, desc=f"warm start ({teacher})", unit="round")
 
     def on_round(row: dict) -> None:

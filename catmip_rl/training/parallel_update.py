@@ -29,6 +29,7 @@ import torch
 import torch.multiprocessing as mp
 
 from catmip_rl.amat.model import AMAT, AmatConfig
+from catmip_rl.amat.pointer import make_model
 from catmip_rl.training.gae import SampleBatch
 from catmip_rl.training.ppo import accumulate_gradients
 
@@ -59,7 +60,7 @@ def _helper(conn, config: dict[str, Any], params: torch.Tensor, grads: torch.Ten
 
     torch.set_num_threads(1)
     keep_freed_memory()
-    model = AMAT(AmatConfig(**config)).train()
+    model = make_model(AmatConfig(**config)).train()
     batch = None
     while True:
         try:

@@ -67,6 +67,8 @@ def ppo_loss(
     minibatch, the losses (and parts) of its micro-batches add up to the minibatch's.
     """
     obs = {"global_map": batch.global_map, "local_map": batch.local_map, "agent_class": batch.agent_class}
+    if batch.neighbourhood is not None:
+        obs["neighbourhood"] = batch.neighbourhood
     sel = batch.trainable.bool()  # the loss reads these robots only: logits and values of them alone
     logits, values = model.score(
         model.embed(obs), batch.action, batch.order, batch.agent_class, sel, batch.action_mask

@@ -28,6 +28,7 @@ import torch
 
 from catmip_env.config import EnvConfig
 from catmip_rl.amat.model import AMAT
+from catmip_rl.amat.pointer import make_model
 from catmip_rl.checkpoint import load_initial_weights, restore_training, save_training_checkpoint
 from catmip_rl.files import atomic_write_text, open_csv_log, write_csv_row
 from catmip_rl.training.allocator import keep_freed_memory
@@ -133,7 +134,7 @@ def build_run(cfg: TrainConfig, saved: dict | None = None) -> Run:
     torch.manual_seed(cfg.seed)
     gen = torch.Generator().manual_seed(cfg.seed)
     amat_config = cfg.amat_config()
-    model = AMAT(amat_config).to(device)
+    model = make_model(amat_config).to(device)
     # the value normaliser stays on the CPU, where the batch is built (gae.build_batch), then moved to device
     run = Run(cfg, device, model, make_optimizer(model, cfg), ValueNorm(), gen)
     if saved is not None:
@@ -157,7 +158,7 @@ def make_collectors(
     with evaluation activation, or None). They play on the CPU wherever ``model`` trains."""
 
     def new(env: EnvConfig, n: int, seed: int = cfg.seed) -> Collector:
-        return Collector(env, n, seed, cfg.gamma)
+        return Collector(env, n, seed, cfg.gamma, goal_mode=model.config.goals)
 
     specs = cfg.world_configs()
     if cfg.collector == "ray":  # the same episodes, collected by Ray workers (adapters/ray_collect.py)

@@ -154,7 +154,7 @@ def test_a_new_run_can_start_from_another_runs_weights(tmp_path):
         other = cfg.replace(init_from=str(tmp_path / "a"), amat={"embed_dim": 16})
         train(other, tmp_path / "d", progress=False)
     assert not (tmp_path / "d").exists()
-    # only the pooled grid differs: a finer multiple starts from the coarse weights (amat.model.finer_pool)
+    # only the pooled grid differs: a finer multiple starts from the coarse weights (amat.weights.finer_pool)
     fine = build_run(cfg.replace(init_from=str(tmp_path / "a"), amat={**cfg.amat, "pool": 8}))
     assert fine.init_source["pool"] == [4, 8] and torch.equal(fine.model.obs_fc1.bias, a.obs_fc1.bias)
     with pytest.raises(ValueError, match="init_from .* pool 6 is not a multiple of 4"):

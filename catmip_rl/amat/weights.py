@@ -1,0 +1,48 @@
+"""Weights between models: a CPU copy of a model trained elsewhere, and a coarse model's weights for a
+finer pooled global grid."""
+
+from __future__ import annotations
+
+import copy
+
+import torch
+
+from catmip_rl.amat.model import AMAT
+
+__all__ = ["cpu_mirror", "finer_pool"]
+
+
+def cpu_mirror(model: AMAT, mirror: AMAT | None = None) -> AMAT:
+    """The policy to run on the CPU: ``model`` itself when its weights live there; else ``mirror`` (a
+    copy this returned before, of a model of the same config) or a new copy, on the CPU with
+    ``model``'s current weights. Collection plays it, so a model trained on a GPU still acts on the CPU
+    cores, beside the numpy worlds."""
+    if all(p.device.type == "cpu" for p in model.parameters()):
+        return model
+    if mirror is None or mirror.config != model.config:
+        return copy.deepcopy(model).cpu()
+    mirror.load_state_dict(model.state_dict())
+    return mirror
+
+
+def finer_pool(state: dict[str, torch.Tensor], pool: int, new_pool: int) -> dict[str, torch.Tensor]:
+    """``state`` (an AMAT state dict with pooled grid ``pool``) for a model whose grid is ``new_pool``,
+    a multiple of it: each coarse cell's global LayerNorm weights are copied to the k x k fine cells it
+    covers (k = new_pool / pool) and its ``obs_fc1`` input weights are split evenly among them. The two
+    models agree wherever every fine k x k block of the pooled features repeats its coarse cell;
+    elsewhere the fine model averages the fine cells where the coarse one read their maximum, so it
+    is a starting point close to the coarse model, not the same function."""
+    if new_pool % pool:
+        raise ValueError(f"pool {new_pool} is not a multiple of {pool}: no cell-by-cell correspondence")
+    k, out = new_pool // pool, dict(state)
+
+    def spread(x: torch.Tensor) -> torch.Tensor:  # (..., G, G) -> (..., kG, kG)
+        return x.repeat_interleave(k, dim=-2).repeat_interleave(k, dim=-1)
+
+    for name in ("global_ln.weight", "global_ln.bias"):
+        out[name] = spread(state[name])
+    w, channels = state["obs_fc1.weight"], state["global_ln.weight"].shape[0]
+    n_g = channels * pool * pool  # obs_fc1's input: the pooled global features, then the local ones
+    w_g = spread(w[:, :n_g].reshape(w.shape[0], channels, pool, pool)) / (k * k)
+    out["obs_fc1.weight"] = torch.cat([w_g.flatten(1), w[:, n_g:]], dim=1)
+    return out

@@ -1,0 +1,165 @@
+"""The cell-goal AMAT (amat.pointer): its inputs, its two log-prob paths, neighbourhoods, any map size."""
+
+import numpy as np
+import pytest
+import torch
+
+from catmip_env.config import make_config
+from catmip_env.constants import EXPLORED, OCCUPIED
+from catmip_env.events import EventEngine, random_valid_actions
+from catmip_env.planners import _distance_field
+from catmip_rl.amat.inputs import macro_observation
+from catmip_rl.amat.kernels.cell_fields import cell_fields
+from catmip_rl.amat.model import AMAT, AmatConfig, decision_order
+from catmip_rl.amat.pointer import PointerAMAT, make_model
+from catmip_rl.checkpoint import load_model, save_model
+from catmip_rl.evaluation.execution import CellGoalExecutor
+from catmip_rl.training.collect import Collector
+
+CFG = AmatConfig(goals="cell", embed_dim=32, cell_channels=8, cell_layers=3)
+
+
+def shaken(seed=0):
+    """A cell-goal model far from its init (the 'claimed' weights non-zero), so every input matters."""
+    torch.manual_seed(seed)
+    m = make_model(CFG)
+    with torch.no_grad():
+        for p in m.parameters():
+            p.add_(0.3 * torch.randn_like(p))
+    return m.eval()
+
+
+def engine_midway(preset="task3", worlds=6, seed=0, events=12, **overrides):
+    """Worlds some events into their episodes (random valid cell goals), so maps hold explored cells."""
+    eng = EventEngine(make_config(preset, **overrides), worlds, seed=seed, goal_mode="cell")
+    eng.reset()
+    rng = np.random.default_rng(seed)
+    for _ in range(events):
+        eng.step(random_valid_actions(eng.masks, rng))
+    return eng
+
+
+def observation(eng, groups=True):
+    st = eng.state
+    return macro_observation(
+        eng.obs_global, eng.obs_local, st.cls, 2, st.comp.astype(np.int64) if groups else None
+    )
+
+
+def test_cell_fields_are_the_robots_position_and_path_distance_on_its_own_map():
+    eng = engine_midway(slam_noise=0.0)
+    pos, dist = cell_fields(eng.obs_global)
+    st = eng.state
+    np.testing.assert_array_equal(pos, st.pos)
+    for b in range(eng.num_worlds):
+        for i in range(eng.num_robots):
+            blocked = (st.belief[b, i] & OCCUPIED) != 0
+            blocked[0, :] = blocked[-1, :] = blocked[:, 0] = blocked[:, -1] = True
+            blocked[tuple(st.pos[b, i])] = False
+            np.testing.assert_array_equal(dist[b, i], _distance_field(blocked, *st.pos[b, i]))
+
+
+def test_window_amat_refuses_a_cell_config_and_make_model_builds_each_kind():
+    with pytest.raises(ValueError, match="make_model"):
+        AMAT(CFG)
+    assert type(make_model(AmatConfig(embed_dim=32))) is AMAT
+    assert type(make_model(CFG)) is PointerAMAT
+    with pytest.raises(ValueError, match="goals"):
+        AmatConfig(goals="anywhere")
+
+
+@pytest.mark.parametrize("groups", [True, False])
+def test_sampled_log_probs_equal_the_teacher_forced_ones(groups):
+    """decode_autoregressive (one position at a time) and score (all at once) give the same log-probs,
+    with partial communication (several neighbourhoods) and without."""
+    eng = engine_midway(comm_sigma=2.0)
+    model = shaken()
+    obs = observation(eng, groups)
+    active = torch.from_numpy(eng.active.copy())
+    active[:, ::2] = True  # several deciders per world
+    mask = torch.from_numpy(eng.masks.copy())
+    order = decision_order(active)
+    rep, values = model.encode(model.embed(obs))
+    gen = torch.Generator().manual_seed(0)
+    actions, logp = model.decode_autoregressive(rep, mask, order, active, obs["agent_class"], generator=gen)
+    logits, v_sel = model.score(model.embed(obs), actions, order, obs["agent_class"], active, mask)
+    lp = torch.log_softmax(logits, -1).gather(1, actions[active][:, None])[:, 0]
+    torch.testing.assert_close(lp, logp[active], atol=1e-4, rtol=1e-4)
+    torch.testing.assert_close(v_sel, values[active])
+    assert len(set(eng.state.comp.flatten().tolist())) > 1 or not groups
+
+
+def test_chosen_goals_are_known_free_reachable_cells_or_stay():
+    eng = engine_midway()
+    model = shaken(1)
+    obs = observation(eng)
+    active = torch.from_numpy(eng.active.copy())
+    rep, _ = model.encode(model.embed(obs))
+    mask = torch.from_numpy(eng.masks.copy())
+    actions, _ = model.decode_autoregressive(rep, mask, decision_order(active), active, obs["agent_class"])
+    st, w = eng.state, eng.shape[1]
+    _, dist = cell_fields(eng.obs_global)
+    for b, i in zip(*np.nonzero(eng.active)):
+        r, c = divmod(int(actions[b, i]), w)
+        assert eng.masks[b, i, r * w + c]
+        own = (r, c) == tuple(st.pos[b, i])
+        assert own or ((st.belief[b, i, r, c] & EXPLORED) and dist[b, i, r, c] >= 0)
+
+
+def test_a_neighbourhood_decides_as_it_would_alone():
+    """With the neighbourhood input, a world's robots in two neighbourhoods decide exactly as each
+    neighbourhood decides on a batch of its own members (decentralised execution)."""
+    eng = engine_midway(worlds=3)
+    model = shaken(2)
+    st = eng.state
+    comp = np.zeros_like(st.comp)
+    comp[:, 3:] = 3  # robots 0-2 and 3-5
+    active = np.ones_like(eng.active)
+    obs = macro_observation(eng.obs_global, eng.obs_local, st.cls, 2, comp)
+    act = torch.from_numpy(active)
+    mask = torch.from_numpy(eng.masks.copy())
+    rep, values = model.encode(model.embed(obs))
+    together, _ = model.decode_autoregressive(
+        rep, mask, decision_order(act), act, obs["agent_class"], deterministic=True
+    )
+    for members in (slice(0, 3), slice(3, 6)):
+        sub = {k: v[:, members] for k, v in obs.items()}
+        rep_s, values_s = model.encode(model.embed(sub))
+        alone, _ = model.decode_autoregressive(
+            rep_s, mask[:, members], decision_order(act[:, members]), act[:, members], sub["agent_class"],
+            deterministic=True,
+        )  # fmt: skip
+        torch.testing.assert_close(values_s, values[:, members])
+        torch.testing.assert_close(alone, together[:, members])
+
+
+def test_one_model_plays_any_map_size_and_team_and_survives_a_checkpoint(tmp_path):
+    model = shaken(3)
+    path = save_model(model, tmp_path / "cell.pt")
+    loaded = load_model(path)
+    assert type(loaded) is PointerAMAT and loaded.config == CFG
+    for preset in ("task1", "task3"):
+        eng = EventEngine(make_config(preset), 4, seed=1, goal_mode="cell")
+        eng.reset(episode_indices=np.arange(4))
+        a = CellGoalExecutor(model).act(eng)
+        eng2 = EventEngine(make_config(preset), 4, seed=1, goal_mode="cell")
+        eng2.reset(episode_indices=np.arange(4))
+        np.testing.assert_array_equal(a, CellGoalExecutor(loaded).act(eng2))
+        for _ in range(5):  # valid actions: the engine raises on a masked one
+            eng.step(CellGoalExecutor(model).act(eng))
+
+
+def test_a_cell_goal_rollout_trains_with_the_ppo_loss():
+    """Collected in cell mode with neighbourhoods, re-scored by the PPO loss: the ratio starts at 1."""
+    from catmip_rl.training.gae import ValueNorm, build_batch
+    from catmip_rl.training.ppo import ppo_loss
+
+    model = shaken(4)
+    col = Collector(make_config("task1", horizon_ticks=40, comm_sigma=2.0), 4, seed=0, goal_mode="cell")
+    r = col.collect(model, 0, torch.Generator().manual_seed(0))
+    batch, _ = build_batch(r, ValueNorm(), 0.99, 0.95, 2, torch.device("cpu"))
+    assert batch.neighbourhood is not None and batch.action_mask.shape[-1] == 15 * 15
+    loss, stats = ppo_loss(model, batch)
+    assert abs(float(stats["ppo/approx_kl"])) < 1e-5 and float(stats["ppo/clip_fraction"]) == 0.0
+    loss.backward()
+    assert model.query[0].weight.grad.abs().sum() > 0 and model.cell_in.weight.grad.abs().sum() > 0
