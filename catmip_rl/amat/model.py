@@ -64,7 +64,7 @@ class AmatConfig:
     cell_channels: int = 32
     """Goals "cell": width of the per-cell feature maps."""
     cell_layers: int = 4
-    """Goals "cell": convolutions of the per-cell encoder (dilations 1, 1, 2, 4, ...)."""
+    """Goals "cell": convolutions of the per-cell encoder: a 3x3, then residual 3x3s dilated 1, 1, 2, 4..."""
 
     def __post_init__(self) -> None:
         odd, positive = INT("that is odd and >= 1", lambda v: v >= 1 and v % 2), INT(">= 1", lambda v: v >= 1)

@@ -136,6 +136,8 @@ class PointerAMAT(AMAT):
         x = as_float(gmap)
         dist_in = torch.where(reach, dist.to(x.dtype) / DIST_SCALE, torch.zeros((), dtype=x.dtype))
         x = torch.cat([x, dist_in[:, None], reach[:, None].to(x.dtype)], 1)  # (K, 7+C, H, W)
+        # channels-last: oneDNN's convolutions ran 1.7x faster so (fp32, forward + backward, one thread)
+        x = x.contiguous(memory_format=torch.channels_last)
         f = F.gelu(self.cell_in(x))
         for conv in self.cell_convs:
             f = f + F.gelu(conv(f))

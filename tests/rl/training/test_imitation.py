@@ -218,3 +218,53 @@ def test_the_rescue_losss_label_follows_the_heading_as_configured(follow_heading
     assert run.rescue_labeler.teacher.follow_heading is follow_heading
     with pytest.raises(ValueError, match="rescue_heading must be true or false"):
         make_train_config("tiny", rescue_heading=0)
+
+
+def test_dagger_of_a_planner_in_its_own_action_space_fits_a_cell_goal_model():
+    """A cell-goal model imitates the planner itself (no projection): its labels are cell actions, and
+    a few rounds take its agreement with Nearest far above chance on the teacher's own fresh episodes."""
+    from catmip_env.planners import make_planner
+    from catmip_rl.amat.pointer import make_model
+
+    cfg = make_config("task1", activation=(2, 5), horizon_ticks=100)
+    col = Collector(cfg, 8, seed=0, goal_mode="cell")
+    torch.manual_seed(0)
+    model = make_model(AmatConfig(goals="cell", embed_dim=32, cell_channels=16, cell_layers=3))
+    _, log = dagger(model, col, "nearest", rounds=3, steps_per_round=40, batch_events=64, seed=0)
+    assert log[-1]["imitation/accuracy"] > log[0]["imitation/accuracy"]
+    r = Collector(cfg, 8, seed=9, goal_mode="cell").collect(
+        model, 0, torch.Generator().manual_seed(0), labeler=make_planner("nearest"), teacher_prob=1.0
+    )
+    act = r.active & r.valid[..., None]
+    assert np.take_along_axis(r.action_mask, r.label[..., None], -1)[..., 0][act].all()  # cell labels
+    buf = DemoBuffer(10_000)
+    buf.add(r)
+    with torch.no_grad():
+        _, stats = imitation_loss(model, buf.batch(np.arange(len(buf)), 2, torch.device("cpu")))
+    chance = float((1.0 / buf.arrays["action_mask"][buf.arrays["active"]].sum(-1)).mean())
+    assert stats["imitation/accuracy"] > 10 * chance
+
+
+def test_labels_the_model_rules_out_are_left_unscored():
+    """The cell-goal model narrows the env's mask to known free cells: a label on an unexplored cell
+    leaves the loss (a finite loss from the other labels), and a batch of such labels alone scores 0."""
+    from catmip_env.planners import make_planner
+    from catmip_rl.amat.pointer import make_model
+
+    cfg = make_config("task1", activation=(2, 5), horizon_ticks=60)
+    r = Collector(cfg, 4, seed=0, goal_mode="cell").collect(
+        make_model(AmatConfig(goals="cell", embed_dim=32, cell_channels=8)),
+        0,
+        labeler=make_planner("nearest"),
+    )
+    buf = DemoBuffer(10_000)
+    buf.add(r)
+    model = make_model(AmatConfig(goals="cell", embed_dim=32, cell_channels=8))
+    batch = buf.batch(np.arange(len(buf)), 2, torch.device("cpu"))
+    loss, stats = imitation_loss(model, batch)
+    assert torch.isfinite(loss) and stats["imitation/loss"] > 0
+    explored = batch["global_map"][:, :, 0] > 0  # (M, N, H, W)
+    unexplored = (~explored).flatten(2).float().argmax(-1)  # an unexplored cell of each robot's map
+    outside = dict(batch, label=unexplored)
+    loss, stats = imitation_loss(model, outside)
+    assert float(loss) == 0.0 and stats["imitation/accuracy"] == 0.0

@@ -290,10 +290,11 @@ def test_a_mixture_of_worlds_is_checked(tmp_path):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("preset", ["paper-warm-sync", "paper-warm-smallma", "general"])
+@pytest.mark.parametrize("preset", ["paper-warm-sync", "paper-warm-smallma", "general", "general-window"])
 def test_the_issue_presets_build_and_train_an_iteration(preset, tmp_path):
-    """The variants' and the general model's presets as `catmip train` runs them, shrunk: a DAgger round
-    where they warm-start, then one PPO iteration (the general one from amat_paper.pt's weights)."""
+    """The variants' and the general models' presets as `catmip train` runs them, shrunk: a DAgger round
+    where they warm-start, then one PPO iteration (general-window from amat_paper.pt's weights; general
+    with cell goals)."""
     cfg = make_train_config(preset)
     small = {"num_worlds": 2, "iterations": 1, "eval_every": 0, "threads": 1, "warm_start_rounds": 1,
              "warm_start_steps": 1}  # fmt: skip
@@ -306,8 +307,9 @@ def test_the_issue_presets_build_and_train_an_iteration(preset, tmp_path):
     saved = TrainConfig.from_json((run / "config.json").read_text())
     assert saved.env_config().synchronous == (preset == "paper-warm-sync")
     assert saved.amat_config().window == (5 if preset == "paper-warm-smallma" else 7)
-    assert (run / "warm_start.csv").exists() == (preset != "general")
-    assert (run / "init_from.json").exists() == (preset == "general")
+    assert saved.amat_config().goals == ("cell" if preset == "general" else "window")
+    assert (run / "warm_start.csv").exists() == (preset != "general-window")
+    assert (run / "init_from.json").exists() == (preset == "general-window")
 
 
 def test_a_warm_start_on_a_mixture_imitates_in_every_world(tmp_path):
