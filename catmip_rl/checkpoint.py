@@ -48,9 +48,15 @@ def atomic_torch_save(obj: Any, path: str | Path) -> Path:
     return Path(path)
 
 
-def save_model(model: AMAT, path: str | Path, extra: dict[str, Any] | None = None) -> Path:
-    """Write ``path`` (torch file: format tag, config, CPU state dict, ``extra``) and ``path``.json."""
+def save_model(
+    model: AMAT, path: str | Path, extra: dict[str, Any] | None = None, half: bool = False
+) -> Path:
+    """Write ``path`` (torch file: format tag, config, CPU state dict, ``extra``) and ``path``.json.
+    ``half`` stores the weights as float16 (half the bytes: a snapshot to commit; loading casts them back
+    to float32, a relative change of at most 2^-11 per weight)."""
     state = {k: v.detach().cpu() for k, v in model.state_dict().items()}
+    if half:
+        state = {k: v.half() if v.is_floating_point() else v for k, v in state.items()}
     blob = {"format": FORMAT, "config": asdict(model.config), "state_dict": state, "extra": extra or {}}
     path = atomic_torch_save(blob, path)
     side = {"format": FORMAT, "config": asdict(model.config)}
@@ -353,13 +359,14 @@ def load_initial_weights(spec: str, model: AMAT, value_norm: torch.nn.Module) ->
     return init["source"]
 
 
-def export_model(source: str | Path, out: str | Path) -> tuple[Path, dict[str, Any]]:
+def export_model(source: str | Path, out: str | Path, half: bool = False) -> tuple[Path, dict[str, Any]]:
     """Write the model of a training checkpoint or run dir (its latest checkpoint) as a model file
     (:func:`save_model`, what ``catmip_rl/models/`` ships), with the run's state in the file's ``extra``:
     its config (``train_config``), iteration, episodes, training minutes (``training_minutes``: the run's
     own; ``total_training_minutes``: with those of the runs it started from), where it started from
     (``init_from``, its ``init_from.json``), the value normaliser (so that ``--init-from`` the file
-    fine-tunes like the checkpoint) and the CPU capability. Returns (path, extra)."""
+    fine-tunes like the checkpoint) and the CPU capability; ``half``: float16 weights (:func:`save_model`).
+    Returns (path, extra)."""
     path = _model_file(resolve_model(source))
     blob = read_checkpoint(path)
     if not _is_training_checkpoint(blob):
@@ -379,4 +386,4 @@ def export_model(source: str | Path, out: str | Path) -> tuple[Path, dict[str, A
         "value_norm": blob["value_norm"],
         "cpu_capability": torch.backends.cpu.get_cpu_capability(),
     }
-    return save_model(model, out, extra=extra), extra
+    return save_model(model, out, extra=extra | {"half": half}, half=half), extra

@@ -189,7 +189,7 @@ def _export(args: argparse.Namespace) -> int:
 
     out = check_new_file(args.out, "--out", force=args.force, suffixes=(".pt",))
     check_new_file(out.with_suffix(".json"), "--out's config file", force=args.force)  # written beside it
-    path, extra = export_model(args.source, out)
+    path, extra = export_model(args.source, out, half=args.half)
     print(
         f"wrote {path} (+ {path.with_suffix('.json').name}): iteration {extra['iteration']}, "
         f"{extra['training_minutes']:.1f} training minutes"

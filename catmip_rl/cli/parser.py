@@ -267,6 +267,9 @@ def add_export(sub) -> None:
     ex.add_argument("source", help="a training run dir, its checkpoints/ folder or a checkpoint file")
     ex.add_argument("--out", required=True, help="the model file to write (ending in .pt)")
     ex.add_argument("--force", action="store_true", help="overwrite an existing --out (and its .json)")
+    ex.add_argument(
+        "--half", action="store_true", help="float16 weights: half the bytes (a snapshot to commit)"
+    )
     ex.set_defaults(name="export")
 
 

@@ -190,6 +190,24 @@ def test_export_writes_a_runs_model_with_its_provenance(tmp_path, capsys):
     assert "config file" in capsys.readouterr().err and not (run / "config.pt").exists()
 
 
+def test_a_half_precision_export_is_half_the_bytes_and_loads_as_float32(tmp_path):
+    from catmip_rl.checkpoint import load_model
+
+    run = tmp_path / "run"
+    model = train(make_train_config("tiny", iterations=1, eval_every=0), run, progress=False)
+    assert cli(["export", str(run), "--out", str(tmp_path / "full.pt")]) == 0
+    assert cli(["export", str(run), "--out", str(tmp_path / "half.pt"), "--half"]) == 0
+    blob = torch.load(tmp_path / "half.pt", weights_only=True)
+    assert all(v.dtype == torch.float16 for v in blob["state_dict"].values() if v.is_floating_point())
+    assert (
+        blob["extra"]["half"]
+        and (tmp_path / "half.pt").stat().st_size < 0.6 * (tmp_path / "full.pt").stat().st_size
+    )
+    loaded = _params(load_model(tmp_path / "half.pt"))
+    assert loaded.dtype == torch.float32 and not torch.equal(loaded, _params(model))
+    torch.testing.assert_close(loaded, _params(model), rtol=2**-10, atol=1e-4)
+
+
 def test_a_fine_tuning_preset_needs_init_from(tmp_path, capsys):
     assert cli(["train", "--preset", "paper-sharp", "--run-dir", str(tmp_path / "r")]) == 2
     assert "--init-from" in capsys.readouterr().err and not (tmp_path / "r").exists()
