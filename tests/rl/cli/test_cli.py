@@ -301,7 +301,7 @@ def _warm_start_then(err: BaseException):
 def _accepts_a_new_run(run_dir: Path, monkeypatch) -> bool:
     """``catmip train --run-dir run_dir`` gets past every check (to building the model)."""
     with monkeypatch.context() as m:
-        m.setattr(catmip_rl.training.train, "AMAT", _work_started)
+        m.setattr(catmip_rl.training.train, "make_model", _work_started)
         with pytest.raises(_WorkStarted):
             main([*TINY_RUN, "--run-dir", str(run_dir)])
     return True
@@ -376,7 +376,7 @@ def test_a_run_stopped_after_a_checkpoint_keeps_everything_for_resume(tmp_path, 
     assert {p.name for p in run.iterdir()} >= {"config.json", "metrics.csv", "checkpoints"}
     assert resume_checkpoint(run)["iteration"] == 0
     with monkeypatch.context() as m:  # and --resume accepts it
-        m.setattr(catmip_rl.training.train, "AMAT", _work_started)
+        m.setattr(catmip_rl.training.train, "make_model", _work_started)
         with pytest.raises(_WorkStarted):
             main(["train", "--run-dir", str(run), "--resume", "--no-progress"])
 
@@ -589,7 +589,7 @@ def test_fuzz_random_arguments_exit_0_or_2_without_a_traceback(
     with monkeypatch.context() as m:  # the first real work of each command raises _WorkStarted
         m.setattr(catmip_rl.evaluation.evaluate, "EventEngine", _work_started)
         m.setattr(catmip_rl.evaluation.paper, "_map", _work_started)
-        m.setattr(catmip_rl.training.train, "AMAT", _work_started)
+        m.setattr(catmip_rl.training.train, "make_model", _work_started)
         m.setattr(subprocess, "call", _work_started)  # bench perf's benchmarks
         threads = torch.get_num_threads()
         try:
