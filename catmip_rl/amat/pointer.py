@@ -94,11 +94,6 @@ class PointerAMAT(AMAT):
             *self.cell_convs,
         }  # fmt: skip
 
-    @property
-    def num_actions(self) -> None:
-        """Cell goals: the number of actions is the map's cell count (H * W), set by the input."""
-        return None
-
     # -- embedder and encoder ---------------------------------------------------------------------
     def embed(self, obs: dict[str, torch.Tensor]) -> Embedded:
         """AMAT's tokens and the cell context; ``obs["neighbourhood"]`` (B, N) if given."""

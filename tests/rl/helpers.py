@@ -2,14 +2,15 @@
 
 import torch
 
-from catmip_rl.amat.model import AMAT
+from catmip_rl.amat.pointer import make_model
 
 
-def shaken_model(config=None, seed=0):
-    """A model whose weights are far from the tiny-gain init, so that attention and the heads really mix."""
+def shaken_model(config=None, seed=0, scale=0.2):
+    """A model whose weights are far from the tiny-gain init, so that attention and the heads really mix
+    (the window or the cell-goal model, as ``config`` says)."""
     torch.manual_seed(seed)
-    m = AMAT(config)
+    m = make_model(config)
     with torch.no_grad():
         for p in m.parameters():
-            p.add_(0.2 * torch.randn_like(p))
+            p.add_(scale * torch.randn_like(p))
     return m.eval()

@@ -15,18 +15,14 @@ from catmip_rl.amat.pointer import PointerAMAT, make_model
 from catmip_rl.checkpoint import load_model, save_model
 from catmip_rl.evaluation.execution import CellGoalExecutor
 from catmip_rl.training.collect import Collector
+from tests.rl.helpers import shaken_model
 
 CFG = AmatConfig(goals="cell", embed_dim=32, cell_channels=8, cell_layers=3)
 
 
 def shaken(seed=0):
     """A cell-goal model far from its init (the 'claimed' weights non-zero), so every input matters."""
-    torch.manual_seed(seed)
-    m = make_model(CFG)
-    with torch.no_grad():
-        for p in m.parameters():
-            p.add_(0.3 * torch.randn_like(p))
-    return m.eval()
+    return shaken_model(CFG, seed, scale=0.3)
 
 
 def engine_midway(preset="task3", worlds=6, seed=0, events=12, **overrides):
@@ -86,6 +82,8 @@ def test_sampled_log_probs_equal_the_teacher_forced_ones(groups):
     lp = torch.log_softmax(logits, -1).gather(1, actions[active][:, None])[:, 0]
     torch.testing.assert_close(lp, logp[active], atol=1e-4, rtol=1e-4)
     torch.testing.assert_close(v_sel, values[active])
+    every = model.decode_parallel(rep, actions, order, obs["agent_class"], mask)  # (B, N, H * W)
+    torch.testing.assert_close(every[active], logits)
     assert len(set(eng.state.comp.flatten().tolist())) > 1 or not groups
 
 
