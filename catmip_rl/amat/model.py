@@ -38,6 +38,7 @@ __all__ = ["AmatConfig", "AMAT", "decision_order", "gather_robots", "as_float", 
 
 INVALID_LOGIT = -1e10
 GOAL_KINDS = ("window", "cell")
+CELL_MASKS = ("known", "reachable")
 
 
 @dataclass(frozen=True)
@@ -63,6 +64,10 @@ class AmatConfig:
     pointer head over per-cell features (``amat.pointer``, the planners' action space)."""
     cell_channels: int = 32
     """Goals "cell": width of the per-cell feature maps."""
+    cell_mask: str = "known"
+    """Goals "cell": the cells a robot may choose besides its own: "known" (explored and free on its map,
+    reachable: where Nearest's and Utility's frontiers are) or "reachable" (any cell its map does not show
+    occupied with a path to it, unknown cells included: where RRT sends robots)."""
     cell_layers: int = 4
     """Goals "cell": convolutions of the per-cell encoder: a 3x3, then residual 3x3s dilated 1, 1, 2, 4..."""
 
@@ -75,6 +80,10 @@ class AmatConfig:
             )
         if self.embed_dim % self.n_heads:
             raise ValueError(f"embed_dim {self.embed_dim} is not divisible by n_heads {self.n_heads}")
+        if self.cell_mask not in CELL_MASKS:
+            raise ValueError(
+                f"AmatConfig.cell_mask must be one of {list(CELL_MASKS)}, got {self.cell_mask!r}"
+            )
         if self.goals not in GOAL_KINDS:
             raise ValueError(f"AmatConfig.goals must be one of {list(GOAL_KINDS)}, got {self.goals!r}")
 

@@ -14,8 +14,9 @@ Shapes legend as in ``model``, plus ``H, W`` the map, ``K`` selected robots, ``c
 
 * **Inputs per cell** (``kernels.cell_fields``, from the observation alone): the robot's global map,
   its path distance to every cell and whether the cell is reachable.
-* **The mask** is the environment's mask narrowed to the cells a planner may choose: explored, free
-  in the robot's map, reachable, or the robot's own cell ("stay").
+* **The mask** is the environment's mask narrowed to the cells a planner may choose, or the robot's
+  own cell ("stay"): ``AmatConfig.cell_mask`` "known" (explored, free on its map and reachable: the
+  frontier planners' goals) or "reachable" (unknown cells too: RRT's goals).
 * **Neighbourhoods.** With ``obs["neighbourhood"]`` (the communication components, ``state.comp``) a
   robot attends only to its neighbourhood in the encoder and the decoder, and the decoding order runs
   through each neighbourhood separately: one batched pass is exactly each neighbourhood deciding on its
@@ -137,9 +138,11 @@ class PointerAMAT(AMAT):
         for conv in self.cell_convs:
             f = f + F.gelu(conv(f))
         f = self.cell_out(f)  # (K, c + 1, H, W)
-        explored = gmap[:, 0] >= (OBS_ONE if gmap.dtype == torch.uint8 else 1.0)
-        free = gmap[:, 1] < (OBS_ONE if gmap.dtype == torch.uint8 else 1.0)
-        allowed = (explored & free & reach).flatten(1)  # (K, H * W)
+        if self.config.cell_mask == "known":
+            explored = gmap[:, 0] >= (OBS_ONE if gmap.dtype == torch.uint8 else 1.0)
+            allowed = (explored & reach).flatten(1)  # (K, H * W); a reachable cell is free on the map
+        else:
+            allowed = reach.flatten(1).clone()
         w = gmap.shape[-1]
         allowed[torch.arange(len(rows), device=rows.device), pos[:, 0] * w + pos[:, 1]] = True
         return f, allowed

@@ -36,9 +36,9 @@ __all__ = ["DemoBuffer", "RescueLabeler", "imitation_loss", "dagger", "warm_star
 
 WARM_START_METRICS = [
     "round", "episodes", "beta", "buffer_events", "rollout/success_rate", "rollout/success_by_100",
-    "imitation/loss", "imitation/accuracy", "eval/success_rate", "eval/success_by_100",
-    "eval/sampled_success_rate", "eval/sampled_success_by_100", "time/collect_s", "time/update_s",
-    "time/elapsed_min",
+    "imitation/loss", "imitation/accuracy", "imitation/outside_mask", "eval/success_rate",
+    "eval/success_by_100", "eval/sampled_success_rate", "eval/sampled_success_by_100", "time/collect_s",
+    "time/update_s", "time/elapsed_min",
 ]  # fmt: skip
 _KEYS = ("global_map", "local_map", "agent_class", "neighbourhood", "action_mask", "active", "order", "label")
 
@@ -97,7 +97,9 @@ def imitation_loss(
 ) -> tuple[torch.Tensor, dict[str, float]]:
     """Mean cross-entropy of the active robots' labels under teacher forcing, and its accuracy; decisions
     labelled ``skip_label`` are not scored (they still feed the decoder as inputs), nor are labels the
-    model's own mask rules out (the cell-goal model narrows the environment's mask: ``amat.pointer``)."""
+    model's own mask rules out (the cell-goal model narrows the environment's mask: ``amat.pointer``),
+    whose share of the labels is reported as ``imitation/outside_mask`` (a teacher whose goals the model
+    cannot choose shows there, not as a silent loss of data)."""
     obs = {k: batch[k] for k in ("global_map", "local_map", "agent_class", "neighbourhood") if k in batch}
     sel = batch["active"].bool()
     if skip_label is not None:
@@ -109,13 +111,15 @@ def imitation_loss(
         target = batch["label"][sel]
         inside = logits.gather(1, target[:, None])[:, 0] > INVALID_LOGIT / 2
         logits, target = logits[inside], target[inside]
+    outside = 1.0 - len(target) / int(sel.sum()) if sel.any() else 0.0
     if not sel.any() or len(target) == 0:
         zero = sum(p.sum() * 0.0 for p in model.parameters())  # no label in this batch: no step
-        return zero, {"imitation/loss": 0.0, "imitation/accuracy": 0.0}
+        return zero, {"imitation/loss": 0.0, "imitation/accuracy": 0.0, "imitation/outside_mask": outside}
     loss = torch.nn.functional.cross_entropy(logits.float(), target)
     with torch.no_grad():
         acc = (logits.argmax(-1) == target).float().mean()
-    return loss, {"imitation/loss": float(loss.detach()), "imitation/accuracy": float(acc)}
+    stats = {"imitation/loss": float(loss.detach()), "imitation/accuracy": float(acc)}
+    return loss, stats | {"imitation/outside_mask": outside}
 
 
 def dagger(
@@ -175,7 +179,7 @@ def dagger(
             stats.append(rollout.stats)
         t1 = time.perf_counter()
         model.train()
-        sums = {"imitation/loss": 0.0, "imitation/accuracy": 0.0}
+        sums = {"imitation/loss": 0.0, "imitation/accuracy": 0.0, "imitation/outside_mask": 0.0}
         for step in range(steps_per_round):
             buffer = buffers[step % len(buffers)]
             idx = rng.integers(0, len(buffer), size=min(batch_events, len(buffer)))

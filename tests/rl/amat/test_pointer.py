@@ -1,5 +1,7 @@
 """The cell-goal AMAT (amat.pointer): its inputs, its two log-prob paths, neighbourhoods, any map size."""
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 import torch
@@ -102,6 +104,26 @@ def test_chosen_goals_are_known_free_reachable_cells_or_stay():
         assert eng.masks[b, i, r * w + c]
         own = (r, c) == tuple(st.pos[b, i])
         assert own or ((st.belief[b, i, r, c] & EXPLORED) and dist[b, i, r, c] >= 0)
+
+
+@pytest.mark.parametrize("cell_mask", ["known", "reachable"])
+def test_the_mask_is_the_envs_narrowed_to_the_cells_the_config_names(cell_mask):
+    """ "known": explored cells with a path on the robot's map (the frontier planners' goals); "reachable":
+    unknown cells with a path too (RRT's goals); the robot's own cell always."""
+    eng = engine_midway()
+    model = make_model(replace(CFG, cell_mask=cell_mask))
+    emb = model.embed(observation(eng))
+    rows = torch.arange(eng.num_worlds * eng.num_robots)
+    _, allowed = model.cell_features(emb.cells, rows)
+    allowed = allowed.view(eng.num_worlds, eng.num_robots, *eng.shape).numpy()
+    st = eng.state
+    _, dist = cell_fields(eng.obs_global)
+    explored = (st.belief & EXPLORED) != 0
+    expected = (dist >= 0) & (explored if cell_mask == "known" else True)
+    b, i = np.indices((eng.num_worlds, eng.num_robots))
+    expected[b, i, st.pos[..., 0], st.pos[..., 1]] = True
+    np.testing.assert_array_equal(allowed, expected)
+    assert (allowed & ~explored).any() == (cell_mask == "reachable")
 
 
 def test_a_neighbourhood_decides_as_it_would_alone():

@@ -262,9 +262,11 @@ def test_labels_the_model_rules_out_are_left_unscored():
     model = make_model(AmatConfig(goals="cell", embed_dim=32, cell_channels=8))
     batch = buf.batch(np.arange(len(buf)), 2, torch.device("cpu"))
     loss, stats = imitation_loss(model, batch)
-    assert torch.isfinite(loss) and stats["imitation/loss"] > 0
+    assert torch.isfinite(loss) and stats["imitation/loss"] > 0 and stats["imitation/outside_mask"] < 0.5
     explored = batch["global_map"][:, :, 0] > 0  # (M, N, H, W)
     unexplored = (~explored).flatten(2).float().argmax(-1)  # an unexplored cell of each robot's map
     outside = dict(batch, label=unexplored)
     loss, stats = imitation_loss(model, outside)
-    assert float(loss) == 0.0 and stats["imitation/accuracy"] == 0.0
+    assert (
+        float(loss) == 0.0 and stats["imitation/accuracy"] == 0.0 and stats["imitation/outside_mask"] == 1.0
+    )
