@@ -187,6 +187,11 @@ class TrainConfig:
     has no goal (no reachable frontier it may claim): a pause for the teacher, whose next decision
     differs as the others move, but a state a deterministic student learns to stand still in, deciding
     the same again at once (an argmax loop). False leaves those decisions unscored."""
+    warm_start_value: bool = False
+    """Whether the warm start also regresses the value head on the rollouts' returns (and sets the value
+    normaliser by them), so that PPO starts with a critic. Measured on the cell-goal model: imitation
+    alone left its encoder's output the same for every robot (the pointer needs only the per-cell
+    features), and a value head on it cannot learn (docs/notes/general-model.md)."""
     warm_start_worlds: int = 0
     """Episodes each DAgger round collects (0 = ``num_worlds``). Collection is cheap beside the round's
     cross-entropy steps, and with few episodes a round's steps fit the buffer rather than the teacher

@@ -31,14 +31,15 @@ from catmip_rl.amat.inputs import one_hot_class
 from catmip_rl.amat.model import AMAT, INVALID_LOGIT
 from catmip_rl.files import open_csv_log, write_csv_row
 from catmip_rl.training.collect import Collector, Rollout
+from catmip_rl.training.gae import ValueNorm, async_gae
 
 __all__ = ["DemoBuffer", "RescueLabeler", "imitation_loss", "dagger", "warm_start", "WARM_START_METRICS"]
 
 WARM_START_METRICS = [
     "round", "episodes", "beta", "buffer_events", "rollout/success_rate", "rollout/success_by_100",
-    "imitation/loss", "imitation/accuracy", "imitation/outside_mask", "eval/success_rate",
-    "eval/success_by_100", "eval/sampled_success_rate", "eval/sampled_success_by_100", "time/collect_s",
-    "time/update_s", "time/elapsed_min",
+    "imitation/loss", "imitation/accuracy", "imitation/outside_mask", "imitation/value_loss",
+    "eval/success_rate", "eval/success_by_100", "eval/sampled_success_rate", "eval/sampled_success_by_100",
+    "time/collect_s", "time/update_s", "time/elapsed_min",
 ]  # fmt: skip
 _KEYS = ("global_map", "local_map", "agent_class", "neighbourhood", "action_mask", "active", "order", "label")
 
@@ -53,20 +54,29 @@ class DemoBuffer:
     def __len__(self) -> int:
         return 0 if self.arrays is None else len(self.arrays["label"])
 
-    def add(self, r: Rollout) -> None:
+    def add(self, r: Rollout, gamma: float = 1.0) -> np.ndarray:
+        """Append a labelled rollout's events, with each finished decision's discounted return (Monte
+        Carlo: async GAE with zero values and lambda 1) for the value head; returns those returns."""
         if r.label is None:
             raise ValueError("DemoBuffer.add needs a rollout collected with a labeler")
         rows = r.valid
         # busy robots keep the stored action as their (unused) label: they are never scored
         label = np.where(r.active, r.label, r.action)
         new = {k: np.ascontiguousarray((label if k == "label" else getattr(r, k))[rows]) for k in _KEYS}
+        zeros = np.zeros(r.active.shape)
+        _, ret, trainable = async_gae(
+            r.active, r.valid, zeros, r.ma_return, r.ma_ticks.astype(np.int64), r.final_return, r.terminated,
+            gamma, 1.0,
+        )  # fmt: skip
+        new["value_target"], new["value_trainable"] = ret[rows].astype(np.float32), trainable[rows]
         if self.arrays is not None:
             new = {k: np.concatenate([self.arrays[k], v]) for k, v in new.items()}
         self.arrays = {k: v[-self.max_events :] for k, v in new.items()}
+        return ret[rows][trainable[rows]]
 
     def batch(self, idx: np.ndarray, n_classes: int, device: torch.device) -> dict[str, torch.Tensor]:
         a = self.arrays
-        out = {k: torch.from_numpy(a[k][idx]) for k in _KEYS if k != "agent_class"}
+        out = {k: torch.from_numpy(a[k][idx]) for k in a if k != "agent_class"}
         out["agent_class"] = one_hot_class(a["agent_class"][idx], n_classes)
         return {k: v.to(device) for k, v in out.items()}
 
@@ -93,21 +103,33 @@ class RescueLabeler:
 
 
 def imitation_loss(
-    model: AMAT, batch: dict[str, torch.Tensor], skip_label: int | None = None
+    model: AMAT,
+    batch: dict[str, torch.Tensor],
+    skip_label: int | None = None,
+    value_norm: ValueNorm | None = None,
+    value_coef: float = 1.0,
 ) -> tuple[torch.Tensor, dict[str, float]]:
     """Mean cross-entropy of the active robots' labels under teacher forcing, and its accuracy; decisions
     labelled ``skip_label`` are not scored (they still feed the decoder as inputs), nor are labels the
     model's own mask rules out (the cell-goal model narrows the environment's mask: ``amat.pointer``),
     whose share of the labels is reported as ``imitation/outside_mask`` (a teacher whose goals the model
-    cannot choose shows there, not as a silent loss of data)."""
+    cannot choose shows there, not as a silent loss of data). With ``value_norm``, ``value_coef`` times
+    the squared error of the value head against the finished decisions' returns (``value_target``,
+    normalised) is added (``imitation/value_loss``): a critic for the PPO that follows, and a reason for
+    the encoder to keep what the policy alone may not need."""
     obs = {k: batch[k] for k in ("global_map", "local_map", "agent_class", "neighbourhood") if k in batch}
     sel = batch["active"].bool()
     if skip_label is not None:
         sel = sel & (batch["label"] != skip_label)
+    value_loss = None
     if sel.any():
-        logits, _ = model.score(
+        logits, values = model.score(
             model.embed(obs), batch["label"], batch["order"], batch["agent_class"], sel, batch["action_mask"]
-        )  # (K, A)
+        )  # (K, A), (K, 1)
+        if value_norm is not None:
+            fit = batch["value_trainable"][sel]
+            target_v = value_norm.normalize(batch["value_target"][sel][fit].double()).float()
+            value_loss = torch.nn.functional.mse_loss(values[fit, 0].float(), target_v) if fit.any() else None
         target = batch["label"][sel]
         inside = logits.gather(1, target[:, None])[:, 0] > INVALID_LOGIT / 2
         logits, target = logits[inside], target[inside]
@@ -119,6 +141,9 @@ def imitation_loss(
     with torch.no_grad():
         acc = (logits.argmax(-1) == target).float().mean()
     stats = {"imitation/loss": float(loss.detach()), "imitation/accuracy": float(acc)}
+    if value_loss is not None:
+        loss = loss + value_coef * value_loss
+        stats["imitation/value_loss"] = float(value_loss.detach())
     return loss, stats | {"imitation/outside_mask": outside}
 
 
@@ -139,6 +164,8 @@ def dagger(
     on_round=None,
     follow_heading: bool = True,
     imitate_stay: bool = True,
+    value_norm: ValueNorm | None = None,
+    gamma: float = 1.0,
 ) -> tuple[int, list[dict[str, float]]]:
     """Train ``model`` by DAgger against the window-projected ``teacher`` planner; returns (episodes
     used, one log row per round). The policy's own actions in the rollouts are argmax with
@@ -147,7 +174,9 @@ def dagger(
     round into a buffer of its own (their maps differ in size and team), and the steps take their
     batches from the buffers in turn. ``follow_heading=False`` projects the teacher's goals along a
     heading-free path (:class:`~catmip_env.window_planner.WindowPlanner`). ``imitate_stay=False`` leaves
-    the teacher's "stay" labels unscored (``TrainConfig.warm_start_stay``)."""
+    the teacher's "stay" labels unscored (``TrainConfig.warm_start_stay``). With ``value_norm`` the value
+    head learns the rollouts' returns (discounted by ``gamma``) beside the labels, and ``value_norm``
+    follows them (:func:`imitation_loss`; ``TrainConfig.warm_start_value``)."""
     if rounds < 1 or steps_per_round < 1 or batch_events < 1:
         raise ValueError("dagger: rounds, steps_per_round and batch_events must be >= 1")
     gen = generator if generator is not None else torch.Generator().manual_seed(seed)
@@ -175,21 +204,25 @@ def dagger(
                 model, episodes, gen, deterministic=deterministic, labeler=label_teacher, teacher_prob=beta
             )
             episodes += col.num_worlds
-            buffer.add(rollout)
+            returns = buffer.add(rollout, gamma)
+            if value_norm is not None and len(returns):
+                value_norm.update(torch.from_numpy(returns))
             stats.append(rollout.stats)
         t1 = time.perf_counter()
         model.train()
         sums = {"imitation/loss": 0.0, "imitation/accuracy": 0.0, "imitation/outside_mask": 0.0}
+        if value_norm is not None:
+            sums["imitation/value_loss"] = 0.0
         for step in range(steps_per_round):
             buffer = buffers[step % len(buffers)]
             idx = rng.integers(0, len(buffer), size=min(batch_events, len(buffer)))
-            loss, step_stats = imitation_loss(model, buffer.batch(idx, n_classes, device), skip)
+            loss, step_stats = imitation_loss(model, buffer.batch(idx, n_classes, device), skip, value_norm)
             opt.zero_grad(set_to_none=True)
             loss.backward()
             torch.nn.utils.clip_grad_norm_(model.parameters(), max_grad_norm)
             opt.step()
             for k in sums:
-                sums[k] += step_stats[k] / steps_per_round
+                sums[k] += step_stats.get(k, 0.0) / steps_per_round
         row = {
             "round": r + 1,
             "episodes": episodes - first_episode,
@@ -207,7 +240,9 @@ def dagger(
     return episodes - first_episode, log
 
 
-def warm_start(cfg, model, collector, gen, run_dir, progress: bool, evaluate=None, log_scalars=None) -> float:
+def warm_start(
+    cfg, model, collector, gen, run_dir, progress: bool, evaluate=None, log_scalars=None, value_norm=None
+) -> float:
     """The DAgger rounds of a training run (``cfg.warm_start*`` fields) into ``run_dir/warm_start.csv``,
     with ``evaluate()`` (a dict with success_rate, success_by_100 and their sampled_ forms) after each
     round if given and ``log_scalars(row, step, skip)`` for TensorBoard; returns the seconds spent
@@ -243,7 +278,8 @@ def warm_start(cfg, model, collector, gen, run_dir, progress: bool, evaluate=Non
             model, collector, cfg.warm_start, cfg.warm_start_rounds, cfg.warm_start_steps,
             batch_events=cfg.warm_start_batch, lr=cfg.warm_start_lr, generator=gen, seed=cfg.seed,
             max_grad_norm=cfg.max_grad_norm, on_round=on_round, follow_heading=cfg.warm_start_heading,
-            imitate_stay=cfg.warm_start_stay,
+            imitate_stay=cfg.warm_start_stay, value_norm=value_norm if cfg.warm_start_value else None,
+            gamma=cfg.gamma,
         )  # fmt: skip
     finally:
         file.close()

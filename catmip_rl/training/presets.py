@@ -131,6 +131,7 @@ TRAIN_PRESETS: dict[str, TrainConfig] = {
         warm_start_steps=300,
         warm_start_batch=128,
         warm_start_lr=1e-3,
+        warm_start_value=True,  # the imitation alone leaves no critic to start PPO with
         value_warmup_iterations=20,  # four value-only turns of each world: imitation trains no value head
         entropy_coef=0.001,  # a sharp imitated policy over hundreds of cells: a tenth of the paper's bonus
     ),

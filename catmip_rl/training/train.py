@@ -263,8 +263,9 @@ def train(cfg: TrainConfig, run_dir: str | Path, resume: bool = False, progress:
         if cfg.warm_start and not resume:
             evaluate_now = evaluate if run.evaluator else None
             run.elapsed = warm_start(
-                cfg, run.model, run.dagger, run.gen, run_dir, progress, evaluate_now, log_scalars
-            )
+                cfg, run.model, run.dagger, run.gen, run_dir, progress, evaluate_now, log_scalars,
+                run.value_norm,
+            )  # fmt: skip
             per_round = sum(c.num_worlds for c in run.dagger)
             run.episodes = cfg.warm_start_rounds * per_round  # PPO's episodes follow the warm start's maps
             save(0)

@@ -270,3 +270,25 @@ def test_labels_the_model_rules_out_are_left_unscored():
     assert (
         float(loss) == 0.0 and stats["imitation/accuracy"] == 0.0 and stats["imitation/outside_mask"] == 1.0
     )
+
+
+def test_a_warm_start_with_the_value_head_learns_the_returns_beside_the_labels():
+    """With value_norm, DAgger regresses the value head on each finished decision's discounted return
+    (async GAE with zero values, lambda 1) and sets the normaliser by them: the critic PPO starts with."""
+    from catmip_rl.training.gae import ValueNorm
+
+    cfg = make_config("task1", activation=(2, 5), horizon_ticks=100)
+    col = Collector(cfg, 8, seed=0, gamma=0.99)
+    torch.manual_seed(0)
+    model = AMAT(AmatConfig(embed_dim=32))
+    norm = ValueNorm()
+    _, log = dagger(model, col, "nearest", rounds=3, steps_per_round=60, batch_events=64, seed=0,
+                    value_norm=norm, gamma=0.99)  # fmt: skip
+    assert float(norm.debias) > 0
+    assert log[-1]["imitation/value_loss"] < 0.8 * log[0]["imitation/value_loss"]
+    r = Collector(cfg, 4, seed=9, gamma=0.99).collect(model, 0, labeler=make_window_planner("nearest"))
+    buf = DemoBuffer(10_000)
+    returns = buf.add(r, gamma=0.99)
+    fit = buf.arrays["value_trainable"]
+    assert len(returns) == fit.sum() > 0 and np.allclose(buf.arrays["value_target"][fit], returns)
+    assert (returns > 0).any()  # the rescue's reward reaches the decisions before it
