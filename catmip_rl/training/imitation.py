@@ -1,12 +1,14 @@
-"""Imitation warm start (DAgger) from a classical planner projected into the goal window.
+"""Imitation warm start (DAgger) from a classical planner: projected into the goal window for the paper's
+AMAT, the planner itself for the cell-goal model (``amat.pointer``).
 
-    model = AMAT(cfg.amat_config())
-    collector = Collector(cfg.env_config(), cfg.num_worlds, seed=0)
+    model = make_model(cfg.amat_config())
+    collector = Collector(cfg.env_config(), cfg.num_worlds, seed=0, goal_mode=model.config.goals)
     episodes, log = dagger(model, collector, "nearest", rounds=6, steps_per_round=300)  # then PPO
 
 Each round rolls out the current policy on ``cfg.num_worlds`` new training episodes while the teacher
 (:class:`~catmip_env.window_planner.WindowPlanner`: the planner's goal, projected into the robot's
-window; the rescue rule for a rescuer that knows the target) labels every active robot's decision; with
+window; or the planner's own cell goal; the rescue rule for a rescuer that knows the target) labels
+every active robot's decision; with
 probability ``beta`` (1 in round 0, halving every round) a robot executes the label instead, DAgger's
 mixture. The labelled events are aggregated over the rounds (up to ``buffer_events``, the oldest
 dropped first) and AMAT's decoder is trained by cross-entropy on them, teacher-forced in the decision
