@@ -163,12 +163,18 @@ class PointerAMAT(AMAT):
 
     # -- decoder --------------------------------------------------------------------------------------
     def _decode(
-        self, rep_o: torch.Tensor, actions_o: torch.Tensor, cells_o: CellContext, cls_o: torch.Tensor, w: int
+        self,
+        rep_o: torch.Tensor,
+        actions_o: torch.Tensor,
+        pos_o: torch.Tensor,
+        earlier: torch.Tensor,
+        cls_o: torch.Tensor,
+        w: int,
     ) -> torch.Tensor:
         """Decoder outputs (B, N, d) in decision order, teacher-forced on actions_o (B, N) (each
-        position fed the goal of the previous position of its neighbourhood)."""
-        earlier = _earlier_same_group(cells_o.groups)  # (B, N, N): j < k in k's neighbourhood
-        prev = _previous_goal_features(actions_o, cells_o.pos, earlier, w)  # (B, N, 4)
+        position fed the goal of the previous position of its neighbourhood: ``earlier`` (B, N, N),
+        :func:`_earlier_same_group`; ``pos_o`` (B, N, 2) the robots' cells in decision order)."""
+        prev = _previous_goal_features(actions_o, pos_o, earlier, w)  # (B, N, 4)
         x = self.dec_ln(F.gelu(self.prev_enc(prev.to(rep_o.dtype))) + F.gelu(self.dec_class_enc(cls_o)))
         allowed = (earlier | torch.eye(x.shape[1], dtype=torch.bool, device=x.device))[:, None]
         for block in self.dec_blocks:
@@ -201,13 +207,13 @@ class PointerAMAT(AMAT):
         """Logits (K, H * W) of the selected robots from encoder output, and their flat rows (K,)."""
         b, n = select.shape
         cells, w = rep.cells, rep.cells.global_map.shape[-1]
-        cells_o = _order_cells(cells, order)
-        x = self._decode(
-            gather_robots(rep.x, order),
+        actions_o, earlier = (
             gather_robots(actions, order),
-            cells_o,
-            gather_robots(agent_class.to(rep.x.dtype), order),
-            w,
+            _earlier_same_group(_groups_in_order(cells, order)),
+        )
+        cls_o = gather_robots(agent_class.to(rep.x.dtype), order)
+        x = self._decode(
+            gather_robots(rep.x, order), actions_o, gather_robots(cells.pos, order), earlier, cls_o, w
         )
         rows = select.flatten().nonzero()[:, 0]
         pos = torch.empty_like(order).scatter_(1, order, torch.arange(n, device=order.device).expand(b, n))
@@ -215,7 +221,7 @@ class PointerAMAT(AMAT):
         feats, allowed = self.cell_features(cells, rows)
         if action_mask is not None:
             allowed = allowed & action_mask.flatten(0, 1)[rows].bool()
-        claimed = _claimed(gather_robots(actions, order), _earlier_same_group(cells_o.groups), rows_o, feats)
+        claimed = _claimed(actions_o, earlier, rows_o, feats)
         return self.point(x.flatten(0, 1)[rows_o], feats, allowed, claimed), rows
 
     @torch.no_grad()
@@ -241,14 +247,13 @@ class PointerAMAT(AMAT):
         if steps == 0:
             return actions, log_probs
         cells, w = rep.cells, rep.cells.global_map.shape[-1]
-        cells_o = _order_cells(cells, order)
         rep_o, cls_o = gather_robots(rep.x, order), gather_robots(agent_class.to(rep.x.dtype), order)
-        earlier = _earlier_same_group(cells_o.groups)
+        pos_o, earlier = gather_robots(cells.pos, order), _earlier_same_group(_groups_in_order(cells, order))
         flat_o = order + torch.arange(b, device=order.device)[:, None] * n  # robot-order flat index
         chosen_o = gather_robots(actions, order).clone()  # (B, N) decision order
         for k in range(steps):
             worlds = (n_active > k).nonzero()[:, 0]  # worlds whose k-th position is an active robot
-            x = self._decode(rep_o, chosen_o, cells_o, cls_o, w)[worlds, k]  # (K, d)
+            x = self._decode(rep_o, chosen_o, pos_o, earlier, cls_o, w)[worlds, k]  # (K, d)
             rows = flat_o[worlds, k]
             feats, allowed = self.cell_features(cells, rows)
             allowed = allowed & mask.flatten(0, 1)[rows]
@@ -286,9 +291,9 @@ def _earlier_same_group(groups_o: torch.Tensor) -> torch.Tensor:
     return (groups_o[:, :, None] == groups_o[:, None, :]) & before
 
 
-def _order_cells(cells: CellContext, order: torch.Tensor) -> CellContext:
-    """The per-robot context fields the decoder reads, in decision order (maps and distances stay)."""
-    return cells._replace(pos=gather_robots(cells.pos, order), groups=torch.gather(cells.groups, 1, order))
+def _groups_in_order(cells: CellContext, order: torch.Tensor) -> torch.Tensor:
+    """(B, N) neighbourhood labels in decision order."""
+    return torch.gather(cells.groups, 1, order)
 
 
 def _previous_goal_features(
