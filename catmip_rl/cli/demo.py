@@ -22,11 +22,11 @@ from pathlib import Path
 
 import torch
 
+from catmip_rl.checkpoint import resolve_model
 from catmip_rl.evaluation.evaluate import EvalSetting, evaluate, render_episode
 from catmip_rl.evaluation.plots import plot_figure
 from catmip_rl.files import atomic_write_csv, atomic_write_text
 
-SHIPPED = Path(__file__).parent / "models" / "amat_task1.pt"
 PLANNERS = ("nearest", "utility", "rrt", "apf", "random-frontier", "random-rescue", "random-uniform")
 COLUMNS = ("success_rate", "success_by_100", "sampled_success_by_100", "mean_rescue_tick",
            "mean_target_found_tick", "mean_explored_fraction", "stalls_per_episode",
@@ -45,10 +45,14 @@ def main(argv: list[str] | None = None) -> list[dict]:
     ap.add_argument("--episodes", type=int, default=64, help="evaluation maps (Task 1)")
     ap.add_argument("--seed", type=int, default=0, help="evaluation map set")
     ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--planners", default=",".join(PLANNERS), help="comma-separated planners to compare")
+    ap.add_argument("--warm-start-rounds", type=int, default=None, help="DAgger rounds (task1-warm's: 12)")
+    ap.add_argument("--worlds", type=int, default=None, help="episodes per PPO iteration and DAgger round")
     ap.add_argument("--out", default="out/demo")
     args = ap.parse_args(argv)
     out = Path(args.out)
     torch.set_num_threads(args.threads)
+    shipped = resolve_model("task1")  # the README's row: a missing file is an error, never a dropped row
 
     # 1. a short training run (a fresh one every time: the folder is replaced)
     from catmip_rl.training.presets import make_train_config
@@ -63,8 +67,12 @@ def main(argv: list[str] | None = None) -> list[dict]:
     # unscored: the short run's imitation then generalises instead of fitting its buffer
     # (docs/notes/training-experiments.md)
     cfg = make_train_config("task1-warm", iterations=args.iterations, threads=args.threads, eval_every=0,
-                            checkpoint_every=args.iterations, warm_start_worlds=256,
+                            checkpoint_every=args.iterations, warm_start_worlds=args.worlds or 256,
                             warm_start_stay=False)  # fmt: skip
+    if args.warm_start_rounds is not None:
+        cfg = cfg.replace(warm_start_rounds=args.warm_start_rounds)
+    if args.worlds is not None:
+        cfg = cfg.replace(num_worlds=args.worlds)
     print(
         f"[1/3] training AMAT on Task 1: {cfg.warm_start_rounds} imitation rounds, then {args.iterations} "
         f"PPO iterations x {cfg.num_worlds} episodes, {run_dir}"
@@ -75,10 +83,8 @@ def main(argv: list[str] | None = None) -> list[dict]:
 
     # 2. evaluation on the same maps
     setting = EvalSetting("task1")
-    methods = [f"AMAT (demo, {args.iterations} it)=amat:{run_dir}"]
-    if SHIPPED.exists():
-        methods.append(f"AMAT (shipped)=amat:{SHIPPED}")
-    methods += [*PLANNERS, "window:nearest"]
+    methods = [f"AMAT (demo, {args.iterations} it)=amat:{run_dir}", f"AMAT (shipped)=amat:{shipped}"]
+    methods += [*args.planners.split(","), "window:nearest"]
     print(f"[2/3] evaluating {len(methods)} methods on {args.episodes} Task-1 maps (seed {args.seed})")
     rows, curves = [], []
     for spec in methods:
@@ -95,9 +101,8 @@ def main(argv: list[str] | None = None) -> list[dict]:
     lines += ["| " + " | ".join([r["method"], *(_fmt(r[k]) for k in COLUMNS)]) + " |" for r in rows]
     atomic_write_text(out / "results.md", "\n".join(lines) + "\n")
     png = plot_figure(out / "curves.csv", out / "success.png", title=f"Task 1, {args.episodes} maps")
-    gif_model = SHIPPED if SHIPPED.exists() else run_dir
-    print("[3/3] rendering an episode")
-    gif = render_episode(f"amat:{gif_model}", setting, out / "episode.gif", episode=0, seed=args.seed)
+    print("[3/3] rendering an episode of the shipped model")
+    gif = render_episode(f"amat:{shipped}", setting, out / "episode.gif", episode=0, seed=args.seed)
 
     print(f"\n{args.episodes} Task-1 maps, same maps for every method:")
     print(f"{'method':>28} {'success':>8} {'by t=100':>9} {'sampled':>8} {'rescue t':>9} {'found t':>8} "
