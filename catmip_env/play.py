@@ -25,6 +25,9 @@ from catmip_env.events import EventEngine
 
 __all__ = [
     "Policy",
+    "MESSAGE_COLUMNS",
+    "plays_one_world_at_a_time",
+    "episode_columns",
     "WorldNotSupported",
     "EpisodeRecords",
     "episode_records",
@@ -36,10 +39,56 @@ __all__ = [
 
 
 class Policy(Protocol):
-    """Goal actions for the current event of every world of an engine."""
+    """Goal actions for the current event of every world of an engine.
+
+    ``act`` is all a policy needs. An evaluator (``catmip_rl.evaluation.evaluate``) also asks for these
+    optional members, for a user's policy as for AMAT, and never checks a policy's class:
+
+    * ``start_episodes(num_worlds, num_robots)``: called before a batch of maps is played (counters, memory);
+    * ``episode_columns() -> {name: values}``: extra per-episode columns of the results, one value per
+      episode in the order played (AMAT: its decision ``messages``, ``bytes_embedding``, ``bytes_raw``;
+      a policy without it sends none: :data:`MESSAGE_COLUMNS` are zeros, as for the planners, which decide
+      on their robot's own merged map);
+    * ``sampled(seed) -> Policy``: the same policy with sampled actions (seeded by ``seed``); the evaluator
+      plays the maps again with it and reports ``sampled_*`` beside the policy's own (argmax) numbers;
+    * ``one_world_at_a_time = True``: play the maps one after another on a one-world engine, calling
+      ``reset()`` before each (a PettingZoo-level policy with memory).
+    """
 
     def act(self, engine: EventEngine) -> np.ndarray:  # (B, N) int goal actions
         ...
+
+
+MESSAGE_COLUMNS = ("messages", "bytes_embedding", "bytes_raw")
+"""Per-episode decision traffic: messages sent, their bytes with embeddings, with raw observations."""
+
+
+def plays_one_world_at_a_time(policy: Any) -> bool:
+    """Whether ``policy`` asks to play its maps one after another (:class:`Policy`)."""
+    return bool(getattr(policy, "one_world_at_a_time", False))
+
+
+def episode_columns(policy: Any, num_episodes: int) -> dict[str, np.ndarray]:
+    """The policy's extra per-episode columns (:class:`Policy`), :data:`MESSAGE_COLUMNS` zero unless it
+    reports them; ValueError naming a column that is not ``num_episodes`` numbers."""
+    columns = {name: np.zeros(num_episodes, np.int64) for name in MESSAGE_COLUMNS}
+    report = getattr(policy, "episode_columns", None)
+    if report is None:
+        return columns
+    reported = report()
+    if not isinstance(reported, dict):
+        raise ValueError(f"episode_columns() returned {type(reported).__name__}, expected {{name: values}}")
+    for name, values in reported.items():
+        values = np.asarray(values)
+        if not isinstance(name, str) or not name.isidentifier():
+            raise ValueError(f"episode_columns(): column name {name!r} is not an identifier")
+        if values.shape != (num_episodes,) or values.dtype.kind not in "biuf":
+            raise ValueError(
+                f"episode_columns(): column {name!r} holds {values.dtype} values of shape {values.shape}, "
+                f"expected {num_episodes} numbers (one per episode)"
+            )
+        columns[name] = values
+    return columns
 
 
 class WorldNotSupported(ValueError):

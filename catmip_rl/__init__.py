@@ -14,6 +14,7 @@ The package is grouped by what each part does (``docs/architecture.md`` draws it
 
 from __future__ import annotations
 
+from importlib.util import find_spec
 from pathlib import Path
 
 from catmip_env import __version__  # one version for the whole distribution (pyproject reads it there)
@@ -21,7 +22,21 @@ from catmip_env.numba_cache import refresh
 
 refresh(Path(__file__).parent)  # before any kernel loads its cache (catmip_env.numba_cache)
 
-from catmip_rl.amat.model import AMAT, AmatConfig, decision_order  # noqa: E402
-from catmip_rl.checkpoint import load_model, save_model  # noqa: E402
-
 __all__ = ["AMAT", "AmatConfig", "__version__", "decision_order", "load_model", "save_model"]
+
+if find_spec("torch") is not None:  # the model and its files need torch; the planners do not
+    from catmip_rl.amat.config import AmatConfig
+    from catmip_rl.amat.model import AMAT, decision_order
+    from catmip_rl.checkpoint import load_model, save_model
+
+
+def __getattr__(name: str):
+    """Without torch (an env-only install, whose ``catmip`` plays the planners) the model's names say
+    what to install."""
+    if name in __all__:
+        raise ModuleNotFoundError(
+            f"catmip_rl.{name} needs torch: pip install torch==2.13.0 (the CPU wheel), then "
+            "pip install 'catmip[rl]'",
+            name="torch",
+        )
+    raise AttributeError(f"module 'catmip_rl' has no attribute {name!r}")

@@ -19,10 +19,12 @@ from typing import Any
 import torch
 
 from catmip_env.files import atomic_path
-from catmip_rl.amat.model import AMAT, AmatConfig
+from catmip_rl.amat.config import AmatConfig
+from catmip_rl.amat.model import AMAT
 from catmip_rl.amat.pointer import make_model
 from catmip_rl.amat.weights import finer_pool
 from catmip_rl.files import atomic_write_text
+from catmip_rl.shipped import SHIPPED_DIR, resolve_model, shipped_models
 
 __all__ = [
     "save_model", "load_model", "atomic_torch_save", "read_checkpoint", "resolve_model", "shipped_models",
@@ -31,8 +33,6 @@ __all__ = [
 ]  # fmt: skip
 
 FORMAT = "catmip-amat-v1"
-SHIPPED_DIR = Path(__file__).parent / "models"
-"""Where the shipped models are: ``amat_NAME.pt`` loads as ``NAME``."""
 
 
 class CheckpointError(ValueError):
@@ -91,26 +91,6 @@ def _diagnose(path: Path, err: Exception) -> str:
     if "weights only" in str(err).lower():
         return "it holds pickled objects other than tensors and plain containers (refused: unsafe to load)"
     return f"corrupted torch archive ({type(err).__name__})"
-
-
-def shipped_models() -> list[str]:
-    """Names of the models shipped in :data:`SHIPPED_DIR` (``amat_task1.pt`` -> ``task1``)."""
-    return sorted(p.stem[len("amat_") :] for p in SHIPPED_DIR.glob("amat_*.pt"))
-
-
-def resolve_model(spec: str | Path) -> Path:
-    """The file or run dir ``spec`` names: an existing path, else a shipped model's name (``task1`` ->
-    ``catmip_rl/models/amat_task1.pt``); neither raises ``FileNotFoundError`` listing the shipped names."""
-    path = Path(spec)
-    if path.exists():
-        return path
-    shipped = SHIPPED_DIR / f"amat_{spec}.pt"
-    if path.name == str(spec) and shipped.is_file():  # a bare name, no folder part
-        return shipped
-    raise FileNotFoundError(
-        f"AMAT model {str(spec)!r} does not exist: not a file or run dir, nor a shipped model (shipped: "
-        f"{', '.join(shipped_models()) or 'none'})"
-    )
 
 
 def _model_file(path: Path) -> Path:
@@ -310,8 +290,9 @@ def initial_weights(spec: str, config: AmatConfig) -> dict[str, Any]:
     they came from: the spec, the file, its SHA-256, the iteration and the training minutes behind the
     weights (counting the runs they came from in turn; None where unknown), and ``pool`` [theirs, ours]
     where a model whose pooled grid divides ``config.pool`` (and is otherwise ``config``) was spread over
-    the finer grid (:func:`~catmip_rl.amat.weights.finer_pool`). Raises ``ValueError`` (the message starts
-    with "init_from") if the file is missing, unreadable or not an AMAT of ``config``."""
+    the finer grid (:func:`~catmip_rl.amat.weights.finer_pool`), and ``cell_mask`` [theirs, ours] where a
+    cell-goal model is to choose among other cells (the mask holds no weights). Raises ``ValueError``
+    (the message starts with "init_from") if the file is missing, unreadable or not an AMAT of ``config``."""
     try:
         path = _model_file(resolve_model(spec))
         blob = read_checkpoint(path)
@@ -324,7 +305,7 @@ def initial_weights(spec: str, config: AmatConfig) -> dict[str, Any]:
             weights = finer_pool(weights, model.config.pool, config.pool)
         except ValueError as err:
             raise ValueError(f"init_from {spec!r}: {err}") from None
-    elif model.config != config:
+    elif model.config != replace(config, cell_mask=model.config.cell_mask):  # the mask holds no weights
         theirs, ours = asdict(model.config), asdict(config)
         diff = ", ".join(f"{k} {theirs[k]!r} there vs {ours[k]!r} here" for k in ours if theirs[k] != ours[k])
         raise ValueError(
@@ -344,8 +325,9 @@ def initial_weights(spec: str, config: AmatConfig) -> dict[str, Any]:
         "iteration": state.get("iteration"),
         "elapsed_min": None if own is None else _minutes_behind(own, state.get("init_from")),
     }
-    if model.config.pool != config.pool:
-        source["pool"] = [model.config.pool, config.pool]
+    for name in ("pool", "cell_mask"):  # what the new run changed
+        if getattr(model.config, name) != getattr(config, name):
+            source[name] = [getattr(model.config, name), getattr(config, name)]
     return {"model": weights, "value_norm": state.get("value_norm"), "source": source}
 
 

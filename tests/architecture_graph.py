@@ -21,7 +21,8 @@ ENV_GROUPS = {
     "env: play": ("play", "map_sets", "render", "demo"),
     "env: PettingZoo": ("search_rescue_v0", "spaces"),
 }
-RL_TOP = {"__init__": "rl: checkpoint", "checkpoint": "rl: checkpoint", "files": "rl: checkpoint"}
+RL_TOP = {"__init__": "rl: checkpoint", "checkpoint": "rl: checkpoint", "files": "rl: checkpoint",
+          "shipped": "rl: checkpoint"}  # fmt: skip
 
 
 def modules(root: Path = ROOT) -> dict[str, Path]:

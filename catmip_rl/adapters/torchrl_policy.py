@@ -45,6 +45,12 @@ class TorchRLPolicy:
         self.float_maps = float_maps
         self.deterministic = deterministic
 
+    def sampled(self, seed: int) -> TorchRLPolicy:
+        """The same module with sampled actions (``ExplorationType.RANDOM``), torch's global generator
+        seeded with ``seed``: the evaluator plays the maps again with it (the ``sampled_*`` numbers)."""
+        torch.manual_seed(seed)
+        return TorchRLPolicy(self.module, self.float_maps, deterministic=False)
+
     @staticmethod
     def wraps(obj) -> bool:
         """Whether ``obj`` is a TorchRL module this class turns into a policy."""

@@ -37,9 +37,10 @@ import torch.nn.functional as F
 from torch import nn
 
 from catmip_env.constants import OBS_ONE
+from catmip_rl.amat.config import AmatConfig
 from catmip_rl.amat.kernels.cell_fields import cell_fields
 from catmip_rl.amat.layers import DecoderBlock
-from catmip_rl.amat.model import AMAT, INVALID_LOGIT, AmatConfig, as_float, gather_robots
+from catmip_rl.amat.model import AMAT, INVALID_LOGIT, as_float, gather_robots
 
 __all__ = ["PointerAMAT", "Embedded", "CellContext", "make_model"]
 

@@ -17,6 +17,44 @@ __all__ = [
 USER_ERRORS = (ValueError, OSError, ImportError)
 """What bad input raises (a bad value, path, or missing extra): one line and exit code 2."""
 
+# the optional dependencies (pyproject's extras) by the module a command failed to import
+_EXTRAS = {
+    "rl": ("torch", "torchrl", "tensordict", "tensorboard", "tqdm"),
+    "render": ("matplotlib", "imageio", "PIL"),
+    "stats": ("scipy", "rliable", "arch", "pandas"),
+    "distributed": ("ray",),
+}
+
+
+def missing_extra(module: str | None) -> str:
+    """What to install for a command that failed to import ``module`` ('' for a module of no extra)."""
+    top = (module or "").split(".")[0]
+    for extra, modules in _EXTRAS.items():
+        if top in modules:
+            wheel = (
+                "pip install torch==2.13.0 (the CPU wheel), then " if extra in ("rl", "distributed") else ""
+            )
+            return f"the {extra!r} extra: {wheel}pip install 'catmip[{extra}]' (or 'catmip[all]')"
+    return ""
+
+
+def explain(err: BaseException) -> str:
+    """A user error's message, with the extra to install when it is a missing optional dependency."""
+    what = str(err) or type(err).__name__
+    if isinstance(err, ModuleNotFoundError) and missing_extra(err.name):
+        what = f"{what}: this needs {missing_extra(err.name)}"
+    return what
+
+
+def torch_threads(n: int) -> None:
+    """torch's CPU threads for a command that may play a model; without torch (an env-only install,
+    which plays the planners) there is nothing to set, and a model's method fails naming the extra."""
+    try:
+        import torch
+    except ModuleNotFoundError:
+        return
+    torch.set_num_threads(n)
+
 
 def _number(kind: type, low: float, below: float | None = None, bound: str = ""):
     """An argparse type: ``kind(text)``, finite, ``>= low``, ``< below``; ``bound`` words the range in
@@ -54,7 +92,7 @@ def checked(validate):
         try:
             validate(text)
         except USER_ERRORS as err:
-            raise argparse.ArgumentTypeError(str(err)) from None
+            raise argparse.ArgumentTypeError(explain(err)) from None
         return text
 
     parse.__name__ = validate.__name__

@@ -22,7 +22,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from catmip_rl.cli.args import CPUS, USER_ERRORS
+from catmip_rl.cli.args import CPUS, USER_ERRORS, explain, torch_threads
 from catmip_rl.cli.parser import DEFAULT_PRESET, TRAIN_FLAGS, build_parser
 from catmip_rl.training.config import TrainConfig
 from catmip_rl.training.presets import FINE_TUNING_PRESETS, TRAIN_PRESETS
@@ -93,13 +93,11 @@ def _setting(args: argparse.Namespace):
 
 
 def _eval(args: argparse.Namespace) -> int:
-    import torch
-
     from catmip_rl.evaluation.evaluate import evaluate
     from catmip_rl.files import check_new_dir
 
     check_new_dir(args.out, "--out", force=args.force)
-    torch.set_num_threads(args.threads)
+    torch_threads(args.threads)
     result = evaluate(
         args.method, _setting(args), args.episodes, args.seed, progress=not args.no_progress,
         allow_other_maps=args.allow_other_maps,
@@ -145,13 +143,11 @@ def _eval(args: argparse.Namespace) -> int:
 
 
 def _render(args: argparse.Namespace) -> int:
-    import torch
-
     from catmip_rl.evaluation.evaluate import render_episode
     from catmip_rl.files import check_new_file
 
     check_new_file(args.out, "--out", force=args.force, suffixes=(".gif",))
-    torch.set_num_threads(args.threads)
+    torch_threads(args.threads)
     path = render_episode(args.method, _setting(args), args.out, args.episode, args.seed, args.fps)
     print(f"wrote {path}")
     return 0
@@ -228,7 +224,7 @@ def main(argv: list[str] | None = None) -> int:
     except (*USER_ERRORS, MemoryError) as err:
         if os.environ.get("CATMIP_DEBUG"):
             raise
-        what = str(err) or type(err).__name__
+        what = explain(err)
         if isinstance(err, MemoryError):
             what = f"out of memory ({what}): use a smaller map_size, num_worlds or micro_batch"
         print(f"{name}: {_one_line(what, err)}", file=sys.stderr)

@@ -156,9 +156,9 @@ def train_value(name: str, kind: str):
 
 
 def add_setting_flags(p: argparse.ArgumentParser) -> None:
-    from catmip_rl.checkpoint import shipped_models
     from catmip_rl.evaluation.evaluate import TASKS
     from catmip_rl.evaluation.methods import METHOD_HELP
+    from catmip_rl.shipped import shipped_models
 
     shipped = ", ".join(shipped_models()) or "none"
     p.add_argument(

@@ -24,20 +24,27 @@ import math
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
-import torch
 
 from catmip_env import EnvConfig, make_config, render
 from catmip_env.events import EventEngine
 from catmip_env.map_sets import check_maps, map_hash
-from catmip_env.play import EpisodeRecords, decision_metrics, episode_metrics, play, success_curve
-from catmip_rl.amat.model import AMAT
-from catmip_rl.evaluation.execution import AmatExecutor
+from catmip_env.play import (
+    EpisodeRecords,
+    decision_metrics,
+    episode_columns,
+    episode_metrics,
+    play,
+    plays_one_world_at_a_time,  # fmt: skip
+    success_curve,
+)
 from catmip_rl.evaluation.methods import Method, make_policy, parse_method
-from catmip_rl.evaluation.user_policy import PettingZooPolicy
 from catmip_rl.files import atomic_write_csv, atomic_write_text
+
+if TYPE_CHECKING:  # the planners need no torch: an env-only install evaluates them
+    from catmip_rl.amat.model import AMAT
 
 __all__ = [
     "EvalSetting",
@@ -114,7 +121,8 @@ class EvalResult:
     curve: np.ndarray
     summary: dict[str, Any] = field(default_factory=dict)
     sampled_curve: np.ndarray | None = None
-    """AMAT with sampled actions on the same maps (the curve is argmax, the paper's protocol)."""
+    """The policy's sampled variant on the same maps (Policy.sampled; the curve is the policy itself:
+    argmax for AMAT, the paper's protocol)."""
 
     def write(self, out: str | Path) -> Path:
         """``episodes.csv``, ``episodes.json``, ``curve.csv``, ``summary.json`` in ``out`` (atomic)."""
@@ -181,20 +189,23 @@ def evaluate(
     engine.reset(episode_indices=np.arange(episodes))
     maps = [map_hash(engine, e) for e in range(episodes)]
     map_set = check_maps(setting.task, seed, maps, allow_other_maps)
-    passes = 2 if isinstance(policy, AmatExecutor) and sampled_too else 1
+    sampled_variant = getattr(policy, "sampled", None) if sampled_too else None  # the Policy protocol's hook
+    passes = 2 if sampled_variant is not None else 1
     bar = progress_bar(episodes * passes, f"{method.name} {setting.label}", progress)
     t0 = time.perf_counter()
     records = _play_maps(policy, engine, bar, engine_hook)
     seconds = time.perf_counter() - t0
     sampled = None
-    if isinstance(policy, AmatExecutor) and sampled_too:  # the same maps with sampled actions
-        gen = torch.Generator().manual_seed(seed)
-        sampler = policy.sampler(gen)
+    if sampled_variant is not None:  # the same maps with sampled actions
         engine.reset(episode_indices=np.arange(episodes))
-        sampled = _play_maps(sampler, engine, bar, None)
+        sampled = _play_maps(sampled_variant(seed), engine, bar, None)
     if bar is not None:
         bar.close()
-    rows = episode_rows(method, setting, seed, maps, records, sampled, policy)
+    try:
+        columns = episode_columns(policy, episodes)
+    except ValueError as err:
+        raise ValueError(f"policy {method.name}: {err}") from None
+    rows = episode_rows(method, setting, seed, maps, records, sampled, columns)
     horizon = cfg.horizon_ticks
     result = EvalResult(method.name, setting, seed, rows, success_curve(records.rescue_tick, horizon))
     decisions = max(int(records.decisions.sum()), 1)
@@ -230,10 +241,11 @@ def episode_rows(
     maps: list[str],
     records: EpisodeRecords,
     sampled: EpisodeRecords | None,
-    policy,
+    columns: dict[str, np.ndarray],
 ) -> list[dict[str, Any]]:
     """One row per episode (episodes.csv / episodes.json): the setting, the map hash, the outcome,
-    the decision counts, and the decision messages of an :class:`AmatExecutor` ``policy``."""
+    the decision counts, then the policy's own ``columns`` (:func:`catmip_env.play.episode_columns`:
+    its decision messages and bytes, zero for a planner)."""
 
     def tick(t) -> int | None:
         return int(t) if t >= 0 else None
@@ -261,14 +273,12 @@ def episode_rows(
         }
         if sampled is not None:
             row["sampled_rescue_tick"] = tick(sampled.rescue_tick[e])
-        if isinstance(policy, AmatExecutor):
-            row.update(
-                messages=int(policy.messages[e]),
-                bytes_embedding=int(policy.bytes_embedding[e]),
-                bytes_raw=int(policy.bytes_raw[e]),
+        clash = set(columns) & set(row)
+        if clash:
+            raise ValueError(
+                f"policy {method.name}: episode_columns() names the protocol's own column(s) {sorted(clash)}"
             )
-        else:  # planners decide on the robot's own (C-SLAM merged) belief: no decision messages
-            row.update(messages=0, bytes_embedding=0, bytes_raw=0)
+        row |= {name: values[e].item() for name, values in columns.items()}
         rows.append(row)
     return rows
 
@@ -276,10 +286,12 @@ def episode_rows(
 def _play_maps(policy, engine: EventEngine, bar, engine_hook) -> EpisodeRecords:
     """Play the episodes ``engine`` was just reset to (world e = map e) to their end: their records.
 
-    A PettingZoo-level policy plays them one after another on a one-world engine, its ``reset()``
-    called before each (as in a PettingZoo loop); every other policy plays them all at once."""
-    if isinstance(policy, AmatExecutor):
-        policy.reset_counters(engine.num_worlds, engine.num_robots)
+    A policy that plays one world at a time (a PettingZoo-level one) plays them one after another on a
+    one-world engine, its ``reset()`` called before each (as in a PettingZoo loop); every other policy
+    plays them all at once, its ``start_episodes(num_worlds, num_robots)`` called first if it has one
+    (the :class:`~catmip_env.play.Policy` protocol)."""
+    if hasattr(policy, "start_episodes"):
+        policy.start_episodes(engine.num_worlds, engine.num_robots)
     done_before = 0 if bar is None else bar.n
 
     def on_event(eng: EventEngine, offset: int = 0) -> None:
@@ -289,7 +301,7 @@ def _play_maps(policy, engine: EventEngine, bar, engine_hook) -> EpisodeRecords:
         if bar is not None and done > bar.n:
             bar.update(done - bar.n)
 
-    if not isinstance(policy, PettingZooPolicy):
+    if not plays_one_world_at_a_time(policy):
         return play(engine, policy, on_event=on_event)
     # a world's episode depends only on the seed, its index and the actions (catmip_env.rng)
     one = EventEngine(engine.cfg, num_worlds=1, seed=engine.world.base_seed, goal_mode=engine.goal_mode)
@@ -320,7 +332,7 @@ def render_episode(
     sync = method.synchronous
     policy, goal_mode, window = make_policy(method, setting.env_config(None, sync), seed, model)
     eng = EventEngine(setting.env_config(window, sync), num_worlds=1, seed=seed, goal_mode=goal_mode)
-    if isinstance(policy, PettingZooPolicy):
+    if plays_one_world_at_a_time(policy):
         policy.reset()
     fps = SearchRescueEnv.metadata["render_fps"] if fps is None else fps
     return render.render_episode(eng, policy, path, episode, fps=fps, max_frames=max_frames)

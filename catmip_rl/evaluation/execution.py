@@ -17,8 +17,9 @@ import torch
 
 from catmip_env.events import EventEngine
 from catmip_rl.amat.batch1.fast_amat import FastAmat
+from catmip_rl.amat.config import AmatConfig
 from catmip_rl.amat.inputs import macro_observation
-from catmip_rl.amat.model import AMAT, AmatConfig, decision_order
+from catmip_rl.amat.model import AMAT, decision_order
 
 __all__ = [
     "AmatExecutor",
@@ -227,11 +228,19 @@ class AmatExecutor:
         self.messages = self.bytes_embedding = self.bytes_raw = None
         self._last_action = self._last_pose = None
 
-    def sampler(self, generator: torch.Generator) -> AmatExecutor:
-        """The same model and loop guard with sampled actions drawn from ``generator``."""
-        return type(self)(self.model, False, generator, self.loop_guard)
+    def sampled(self, seed: int) -> AmatExecutor:
+        """The same model and loop guard with sampled actions, drawn from a generator seeded by ``seed``."""
+        return type(self)(self.model, False, torch.Generator().manual_seed(seed), self.loop_guard)
 
-    def reset_counters(self, num_worlds: int, num_robots: int = 0) -> None:
+    def episode_columns(self) -> dict[str, np.ndarray]:
+        """The decision traffic of each episode since :meth:`start_episodes` (catmip_env.play.Policy)."""
+        return {
+            "messages": self.messages,
+            "bytes_embedding": self.bytes_embedding,
+            "bytes_raw": self.bytes_raw,
+        }
+
+    def start_episodes(self, num_worlds: int, num_robots: int = 0) -> None:
         """Zero the message counters (and the loop guard's memory) for a new batch of episodes."""
         self.messages = np.zeros(num_worlds, np.int64)
         self.bytes_embedding = np.zeros(num_worlds, np.int64)
@@ -265,7 +274,7 @@ class AmatExecutor:
                 f"window {self.model.config.window}, got {engine.goal_mode!r} / {engine.cfg.window}"
             )
         if self.messages is None or self._last_action.shape != (engine.num_worlds, engine.num_robots):
-            self.reset_counters(engine.num_worlds, engine.num_robots)
+            self.start_episodes(engine.num_worlds, engine.num_robots)
         st = engine.state
         active = engine.active & ~st.done[:, None]
         masks = self._guarded_masks(engine, active) if self.loop_guard else engine.masks
@@ -315,7 +324,7 @@ class CellGoalExecutor(AmatExecutor):
                 f"a cell-goal AMAT needs an EventEngine with goal_mode='cell', got {engine.goal_mode!r}"
             )
         if self.messages is None or self._last_action.shape != (engine.num_worlds, engine.num_robots):
-            self.reset_counters(engine.num_worlds, engine.num_robots)
+            self.start_episodes(engine.num_worlds, engine.num_robots)
         st = engine.state
         active = engine.active & ~st.done[:, None]
         masks = self._guarded_masks(engine, active) if self.loop_guard else engine.masks

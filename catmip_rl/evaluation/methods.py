@@ -16,15 +16,16 @@ from __future__ import annotations
 
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from catmip_env.config import EnvConfig
 from catmip_env.planners import PLANNERS, make_planner
 from catmip_env.window_planner import WINDOW_KINDS, make_window_planner
-from catmip_rl.amat.model import AMAT
-from catmip_rl.checkpoint import load_model, resolve_model, trained_synchronous
-from catmip_rl.evaluation.execution import AmatExecutor, CellGoalExecutor
 from catmip_rl.evaluation.user_policy import load_factory, make_user_policy, parse_policy_source
+from catmip_rl.shipped import resolve_model
+
+if TYPE_CHECKING:  # AMAT's methods import torch when one is played: the planners run without it
+    from catmip_rl.amat.model import AMAT
 
 __all__ = ["Method", "parse_method", "parse_runs", "make_policy", "amat_label", "METHOD_HELP"]
 
@@ -89,6 +90,8 @@ def parse_method(spec: str) -> Method:
             path = spec[len(prefix) :]
             if not path:
                 raise ValueError(f"amat method needs a checkpoint: {prefix}PATH")
+            from catmip_rl.checkpoint import trained_synchronous
+
             target = resolve_model(path)
             label = amat_label(target) + ("-guard" if guard else "")
             return Method(name or label, "amat", str(target), guard, trained_synchronous(target))
@@ -137,6 +140,9 @@ def make_policy(
             factory = lambda _cfg, _seed: policy  # noqa: E731
         wrapped = make_user_policy(factory, env_config, seed, method.name)
         return wrapped, wrapped.goal_mode, None
+    from catmip_rl.checkpoint import load_model
+    from catmip_rl.evaluation.execution import AmatExecutor, CellGoalExecutor
+
     model = model if model is not None else load_model(method.target)
     if model.config.goals == "cell":
         return CellGoalExecutor(model, loop_guard=method.loop_guard), "cell", None

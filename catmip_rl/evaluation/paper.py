@@ -26,7 +26,6 @@ from typing import Any
 import numpy as np
 
 from catmip_env.play import WorldNotSupported
-from catmip_rl.checkpoint import load_model
 from catmip_rl.evaluation.compare import success_interval
 from catmip_rl.evaluation.evaluate import EvalSetting, evaluate, progress_bar
 from catmip_rl.evaluation.methods import Method, make_policy, parse_runs
@@ -172,6 +171,8 @@ def _check_methods(
     for runs in groups:
         for m in runs:
             if m.kind == "amat":
+                from catmip_rl.checkpoint import load_model  # torch: only where a model is played
+
                 load_model(m.target)
         for panel, setting in panels:
             able, why = [], ""

@@ -51,7 +51,7 @@ from catmip_env.spaces import macro_infos, macro_observations, parse_actions
 
 __all__ = [
     "POLICY_LEVELS", "PolicyError", "PolicySource", "parse_policy_source", "load_factory", "make_user_policy",
-    "CheckedEnginePolicy", "PettingZooPolicy",
+    "wrap_user_policy", "WrappedUserPolicy", "CheckedEnginePolicy", "PettingZooPolicy",
 ]  # fmt: skip
 
 POLICY_LEVELS = ("pettingzoo", "engine")
@@ -177,6 +177,12 @@ def make_user_policy(
         raise WorldNotSupported(f"policy {name} cannot play this world: {exc}") from None
     except Exception as exc:
         raise PolicyError(f"policy {name}: the factory raised {_describe(exc)}") from None
+    return wrap_user_policy(policy, name)
+
+
+def wrap_user_policy(policy: Any, name: str) -> CheckedEnginePolicy | PettingZooPolicy:
+    """A user's policy object (a factory's answer) wrapped for the evaluator, its optional members of
+    :class:`catmip_env.play.Policy` forwarded (their failures too become :class:`PolicyError`)."""
     if "tensordict" in sys.modules:  # a TorchRL module can only come from a process that imported it
         from catmip_rl.adapters.torchrl_policy import TorchRLPolicy
 
@@ -200,8 +206,11 @@ def make_user_policy(
         raise PolicyError(f"policy {name}: goal_mode {goal_mode!r} is not one of {list(GOAL_MODES)}")
     reset = getattr(policy, "reset", None)
     if level == "engine":
-        return CheckedEnginePolicy(act, name, goal_mode)
-    return PettingZooPolicy(act, name, goal_mode, reset if callable(reset) else None)
+        wrapped = CheckedEnginePolicy(act, name, goal_mode)
+    else:
+        wrapped = PettingZooPolicy(act, name, goal_mode, reset if callable(reset) else None)
+    wrapped.forward_hooks(policy)
+    return wrapped
 
 
 def _check_allowed(actions: np.ndarray, engine: EventEngine, worlds: np.ndarray, name: str) -> None:
@@ -223,7 +232,36 @@ def _check_allowed(actions: np.ndarray, engine: EventEngine, worlds: np.ndarray,
     )
 
 
-class CheckedEnginePolicy:
+class WrappedUserPolicy:
+    """What both wrappers share: the policy's name, calls whose failures become :class:`PolicyError`,
+    and the optional members of :class:`catmip_env.play.Policy` taken from the user's object."""
+
+    name: str
+
+    def _call(self, fn: Callable, what: str, *args):
+        try:
+            return fn(*args)
+        except KeyboardInterrupt:
+            raise
+        except PolicyError:
+            raise
+        except Exception as exc:
+            raise PolicyError(f"policy {self.name}: {what} raised {_describe(exc)}") from None
+
+    def forward_hooks(self, policy: Any) -> None:
+        """Expose the optional members ``policy`` has (and only those: the evaluator asks by name)."""
+        if callable(getattr(policy, "start_episodes", None)):
+            what = "start_episodes(num_worlds, num_robots)"
+            self.start_episodes = lambda b, n: self._call(policy.start_episodes, what, b, n)
+        if callable(getattr(policy, "episode_columns", None)):
+            self.episode_columns = lambda: self._call(policy.episode_columns, "episode_columns()")
+        if callable(getattr(policy, "sampled", None)):
+            self.sampled = lambda seed: wrap_user_policy(
+                self._call(policy.sampled, "sampled(seed)", seed), self.name
+            )
+
+
+class CheckedEnginePolicy(WrappedUserPolicy):
     """An engine-level policy whose every answer is checked: shape (B, N), integers, allowed for the
     active robots of live worlds; crashes and bad answers become :class:`PolicyError`."""
 
@@ -231,14 +269,7 @@ class CheckedEnginePolicy:
         self._act, self.name, self.goal_mode = act, name, goal_mode
 
     def act(self, engine: EventEngine) -> np.ndarray:
-        try:
-            out = self._act(engine)
-        except KeyboardInterrupt:
-            raise
-        except PolicyError:
-            raise
-        except Exception as exc:
-            raise PolicyError(f"policy {self.name}: act(engine) raised {_describe(exc)}") from None
+        out = self._call(self._act, "act(engine)", engine)
         try:
             actions = np.asarray(out)
         except Exception as exc:
@@ -259,11 +290,13 @@ class CheckedEnginePolicy:
         return actions
 
 
-class PettingZooPolicy:
+class PettingZooPolicy(WrappedUserPolicy):
     """A PettingZoo-level policy as an engine-level one: for every live world with an active robot it
     builds that world's ``(observations, infos)`` as ``search_rescue_v0`` does (the same functions) and
     calls ``act``; busy robots keep their goals. The evaluator plays such a policy on a one-world
     engine, episode after episode, calling :meth:`reset` before each."""
+
+    one_world_at_a_time = True
 
     def __init__(
         self,
@@ -279,14 +312,6 @@ class PettingZooPolicy:
         """Start of an episode: the policy's own ``reset()``, if it has one."""
         if self._reset is not None:
             self._call(self._reset, "reset()")
-
-    def _call(self, fn: Callable, what: str, *args):
-        try:
-            return fn(*args)
-        except KeyboardInterrupt:
-            raise
-        except Exception as exc:
-            raise PolicyError(f"policy {self.name}: {what} raised {_describe(exc)}") from None
 
     def act(self, engine: EventEngine) -> np.ndarray:
         st = engine.state

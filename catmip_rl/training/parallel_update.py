@@ -28,7 +28,8 @@ from typing import Any
 import torch
 import torch.multiprocessing as mp
 
-from catmip_rl.amat.model import AMAT, AmatConfig
+from catmip_rl.amat.config import AmatConfig
+from catmip_rl.amat.model import AMAT
 from catmip_rl.amat.pointer import make_model
 from catmip_rl.training.gae import SampleBatch
 from catmip_rl.training.ppo import accumulate_gradients

@@ -29,6 +29,7 @@ import numpy as np
 
 from catmip_env.constants import OBS_SCALE
 from catmip_rl.amat.batch1.snapshot import extract_weights
+from catmip_rl.amat.config import AmatConfig
 from catmip_rl.amat.kernels.conv import (
     add_planes,
     conv_rows,
@@ -52,7 +53,7 @@ from catmip_rl.amat.kernels.numba_ops import (
     one_hot,
     relu,
 )
-from catmip_rl.amat.model import INVALID_LOGIT, AmatConfig
+from catmip_rl.amat.model import INVALID_LOGIT
 
 __all__ = ["FastAmat"]
 

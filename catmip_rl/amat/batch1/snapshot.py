@@ -16,9 +16,9 @@ from typing import Any
 
 import numpy as np
 
+from catmip_rl.amat.config import AmatConfig
 from catmip_rl.amat.kernels.conv import conv_weights
 from catmip_rl.amat.kernels.numba_ops import LN_EPS
-from catmip_rl.amat.model import AmatConfig
 
 __all__ = ["FastWeights", "extract_weights"]
 

@@ -10,7 +10,8 @@ from catmip_env import make_config
 from catmip_env.events import EventEngine, random_valid_actions
 from catmip_rl.adapters import keys as K
 from catmip_rl.adapters.torchrl_actor import AmatActor, AmatCritic
-from catmip_rl.amat.model import AMAT, AmatConfig
+from catmip_rl.amat.config import AmatConfig
+from catmip_rl.amat.model import AMAT
 from catmip_rl.checkpoint import load_model, save_model
 from catmip_rl.evaluation.execution import decide_by_neighbourhood, message_bytes
 from tests.rl.helpers import shaken_model

@@ -4,7 +4,8 @@ import pytest
 import torch
 import torch.nn.functional as F
 
-from catmip_rl.amat.model import AMAT, AmatConfig, decision_order
+from catmip_rl.amat.config import AmatConfig
+from catmip_rl.amat.model import AMAT, decision_order
 from catmip_rl.amat.weights import finer_pool
 from tests.rl.helpers import shaken_model
 

@@ -4,8 +4,9 @@ import pytest
 import torch
 import torch.nn.functional as F
 
+from catmip_rl.amat.config import AmatConfig
 from catmip_rl.amat.kernels.small_attention import small_attention
-from catmip_rl.amat.model import AmatConfig, decision_order
+from catmip_rl.amat.model import decision_order
 from tests.rl.helpers import shaken_model
 
 

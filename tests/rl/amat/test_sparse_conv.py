@@ -7,8 +7,9 @@ import torch.nn.functional as F
 
 from catmip_env.config import make_config
 from catmip_env.events import EventEngine, random_valid_actions
+from catmip_rl.amat.config import AmatConfig
 from catmip_rl.amat.kernels.sparse_conv import global_conv_pool, global_conv_pool_winners
-from catmip_rl.amat.model import AmatConfig, decision_order
+from catmip_rl.amat.model import decision_order
 from catmip_rl.training.gae import SampleBatch
 from catmip_rl.training.ppo import make_optimizer, ppo_loss, ppo_update
 from catmip_rl.training.presets import make_train_config

@@ -13,7 +13,8 @@ from catmip_env.constants import OBS_SCALE
 from catmip_rl.adapters import keys as K
 from catmip_rl.adapters.torchrl_actor import AmatActor
 from catmip_rl.adapters.torchrl_env import CatmipEnv, float_observation_transform
-from catmip_rl.amat.model import AMAT, AmatConfig
+from catmip_rl.amat.config import AmatConfig
+from catmip_rl.amat.model import AMAT
 from catmip_rl.training.collect import Collector
 
 

@@ -10,7 +10,8 @@ import torch
 from catmip_env import make_config
 from catmip_env.events import EventEngine
 from catmip_env.window_planner import make_window_planner
-from catmip_rl.amat.model import AMAT, AmatConfig
+from catmip_rl.amat.config import AmatConfig
+from catmip_rl.amat.model import AMAT
 from catmip_rl.training.collect import Collector
 from catmip_rl.training.imitation import DemoBuffer, RescueLabeler, dagger, imitation_loss
 from catmip_rl.training.presets import make_train_config

@@ -4,7 +4,7 @@ warm-up, and the per-epoch log."""
 import pytest
 import torch
 
-from catmip_rl.amat.model import AmatConfig
+from catmip_rl.amat.config import AmatConfig
 from catmip_rl.training.ppo import lr_factor, make_optimizer, ppo_update
 from catmip_rl.training.presets import make_train_config
 from tests.rl.amat.test_sparse_conv import _batch

@@ -161,6 +161,27 @@ def test_a_new_run_can_start_from_another_runs_weights(tmp_path):
         build_run(cfg.replace(init_from=str(tmp_path / "a"), amat={**cfg.amat, "pool": 6}))
 
 
+def test_a_cell_goal_model_starts_a_run_on_the_other_mask(tmp_path):
+    from catmip_rl.amat.config import AmatConfig
+    from catmip_rl.amat.pointer import make_model
+    from catmip_rl.checkpoint import save_model
+    from catmip_rl.training.train import build_run
+
+    known = make_model(AmatConfig(embed_dim=16, goals="cell", cell_channels=8, cell_layers=2))
+    save_model(known, tmp_path / "known.pt")
+    amat = {"embed_dim": 16, "goals": "cell", "cell_channels": 8, "cell_layers": 2, "cell_mask": "reachable"}
+    run = build_run(make_train_config("tiny", amat=amat, init_from=str(tmp_path / "known.pt")))
+    assert run.model.config.cell_mask == "reachable" and run.init_source["cell_mask"] == [
+        "known",
+        "reachable",
+    ]
+    assert torch.equal(_params(run.model), _params(known))  # the mask holds no weights
+    with pytest.raises(ValueError, match="another configuration .cell_channels 8 there vs 16 here"):
+        build_run(
+            make_train_config("tiny", amat=amat | {"cell_channels": 16}, init_from=str(tmp_path / "known.pt"))
+        )
+
+
 def test_export_writes_a_runs_model_with_its_provenance(tmp_path, capsys):
     from catmip_rl.checkpoint import load_model
 

@@ -1,0 +1,86 @@
+"""AMAT's hyper-parameters (:class:`AmatConfig`), apart from the model so that configs, presets and the
+command line load without torch."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import asdict, dataclass
+from typing import Any
+
+from catmip_env.fields import INT, check
+
+__all__ = ["AmatConfig", "GOAL_KINDS", "CELL_MASKS"]
+
+GOAL_KINDS = ("window", "cell")
+CELL_MASKS = ("known", "reachable")
+
+
+@dataclass(frozen=True)
+class AmatConfig:
+    """Hyper-parameters of AMAT (defaults: the paper's Table 2)."""
+
+    window: int = 7
+    """D: side of the goal window; the policy has D*D actions."""
+    local_size: int = 7
+    """L: side of the robot-centred local map."""
+    pool: int = 4
+    """G: the global CNN's adaptive max-pool output side (any map size S works)."""
+    embed_dim: int = 192
+    """d: token width."""
+    n_heads: int = 1
+    """Attention heads (d must be divisible by it)."""
+    n_blocks: int = 1
+    """Encoder and decoder blocks."""
+    n_classes: int = 2
+    """C: robot classes (the class one-hot size)."""
+    goals: str = "window"
+    """"window": D*D goals around the robot (the paper's AMAT); "cell": any cell of the map, scored by a
+    pointer head over per-cell features (``amat.pointer``, the planners' action space)."""
+    cell_channels: int = 32
+    """Goals "cell": width of the per-cell feature maps."""
+    cell_mask: str = "known"
+    """Goals "cell": the cells a robot may choose besides its own: "known" (explored and free on its map,
+    reachable: where Nearest's and Utility's frontiers are) or "reachable" (any cell its map does not show
+    occupied with a path to it, unknown cells included: where RRT sends robots)."""
+    cell_layers: int = 4
+    """Goals "cell": convolutions of the per-cell encoder: a 3x3, then residual 3x3s dilated 1, 1, 2, 4..."""
+
+    def __post_init__(self) -> None:
+        odd, positive = INT("that is odd and >= 1", lambda v: v >= 1 and v % 2), INT(">= 1", lambda v: v >= 1)
+        for name in ("window", "local_size", "pool", "embed_dim", "n_heads", "n_blocks", "n_classes",
+                     "cell_channels", "cell_layers"):  # fmt: skip
+            check(
+                "AmatConfig", name, getattr(self, name), odd if name in ("window", "local_size") else positive
+            )
+        if self.embed_dim % self.n_heads:
+            raise ValueError(f"embed_dim {self.embed_dim} is not divisible by n_heads {self.n_heads}")
+        if self.cell_mask not in CELL_MASKS:
+            raise ValueError(
+                f"AmatConfig.cell_mask must be one of {list(CELL_MASKS)}, got {self.cell_mask!r}"
+            )
+        if self.goals not in GOAL_KINDS:
+            raise ValueError(f"AmatConfig.goals must be one of {list(GOAL_KINDS)}, got {self.goals!r}")
+
+    @property
+    def num_actions(self) -> int:
+        return self.window * self.window
+
+    @property
+    def global_channels(self) -> int:
+        return 5 + self.n_classes
+
+    @property
+    def local_channels(self) -> int:
+        return 4 + self.n_classes
+
+    def to_json(self) -> str:
+        return json.dumps(asdict(self), indent=2, sort_keys=True)
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> AmatConfig:
+        if not isinstance(data, dict):
+            raise ValueError(f"AmatConfig fields must be a JSON object {{field: value}}, got {data!r}")
+        unknown = set(data) - set(cls.__dataclass_fields__)
+        if unknown:
+            raise ValueError(f"unknown AmatConfig field(s) {sorted(unknown)}")
+        return cls(**data)

@@ -1,0 +1,31 @@
+"""The models shipped in ``catmip_rl/models/`` and how a model argument names a file: no torch here, so
+that the command line lists them (and an env-only install's ``catmip`` starts)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+__all__ = ["SHIPPED_DIR", "shipped_models", "resolve_model"]
+
+SHIPPED_DIR = Path(__file__).parent / "models"
+"""Where the shipped models are: ``amat_NAME.pt`` loads as ``NAME``."""
+
+
+def shipped_models() -> list[str]:
+    """Names of the models shipped in :data:`SHIPPED_DIR` (``amat_task1.pt`` -> ``task1``)."""
+    return sorted(p.stem[len("amat_") :] for p in SHIPPED_DIR.glob("amat_*.pt"))
+
+
+def resolve_model(spec: str | Path) -> Path:
+    """The file or run dir ``spec`` names: an existing path, else a shipped model's name (``task1`` ->
+    ``catmip_rl/models/amat_task1.pt``); neither raises ``FileNotFoundError`` listing the shipped names."""
+    path = Path(spec)
+    if path.exists():
+        return path
+    shipped = SHIPPED_DIR / f"amat_{spec}.pt"
+    if path.name == str(spec) and shipped.is_file():  # a bare name, no folder part
+        return shipped
+    raise FileNotFoundError(
+        f"AMAT model {str(spec)!r} does not exist: not a file or run dir, nor a shipped model (shipped: "
+        f"{', '.join(shipped_models()) or 'none'})"
+    )
