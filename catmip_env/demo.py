@@ -23,6 +23,7 @@ from catmip_env.files import atomic_path
 from catmip_env.planners import PLANNERS, make_planner
 from catmip_env.play import episode_metrics, play
 from catmip_env.render import render_episode
+from catmip_env.warmup import compile_kernels
 
 DEFAULT_PLANNERS = ("nearest", "utility", "rrt", "apf", "random-frontier", "random-rescue", "random-uniform")
 
@@ -79,6 +80,7 @@ def main(argv: list[str] | None = None) -> list[dict]:
     args = ap.parse_args(argv)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
+    compile_kernels()  # the first run on a machine: say so and how long it takes
     rows = [evaluate(p.strip(), args.preset, args.episodes, args.seed) for p in args.planners.split(",")]
     _write(out, rows)
     print(f"\n{args.episodes} episodes of {args.preset} (seed {args.seed}), same maps for every planner:")

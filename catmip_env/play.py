@@ -52,7 +52,9 @@ class Policy(Protocol):
     * ``sampled(seed) -> Policy``: the same policy with sampled actions (seeded by ``seed``); the evaluator
       plays the maps again with it and reports ``sampled_*`` beside the policy's own (argmax) numbers;
     * ``one_world_at_a_time = True``: play the maps one after another on a one-world engine, calling
-      ``reset()`` before each (a PettingZoo-level policy with memory).
+      ``reset()`` before each (a PettingZoo-level policy with memory);
+    * ``deterministic: bool``: whether ``act`` plays argmax (True) or samples (False), written on the
+      results' summary (``actions``).
     """
 
     def act(self, engine: EventEngine) -> np.ndarray:  # (B, N) int goal actions

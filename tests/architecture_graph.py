@@ -18,7 +18,7 @@ ENV_GROUPS = {
     "env: world": ("world",),
     "env: events": ("events", "decision_stats"),
     "env: planners": ("planners", "window_planner"),
-    "env: play": ("play", "map_sets", "render", "demo"),
+    "env: play": ("play", "map_sets", "render", "warmup", "demo"),
     "env: PettingZoo": ("search_rescue_v0", "spaces"),
 }
 RL_TOP = {"__init__": "rl: checkpoint", "checkpoint": "rl: checkpoint", "files": "rl: checkpoint",

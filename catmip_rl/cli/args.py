@@ -46,16 +46,6 @@ def explain(err: BaseException) -> str:
     return what
 
 
-def torch_threads(n: int) -> None:
-    """torch's CPU threads for a command that may play a model; without torch (an env-only install,
-    which plays the planners) there is nothing to set, and a model's method fails naming the extra."""
-    try:
-        import torch
-    except ModuleNotFoundError:
-        return
-    torch.set_num_threads(n)
-
-
 def _number(kind: type, low: float, below: float | None = None, bound: str = ""):
     """An argparse type: ``kind(text)``, finite, ``>= low``, ``< below``; ``bound`` words the range in
     messages instead."""

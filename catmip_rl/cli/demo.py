@@ -24,6 +24,7 @@ import torch
 
 from catmip_rl.evaluation.evaluate import EvalSetting, evaluate, render_episode
 from catmip_rl.evaluation.plots import plot_figure
+from catmip_rl.evaluation.warmup import compile_kernels
 from catmip_rl.files import atomic_write_csv, atomic_write_text
 from catmip_rl.shipped import resolve_model
 
@@ -53,6 +54,7 @@ def main(argv: list[str] | None = None) -> list[dict]:
     out = Path(args.out)
     torch.set_num_threads(args.threads)
     shipped = resolve_model("task1")  # the README's row: a missing file is an error, never a dropped row
+    compile_kernels()  # the first run on a machine: say so and how long it takes
 
     # 1. a short training run (a fresh one every time: the folder is replaced)
     from catmip_rl.training.presets import make_train_config

@@ -22,8 +22,9 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from catmip_rl.cli.args import CPUS, USER_ERRORS, explain, torch_threads
+from catmip_rl.cli.args import CPUS, USER_ERRORS, explain
 from catmip_rl.cli.parser import DEFAULT_PRESET, TRAIN_FLAGS, build_parser
+from catmip_rl.evaluation.warmup import compile_kernels, torch_threads
 from catmip_rl.training.config import TrainConfig
 from catmip_rl.training.presets import FINE_TUNING_PRESETS, TRAIN_PRESETS
 
@@ -106,8 +107,9 @@ def _eval(args: argparse.Namespace) -> int:
     s = result.summary
     rescue = "-" if s["mean_rescue_tick"] is None else f"{s['mean_rescue_tick']:.1f}"
     p, n = s["success_by_100"], s["episodes"]
+    how = "" if s["actions"] == "its own" else f" ({s['actions']} actions)"  # a learned policy's choice
     print(
-        f"{s['method']} on {s['label']}, {n} episodes (seed {args.seed}): success "
+        f"{s['method']}{how} on {s['label']}, {n} episodes (seed {args.seed}): success "
         f"{s['success_rate']:.2f}, by tick 100 {p:.2f} (standard error {(p * (1 - p) / n) ** 0.5:.3f}), "
         f"mean rescue tick {rescue}, explored {s['mean_explored_fraction']:.2f}"
     )
@@ -169,12 +171,16 @@ def _bench(args: argparse.Namespace) -> int:
     if args.all == (args.figure is not None):
         raise ValueError("give --figure N or --all (one of them)")
     figures = sorted(FIGURES) if args.all else [args.figure]
+    if args.threads is not None and args.threads * args.jobs > CPUS:
+        raise ValueError(
+            f"--jobs {args.jobs} x --threads {args.threads} is more than this machine's {CPUS} CPUs"
+        )
     for fig in figures:  # every figure's folder, before the first run starts
         check_new_dir(Path(args.out) / f"fig{fig}", "--out", force=args.force)
     methods = [m for m in args.methods.split(",") if m.strip()] + list(args.method)
     for fig in figures:
         out = run_figure(fig, methods, args.episodes, args.seed, args.out, args.jobs,
-                         allow_other_maps=args.allow_other_maps)  # fmt: skip
+                         allow_other_maps=args.allow_other_maps, threads=args.threads)  # fmt: skip
         print(f"figure {fig}: {out}/fig{fig}.png, curves.csv, summary.csv, marl_eval.json")
     return 0
 
@@ -217,6 +223,8 @@ def main(argv: list[str] | None = None) -> int:
         return done.code if isinstance(done.code, int) else (0 if done.code is None else 2)
     name = f"catmip {args.name}" + (f" {args.suite}" if args.name == "bench" else "")
     try:
+        if args.name in ("eval", "render", "bench", "train"):  # the first run on a machine says it compiles
+            compile_kernels()
         return COMMANDS[args.name](args)
     except BrokenPipeError:  # stdout closed by the reader (`| head`): the work and its files are done
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # no second error at exit

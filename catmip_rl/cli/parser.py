@@ -244,6 +244,8 @@ def add_bench(sub) -> None:
     pa.add_argument("--episodes", type=POSITIVE_INT, default=100, help="maps per (panel, method)")
     pa.add_argument("--seed", type=NON_NEGATIVE_INT, default=0, help="map set")
     pa.add_argument("--jobs", type=UP_TO_CPUS, default=min(2, CPUS), help="parallel processes")
+    pa.add_argument("--threads", type=UP_TO_CPUS, default=None,
+                    help="torch CPU threads of each process (default: 2 with one job, else 1)")  # fmt: skip
     pa.add_argument("--out", default="out/paper", help="figures go to OUT/fig{N}/ (new or empty)")
     pa.add_argument("--force", action="store_true", help="write into non-empty OUT/fig{N}/ folders")
     add_allow_other_maps(pa)

@@ -222,6 +222,8 @@ def evaluate(
     result.summary.update(
         method=method.name,
         method_kind=method.kind,
+        actions=action_choice(policy),
+        sampled_pass=sampled is not None,
         synchronous=method.synchronous,
         checkpoint=method.target if method.kind == "amat" else None,
         policy=method.target if method.kind in ("py", "policy") else None,
@@ -232,6 +234,14 @@ def evaluate(
         **map_set.as_dict(),
     )
     return result
+
+
+def action_choice(policy: Any) -> str:
+    """How the evaluated policy chose its actions (the summary's ``actions``): "argmax" or "sampled" for
+    a policy that says (its ``deterministic`` attribute: AMAT, ``TorchRLPolicy``), else "its own" (a
+    planner's rule, or a policy that does not say)."""
+    deterministic = getattr(policy, "deterministic", None)
+    return {True: "argmax", False: "sampled"}.get(deterministic, "its own")
 
 
 def episode_rows(

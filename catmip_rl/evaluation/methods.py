@@ -15,6 +15,7 @@ together every ``max_ma_ticks`` ticks, the system it is.
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from difflib import get_close_matches
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -99,14 +100,31 @@ def parse_method(spec: str) -> Method:
         if spec.startswith(kind + ":"):
             planner = spec[len(kind) + 1 :]
             if planner not in PLANNERS:
-                raise ValueError(f"unknown planner {planner!r} in {spec!r}; choose one of {sorted(PLANNERS)}")
+                hint = _did_you_mean(spec)
+                raise ValueError(
+                    f"unknown planner {planner!r} in {spec!r}{hint}; choose one of {sorted(PLANNERS)}"
+                )
             return Method(name or spec, kind, planner)
     if spec not in PLANNERS:
         looks_like_policy = ".py:" in spec or "." in spec.split(":")[0] and ":" in spec
-        hint = f" (your policy? write py:{spec})" if looks_like_policy else ""
-        choices = f"amat:PATH, py:FILE.py:FACTORY or one of {sorted(PLANNERS)}"
+        hint = f" (your policy? write py:{spec})" if looks_like_policy else _did_you_mean(spec)
+        choices = (f"a planner {sorted(PLANNERS)}, window:PLANNER, window-noheading:PLANNER, amat:PATH, "
+                   "amat-guard:PATH, sync:METHOD or py:FILE.py:FACTORY")  # fmt: skip
         raise ValueError(f"unknown method {spec!r}{hint}; choose {choices}")
     return Method(name or spec, "planner", spec)
+
+
+def _did_you_mean(spec: str) -> str:
+    """`` (did you mean X?)`` for a spec close to a planner or a method prefix, else ''."""
+    prefix, colon, rest = spec.partition(":")
+    if colon:  # a mistyped prefix or planner: window:nearset, amta:task1
+        prefixes = [*WINDOW_KINDS, "amat", "amat-guard", "sync", "py"]
+        fixed = [f"{p}:{rest}" for p in get_close_matches(prefix, prefixes, n=1)]
+        if prefix in WINDOW_KINDS:
+            fixed = [f"{prefix}:{p}" for p in get_close_matches(rest, list(PLANNERS), n=1)]
+    else:
+        fixed = get_close_matches(spec, list(PLANNERS), n=1)
+    return f" (did you mean {fixed[0]}?)" if fixed else ""
 
 
 def parse_runs(spec: str) -> list[Method]:

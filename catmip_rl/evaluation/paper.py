@@ -30,6 +30,7 @@ from catmip_rl.evaluation.compare import success_interval
 from catmip_rl.evaluation.evaluate import EvalSetting, evaluate, progress_bar
 from catmip_rl.evaluation.methods import Method, make_policy, parse_runs
 from catmip_rl.evaluation.plots import check_matplotlib, plot_figure
+from catmip_rl.evaluation.warmup import torch_threads
 from catmip_rl.files import atomic_write_csv, atomic_write_text
 
 __all__ = [
@@ -78,9 +79,7 @@ def figure_settings(figure: int) -> list[tuple[str, EvalSetting]]:
 
 def _run_one(args: tuple[Method, EvalSetting, int, int, str, int, bool]) -> dict[str, Any]:
     method, setting, episodes, seed, out, threads, allow_other_maps = args
-    import torch
-
-    torch.set_num_threads(threads)
+    torch_threads(threads)
     result = evaluate(method, setting, episodes=episodes, seed=seed, allow_other_maps=allow_other_maps)
     result.write(out)
     sampled = None if result.sampled_curve is None else result.sampled_curve.tolist()
@@ -102,6 +101,7 @@ def run_figure(
     jobs: int = 1,
     progress: bool = True,
     allow_other_maps: bool = False,
+    threads: int | None = None,
 ) -> Path:
     """Run every (panel, method) of ``figure``; returns the figure's folder. A method given as
     ``NAME=SPEC,SPEC,...`` has several training runs (:func:`parse_runs`): each plays the same maps (in
@@ -109,19 +109,25 @@ def run_figure(
     policy that cannot play a panel's world (``WorldNotSupported``) is left out of that panel: a method
     plays each panel with those of its runs that can, and one none of whose runs can is listed as not
     played in ``summary.md``. Bad arguments (figure, methods, an unreadable AMAT checkpoint, a broken
-    policy, episodes, seed, jobs) raise before any run starts."""
+    policy, episodes, seed, jobs, threads) raise before any run starts. ``threads``: torch threads of each
+    job (default 2 for one job, else 1)."""
     check_matplotlib()  # fail now rather than after the evaluations
     panels = figure_settings(figure)
     groups: list[list[Method]] = [parse_runs(m) for m in (methods or DEFAULT_METHODS)]
     names = [runs[0].name for runs in groups]
     if len(set(names)) != len(names):
         raise ValueError(f"method names must be unique (use NAME=METHOD), got {names}")
-    for what, value, low in (("episodes", episodes, 1), ("seed", seed, 0), ("jobs", jobs, 1)):
+    threads = (1 if jobs > 1 else 2) if threads is None else threads
+    for what, value, low in (
+        ("episodes", episodes, 1),
+        ("seed", seed, 0),
+        ("jobs", jobs, 1),
+        ("threads", threads, 1),
+    ):
         if not isinstance(value, int) or value < low:
             raise ValueError(f"{what} must be an int >= {low}, got {value!r}")
     plays, not_played = _check_methods(groups, panels, seed)  # a broken checkpoint or policy fails here
     fig_dir = Path(out) / f"fig{figure}"
-    threads = 1 if jobs > 1 else 2
     tasks = [
         (m, st, episodes, seed, str(_run_dir(fig_dir / st.label / m.name, k, len(runs))), threads,
          allow_other_maps)

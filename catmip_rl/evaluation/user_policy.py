@@ -250,6 +250,8 @@ class WrappedUserPolicy:
 
     def forward_hooks(self, policy: Any) -> None:
         """Expose the optional members ``policy`` has (and only those: the evaluator asks by name)."""
+        if isinstance(getattr(policy, "deterministic", None), bool):  # argmax or sampled, on the summary
+            self.deterministic = policy.deterministic
         if callable(getattr(policy, "start_episodes", None)):
             what = "start_episodes(num_worlds, num_robots)"
             self.start_episodes = lambda b, n: self._call(policy.start_episodes, what, b, n)

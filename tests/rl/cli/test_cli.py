@@ -190,6 +190,10 @@ CASES = {
     "bench --methods ,": ([*BENCH, "--methods", ",", "--out", "{out}"], ["--methods", "comma list"]),
     "bench --method =M": ([*BENCH, "--method", "=amat:task1", "--out", "{out}"], ["--method", "empty name"]),
     "bench --jobs > CPUs": ([*BENCH, "--jobs", "{cpus1}", "--out", "{out}"], ["--jobs", "CPU count"]),
+    "bench --threads > CPUs": ([*BENCH, "--threads", "{cpus1}", "--out", "{out}"],
+                               ["--threads", "CPU count"]),
+    "bench jobs x threads > CPUs": ([*BENCH, "--jobs", "{cpus}", "--threads", "{cpus}", "--out", "{out}"],
+                                    ["--jobs", "x --threads", "more than this machine"]),
     "bench perf --figure": (["bench", "perf", "--figure", "6"], ["bench perf: error", "--figure"]),
     "bench perf --episodes": (["bench", "perf", "--episodes", "1"], ["bench perf: error", "--episodes"]),
     "bench fig dir not empty": ([*BENCH, "--out", "{figs}"], ["fig6 is not empty", "--force"]),
@@ -257,6 +261,7 @@ def test_bad_input_gets_one_line_and_exit_code_2_before_any_work(case, files, tm
         "out": tmp_path / "out",
         "figs": tmp_path / "figs",
         "cpus1": CPUS + 1,
+        "cpus": CPUS,
     }
     argv, needles = CASES[case]
     before = {p: p.read_bytes() for p in [*files["nonempty"].iterdir(), files["file"]]}

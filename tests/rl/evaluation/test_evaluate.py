@@ -195,6 +195,16 @@ def test_parse_method_errors(tmp_path):
     for spec in ("window:astar", "window-noheading:astar"):
         with pytest.raises(ValueError, match="unknown planner 'astar'"):
             parse_method(spec)
+    # a near miss names the fix, and the choices list every kind of method
+    typos = {"nearset": "nearest", "window:nearset": "window:nearest", "amta:task1": "amat:task1",
+             "windw:rrt": "window:rrt", "sycn:rrt": "sync:rrt"}  # fmt: skip
+    for typo, fix in typos.items():
+        with pytest.raises(ValueError, match=f"did you mean {fix}\\?") as err:
+            parse_method(typo)
+    for kind in ("window:PLANNER", "amat-guard:PATH", "sync:METHOD", "py:FILE.py:FACTORY", "'rrt'"):
+        assert kind in str(err.value)
+    with pytest.raises(ValueError, match="unknown method 'dijkstra'; choose"):  # nothing close: no guess
+        parse_method("dijkstra")
     with pytest.raises(FileNotFoundError, match="does not exist"):
         parse_method(f"amat:{tmp_path / 'none.pt'}")
     with pytest.raises(ValueError, match="empty name"):

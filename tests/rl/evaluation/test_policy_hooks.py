@@ -54,6 +54,26 @@ def test_a_users_policy_gets_a_sampled_pass_and_its_own_columns():
     last = evaluate("last", SETTING, episodes=4, seed=5, policy=Counting(last=True), sampled_too=False)
     assert [r["sampled_rescue_tick"] for r in res.episodes] == [r["rescue_tick"] for r in last.episodes]
     assert "sampled_success_rate" not in last.summary
+    assert (
+        res.summary["actions"] == "its own"
+        and res.summary["sampled_pass"]
+        and not last.summary["sampled_pass"]
+    )
+
+
+def test_the_summary_says_argmax_or_sampled(capsys, tmp_path):
+    from catmip_rl.cli.main import main
+
+    class Sampling(Counting):
+        deterministic = False
+
+    assert evaluate("s", SETTING, episodes=2, seed=0, policy=Sampling()).summary["actions"] == "sampled"
+    assert (
+        main(["eval", "--method", "amat:task1", "--episodes", "2", "--out", str(tmp_path), "--no-progress"])
+        == 0
+    )
+    out = capsys.readouterr().out
+    assert "amat_task1 (argmax actions) on task1" in out and "with sampled actions on the same maps" in out
 
 
 def test_a_policy_without_hooks_reports_no_traffic_and_no_sampled_pass():

@@ -179,6 +179,9 @@ def test_a_torchrl_module_plays_through_the_adapter():
 
     ref = evaluate("ref", SETTING, episodes=4, seed=3, policy=Engine())
     assert _records(res) == _records(ref)
+    # argmax by default, said on the summary, and a sampled pass on the same maps (TorchRLPolicy.sampled)
+    assert res.summary["actions"] == "argmax" and res.summary["sampled_pass"]
+    assert ref.summary["actions"] == "its own" and not ref.summary["sampled_pass"]
 
 
 def test_cli_eval_render_and_bench_take_a_policy_file(policy_file, tmp_path, capsys):
