@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-import platform
 from pathlib import Path
 from typing import Any
 
@@ -23,36 +22,6 @@ def cpu_times() -> tuple[int, int] | None:
         return None
     values = [int(v) for v in fields]
     return (values[7] if len(values) > 7 else 0), sum(values[:8])
-
-
-def _cpu_flags() -> set[str]:
-    """The CPU's feature flags (Linux /proc/cpuinfo), empty elsewhere."""
-    try:
-        with open("/proc/cpuinfo") as f:
-            line = next((line for line in f if line.startswith("flags")), "")
-    except OSError:
-        return set()
-    return set(line.partition(":")[2].split())
-
-
-def machine_info(**extra: Any) -> dict[str, Any]:
-    """What every benchmark records beside its numbers: Python, CPU, torch's CPU capability (AVX2 /
-    AVX512 / ...; read from the CPU flags when torch is not installed, as for an env-only install)
-    and whether the CPU has native bf16; ``extra`` is merged in."""
-    flags = _cpu_flags()
-    try:
-        import torch
-
-        capability = torch.backends.cpu.get_cpu_capability()
-    except ImportError:
-        capability = "AVX512" if "avx512f" in flags else "AVX2" if "avx2" in flags else "DEFAULT"
-    return {
-        "python": platform.python_version(),
-        "cpu": platform.processor() or platform.machine(),
-        "cpu_capability": capability,
-        "native_bf16": bool(flags & {"avx512_bf16", "amx_bf16"}),
-        **extra,
-    }
 
 
 def steal_percent(before: tuple[int, int] | None, after: tuple[int, int] | None) -> float | None:

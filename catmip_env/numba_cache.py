@@ -3,8 +3,8 @@
 Numba keys a cached kernel on its own source file only: when a kernel calls one from another module
 (the dynamics call the sensing kernels, FastAmat calls ``kernels.conv``) and only the callee's file
 changes, the caller's cache still holds the old callee compiled in, and runs it. :func:`refresh` closes
-that gap, once per import of a package: it hashes the package's kernel sources (every file that mentions
-numba, ``njit`` or a ``@kernel`` decorator: the kernels and the types they take) and, when the hash
+that gap, once per import of a package: it hashes the package's kernel sources (every file that imports
+numba or uses ``njit`` or a ``@kernel`` decorator; a docstring naming numba does not count) and, when the hash
 differs from the one recorded with the caches, deletes the package's cached kernels (they recompile on
 first use) and records the new hash. An installed package never changes, so it never pays; an edit
 to a file without kernels costs no recompilation.
@@ -22,12 +22,12 @@ __all__ = ["refresh"]
 STAMP = "numba_sources.sha256"
 
 
-KERNEL_MARKS = (b"numba", b"njit", b"@kernel")
+KERNEL_MARKS = (b"import numba", b"from numba", b"njit", b"@kernel")  # code, not a docstring's mention
 
 
 def sources_digest(root: Path) -> str:
-    """SHA-256 of the kernel sources under ``root``: the ``.py`` files that mention numba, ``njit`` or
-    ``@kernel`` (relative names and contents, in sorted order)."""
+    """SHA-256 of the kernel sources under ``root``: the ``.py`` files that import numba or use ``njit``
+    or ``@kernel`` (relative names and contents, in sorted order)."""
     h = hashlib.sha256()
     for path in sorted(root.rglob("*.py")):
         text = path.read_bytes()

@@ -24,12 +24,12 @@ from catmip_rl.amat.model import AMAT
 from catmip_rl.amat.pointer import make_model
 from catmip_rl.amat.weights import finer_pool
 from catmip_rl.files import atomic_write_text
-from catmip_rl.shipped import SHIPPED_DIR, resolve_model, shipped_models
+from catmip_rl.shipped import SHIPPED_DIR, model_file, resolve_model, shipped_models
 
 __all__ = [
     "save_model", "load_model", "atomic_torch_save", "read_checkpoint", "resolve_model", "shipped_models",
     "CheckpointError", "SHIPPED_DIR", "resume_checkpoint", "initial_weights", "load_initial_weights",
-    "export_model", "model_from", "trained_synchronous",
+    "export_model", "model_from", "model_record", "trained_synchronous",
 ]  # fmt: skip
 
 FORMAT = "catmip-amat-v1"
@@ -93,25 +93,11 @@ def _diagnose(path: Path, err: Exception) -> str:
     return f"corrupted torch archive ({type(err).__name__})"
 
 
-def _model_file(path: Path) -> Path:
-    """The checkpoint file ``path`` names: itself, or a folder's latest checkpoint (a run dir's
-    ``checkpoints/latest.pt``, or a checkpoints folder's ``latest.pt``)."""
-    if not path.is_dir():
-        return path
-    for latest in (path / "checkpoints" / "latest.pt", path / "latest.pt"):
-        if latest.is_file():
-            return latest
-    raise FileNotFoundError(
-        f"no AMAT checkpoint in the folder {path}: give a training run dir (holding checkpoints/latest.pt), "
-        "its checkpoints/ folder, or a .pt file"
-    )
-
-
 def load_model(path: str | Path, map_location: str | torch.device = "cpu") -> AMAT:
     """Rebuild the model (on CPU by default) from a file written by :func:`save_model`, a training
     checkpoint (``RUN_DIR/checkpoints/*.pt``), a training run dir or its ``checkpoints/`` folder (the
     latest checkpoint) or the name of a shipped model (:func:`resolve_model`)."""
-    path = _model_file(resolve_model(path))
+    path = model_file(resolve_model(path))
     return model_from(read_checkpoint(path, map_location), path).to(map_location)
 
 
@@ -119,7 +105,7 @@ def trained_synchronous(spec: str | Path) -> bool:
     """Whether the model ``spec`` names (anything :func:`load_model` reads) was trained in the synchronous
     world (Synch-CATMiP: every robot decides together every ``max_ma_ticks`` ticks), as the training
     config in its checkpoint or exported file says; a file without one (a bare :func:`save_model`) was not."""
-    path = _model_file(resolve_model(spec))
+    path = model_file(resolve_model(spec))
     blob = read_checkpoint(path)
     if _is_training_checkpoint(blob):
         train_config = json.loads(blob["config"])
@@ -127,6 +113,24 @@ def trained_synchronous(spec: str | Path) -> bool:
         extra = (blob.get("extra") if isinstance(blob, dict) else None) or {}
         train_config = extra.get("train_config") or {}
     return bool((train_config.get("env_overrides") or {}).get("synchronous", False))
+
+
+def model_record(spec: str | Path) -> dict[str, Any]:
+    """What a model (anything :func:`load_model` reads) says of its training: iterations, episodes,
+    training minutes (its run's and with the runs it started from), the training seed and preset or
+    config; None for what it does not say (a bare :func:`save_model`)."""
+    blob = read_checkpoint(model_file(resolve_model(spec)))
+    if _is_training_checkpoint(blob):
+        config = json.loads(blob["config"])
+        state = {"iteration": blob["iteration"], "episodes": blob["episodes"],
+                 "training_minutes": blob.get("elapsed_s", 0.0) / 60.0}  # fmt: skip
+    else:
+        state = (blob.get("extra") if isinstance(blob, dict) else None) or {}
+        config = state.get("train_config") or {}
+    keys = ("iteration", "episodes", "training_minutes", "total_training_minutes", "preset", "command")
+    record = {k: state.get(k) for k in keys}
+    record["seed"] = config.get("seed") if isinstance(config, dict) else None
+    return record
 
 
 def model_from(blob: Any, path: Path) -> AMAT:
@@ -294,7 +298,7 @@ def initial_weights(spec: str, config: AmatConfig) -> dict[str, Any]:
     cell-goal model is to choose among other cells (the mask holds no weights). Raises ``ValueError``
     (the message starts with "init_from") if the file is missing, unreadable or not an AMAT of ``config``."""
     try:
-        path = _model_file(resolve_model(spec))
+        path = model_file(resolve_model(spec))
         blob = read_checkpoint(path)
         model = model_from(blob, path)
     except (OSError, ValueError) as err:
@@ -349,7 +353,7 @@ def export_model(source: str | Path, out: str | Path, half: bool = False) -> tup
     (``init_from``, its ``init_from.json``), the value normaliser (so that ``--init-from`` the file
     fine-tunes like the checkpoint) and the CPU capability; ``half``: float16 weights (:func:`save_model`).
     Returns (path, extra)."""
-    path = _model_file(resolve_model(source))
+    path = model_file(resolve_model(source))
     blob = read_checkpoint(path)
     if not _is_training_checkpoint(blob):
         raise CheckpointError(f"{path} is not a training checkpoint (a model file needs no export)")

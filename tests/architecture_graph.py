@@ -12,7 +12,17 @@ PACKAGES = ("catmip_env", "catmip_rl")
 
 # catmip_env is one flat folder, layered: its groups, lowest first (catmip_rl's groups are its folders)
 ENV_GROUPS = {
-    "env: config": ("constants", "config", "rng", "ascii_maps", "files", "fields", "numba_cache", "__init__"),
+    "env: config": (
+        "constants",
+        "config",
+        "rng",
+        "ascii_maps",
+        "files",
+        "fields",
+        "numba_cache",
+        "machine",
+        "__init__",
+    ),
     "env: state": ("state",),
     "env: numba kernels": ("mapgen", "sensing", "bfs", "dynamics", "macro", "observe"),
     "env: world": ("world",),

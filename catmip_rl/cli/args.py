@@ -11,7 +11,8 @@ from typing import Any
 
 __all__ = [
     "POSITIVE_INT", "NON_NEGATIVE_INT", "PROBABILITY", "CPUS", "UP_TO_CPUS", "checked", "check_comm",
-    "check_method", "check_methods", "check_runs", "parse_set", "set_item", "USER_ERRORS",
+    "check_method", "check_methods", "check_runs", "parse_set", "set_item", "USER_ERRORS", "number_type",
+    "name_value", "explain", "missing_extra",
 ]  # fmt: skip
 
 USER_ERRORS = (ValueError, OSError, ImportError)
@@ -46,7 +47,7 @@ def explain(err: BaseException) -> str:
     return what
 
 
-def _number(kind: type, low: float, below: float | None = None, bound: str = ""):
+def number_type(kind: type, low: float, below: float | None = None, bound: str = ""):
     """An argparse type: ``kind(text)``, finite, ``>= low``, ``< below``; ``bound`` words the range in
     messages instead."""
     bound = bound or f">= {low:g}" + ("" if below is None else f" and < {below:g}")
@@ -67,12 +68,22 @@ def _number(kind: type, low: float, below: float | None = None, bound: str = "")
     return parse
 
 
-POSITIVE_INT = _number(int, 1)
-NON_NEGATIVE_INT = _number(int, 0)
-PROBABILITY = _number(float, 0, below=1)
+POSITIVE_INT = number_type(int, 1)
+NON_NEGATIVE_INT = number_type(int, 0)
+PROBABILITY = number_type(float, 0, below=1)
 CPUS = os.cpu_count() or 1
 """This machine's CPU count: flags that start threads or processes take at most this many."""
-UP_TO_CPUS = _number(int, 1, below=CPUS + 1, bound=f"from 1 to {CPUS} (this machine's CPU count)")
+UP_TO_CPUS = number_type(int, 1, below=CPUS + 1, bound=f"from 1 to {CPUS} (this machine's CPU count)")
+
+
+def name_value(text: str) -> tuple[str, str]:
+    """An argparse type: ``NAME=VALUE`` as (name, value), both non-empty."""
+    name, sep, value = text.partition("=")
+    if not sep or not name.strip() or not value.strip():
+        raise argparse.ArgumentTypeError(
+            f"expected NAME=VALUE (a method's name, then its value), got {text!r}"
+        )
+    return name.strip(), value.strip()
 
 
 def checked(validate):

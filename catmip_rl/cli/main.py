@@ -165,6 +165,8 @@ def _bench(args: argparse.Namespace) -> int:
                 "catmip bench perf runs benchmarks/run_all.py: call it from the repository root"
             )
         return subprocess.call([sys.executable, str(script), *(["--quick"] if args.quick else [])])
+    if args.suite == "suite":
+        return _suite(args)
     from catmip_rl.evaluation.paper import FIGURES, run_figure
     from catmip_rl.files import check_new_dir
 
@@ -182,6 +184,43 @@ def _bench(args: argparse.Namespace) -> int:
         out = run_figure(fig, methods, args.episodes, args.seed, args.out, args.jobs,
                          allow_other_maps=args.allow_other_maps, threads=args.threads)  # fmt: skip
         print(f"figure {fig}: {out}/fig{fig}.png, curves.csv, summary.csv, marl_eval.json")
+    return 0
+
+
+def _suite(args: argparse.Namespace) -> int:
+    from catmip_rl.evaluation.suite import SUITE, run_suite
+    from catmip_rl.files import check_new_dir
+
+    if args.threads is not None and args.threads * args.jobs > CPUS:
+        raise ValueError(
+            f"--jobs {args.jobs} x --threads {args.threads} is more than this machine's {CPUS} CPUs"
+        )
+    if not args.resume:
+        check_new_dir(args.out, "--out", advice="pick a new folder, or --resume the suite in it")
+    paths = run_suite(args.method, args.out, args.episodes, args.jobs, args.threads, not args.no_progress,
+                      dict(args.code), dict(args.notes))  # fmt: skip
+    for path in paths:
+        entry = json.loads(path.read_text())
+        iqm, (low, high) = (
+            entry["aggregate"]["iqm_success_by_100"],
+            entry["aggregate"]["iqm_success_by_100_ci"],
+        )
+        print(f"{entry['method']}: suite {SUITE} IQM rescued by tick 100 {iqm:.3f} [{low:.3f}, {high:.3f}] "
+              f"over {len(entry['settings'])} settings x {entry['episodes']} maps -> {path}")  # fmt: skip
+    print(f"check and rank them: catmip leaderboard --entries {Path(args.out) / 'entries'}"
+          + ("" if args.episodes == 1000 else f" --episodes {args.episodes}"))  # fmt: skip
+    return 0
+
+
+def _leaderboard(args: argparse.Namespace) -> int:
+    from catmip_rl.evaluation.leaderboard import render_leaderboard
+    from catmip_rl.files import check_new_file
+
+    for name in ("leaderboard.md", "leaderboard.png"):
+        check_new_file(Path(args.out) / name, "--out", force=args.force)
+    md, png = render_leaderboard(args.entries, args.out, args.episodes)
+    print(md.read_text().split("\n\n", 2)[2].rstrip())  # the table
+    print(f"wrote {md}, {png}")
     return 0
 
 
@@ -213,7 +252,7 @@ def _compare(args: argparse.Namespace) -> int:
 
 
 COMMANDS = {"train": _train, "eval": _eval, "render": _render, "compare": _compare, "bench": _bench,
-            "export": _export}  # fmt: skip
+            "leaderboard": _leaderboard, "export": _export}  # fmt: skip
 
 
 def main(argv: list[str] | None = None) -> int:

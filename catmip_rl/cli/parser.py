@@ -21,6 +21,8 @@ from catmip_rl.cli.args import (
     check_methods,
     check_runs,
     checked,
+    name_value,
+    number_type,
     set_item,
 )  # fmt: skip
 from catmip_rl.training.config import TrainConfig, check_field, field_docs
@@ -222,13 +224,64 @@ def add_eval_render(sub) -> None:
     rd.set_defaults(name="render")
 
 
+def add_suite(suites) -> None:
+    from catmip_rl.evaluation.suite import EPISODES, SEED, SETTINGS, SUITE
+
+    su = suites.add_parser(
+        "suite", help=f"the benchmark suite ({SUITE}): one leaderboard entry per method",
+        formatter_class=Formatter,
+        description=f"Play each method on the {len(SETTINGS)} settings of suite {SUITE} (Tasks 2 and 3 x "
+        "communication full / sigma 4 / sigma 2 x SLAM noise 0 / 5 %) on the held-out maps "
+        f"(seed {SEED}) and write OUT/entries/NAME.json for catmip leaderboard; per-run results in "
+        "OUT/runs/. An interrupted suite continues with --resume (complete runs are read back, not "
+        "played again).",
+    )  # fmt: skip
+    su.add_argument(
+        "--method", action="append", required=True, type=checked(check_runs),
+        help="a method (repeatable; NAME=METHOD; NAME=SPEC,SPEC,...: its training runs)",
+    )  # fmt: skip
+    su.add_argument("--episodes", type=number_type(int, 1, below=EPISODES + 1, bound=f"from 1 to {EPISODES}"),
+                    default=EPISODES, help="maps per setting (an entry of fewer is a preview: the "
+                    "leaderboard takes the suite's count)")  # fmt: skip
+    su.add_argument("--jobs", type=UP_TO_CPUS, default=min(2, CPUS), help="parallel processes")
+    su.add_argument("--threads", type=UP_TO_CPUS, default=None,
+                    help="torch CPU threads of each process (default: 2 with one job, else 1)")  # fmt: skip
+    su.add_argument("--code", action="append", default=[], type=name_value, metavar="NAME=URL",
+                    help="a link to a method's code, shown on the leaderboard (repeatable)")  # fmt: skip
+    su.add_argument("--notes", action="append", default=[], type=name_value, metavar="NAME=TEXT",
+                    help="what a method is: its training compute and seeds (repeatable)")  # fmt: skip
+    su.add_argument("--out", default="out/suite", help="new or empty folder (or the suite to --resume)")
+    su.add_argument("--resume", action="store_true", help="continue the suite in a non-empty --out")
+    su.add_argument("--no-progress", action="store_true", help="no progress bar")
+    su.set_defaults(name="bench")
+
+
+def add_leaderboard(sub) -> None:
+    from catmip_rl.evaluation.suite import EPISODES
+
+    lb = sub.add_parser(
+        "leaderboard", help="check suite entries and rank them (Markdown + PNG)", formatter_class=Formatter,
+        description="Check every entry (*.json) in --entries against the suite (format, every setting, the "
+        "frozen maps, numbers recomputed from its rescue ticks) and write OUT/leaderboard.md and "
+        "OUT/leaderboard.png; a refused entry is one line naming its file.",
+    )  # fmt: skip
+    lb.add_argument("--entries", default="leaderboard/entries", help="folder of entry files")
+    lb.add_argument("--episodes", type=POSITIVE_INT, default=EPISODES,
+                    help="maps per setting of every entry (the suite's; fewer: previews)")  # fmt: skip
+    lb.add_argument("--out", default="out/leaderboard", help="folder for leaderboard.md and leaderboard.png")
+    lb.add_argument("--force", action="store_true", help="replace an existing leaderboard.md / .png in --out")
+    lb.set_defaults(name="leaderboard")
+
+
 def add_bench(sub) -> None:
     from catmip_rl.evaluation.paper import DEFAULT_METHODS, FIGURES
 
-    be = sub.add_parser("bench", help="paper figures (success vs time) or the performance benchmarks",
-                        description="catmip bench paper: the paper's figures; catmip bench perf: the "
+    be = sub.add_parser("bench", help="the benchmark suite, the paper's figures or the speed benchmarks",
+                        description="catmip bench suite: the benchmark's fixed grid, one leaderboard entry "
+                        "per method; catmip bench paper: the paper's figures; catmip bench perf: the "
                         "performance benchmarks of benchmarks/.")  # fmt: skip
-    suites = be.add_subparsers(dest="suite", required=True, metavar="{paper,perf}")
+    suites = be.add_subparsers(dest="suite", required=True, metavar="{suite,paper,perf}")
+    add_suite(suites)
     pa = suites.add_parser(
         "paper", help="the paper's figures: success rate vs mission time", formatter_class=Formatter,
         description="Evaluate methods on the settings of a paper figure (--figure N) or of all of them "
@@ -305,10 +358,13 @@ def build_parser() -> argparse.ArgumentParser:
         "CATMIP_DEBUG=1 shows the traceback instead.",
     )
     ap.add_argument("--version", action="version", version=f"catmip {version()}")
-    sub = ap.add_subparsers(dest="command", required=True, metavar="{train,eval,render,compare,bench,export}")
+    sub = ap.add_subparsers(
+        dest="command", required=True, metavar="{train,eval,render,compare,bench,leaderboard,export}"
+    )
     add_train(sub)
     add_eval_render(sub)
     add_compare(sub)
     add_bench(sub)
+    add_leaderboard(sub)
     add_export(sub)
     return ap

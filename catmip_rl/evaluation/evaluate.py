@@ -40,7 +40,7 @@ from catmip_env.play import (
     plays_one_world_at_a_time,  # fmt: skip
     success_curve,
 )
-from catmip_rl.evaluation.methods import Method, make_policy, parse_method
+from catmip_rl.evaluation.methods import Method, make_policy, method_source, parse_method
 from catmip_rl.files import atomic_write_csv, atomic_write_text
 
 if TYPE_CHECKING:  # the planners need no torch: an env-only install evaluates them
@@ -222,11 +222,13 @@ def evaluate(
     result.summary.update(
         method=method.name,
         method_kind=method.kind,
+        target=method.target,
         actions=action_choice(policy),
         sampled_pass=sampled is not None,
         synchronous=method.synchronous,
         checkpoint=method.target if method.kind == "amat" else None,
         policy=method.target if method.kind in ("py", "policy") else None,
+        source=method_source(method),
         setting=asdict(setting),
         label=setting.label,
         seed=seed,

@@ -23,12 +23,20 @@ from catmip_env.config import EnvConfig
 from catmip_env.planners import PLANNERS, make_planner
 from catmip_env.window_planner import WINDOW_KINDS, make_window_planner
 from catmip_rl.evaluation.user_policy import load_factory, make_user_policy, parse_policy_source
-from catmip_rl.shipped import resolve_model
+from catmip_rl.shipped import file_sha256, model_file, resolve_model
 
 if TYPE_CHECKING:  # AMAT's methods import torch when one is played: the planners run without it
     from catmip_rl.amat.model import AMAT
 
-__all__ = ["Method", "parse_method", "parse_runs", "make_policy", "amat_label", "METHOD_HELP"]
+__all__ = [
+    "Method",
+    "parse_method",
+    "parse_runs",
+    "make_policy",
+    "amat_label",
+    "method_source",
+    "METHOD_HELP",
+]
 
 METHOD_HELP = (
     "nearest | utility | rrt | apf | random-frontier | random-rescue (random window goals with the planners' "
@@ -125,6 +133,18 @@ def _did_you_mean(spec: str) -> str:
     else:
         fixed = get_close_matches(spec, list(PLANNERS), n=1)
     return f" (did you mean {fixed[0]}?)" if fixed else ""
+
+
+def method_source(method: Method) -> dict[str, str] | None:
+    """The file a method plays from and its SHA-256 (``{"file", "sha256"}``): an AMAT model file (a run
+    dir's latest checkpoint) or a ``py:`` policy file; None for a planner, a module or an object."""
+    if method.kind == "amat":
+        path = model_file(Path(method.target))
+    elif method.kind == "py" and parse_policy_source(method.target).is_file:
+        path = Path(parse_policy_source(method.target).source).expanduser()
+    else:
+        return None
+    return {"file": str(path), "sha256": file_sha256(path)}
 
 
 def parse_runs(spec: str) -> list[Method]:

@@ -17,20 +17,16 @@ sigma = 2, panels = Tasks 1-3; 11 = Task 2, panels = longest macro-action 5 / 10
 from __future__ import annotations
 
 import json
-import multiprocessing
-from concurrent.futures import ProcessPoolExecutor
-from contextlib import ExitStack
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from catmip_env.play import WorldNotSupported
 from catmip_rl.evaluation.compare import success_interval
-from catmip_rl.evaluation.evaluate import EvalSetting, evaluate, progress_bar
-from catmip_rl.evaluation.methods import Method, make_policy, parse_runs
+from catmip_rl.evaluation.evaluate import EvalSetting
+from catmip_rl.evaluation.jobs import Job, check_methods, map_jobs, run_dir
+from catmip_rl.evaluation.methods import Method, parse_runs
 from catmip_rl.evaluation.plots import check_matplotlib, plot_figure
-from catmip_rl.evaluation.warmup import torch_threads
 from catmip_rl.files import atomic_write_csv, atomic_write_text
 
 __all__ = [
@@ -77,21 +73,6 @@ def figure_settings(figure: int) -> list[tuple[str, EvalSetting]]:
     return FIGURES[figure][1]
 
 
-def _run_one(args: tuple[Method, EvalSetting, int, int, str, int, bool]) -> dict[str, Any]:
-    method, setting, episodes, seed, out, threads, allow_other_maps = args
-    torch_threads(threads)
-    result = evaluate(method, setting, episodes=episodes, seed=seed, allow_other_maps=allow_other_maps)
-    result.write(out)
-    sampled = None if result.sampled_curve is None else result.sampled_curve.tolist()
-    ticks = {
-        key: [np.nan if e.get(key) is None else e[key] for e in result.episodes]
-        for key in ("rescue_tick", "sampled_rescue_tick")
-        if key in result.episodes[0]
-    }
-    return {"out": out, "summary": result.summary, "curve": result.curve.tolist(), "sampled_curve": sampled,
-            "ticks": ticks}  # fmt: skip
-
-
 def run_figure(
     figure: int,
     methods: list[str] | None = None,
@@ -126,15 +107,15 @@ def run_figure(
     ):
         if not isinstance(value, int) or value < low:
             raise ValueError(f"{what} must be an int >= {low}, got {value!r}")
-    plays, not_played = _check_methods(groups, panels, seed)  # a broken checkpoint or policy fails here
+    plays, not_played = check_methods(groups, panels, seed)  # a broken checkpoint or policy fails here
     fig_dir = Path(out) / f"fig{figure}"
     tasks = [
-        (m, st, episodes, seed, str(_run_dir(fig_dir / st.label / m.name, k, len(runs))), threads,
-         allow_other_maps)
+        Job(m, st, episodes, seed, str(run_dir(fig_dir / st.label / m.name, k, len(runs))), threads,
+            allow_other_maps)
         for panel, st in panels for name in names for runs in [plays.get((panel, name), [])]
         for k, m in enumerate(runs)
     ]  # fmt: skip
-    results = iter(_map(tasks, jobs, progress, f"figure {figure}"))
+    results = iter(map_jobs(tasks, jobs, progress, f"figure {figure}"))
     curve_rows, summary_rows, runs_written = [], [], []
     for panel, _setting in panels:
         for name in names:
@@ -164,42 +145,6 @@ def run_figure(
     return fig_dir
 
 
-def _check_methods(
-    groups: list[list[Method]], panels: list, seed: int
-) -> tuple[dict[tuple[str, str], list[Method]], dict[tuple[str, str], str]]:
-    """Load every AMAT checkpoint and build every ``py:`` policy for every panel before any run starts
-    (an unreadable file or a broken policy raises here). Returns, per (panel, method), the method's runs
-    that can play the panel, and the pairs none of its runs can play with the reason
-    (:class:`~catmip_env.play.WorldNotSupported`, e.g. a CNN built for another map size): a method of
-    runs trained on different tasks plays each panel with the runs trained for its world."""
-    plays: dict[tuple[str, str], list[Method]] = {}
-    not_played: dict[tuple[str, str], str] = {}
-    for runs in groups:
-        for m in runs:
-            if m.kind == "amat":
-                from catmip_rl.checkpoint import load_model  # torch: only where a model is played
-
-                load_model(m.target)
-        for panel, setting in panels:
-            able, why = [], ""
-            for m in runs:
-                try:
-                    if m.kind == "py":
-                        make_policy(m, setting.env_config(None, m.synchronous), seed)
-                    able.append(m)
-                except WorldNotSupported as exc:
-                    why = str(exc)
-            if able:
-                plays[(panel, runs[0].name)] = able
-            else:
-                not_played[(panel, runs[0].name)] = why
-    return plays, not_played
-
-
-def _run_dir(folder: Path, k: int, runs: int) -> Path:
-    return folder / f"run{k}" if runs > 1 else folder
-
-
 def _summary(res: list[dict[str, Any]], tick_key: str, prefix: str) -> dict[str, Any]:
     """The summary row of one method's runs in one panel: each summary key the mean over the runs (a
     key the runs lack, e.g. the sampled pass's bytes, is None), the number of runs, and the 95 % CI of
@@ -220,25 +165,6 @@ def _summary(res: list[dict[str, Any]], tick_key: str, prefix: str) -> dict[str,
             row[key] = float(np.mean(values))
     return row | {"runs": len(res), "success_by_100_ci_low": low, "success_by_100_ci_high": high,
                   "ci_over": over}  # fmt: skip
-
-
-def _map(tasks: list, jobs: int, progress: bool, desc: str) -> list[dict[str, Any]]:
-    bar = progress_bar(len(tasks), desc, progress, unit="run", leave=True)
-    results: list[dict[str, Any]] = []
-    with ExitStack() as stack:
-        if jobs <= 1:
-            runs = map(_run_one, tasks)
-        else:
-            spawn = multiprocessing.get_context("spawn")
-            pool = stack.enter_context(ProcessPoolExecutor(max_workers=jobs, mp_context=spawn))
-            runs = pool.map(_run_one, tasks)
-        for res in runs:
-            results.append(res)
-            if bar is not None:
-                bar.update(1)
-    if bar is not None:
-        bar.close()
-    return results
 
 
 def _number(value: Any) -> float | None:

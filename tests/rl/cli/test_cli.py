@@ -18,6 +18,7 @@ from hypothesis import strategies as st
 import catmip_rl
 import catmip_rl.evaluation.evaluate
 import catmip_rl.evaluation.paper
+import catmip_rl.evaluation.suite
 import catmip_rl.training.collect
 import catmip_rl.training.train
 from catmip_env.search_rescue_v0 import SearchRescueEnv
@@ -550,6 +551,12 @@ FLAGS = {
     "render": _SETTING | {"--episode": _INT, "--fps": ["8"], "--out": ["{new}.gif", "{nonempty}/old.gif"]},
     "bench paper": {"--figure": ["6", "11"], "--all": [], "--methods": ["nearest,rrt", "a=amat:task1,apf"],
                     "--method": _METHOD, "--episodes": ["1"], "--seed": _INT, "--jobs": ["1", "2"],
+                    "--threads": ["1", "2"], "--out": ["{new}", "{nonempty}"], "--force": []},
+    "bench suite": {"--method": _METHOD, "--episodes": ["1", "1001"], "--jobs": ["1", "2"],
+                    "--threads": ["1"], "--code": ["nearest=https://x", "x"],
+                    "--notes": ["nearest=a note", "=x"], "--out": ["{new}", "{nonempty}"], "--resume": [],
+                    "--no-progress": []},
+    "leaderboard": {"--entries": ["{new}", "{nonempty}", "{file}"], "--episodes": ["1", "2"],
                     "--out": ["{new}", "{nonempty}"], "--force": []},
     "bench perf": {"--quick": [], "--figure": ["6"], "--episodes": ["1"]},  # the last two: not perf flags
     "export": {"--out": ["{new}.pt", "{badsd}", "{new}"], "--force": []},
@@ -566,7 +573,8 @@ GARBAGE = ["0", "-1", "0.5", "-0.5", "1e999", "nan", "inf", "", "abc", "-", "--"
            "{corrupt_run}"]  # fmt: skip
 REQUIRED = {"train": ["--run-dir", "{new}"], "eval": ["--method", "nearest", "--out", "{new}"],
             "render": ["--method", "nearest", "--out", "{new}.gif"],
-            "bench paper": ["--figure", "6"], "bench perf": [], "export": ["{run}"]}  # fmt: skip
+            "bench paper": ["--figure", "6"], "bench perf": [], "export": ["{run}"],
+            "bench suite": ["--method", "nearest", "--out", "{new}"], "leaderboard": []}  # fmt: skip
 
 
 # ~3 s for the default 300 examples; CATMIP_FUZZ_EXAMPLES=4000 for a longer hunt (~50 s, passed)
@@ -593,7 +601,8 @@ def test_fuzz_random_arguments_exit_0_or_2_without_a_traceback(
     argv = [a.format(**where) for a in argv]
     with monkeypatch.context() as m:  # the first real work of each command raises _WorkStarted
         m.setattr(catmip_rl.evaluation.evaluate, "EventEngine", _work_started)
-        m.setattr(catmip_rl.evaluation.paper, "_map", _work_started)
+        m.setattr(catmip_rl.evaluation.paper, "map_jobs", _work_started)
+        m.setattr(catmip_rl.evaluation.suite, "map_jobs", _work_started)
         m.setattr(catmip_rl.training.train, "make_model", _work_started)
         m.setattr(subprocess, "call", _work_started)  # bench perf's benchmarks
         threads = torch.get_num_threads()

@@ -1,0 +1,147 @@
+"""Evaluation runs as jobs: a grid of (setting, method, training run) evaluations played by a process
+pool, each writing its own folder (:mod:`~catmip_rl.evaluation.evaluate`'s files) and returning what a
+figure or a suite entry is made of. ``catmip bench paper`` (:mod:`~catmip_rl.evaluation.paper`) and
+``catmip bench suite`` (:mod:`~catmip_rl.evaluation.suite`) run their grids through :func:`map_jobs`."""
+
+from __future__ import annotations
+
+import csv
+import json
+import multiprocessing
+from concurrent.futures import ProcessPoolExecutor
+from contextlib import ExitStack
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from catmip_env.play import WorldNotSupported
+from catmip_rl.evaluation.evaluate import EvalSetting, evaluate, progress_bar
+from catmip_rl.evaluation.methods import Method, make_policy, method_source
+from catmip_rl.evaluation.warmup import torch_threads
+
+__all__ = ["Job", "run_one", "map_jobs", "check_methods", "run_dir"]
+
+
+@dataclass(frozen=True)
+class Job:
+    """One evaluation of a grid: ``method`` on ``episodes`` maps of ``seed`` in ``setting``, its files
+    written to ``out`` with ``threads`` torch threads. ``resume``: a folder that already holds this job's
+    complete results (their ``summary.json``: the same method, file, setting, seed and maps) is read back
+    instead of played again; other results there are an error."""
+
+    method: Method
+    setting: EvalSetting
+    episodes: int
+    seed: int
+    out: str
+    threads: int = 1
+    allow_other_maps: bool = False
+    resume: bool = False
+
+
+def _done(job: Job) -> dict[str, Any] | None:
+    """The summary of ``job``'s results already in its folder, or None if it has none; ValueError if the
+    folder holds another run's (``summary.json`` is written last: a folder with one is complete)."""
+    path = Path(job.out) / "summary.json"
+    if not job.resume or not path.is_file():
+        return None
+    summary = json.loads(path.read_text())
+    want = {"method": job.method.name, "method_kind": job.method.kind, "target": job.method.target,
+            "synchronous": job.method.synchronous, "label": job.setting.label, "seed": job.seed,
+            "episodes": job.episodes, "source": method_source(job.method)}  # fmt: skip
+    differs = [k for k, v in want.items() if summary.get(k) != v]
+    if differs:
+        raise ValueError(
+            f"{job.out} holds other results ({', '.join(f'{k} {summary.get(k)!r}' for k in differs)}, "
+            f"not {', '.join(repr(want[k]) for k in differs)}): give a new output folder"
+        )
+    return summary
+
+
+def run_one(job: Job) -> dict[str, Any]:
+    """Play ``job`` (or read it back, :attr:`Job.resume`) and write its folder; returns its ``summary``,
+    ``curve`` / ``sampled_curve`` (success rate vs tick) and per-episode ``ticks`` (rescue ticks, NaN
+    where not rescued, of the policy and of its sampled pass)."""
+    summary = _done(job)
+    if summary is not None:
+        episodes = json.loads((Path(job.out) / "episodes.json").read_text())
+        with open(Path(job.out) / "curve.csv") as f:
+            rows = list(csv.DictReader(f))
+        curve = [float(r["success_rate"]) for r in rows]
+        sampled = (
+            [float(r["sampled_success_rate"]) for r in rows] if "sampled_success_rate" in rows[0] else None
+        )
+    else:
+        torch_threads(job.threads)
+        result = evaluate(
+            job.method, job.setting, job.episodes, job.seed, allow_other_maps=job.allow_other_maps
+        )
+        result.write(job.out)
+        summary, episodes, curve = result.summary, result.episodes, result.curve.tolist()
+        sampled = None if result.sampled_curve is None else result.sampled_curve.tolist()
+    ticks = {
+        key: [np.nan if e.get(key) is None else e[key] for e in episodes]
+        for key in ("rescue_tick", "sampled_rescue_tick")
+        if key in episodes[0]
+    }
+    return {"out": job.out, "summary": summary, "curve": curve, "sampled_curve": sampled, "ticks": ticks}
+
+
+def map_jobs(tasks: list[Job], jobs: int, progress: bool, desc: str) -> list[dict[str, Any]]:
+    """:func:`run_one` of every task, in order, on ``jobs`` processes (spawned: no state shared), with a
+    progress bar counting runs."""
+    bar = progress_bar(len(tasks), desc, progress, unit="run", leave=True)
+    results: list[dict[str, Any]] = []
+    with ExitStack() as stack:
+        if jobs <= 1:
+            runs = map(run_one, tasks)
+        else:
+            spawn = multiprocessing.get_context("spawn")
+            pool = stack.enter_context(ProcessPoolExecutor(max_workers=jobs, mp_context=spawn))
+            runs = pool.map(run_one, tasks)
+        for res in runs:
+            results.append(res)
+            if bar is not None:
+                bar.update(1)
+    if bar is not None:
+        bar.close()
+    return results
+
+
+def check_methods(
+    groups: list[list[Method]], panels: list, seed: int
+) -> tuple[dict[tuple[str, str], list[Method]], dict[tuple[str, str], str]]:
+    """Load every AMAT checkpoint and build every ``py:`` policy for every panel before any run starts
+    (an unreadable file or a broken policy raises here). Returns, per (panel, method), the method's runs
+    that can play the panel, and the pairs none of its runs can play with the reason
+    (:class:`~catmip_env.play.WorldNotSupported`, e.g. a CNN built for another map size): a method of
+    runs trained on different tasks plays each panel with the runs trained for its world."""
+    plays: dict[tuple[str, str], list[Method]] = {}
+    not_played: dict[tuple[str, str], str] = {}
+    for runs in groups:
+        for m in runs:
+            if m.kind == "amat":
+                from catmip_rl.checkpoint import load_model  # torch: only where a model is played
+
+                load_model(m.target)
+        for panel, setting in panels:
+            able, why = [], ""
+            for m in runs:
+                try:
+                    if m.kind == "py":
+                        make_policy(m, setting.env_config(None, m.synchronous), seed)
+                    able.append(m)
+                except WorldNotSupported as exc:
+                    why = str(exc)
+            if able:
+                plays[(panel, runs[0].name)] = able
+            else:
+                not_played[(panel, runs[0].name)] = why
+    return plays, not_played
+
+
+def run_dir(folder: Path, k: int, runs: int) -> Path:
+    """The folder of training run ``k`` of a method with ``runs`` runs: ``folder/runK``, or ``folder``."""
+    return folder / f"run{k}" if runs > 1 else folder

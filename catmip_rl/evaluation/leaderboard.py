@@ -1,0 +1,219 @@
+"""The leaderboard (``catmip leaderboard``): suite entries checked, then ranked in a table and a figure.
+
+An entry (``catmip bench suite``, :func:`~catmip_rl.evaluation.suite.make_entry`) is accepted only if
+it is one of this suite: its format and version, the held-out seed and every map of it, every setting
+and no other, its maps' digest equal to the frozen maps' (``catmip_env/frozen_maps``), one list of
+rescue ticks per training run and map, and every number it states equal to the number recomputed from
+those ticks. The table's numbers and intervals are the leaderboard's own recomputation, not the
+entry's. A refused entry is one line naming its file and the first problem (:class:`EntryError`).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from catmip_env.files import atomic_path
+from catmip_rl.evaluation.suite import (
+    BY_TICK,
+    ENTRY_FORMAT,
+    EPISODES,
+    SEED,
+    SETTINGS,
+    SUITE,
+    iqm_interval,
+    maps_digest,  # fmt: skip
+    setting_numbers,
+)
+from catmip_rl.files import atomic_write_text
+
+__all__ = ["EntryError", "check_entry", "load_entries", "leaderboard_rows", "render_leaderboard"]
+
+SHORT = {"full": "full", "4": "σ4", "2": "σ2"}  # column headings: T2 σ2 +n
+
+
+class EntryError(ValueError):
+    """An entry the leaderboard refuses (the message names the file and the problem)."""
+
+
+def _short(label: str) -> str:
+    st = next(s for s in SETTINGS if s.label == label)
+    return f"T{st.task[-1]} {SHORT[st.comm]}" + (" +n" if st.noise else "")
+
+
+def _ticks(entry: dict[str, Any], label: str, horizon: int, episodes: int) -> np.ndarray:
+    ticks = entry["settings"][label].get("rescue_tick")
+    runs = len(entry["runs"])
+    if not isinstance(ticks, list) or len(ticks) != runs:
+        raise ValueError(f"{label}: rescue_tick must hold one list per training run ({runs})")
+    for run in ticks:
+        if not isinstance(run, list) or len(run) != episodes or not all(type(t) is int for t in run):
+            raise ValueError(f"{label}: each run's rescue_tick must be {episodes} integers (one per map)")
+    array = np.array(ticks, np.int64)
+    if array.min() < -1 or array.max() > horizon:
+        raise ValueError(f"{label}: rescue ticks must be -1 (not rescued) or 0 .. {horizon}")
+    return array
+
+
+def _same(stated: Any, recomputed: float | None) -> bool:
+    if recomputed is None or stated is None:
+        return stated is None and recomputed is None
+    return isinstance(stated, (int, float)) and math.isclose(stated, recomputed, rel_tol=0, abs_tol=1e-9)
+
+
+def check_entry(entry: Any, episodes: int = EPISODES) -> dict[str, Any]:
+    """The leaderboard's numbers of ``entry`` (aggregate and per setting, recomputed from its ticks);
+    ValueError naming the first thing that makes it no entry of this suite."""
+    if not isinstance(entry, dict) or entry.get("format") != ENTRY_FORMAT:
+        raise ValueError(f"not a {ENTRY_FORMAT} file")
+    for key, want in (("suite", SUITE), ("seed", SEED), ("episodes", episodes)):
+        if entry.get(key) != want:
+            raise ValueError(f"{key} is {entry.get(key)!r}, the leaderboard's is {want!r}")
+    if not isinstance(entry.get("method"), str) or not entry["method"].strip():
+        raise ValueError("it names no method")
+    if not isinstance(entry.get("runs"), list) or not entry["runs"]:
+        raise ValueError("it lists no training run")
+    settings = entry.get("settings")
+    labels = [st.label for st in SETTINGS]
+    if not isinstance(settings, dict):
+        raise ValueError("it has no settings")
+    missing, extra = [s for s in labels if s not in settings], sorted(set(settings) - set(labels))
+    if missing or extra:
+        problem = f"missing setting(s) {missing}" if missing else f"setting(s) not in suite {SUITE}: {extra}"
+        raise ValueError(problem)
+    numbers, success = {}, []
+    for st in SETTINGS:
+        stated = settings[st.label]
+        if not isinstance(stated, dict):
+            raise ValueError(f"{st.label}: not an object")
+        for key in ("task", "comm", "noise", "max_ma_ticks"):
+            if stated.get(key) != getattr(st, key):
+                suite_value = getattr(st, key)
+                raise ValueError(f"{st.label}: {key} is {stated.get(key)!r}, the suite's is {suite_value!r}")
+        if stated.get("maps_sha256") != maps_digest(st.task, episodes):
+            raise ValueError(f"{st.label}: its maps are not the frozen held-out maps (maps_sha256 differs)")
+        horizon = stated.get("horizon")
+        if type(horizon) is not int or horizon < BY_TICK:
+            raise ValueError(f"{st.label}: horizon {horizon!r} is not a horizon of the suite")
+        ticks = _ticks(entry, st.label, horizon, episodes)
+        numbers[st.label] = setting_numbers(ticks, horizon)
+        for key in ("success_by_100", "success_rate", "mean_rescue_tick"):
+            if not _same(stated.get(key), numbers[st.label][key]):
+                raise ValueError(
+                    f"{st.label}: {key} {stated.get(key)!r} is not what its rescue ticks give "
+                    f"({numbers[st.label][key]!r})"
+                )
+        success.append((ticks >= 0) & (ticks <= min(BY_TICK, horizon)))
+    iqm, low, high = iqm_interval(success)
+    if not _same((entry.get("aggregate") or {}).get("iqm_success_by_100"), iqm):
+        raise ValueError(f"aggregate iqm_success_by_100 is not what its rescue ticks give ({iqm!r})")
+    return {"iqm": iqm, "iqm_ci": [low, high], "settings": numbers}
+
+
+def load_entries(folder: str | Path, episodes: int = EPISODES) -> list[dict[str, Any]]:
+    """Every ``*.json`` entry in ``folder``, checked (:func:`check_entry`), with the leaderboard's numbers
+    under ``"checked"``; :class:`EntryError` naming the first bad file, or an empty or missing folder."""
+    folder = Path(folder)
+    paths = sorted(folder.glob("*.json")) if folder.is_dir() else []
+    if not paths:
+        raise EntryError(f"no entries (*.json) in {folder}")
+    entries = []
+    for path in paths:
+        try:
+            entry = json.loads(path.read_text())
+            entry["checked"] = check_entry(entry, episodes)
+        except (OSError, json.JSONDecodeError) as err:
+            raise EntryError(f"entry {path}: unreadable ({err})") from None
+        except (ValueError, TypeError, KeyError) as err:
+            raise EntryError(f"entry {path} refused: {err}") from None
+        entries.append(entry | {"file": path.name})
+    names = [e["method"] for e in entries]
+    if len(set(names)) != len(names):
+        twice = sorted({n for n in names if names.count(n) > 1})
+        raise EntryError(f"two entries name the same method: {twice}")
+    return entries
+
+
+def leaderboard_rows(entries: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """One row per entry, best aggregate first: method, runs, actions, the IQM of success by tick 100
+    over (runs × settings) with its 95 % CI, each setting's success by tick 100, code and notes."""
+    rows = []
+    for e in entries:
+        checked = e["checked"]
+        low, high = checked["iqm_ci"]
+        row = {"method": e["method"], "runs": len(e["runs"]), "actions": e.get("actions") or "",
+               "iqm": checked["iqm"], "iqm_ci_low": low, "iqm_ci_high": high}  # fmt: skip
+        row |= {st.label: checked["settings"][st.label]["success_by_100"] for st in SETTINGS}
+        rows.append(row | {"code": e.get("code") or "", "notes": e.get("notes") or ""})
+    return sorted(rows, key=lambda r: -r["iqm"])
+
+
+def _markdown(rows: list[dict[str, Any]], episodes: int) -> str:
+    head = ["rank", "method", "runs", "actions", "IQM by tick 100 [95 % CI]"]
+    head += [_short(s.label) for s in SETTINGS]
+    lines = [
+        f"# CATMiP leaderboard, suite {SUITE}",
+        "",
+        f"Success by tick 100 on {episodes} held-out maps (seed {SEED}) per setting; the aggregate is the "
+        "IQM over (training runs × settings) with a 95 % CI over runs and maps. T2/T3: Task 2 (20×20, 3 "
+        "robots) / Task 3 (32×32, 6 robots); full / σ4 / σ2: communication; +n: 5 % SLAM noise. Every "
+        "number is recomputed from the entry's rescue ticks (`catmip leaderboard`).",
+        "",
+        "| " + " | ".join(head) + " |",
+        "|" + "---|" * len(head),
+    ]
+    for k, r in enumerate(rows, 1):
+        method = f"[{r['method']}]({r['code']})" if r["code"] else r["method"]
+        cells = [str(k), method, str(r["runs"]), r["actions"],
+                 f"**{r['iqm']:.3f}** [{r['iqm_ci_low']:.3f}, {r['iqm_ci_high']:.3f}]",
+                 *(f"{r[s.label]:.2f}" for s in SETTINGS)]  # fmt: skip
+        lines.append("| " + " | ".join(cells) + " |")
+    notes = [f"- **{r['method']}**: {r['notes']}" for r in rows if r["notes"]]
+    return "\n".join(lines + ([""] + notes if notes else [])) + "\n"
+
+
+def _figure(rows: list[dict[str, Any]], path: Path, episodes: int) -> Path:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    n = len(rows)
+    fig, (left, right) = plt.subplots(1, 2, figsize=(11, 1.8 + 0.35 * n), width_ratios=[1, 2.2], sharey=True)
+    y = np.arange(n)[::-1]
+    iqm = np.array([r["iqm"] for r in rows])
+    err = np.array([[r["iqm"] - r["iqm_ci_low"] for r in rows], [r["iqm_ci_high"] - r["iqm"] for r in rows]])
+    left.errorbar(iqm, y, xerr=err, fmt="o", color="black", capsize=3)
+    left.set_yticks(y, [r["method"] for r in rows])
+    left.set_xlabel("IQM, rescued by tick 100")
+    left.set_xlim(0, 1)
+    left.grid(axis="x", alpha=0.3)
+    grid = np.array([[r[s.label] for s in SETTINGS] for r in rows])
+    image = right.imshow(grid, aspect="auto", cmap="viridis", vmin=0, vmax=1,
+                         extent=(-0.5, len(SETTINGS) - 0.5, -0.5, n - 0.5))  # fmt: skip
+    for i, row in enumerate(grid):
+        for j, v in enumerate(row):
+            colour = "white" if v < 0.6 else "black"
+            right.text(j, y[i], f"{v:.2f}", ha="center", va="center", fontsize=7, color=colour)
+    right.set_xticks(range(len(SETTINGS)), [_short(s.label) for s in SETTINGS], rotation=45, ha="right")
+    fig.colorbar(image, ax=right, label="rescued by tick 100")
+    fig.suptitle(f"CATMiP suite {SUITE}: {episodes} held-out maps per setting")
+    fig.tight_layout()
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=150, format="png")
+    plt.close(fig)
+    return path
+
+
+def render_leaderboard(folder: str | Path, out: str | Path, episodes: int = EPISODES) -> tuple[Path, Path]:
+    """Check every entry in ``folder`` and write ``out/leaderboard.md`` and ``out/leaderboard.png``."""
+    rows = leaderboard_rows(load_entries(folder, episodes))
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    md = out / "leaderboard.md"
+    atomic_write_text(md, _markdown(rows, episodes))
+    return md, _figure(rows, out / "leaderboard.png", episodes)

@@ -1,0 +1,216 @@
+"""The benchmark suite: one fixed grid of settings on the held-out maps, one entry per method.
+
+    run_suite(["nearest", "mine=py:my_policy.py:make_policy"], out="out/suite")  # catmip bench suite
+
+**Suite v1** (:data:`SETTINGS`): Tasks 2 and 3 × communication full / σ = 4 / σ = 2 × SLAM noise 0 / 5 %,
+each on the 1,000 held-out maps (seed 1000, frozen in ``catmip_env/frozen_maps``), evaluation
+activation, the paper's horizon, the longest macro-action 10 ticks. Task 1 is left out: every planner and
+AMAT rescue within 0.02 of each other there by tick 100, so it no longer tells methods apart. Weak
+communication and SLAM noise are where the planners differ most (RRT 0.64 against Nearest 0.48 on Task 2
+at σ = 2) and where a learned planner can win.
+
+Every (setting, method, training run) is one evaluation (:mod:`~catmip_rl.evaluation.jobs`) in
+``OUT/runs/LABEL/NAME[/runK]/``; an interrupted suite resumes: a run whose results are complete is read
+back, not played again. Each method then gets an **entry**, ``OUT/entries/NAME.json``
+(:func:`make_entry`): per setting its rescue ticks (every map, every run), success by tick 100 and by
+the horizon and the mean rescue tick with 95 % CIs, the maps' digest; an aggregate IQM over the
+settings; where its files came from, the package versions, the CPU, its training compute (read from a
+model file, or given). ``catmip leaderboard`` (:mod:`~catmip_rl.evaluation.leaderboard`) checks entries
+and ranks them.
+"""
+
+from __future__ import annotations
+
+import datetime
+import hashlib
+import json
+from importlib.metadata import PackageNotFoundError, version
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from catmip_env.machine import machine_info
+from catmip_env.map_sets import HELDOUT_SEED, MANIFEST_EPISODES, manifest
+from catmip_rl.evaluation.compare import CONFIDENCE, success_interval
+from catmip_rl.evaluation.evaluate import EvalSetting
+from catmip_rl.evaluation.jobs import Job, check_methods, map_jobs, run_dir
+from catmip_rl.evaluation.methods import Method, method_source, parse_runs
+from catmip_rl.files import atomic_write_text
+
+__all__ = [
+    "SUITE", "SEED", "EPISODES", "SETTINGS", "ENTRY_FORMAT", "run_suite", "make_entry", "setting_numbers",
+    "iqm_interval", "maps_digest",
+]  # fmt: skip
+
+SUITE = "v1"
+SEED = HELDOUT_SEED
+EPISODES = MANIFEST_EPISODES
+SETTINGS = tuple(
+    EvalSetting(task, comm, noise)
+    for task in ("task2", "task3")
+    for comm in ("full", "4", "2")
+    for noise in (0.0, 0.05)
+)
+ENTRY_FORMAT = "catmip-suite-entry-v1"
+BY_TICK = 100  # the paper's headline: rescued by tick 100
+RESAMPLES = 2_000
+PACKAGES = ("catmip", "numpy", "numba", "torch", "torchrl", "tensordict")
+
+
+def maps_digest(task: str, episodes: int) -> str:
+    """SHA-256 of the frozen held-out maps' hashes (the first ``episodes`` of seed :data:`SEED`)."""
+    hashes = manifest(task)["seeds"][str(SEED)][:episodes]
+    return hashlib.sha256("\n".join(hashes).encode()).hexdigest()
+
+
+def setting_numbers(rescue_tick: np.ndarray, horizon: int, seed: int = 0) -> dict[str, Any]:
+    """What an entry states for one setting, from its rescue ticks ((runs, maps), -1: not rescued):
+    success by tick 100 and by the horizon (means over runs and maps, 95 % CIs over the maps, or runs and
+    maps together for several runs) and the mean rescue tick of the rescued episodes."""
+    ticks = np.asarray(rescue_tick, np.int64)
+    rescued = ticks >= 0
+    by_100 = rescued & (ticks <= min(BY_TICK, horizon))
+    out: dict[str, Any] = {}
+    for key, success in (("success_by_100", by_100), ("success_rate", rescued)):
+        low, high, _over = success_interval(success, seed)
+        out[key] = float(success.mean())
+        out[f"{key}_ci"] = [low, high]
+    out["mean_rescue_tick"] = float(ticks[rescued].mean()) if rescued.any() else None
+    return out
+
+
+def iqm_interval(success: list[np.ndarray], seed: int = 0) -> tuple[float, float, float]:
+    """IQM of success by tick 100 over (runs × settings) with its 95 % CI (``success``: one (runs, maps)
+    bool array per setting). Each resample draws the runs, and each setting's maps, with replacement:
+    rliable's stratified bootstrap resamples runs only, which with one or three runs hides the maps'
+    share of the uncertainty (the same reason as ``compare.runs_and_maps_ci``)."""
+    from scipy.stats import trim_mean
+
+    rng = np.random.default_rng(seed)
+    scores = np.stack([s.mean(axis=1) for s in success], axis=1)  # (runs, settings)
+    point = float(trim_mean(scores.ravel(), 0.25))
+    runs = scores.shape[0]
+    draws = np.empty(RESAMPLES)
+    for k in range(RESAMPLES):
+        pick = rng.integers(runs, size=runs)
+        means = [s[pick][:, rng.integers(s.shape[1], size=s.shape[1])].mean(axis=1) for s in success]
+        draws[k] = trim_mean(np.stack(means, axis=1).ravel(), 0.25)
+    low, high = np.quantile(draws, [(1 - CONFIDENCE) / 2, (1 + CONFIDENCE) / 2])
+    return point, float(low), float(high)
+
+
+def _versions() -> dict[str, str | None]:
+    found = {}
+    for name in PACKAGES:
+        try:
+            found[name] = version(name)
+        except PackageNotFoundError:
+            found[name] = None
+    return found
+
+
+def _training(method: Method) -> dict[str, Any] | None:
+    """A model file's training record (minutes, iterations, episodes, seed), None for other methods."""
+    if method.kind != "amat":
+        return None
+    from catmip_rl.checkpoint import model_record
+
+    return model_record(method.target)
+
+
+def make_entry(name: str, runs: list[Method], results: dict[str, list[dict[str, Any]]], episodes: int,
+               code: str = "", notes: str = "") -> dict[str, Any]:  # fmt: skip
+    """The suite entry of method ``name`` (its training ``runs``) from its :func:`~catmip_rl.evaluation.
+    jobs.run_one` results per setting label (one per run, in order)."""
+    settings, success = {}, []
+    for st in SETTINGS:
+        res = results[st.label]
+        horizon = int(res[0]["summary"]["horizon"])
+        ticks = np.array([[-1 if np.isnan(t) else int(t) for t in r["ticks"]["rescue_tick"]] for r in res])
+        settings[st.label] = {
+            "task": st.task, "comm": st.comm, "noise": st.noise, "max_ma_ticks": st.max_ma_ticks,
+            "horizon": horizon, "maps_sha256": maps_digest(st.task, episodes),
+            **setting_numbers(ticks, horizon), "rescue_tick": ticks.tolist(),
+        }  # fmt: skip
+        success.append((ticks >= 0) & (ticks <= min(BY_TICK, horizon)))
+    iqm, low, high = iqm_interval(success)
+    first = results[SETTINGS[0].label][0]["summary"]
+    return {
+        "format": ENTRY_FORMAT,
+        "suite": SUITE,
+        "method": name,
+        "actions": first.get("actions"),
+        "runs": [
+            {"kind": m.kind, "target": m.target, "source": method_source(m), "training": _training(m)}
+            for m in runs
+        ],  # fmt: skip
+        "seed": SEED,
+        "episodes": episodes,
+        "aggregate": {"iqm_success_by_100": iqm, "iqm_success_by_100_ci": [low, high]},
+        "settings": settings,
+        "code": code,
+        "notes": notes,
+        "versions": _versions(),
+        "machine": machine_info(),
+        "created": datetime.date.today().isoformat(),
+    }
+
+
+def run_suite(
+    methods: list[str],
+    out: str | Path = "out/suite",
+    episodes: int = EPISODES,
+    jobs: int = 1,
+    threads: int | None = None,
+    progress: bool = True,
+    code: dict[str, str] | None = None,
+    notes: dict[str, str] | None = None,
+) -> list[Path]:
+    """Play every method (``NAME=SPEC`` or ``NAME=SPEC,SPEC,...`` for several training runs) on every
+    setting of the suite and write one entry per method, with its ``code`` link and ``notes`` (by
+    method name) where given; returns the entries' paths. Resumes an
+    interrupted suite in the same ``out``. A method that cannot play a setting (``WorldNotSupported``),
+    an unreadable model or a broken policy raises before anything is played."""
+    groups = [parse_runs(m) for m in methods]
+    names = [runs[0].name for runs in groups]
+    if not groups or len(set(names)) != len(names):
+        raise ValueError(f"the suite needs methods with unique names (use NAME=METHOD), got {names}")
+    unknown = sorted((set(code or {}) | set(notes or {})) - set(names))
+    if unknown:
+        raise ValueError(
+            f"code / notes given for {unknown}, which the suite does not play (methods: {names})"
+        )
+    if not 1 <= episodes <= EPISODES:
+        raise ValueError(f"episodes must be from 1 to the {EPISODES} frozen held-out maps, got {episodes}")
+    panels = [(st.label, st) for st in SETTINGS]
+    _plays, not_played = check_methods(groups, panels, SEED)
+    if not_played:
+        (label, name), why = next(iter(not_played.items()))
+        raise ValueError(f"method {name} cannot play {label} ({why}): a suite entry needs every setting")
+    threads = (1 if jobs > 1 else 2) if threads is None else threads
+    out = Path(out)
+    tasks = [
+        Job(m, st, episodes, SEED, str(run_dir(out / "runs" / st.label / m.name, k, len(runs))), threads,
+            resume=True)
+        for runs in groups for k, m in enumerate(runs) for st in SETTINGS
+    ]  # fmt: skip
+    results = iter(map_jobs(tasks, jobs, progress, f"suite {SUITE}"))
+    paths = []
+    for runs in groups:
+        per_setting: dict[str, list[dict[str, Any]]] = {st.label: [] for st in SETTINGS}
+        for _m in runs:
+            for st in SETTINGS:
+                per_setting[st.label].append(next(results))
+        name = runs[0].name
+        entry = make_entry(
+            name, runs, per_setting, episodes, (code or {}).get(name, ""), (notes or {}).get(name, "")
+        )
+        path = out / "entries" / f"{_file_name(runs[0].name)}.json"
+        atomic_write_text(path, json.dumps(entry, indent=1))
+        paths.append(path)
+    return paths
+
+
+def _file_name(name: str) -> str:
+    return "".join(c if c.isalnum() or c in "-_." else "_" for c in name).strip("_") or "method"

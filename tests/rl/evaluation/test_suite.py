@@ -1,0 +1,111 @@
+"""catmip bench suite and catmip leaderboard: a user's policy file gives an entry the leaderboard
+accepts; an interrupted suite resumes; an entry with other maps, a missing setting or a number its
+ticks do not give is refused with one line naming the file."""
+
+from __future__ import annotations
+
+import json
+import textwrap
+
+import pytest
+
+from catmip_rl.cli.main import main
+from catmip_rl.evaluation import jobs
+from catmip_rl.evaluation.leaderboard import EntryError, load_entries
+from catmip_rl.evaluation.suite import SETTINGS, run_suite
+
+POLICY = textwrap.dedent(
+    """
+    class FirstAllowed:
+        deterministic = True
+
+        def act(self, engine):
+            return engine.masks.argmax(-1)
+
+    def make_policy(env_config, seed):
+        return FirstAllowed()
+    """
+)
+
+
+@pytest.fixture(scope="module")
+def suite(tmp_path_factory):
+    out = tmp_path_factory.mktemp("suite")
+    (out / "mine.py").write_text(POLICY)
+    mine = f"mine=py:{out / 'mine.py'}:make_policy"
+    about = {"code": {"mine": "https://example.org/mine"}, "notes": {"mine": "first allowed goal"}}
+    paths = run_suite(["nearest", mine], out / "s", episodes=2, progress=False, **about)
+    return out, paths
+
+
+def test_a_users_policy_file_gives_an_entry_the_leaderboard_accepts(suite, capsys):
+    out, paths = suite
+    assert [p.name for p in paths] == ["nearest.json", "mine.json"]
+    entry = json.loads(paths[1].read_text())
+    assert set(entry["settings"]) == {st.label for st in SETTINGS} and entry["episodes"] == 2
+    assert entry["runs"][0]["source"]["sha256"] and entry["actions"] == "argmax"
+    assert all(
+        len(s["rescue_tick"]) == 1 and len(s["rescue_tick"][0]) == 2 for s in entry["settings"].values()
+    )
+    assert entry["machine"]["cpu_capability"] in ("AVX512", "AVX2", "DEFAULT")
+    code = main(
+        ["leaderboard", "--entries", str(out / "s" / "entries"), "--episodes", "2", "--out", str(out / "lb")]
+    )
+    assert code == 0
+    md = (out / "lb" / "leaderboard.md").read_text()
+    assert "| [mine](https://example.org/mine) |" in md and "| nearest |" in md and "first allowed goal" in md
+    assert (out / "lb" / "leaderboard.png").stat().st_size > 5000
+    printed = capsys.readouterr().out
+    assert "| rank | method |" in printed and "T3 σ2 +n" in printed
+    # the leaderboard's count of maps is the suite's: a preview is not a ranked entry
+    assert main(["leaderboard", "--entries", str(out / "s" / "entries"), "--out", str(out / "lb2")]) == 2
+    assert "episodes is 2, the leaderboard's is 1000" in capsys.readouterr().err
+
+
+def test_an_interrupted_suite_resumes_without_playing_again(suite, monkeypatch):
+    out, paths = suite
+    before = json.loads(paths[0].read_text())
+
+    def no_play(*args, **kwargs):
+        raise AssertionError("a complete run was played again")
+
+    monkeypatch.setattr(jobs, "evaluate", no_play)
+    again = run_suite(["nearest"], out / "s", episodes=2, progress=False)
+    assert json.loads(again[0].read_text())["settings"] == before["settings"]
+    with pytest.raises(ValueError, match="holds other results"):  # the same folder, another method
+        run_suite(["nearest=rrt"], out / "s", episodes=2, progress=False)
+
+
+@pytest.mark.parametrize(
+    ("tamper", "problem"),
+    [
+        (
+            lambda e: e["settings"]["task3-sigma2-noise0-ma10"].update(maps_sha256="0" * 64),
+            "not the frozen held-out",
+        ),
+        (
+            lambda e: e["settings"].pop("task2-sigma4-noise0.05-ma10"),
+            "missing setting(s) ['task2-sigma4-noise0.05",
+        ),
+        (
+            lambda e: e["settings"]["task2-full-noise0-ma10"].update(success_by_100=0.123),
+            "is not what its rescue",
+        ),
+        (lambda e: e["settings"]["task2-full-noise0-ma10"]["rescue_tick"][0].pop(), "must be 2 integers"),
+        (lambda e: e.update(suite="v0"), "suite is 'v0'"),
+        (lambda e: e["aggregate"].update(iqm_success_by_100=0.99), "aggregate iqm_success_by_100"),
+    ],
+)
+def test_a_tampered_entry_is_refused_with_one_line_naming_it(suite, tmp_path, tamper, problem, capsys):
+    out, paths = suite
+    entry = json.loads(paths[0].read_text())
+    tamper(entry)
+    (tmp_path / "nearest.json").write_text(json.dumps(entry))
+    with pytest.raises(EntryError, match="nearest.json refused") as err:
+        load_entries(tmp_path, episodes=2)
+    assert problem in str(err.value) and "\n" not in str(err.value)
+    assert (
+        main(["leaderboard", "--entries", str(tmp_path), "--episodes", "2", "--out", str(tmp_path / "o")])
+        == 2
+    )
+    assert capsys.readouterr().err.count("\n") == 1 and not (tmp_path / "o" / "leaderboard.md").exists()
