@@ -12,7 +12,7 @@ from typing import Any
 __all__ = [
     "POSITIVE_INT", "NON_NEGATIVE_INT", "PROBABILITY", "CPUS", "UP_TO_CPUS", "checked", "check_comm",
     "check_method", "check_methods", "check_runs", "parse_set", "set_item", "USER_ERRORS", "number_type",
-    "name_value", "explain", "missing_extra",
+    "name_value", "pair_list", "explain", "missing_extra",
 ]  # fmt: skip
 
 USER_ERRORS = (ValueError, OSError, ImportError)
@@ -84,6 +84,19 @@ def name_value(text: str) -> tuple[str, str]:
             f"expected NAME=VALUE (a method's name, then its value), got {text!r}"
         )
     return name.strip(), value.strip()
+
+
+def pair_list(text: str) -> list[tuple[str, str]]:
+    """An argparse type: ``A:B,C:D`` as [(A, B), (C, D)] (method names; A - B is compared)."""
+    pairs = []
+    for item in (p.strip() for p in text.split(",") if p.strip()):
+        a, sep, b = item.partition(":")
+        if not sep or not a.strip() or not b.strip() or a.strip() == b.strip():
+            raise argparse.ArgumentTypeError(f"expected pairs of two method names A:B[,C:D...], got {item!r}")
+        pairs.append((a.strip(), b.strip()))
+    if not pairs:
+        raise argparse.ArgumentTypeError(f"expected pairs of two method names A:B[,C:D...], got {text!r}")
+    return pairs
 
 
 def checked(validate):

@@ -95,6 +95,7 @@ def _setting(args: argparse.Namespace):
 
 def _eval(args: argparse.Namespace) -> int:
     from catmip_rl.evaluation.evaluate import evaluate
+    from catmip_rl.evaluation.plots import plot_curves
     from catmip_rl.files import check_new_dir
 
     check_new_dir(args.out, "--out", force=args.force)
@@ -104,6 +105,7 @@ def _eval(args: argparse.Namespace) -> int:
         allow_other_maps=args.allow_other_maps,
     )  # fmt: skip
     out = result.write(args.out)
+    plot_curves(result.curve_rows(), out / "curve.png", title=f"{args.episodes} maps (seed {args.seed})")
     s = result.summary
     rescue = "-" if s["mean_rescue_tick"] is None else f"{s['mean_rescue_tick']:.1f}"
     p, n = s["success_by_100"], s["episodes"]
@@ -140,7 +142,7 @@ def _eval(args: argparse.Namespace) -> int:
             f"{s['bytes_per_decision_raw']:.0f} bytes with raw macro-observations"
         )
     print(f"  maps: {s['map_set']} {s['map_set_status']} ({s['map_set_verified_episodes']} checked)")
-    print(f"wrote {out}/episodes.csv, episodes.json, curve.csv, summary.json")
+    print(f"wrote {out}/episodes.csv, episodes.json, curve.csv, curve.png, summary.json")
     return 0
 
 
@@ -244,7 +246,7 @@ def _compare(args: argparse.Namespace) -> int:
 
     check_new_dir(args.out, "--out", force=args.force)
     results = load_results(args.results)
-    report = compare(results, seed=args.seed)
+    report = compare(results, seed=args.seed, vs=args.vs, pairs=args.pairs)
     written = report.write(args.out)  # the files first: a closed pipe on stdout loses nothing
     print(report.markdown())
     print(f"wrote {args.out}/: {', '.join(p.name for p in written)}")

@@ -23,6 +23,7 @@ from catmip_rl.cli.args import (
     checked,
     name_value,
     number_type,
+    pair_list,
     set_item,
 )  # fmt: skip
 from catmip_rl.training.config import TrainConfig, check_field, field_docs
@@ -347,6 +348,9 @@ def add_compare(sub) -> None:
     co.add_argument("--out", default="out/compare", help="new or empty folder for the tables and plots")
     co.add_argument("--force", action="store_true", help="write into a non-empty --out")
     co.add_argument("--seed", type=NON_NEGATIVE_INT, default=0, help="seed of the bootstrap resampling")
+    pick = co.add_mutually_exclusive_group()
+    pick.add_argument("--vs", metavar="METHOD", help="pair every method with this one only (METHOD - it)")
+    pick.add_argument("--pairs", type=pair_list, metavar="A:B,...", help="only these pairs (A - B)")
     co.set_defaults(name="compare")
 
 

@@ -32,14 +32,11 @@ from typing import Any
 
 import numpy as np
 
+from catmip_rl.evaluation.stats import CONFIDENCE, mcnemar_p, paired_difference, success_interval
 from catmip_rl.files import atomic_write_csv, atomic_write_text
 
-__all__ = [
-    "Result", "load_results", "compare", "Comparison", "paired_difference", "success_interval",
-]  # fmt: skip
+__all__ = ["Result", "load_results", "compare", "Comparison"]
 
-CONFIDENCE = 0.95
-RESAMPLES = 10_000  # paired bootstrap over maps (scipy: vectorised, ~0.2 s a pair)
 RLIABLE_RESAMPLES = 2_000  # rliable's stratified bootstrap runs a Python call per resample (~1 ms)
 
 
@@ -100,36 +97,6 @@ def load_results(specs: list[str]) -> list[Result]:
     return results
 
 
-# -- statistics ---------------------------------------------------------------------------------------------
-def _bootstrap_ci(data: np.ndarray, seed: int = 0) -> tuple[float, float]:
-    """95 % percentile bootstrap CI of the mean of ``data`` (one value per map)."""
-    from scipy.stats import bootstrap
-
-    if len(data) < 2 or np.all(data == data[0]):
-        return float(data.mean()), float(data.mean())
-    res = bootstrap(
-        (data,), np.mean, confidence_level=CONFIDENCE, n_resamples=RESAMPLES, method="percentile",
-        rng=np.random.default_rng(seed),
-    )  # fmt: skip
-    return float(res.confidence_interval.low), float(res.confidence_interval.high)
-
-
-def paired_difference(a: np.ndarray, b: np.ndarray, seed: int = 0) -> dict[str, float]:
-    """Mean of ``a - b`` over paired maps with its 95 % bootstrap CI (``a``, ``b``: (E,) per-map
-    scores, the same maps in the same order)."""
-    d = np.asarray(a, float) - np.asarray(b, float)
-    low, high = _bootstrap_ci(d, seed)
-    return {"diff": float(d.mean()), "ci_low": low, "ci_high": high}
-
-
-def mcnemar_p(a: np.ndarray, b: np.ndarray) -> float:
-    """Exact McNemar p-value (two-sided binomial test on the maps where exactly one succeeded)."""
-    from scipy.stats import binomtest
-
-    only_a, only_b = int(np.sum(a & ~b)), int(np.sum(~a & b))
-    return 1.0 if only_a + only_b == 0 else float(binomtest(only_a, only_a + only_b, 0.5).pvalue)
-
-
 @dataclass
 class Comparison:
     """What :func:`compare` found: rows of the paired, aggregate and improvement tables, plus what the
@@ -145,8 +112,8 @@ class Comparison:
 
     def write(self, out: str | Path) -> list[Path]:
         """compare.md and, where there is something to show, paired.csv / .png (two methods on the same
-        maps), aggregate.csv / .png and profile.png (any method), improvement.csv (a method with several
-        runs), each atomic, in ``out``; the files written."""
+        maps), aggregate.csv (any method), aggregate.png, profile.png and improvement.csv (a method with
+        several runs), each atomic, in ``out``; the files written."""
         from catmip_rl.evaluation.plots import plot_aggregate, plot_paired, plot_profiles
 
         out = Path(out)
@@ -164,10 +131,15 @@ class Comparison:
         written.append(out / "compare.md")
         if self.paired:
             written.append(plot_paired(self.paired, out / "paired.png"))
-        if self.aggregate:
+        if self.several_runs:  # with one run per method they would show single points, not spreads
             written.append(plot_aggregate(self.aggregate, out / "aggregate.png"))
             written.append(plot_profiles(self.scores, out / "profile.png"))
         return written
+
+    @property
+    def several_runs(self) -> bool:
+        """Whether a method has several training runs: the across-run plots need a spread to show."""
+        return any(r["runs"] > 1 for r in self.aggregate)
 
     def markdown(self) -> str:
         settings = sorted({r["setting"] for r in self.by_setting})
@@ -209,40 +181,15 @@ class Comparison:
                 "",
                 "(one run: no interval across seeds; its uncertainty over maps is in the paired table)",
             ]
+            if not self.several_runs:
+                lines += ["", "No aggregate.png or profile.png: every method has one run, so they "
+                          "would show single points (training seeds: NAME=DIR,DIR,...)."]  # fmt: skip
         if self.improvement:
             lines += ["", "| P(X > Y) | X | Y | 95 % CI |", "|---|---|---|---|"]
             for r in self.improvement:
                 ci = f"[{r['ci_low']:.3f}, {r['ci_high']:.3f}]"
                 lines.append(f"| {r['probability']:.3f} | {r['method_x']} | {r['method_y']} | {ci} |")
         return "\n".join(lines) + "\n"
-
-
-def runs_and_maps_ci(success: np.ndarray, seed: int = 0) -> tuple[float, float]:
-    """95 % percentile CI of the mean of ``success`` (runs, maps) when both the training runs and the
-    maps are a sample: each resample draws runs with replacement and, for all of them alike, maps with
-    replacement (the runs played the same maps). Neither scipy's bootstrap nor rliable's (over runs
-    only) resamples the two levels together; with three runs, resampling the runs alone would hide the
-    maps' share of the uncertainty."""
-    rng = np.random.default_rng(seed)
-    r, e = success.shape
-    means = np.empty(RESAMPLES)
-    for k in range(0, RESAMPLES, 500):  # 500 resamples at a time: (500, r, e) stays small
-        n = min(500, RESAMPLES - k)
-        runs = rng.integers(r, size=(n, r))
-        maps = rng.integers(e, size=(n, e))
-        means[k : k + n] = success[runs[:, :, None], maps[:, None, :]].mean(axis=(1, 2))
-    low, high = np.quantile(means, [(1 - CONFIDENCE) / 2, (1 + CONFIDENCE) / 2])
-    return float(low), float(high)
-
-
-def success_interval(success: np.ndarray, seed: int = 0) -> tuple[float, float, str]:
-    """95 % CI of the mean of ``success`` (runs, maps; the runs played the same maps) and what it is
-    over: the maps for one run (percentile bootstrap), the runs and the maps together for several
-    (:func:`runs_and_maps_ci`)."""
-    success = np.asarray(success, float)
-    if success.shape[0] > 1:
-        return (*runs_and_maps_ci(success, seed), "runs and maps")
-    return (*_bootstrap_ci(success[0], seed), "maps")
 
 
 def _setting_rows(groups: dict[str, dict[str, list[Result]]], seed: int) -> list[dict[str, Any]]:
@@ -283,10 +230,24 @@ def _by_setting(results: list[Result]) -> dict[str, dict[str, list[Result]]]:
     return out
 
 
-def _paired_rows(groups: dict[str, dict[str, list[Result]]]) -> list[dict[str, Any]]:
+def _ordered_pairs(
+    methods: list[str], vs: str | None, pairs: list[tuple[str, str]] | None
+) -> list[tuple[str, str]]:
+    """The (A, B) pairs to compare among ``methods``: every pair, each method against ``vs`` (A - vs), or
+    the chosen ``pairs`` (those both of whose methods are there)."""
+    if vs is not None:
+        return [(m, vs) for m in methods if m != vs] if vs in methods else []
+    if pairs is not None:
+        return [(a, b) for a, b in pairs if a in methods and b in methods]
+    return list(combinations(methods, 2))
+
+
+def _paired_rows(groups: dict[str, dict[str, list[Result]]], vs: str | None = None,
+                 pairs: list[tuple[str, str]] | None = None) -> list[dict[str, Any]]:  # fmt: skip
     rows = []
     for setting, methods in sorted(groups.items()):
-        for (ma, ra), (mb, rb) in combinations(sorted(methods.items()), 2):
+        for ma, mb in _ordered_pairs(sorted(methods), vs, pairs):
+            ra, rb = methods[ma], methods[mb]
             maps = ra[0].maps
             if any(r.maps != maps for r in (*ra, *rb)):
                 continue  # not the same maps: no paired comparison
@@ -328,13 +289,20 @@ def _score_matrices(
     return scores, common, left_out
 
 
-def compare(results: list[Result], seed: int = 0) -> Comparison:
-    """Paired differences for every pair of methods on the same maps, and (with rliable) IQM / mean with
-    95 % stratified-bootstrap CIs and the probability of improvement across runs and settings."""
+def compare(
+    results: list[Result], seed: int = 0, vs: str | None = None, pairs: list[tuple[str, str]] | None = None
+) -> Comparison:
+    """Paired differences on the same maps (every pair of methods; each against ``vs``, as method - vs; or
+    the chosen ``pairs`` (A, B), as A - B), and (with rliable) IQM / mean with 95 % stratified-bootstrap
+    CIs and the probability of improvement across runs and settings."""
     if not results:
         raise ValueError("nothing to compare: no results")
+    names = sorted({r.method for r in results})
+    for wanted in ([vs] if vs is not None else []) + [m for pair in pairs or [] for m in pair]:
+        if wanted not in names:
+            raise ValueError(f"no results of method {wanted!r} to compare against; the methods are {names}")
     groups = _by_setting(results)
-    report = Comparison(paired=_paired_rows(groups), by_setting=_setting_rows(groups, seed))
+    report = Comparison(paired=_paired_rows(groups, vs, pairs), by_setting=_setting_rows(groups, seed))
     scores, report.settings, report.left_out = _score_matrices(groups)
     report.scores = scores
     if len(scores) < 1 or not report.settings:

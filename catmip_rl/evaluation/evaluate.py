@@ -124,6 +124,24 @@ class EvalResult:
     """The policy's sampled variant on the same maps (Policy.sampled; the curve is the policy itself:
     argmax for AMAT, the paper's protocol)."""
 
+    def curve_rows(self) -> list[dict[str, Any]]:
+        """The success-vs-time curve (and its sampled pass) as rows for ``plots.plot_curves``, with the
+        95 % band over maps."""
+        from catmip_rl.evaluation.stats import curve_band
+
+        horizon = len(self.curve) - 1
+        rows = []
+        passes = [(self.method, self.curve, "rescue_tick")]
+        if self.sampled_curve is not None:
+            passes.append((f"{self.method} (sampled)", self.sampled_curve, "sampled_rescue_tick"))
+        for method, curve, key in passes:
+            ticks = np.array([[np.nan if e.get(key) is None else e[key] for e in self.episodes]], float)
+            low, high = curve_band(ticks, horizon)
+            at = {"panel": self.setting.label, "method": method}
+            for t, v in enumerate(curve):
+                rows.append(at | {"tick": t, "success_rate": float(v), "ci_low": low[t], "ci_high": high[t]})
+        return rows
+
     def write(self, out: str | Path) -> Path:
         """``episodes.csv``, ``episodes.json``, ``curve.csv``, ``summary.json`` in ``out`` (atomic)."""
         out = Path(out)

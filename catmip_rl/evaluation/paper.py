@@ -22,11 +22,11 @@ from typing import Any
 
 import numpy as np
 
-from catmip_rl.evaluation.compare import success_interval
 from catmip_rl.evaluation.evaluate import EvalSetting
 from catmip_rl.evaluation.jobs import Job, check_methods, map_jobs, run_dir
 from catmip_rl.evaluation.methods import Method, parse_runs
 from catmip_rl.evaluation.plots import check_matplotlib, plot_figure
+from catmip_rl.evaluation.stats import curve_band, success_interval
 from catmip_rl.files import atomic_write_csv, atomic_write_text
 
 __all__ = [
@@ -131,8 +131,11 @@ def run_figure(
                     continue
                 at = {"figure": figure, "panel": panel, "method": label}
                 curve = np.mean([r[curve_key] for r in res], axis=0)
+                horizon = int(res[0]["summary"]["horizon"])
+                low, high = curve_band(np.array([r["ticks"][tick_key] for r in res], float), horizon)
                 for t, v in enumerate(curve):
-                    curve_rows.append(at | {"tick": t, "success_rate": v, "runs": len(res)})
+                    band = {"ci_low": low[t], "ci_high": high[t]}
+                    curve_rows.append(at | {"tick": t, "success_rate": v, **band, "runs": len(res)})
                 summary_rows.append(at | _summary(res, tick_key, prefix))
     fig_dir.mkdir(parents=True, exist_ok=True)
     atomic_write_csv(fig_dir / "curves.csv", curve_rows)

@@ -19,6 +19,8 @@ __all__ = [
     "plot_paired",
     "plot_aggregate",
     "plot_profiles",
+    "method_style",
+    "plot_curves",
 ]
 
 
@@ -56,20 +58,33 @@ def _save(fig, path: Path) -> Path:
 
 
 def plot_paired(rows: list[dict[str, Any]], path: Path) -> Path:
-    """One line per (setting, A vs B): the paired difference in success by tick 100 with its 95 % CI."""
+    """The paired difference in success by tick 100 (A - B, 95 % CI) of each compared pair, grouped by
+    setting (a heading per setting), the figure's height sized to its rows."""
     plt = _pyplot()
-    fig, ax = plt.subplots(figsize=(8, 1.0 + 0.32 * len(rows)), layout="constrained")
-    y = np.arange(len(rows))
-    diff = np.array([r["diff"] for r in rows])
-    err = np.array([[r["diff"] - r["ci_low"] for r in rows], [r["ci_high"] - r["diff"] for r in rows]])
-    colors = ["tab:green" if r["ci_low"] > 0 else "tab:red" if r["ci_high"] < 0 else "tab:gray" for r in rows]
-    for k, color in enumerate(colors):
-        ax.errorbar(diff[k], y[k], xerr=err[:, k : k + 1], fmt="o", color=color, capsize=3)
+    settings = list(dict.fromkeys(r["setting"] for r in rows))
+    lines = len(rows) + len(settings)
+    fig, ax = plt.subplots(figsize=(8, 0.9 + 0.28 * lines), layout="constrained")
+    y, ticks, labels = 0, [], []
+    for setting in settings:
+        ax.text(0.0, y, setting, transform=ax.get_yaxis_transform(), ha="right", va="center",
+                fontsize=8, fontweight="bold")  # fmt: skip
+        y += 1
+        for r in (r for r in rows if r["setting"] == setting):
+            ci = [[r["diff"] - r["ci_low"]], [r["ci_high"] - r["diff"]]]
+            color = "tab:green" if r["ci_low"] > 0 else "tab:red" if r["ci_high"] < 0 else "tab:gray"
+            marker = "o" if color == "tab:gray" else "D"  # readable in grey print too
+            ax.errorbar(r["diff"], y, xerr=ci, fmt=marker, color=color, capsize=3)
+            ticks.append(y)
+            labels.append(f"{r['method_a']} − {r['method_b']}")
+            y += 1
     ax.axvline(0.0, color="k", lw=0.8)
-    ax.set_yticks(y, [f"{r['setting']}: {r['method_a']} − {r['method_b']}" for r in rows], fontsize=7)
-    ax.invert_yaxis()
-    ax.set_xlabel("paired difference in success by tick 100 (95 % CI over maps)")
-    ax.set_title("green: A better, red: B better, grey: no difference shown", fontsize=9)
+    ax.set_yticks(ticks, labels, fontsize=7)
+    ax.set_ylim(y - 0.5, -0.7)
+    ax.grid(axis="x", alpha=0.3)
+    ax.set_xlabel("paired difference in success by tick 100, A − B (95 % CI over maps)")
+    ax.set_title(
+        "diamonds: a difference shown (green: A better, red: B better); circles: none shown", fontsize=9
+    )
     return _save(fig, path)
 
 
@@ -109,34 +124,62 @@ def plot_profiles(scores: dict[str, np.ndarray], path: Path) -> Path:
     return _save(fig, path)
 
 
+LINESTYLES = ("-", "--", "-.", (0, (6, 1.5, 1, 1.5, 1, 1.5)))  # ":" is kept for sampled passes
+
+
+def method_style(k: int, method: str) -> dict[str, Any]:
+    """Colour and line style of the ``k``-th method of a figure: ten colours, and a dash pattern that
+    changes with each colour so that neighbours differ in grey print too; a method's sampled pass
+    (``NAME (sampled)``) is drawn thin and dotted."""
+    import matplotlib
+
+    colour = matplotlib.colormaps["tab10"](k % 10)
+    if method.endswith("(sampled)"):
+        return {"color": colour, "linestyle": ":", "lw": 1.1}
+    return {"color": colour, "linestyle": LINESTYLES[(k + k // 10) % len(LINESTYLES)], "lw": 1.7}
+
+
 def plot_figure(curves_csv: str | Path, png: str | Path, title: str = "") -> Path:
-    """Success rate vs mission time, one panel per setting, one line per method (paper layout)."""
-    plt = _pyplot()
+    """Success rate vs mission time, one panel per setting, one line per method (paper layout), with the
+    95 % band over maps (and runs) where ``curves.csv`` has ``ci_low`` / ``ci_high``."""
     with open(curves_csv) as f:
         rows = list(csv.DictReader(f))
+    return plot_curves(rows, png, title)
+
+
+def plot_curves(rows: list[dict[str, Any]], png: str | Path, title: str = "") -> Path:
+    """:func:`plot_figure` of rows already read: panel, method, tick, success_rate (and ci_low, ci_high,
+    runs where known)."""
+    plt = _pyplot()
     panels = list(dict.fromkeys(r["panel"] for r in rows))
     methods = list(dict.fromkeys(r["method"] for r in rows))
-    fig, axes = plt.subplots(1, len(panels), figsize=(4.2 * len(panels), 3.6), sharey=True, squeeze=False)
-    colours = plt.get_cmap("tab10" if len(methods) <= 10 else "tab20")
+    base = [m.removesuffix(" (sampled)") for m in methods]
+    index = {
+        m: list(dict.fromkeys(base)).index(b) for m, b in zip(methods, base)
+    }  # a sampled pass: its method's colour
+    fig, axes = plt.subplots(
+        1, len(panels), figsize=(max(4.2 * len(panels), 6.0), 3.6), sharey=True, squeeze=False
+    )
     runs = {r["method"]: int(r.get("runs") or 1) for r in rows}
     for ax, panel in zip(axes[0], panels):
-        for k, method in enumerate(methods):
-            pts = [
-                (int(r["tick"]), float(r["success_rate"]))
-                for r in rows
-                if r["panel"] == panel and r["method"] == method
-            ]
-            if not pts:
+        for method in methods:
+            own = [r for r in rows if r["panel"] == panel and r["method"] == method]
+            if not own:
                 continue
-            t, v = np.array(pts).T
+            t = np.array([int(r["tick"]) for r in own])
+            v = np.array([float(r["success_rate"]) for r in own])
             label = method + (f" (mean of {runs[method]} runs)" if runs[method] > 1 else "")
-            style = "--" if method.endswith("(sampled)") else "-"
-            ax.plot(t, v, style, color=colours(k % colours.N), lw=1.6, label=label)
+            style = method_style(index[method], method)
+            ax.plot(t, v, label=label, **style)
+            if own[0].get("ci_low") not in (None, "") and not method.endswith("(sampled)"):
+                low = np.array([float(r["ci_low"]) for r in own])
+                high = np.array([float(r["ci_high"]) for r in own])
+                ax.fill_between(t, low, high, color=style["color"], alpha=0.15, lw=0)
         ax.set_title(panel)
         ax.set_xlabel("mission time (ticks)")
         ax.set_ylim(0, 1.02)
         ax.grid(alpha=0.3)
-    axes[0][0].set_ylabel("success rate")
+    axes[0][0].set_ylabel("success rate (95 % band)")
     handles, labels = axes[0][0].get_legend_handles_labels()
     columns = min(len(labels), 4)
     rows = -(-len(labels) // columns)  # below the panels, so that no curve is hidden

@@ -24,6 +24,7 @@ from __future__ import annotations
 import datetime
 import hashlib
 import json
+import re
 from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 from typing import Any
@@ -32,15 +33,15 @@ import numpy as np
 
 from catmip_env.machine import machine_info
 from catmip_env.map_sets import HELDOUT_SEED, MANIFEST_EPISODES, manifest
-from catmip_rl.evaluation.compare import CONFIDENCE, success_interval
 from catmip_rl.evaluation.evaluate import EvalSetting
 from catmip_rl.evaluation.jobs import Job, check_methods, map_jobs, run_dir
 from catmip_rl.evaluation.methods import Method, method_source, parse_runs
+from catmip_rl.evaluation.stats import CONFIDENCE, success_interval
 from catmip_rl.files import atomic_write_text
 
 __all__ = [
     "SUITE", "SEED", "EPISODES", "SETTINGS", "ENTRY_FORMAT", "run_suite", "make_entry", "setting_numbers",
-    "iqm_interval", "maps_digest",
+    "iqm_interval", "maps_digest", "entry_json",
 ]  # fmt: skip
 
 SUITE = "v1"
@@ -207,9 +208,19 @@ def run_suite(
             name, runs, per_setting, episodes, (code or {}).get(name, ""), (notes or {}).get(name, "")
         )
         path = out / "entries" / f"{_file_name(runs[0].name)}.json"
-        atomic_write_text(path, json.dumps(entry, indent=1))
+        atomic_write_text(path, entry_json(entry))
         paths.append(path)
     return paths
+
+
+def entry_json(entry: dict[str, Any]) -> str:
+    """An entry as JSON, indented, with each list of numbers on one line (12 x 1,000 ticks a run)."""
+    text = json.dumps(entry, indent=1)
+    return re.sub(
+        r"\[\s*(-?[\d.e+-]+(?:,\s*-?[\d.e+-]+)*)\s*\]",
+        lambda m: "[" + re.sub(r"\s+", "", m.group(1)) + "]",
+        text,
+    )
 
 
 def _file_name(name: str) -> str:

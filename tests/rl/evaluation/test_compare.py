@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 from catmip_rl.cli.main import main
-from catmip_rl.evaluation.compare import compare, load_results, mcnemar_p, paired_difference
+from catmip_rl.evaluation.compare import compare, load_results
+from catmip_rl.evaluation.stats import mcnemar_p, paired_difference
 
 
 def _write(
@@ -70,7 +71,7 @@ def test_compare_pairs_only_the_same_maps_and_aggregates_runs(tmp_path):
 
 
 def test_runs_and_maps_ci_covers_both_sources():
-    from catmip_rl.evaluation.compare import runs_and_maps_ci
+    from catmip_rl.evaluation.stats import runs_and_maps_ci
 
     rng = np.random.default_rng(0)
     same = np.tile(rng.random(400) < 0.7, (3, 1))  # three identical runs: only the maps vary
@@ -89,9 +90,10 @@ def test_cli_compare_writes_tables_and_plots(tmp_path, capsys):
     assert main(["compare", str(tmp_path / "r"), "--out", str(out)]) == 0
     text = capsys.readouterr().out
     assert "| task1-full-noise0-ma10 | a | b | 100 | 0.700 | 0.500 | +0.200 [" in text
-    for name in ("paired.csv", "aggregate.csv", "compare.md", "paired.png", "aggregate.png", "profile.png"):
+    for name in ("paired.csv", "aggregate.csv", "compare.md", "paired.png"):
         assert (out / name).stat().st_size > 0, name
-    assert not (out / "improvement.csv").exists()  # one run each: nothing across seeds to compare
+    for name in ("improvement.csv", "aggregate.png", "profile.png"):  # one run each: nothing across seeds
+        assert not (out / name).exists(), name
     assert "wrote " in text and "improvement.csv" not in text.splitlines()[-1]
     assert main(["compare", str(tmp_path / "nothing"), "--out", str(tmp_path / "x")]) == 2
     assert "no such result folder" in capsys.readouterr().err
@@ -101,3 +103,30 @@ def test_cli_compare_writes_tables_and_plots(tmp_path, capsys):
     assert main(["compare", str(tmp_path / "bad"), "--out", str(tmp_path / "y")]) == 2
     assert "is not a readable catmip eval result" in capsys.readouterr().err
     assert not (tmp_path / "x").exists() and not (tmp_path / "y").exists()
+    # several runs of a method: the across-run plots are drawn
+    _write(tmp_path / "s" / "a2", "a", [50] * 60 + [None] * 40)
+    seeds = f"a={tmp_path / 'r' / 'a'},{tmp_path / 's' / 'a2'}"
+    assert main(["compare", seeds, str(tmp_path / "r" / "b"), "--out", str(tmp_path / "runs")]) == 0
+    for name in ("aggregate.png", "profile.png", "improvement.csv"):
+        assert (tmp_path / "runs" / name).stat().st_size > 0, name
+
+
+def test_vs_and_pairs_choose_the_comparisons_and_one_run_each_draws_no_aggregate_plot(tmp_path, capsys):
+    for name, rate in (("a", 0.8), ("b", 0.6), ("ref", 0.5)):
+        n = int(rate * 100)
+        _write(tmp_path / "r" / name, name, [50] * n + [None] * (100 - n))
+    report = compare(load_results([str(tmp_path / "r")]), vs="ref")
+    assert [(r["method_a"], r["method_b"]) for r in report.paired] == [("a", "ref"), ("b", "ref")]
+    assert report.paired[0]["diff"] == pytest.approx(0.3)  # a - ref
+    chosen = compare(load_results([str(tmp_path / "r")]), pairs=[("ref", "b")])
+    assert [(r["method_a"], r["method_b"], round(r["diff"], 3)) for r in chosen.paired] == [
+        ("ref", "b", -0.1)
+    ]
+    with pytest.raises(ValueError, match=r"no results of method 'rf'.*\['a', 'b', 'ref'\]"):
+        compare(load_results([str(tmp_path / "r")]), vs="rf")
+    out = tmp_path / "out"
+    assert main(["compare", str(tmp_path / "r"), "--vs", "ref", "--out", str(out)]) == 0
+    assert (out / "paired.png").is_file() and not (out / "aggregate.png").exists()
+    assert "No aggregate.png or profile.png: every method has one run" in (out / "compare.md").read_text()
+    assert main(["compare", str(tmp_path / "r"), "--pairs", "a", "--out", str(tmp_path / "o2")]) == 2
+    assert "expected pairs of two method names" in capsys.readouterr().err

@@ -253,6 +253,12 @@ def test_figure_runs_on_a_tiny_budget(ckpt, tmp_path):
         assert len(curve) == 401
         assert np.all(np.diff(curve) >= 0)
         assert curve[-1] == np.mean([e["rescued"] for e in episodes])
+        band = [
+            (float(r["ci_low"]), float(r["ci_high"]))
+            for r in rows
+            if r["panel"] == panel and r["method"] == "nearest"
+        ]
+        assert all(low <= v <= high for (low, high), v in zip(band, curve))  # the 95 % band holds the curve
     marl = json.loads((fig_dir / "marl_eval.json").read_text())
     run = marl["catmip-fig11"]["task2-full-noise0-ma5"]["learned"]["seed_0"]
     assert len(run["step_0"]["success"]) == 2 and "success_rate" in run["absolute_metrics"]

@@ -74,6 +74,7 @@ def test_the_summary_says_argmax_or_sampled(capsys, tmp_path):
     )
     out = capsys.readouterr().out
     assert "amat_task1 (argmax actions) on task1" in out and "with sampled actions on the same maps" in out
+    assert (tmp_path / "curve.png").stat().st_size > 5000 and "curve.png" in out  # with its 95 % band
 
 
 def test_a_policy_without_hooks_reports_no_traffic_and_no_sampled_pass():
