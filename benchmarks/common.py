@@ -11,6 +11,7 @@ import numpy as np
 from catmip_env import EnvConfig
 from catmip_env.events import EventEngine, random_valid_actions
 from catmip_env.files import atomic_path
+from catmip_env.machine import machine_info  # noqa: F401  (the benchmarks import it from here)
 
 
 def cpu_times() -> tuple[int, int] | None:

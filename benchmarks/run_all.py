@@ -2,13 +2,13 @@
 
     python benchmarks/run_all.py [--quick] [--only engine,scaling] [--out-dir benchmarks/results]
 
-Runs ``bench_engine``, ``bench_events``, ``bench_amat``, ``bench_train``, ``bench_scaling`` and
-``bench_executor``, each in its own process (a failure is reported and the rest still run), each
-writing ``<out-dir>/<name>.json``; then writes ``<out-dir>/SUMMARY.md`` (headline numbers against
-their targets, met / unmet computed from the measured values), ``<out-dir>/summary.png`` (scaling
-curves + every target as measured/target) and ``<out-dir>/run_all.json``. ``--quick`` passes short
-settings to every script (minutes instead of tens of minutes); ``--summary-only`` rebuilds the summary
-from the JSON already in ``--out-dir``.
+Runs ``bench_engine``, ``bench_events``, ``bench_amat``, ``bench_train``, ``bench_scaling``,
+``bench_executor`` and ``bench_threads``, each in its own process (a failure is reported and the rest
+still run), each writing ``<out-dir>/<name>.json``; then writes ``<out-dir>/SUMMARY.md`` (headline
+numbers against their targets, met / unmet computed from the measured values),
+``<out-dir>/summary.png`` (scaling curves + every target as measured/target) and
+``<out-dir>/run_all.json``. ``--quick`` passes short settings to every script (minutes instead of tens
+of minutes); ``--summary-only`` rebuilds the summary from the JSON already in ``--out-dir``.
 """
 
 from __future__ import annotations

@@ -24,6 +24,7 @@ BENCHES = (
     Bench("train", "bench_train.py", ("--iterations", "2", "--epochs", "2"), False),
     Bench("scaling", "bench_scaling.py", ("--seconds", "0.5"), True),
     Bench("executor", "bench_executor.py", ("--events", "6"), False),
+    Bench("threads", "bench_threads.py", ("--events", "40", "--repeats", "1"), False),
 )
 NAMES = tuple(b.name for b in BENCHES)
 

@@ -206,6 +206,21 @@ def executor_checks(d: dict) -> list[Check]:
     return out
 
 
+def threads_checks(d: dict) -> list[Check]:
+    """The engine on 2 threads at 64 worlds: at least 1.7x one thread, with the same worlds."""
+    out = []
+    for r in d.get("rows", []):
+        if r["threads"] == 1:
+            continue
+        target = 1.7 if r["threads"] == 2 and r["worlds"] == 64 else None
+        note = "same worlds as one thread" if r["same_worlds_as_one_thread"] else "**worlds differ**"
+        out.append(Check("threads", f"event engine {r['task']}, B = {r['worlds']}, {r['threads']} threads",
+                         r["speedup"], "x one thread", target, note=note))  # fmt: skip
+        out.append(Check("threads", f"{r['task']}, {r['threads']} threads: same worlds as one thread",
+                         float(r["same_worlds_as_one_thread"]), "", 1.0))  # fmt: skip
+    return out
+
+
 def all_checks(results: dict[str, dict]) -> list[Check]:
     out: list[Check] = []
     if "engine" in results:
@@ -218,4 +233,6 @@ def all_checks(results: dict[str, dict]) -> list[Check]:
         out += train_checks(results["train"])
     if "executor" in results:
         out += executor_checks(results["executor"])
+    if "threads" in results:
+        out += threads_checks(results["threads"])
     return out

@@ -327,7 +327,7 @@ def perceive(
     return success
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)  # threads=: chunks of worlds run at once
 def perceive_at_reset(worlds: np.ndarray, s: KernelState, rules: Rules) -> None:
     """Steps 2-6 at t = 0 for the worlds in the bool mask ``worlds`` (B,); rewards (the target in view
     at t = 0) go to ``s.pending_reward``, paid with the next step."""
@@ -346,7 +346,7 @@ def perceive_at_reset(worlds: np.ndarray, s: KernelState, rules: Rules) -> None:
             )  # fmt: skip
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)  # threads=: chunks of worlds run at once
 def tick(
     live: np.ndarray,  # (B,) bool: worlds to advance (those not done)
     actions: np.ndarray,  # (B, N) int64 primitive actions

@@ -73,6 +73,7 @@ class EventEngine:
         goal_mode: str = "window",
         invalid_action: str = "raise",
         gamma: float = 1.0,
+        threads: int = 1,
     ) -> None:
         if goal_mode not in GOAL_MODES:
             raise ValueError(f"unknown goal_mode {goal_mode!r}; choose one of {list(GOAL_MODES)}")
@@ -82,7 +83,7 @@ class EventEngine:
             )
         if not 0.0 < gamma <= 1.0:
             raise ValueError(f"gamma must be in (0, 1], got {gamma!r}")
-        self.world = BatchedWorld(cfg, num_worlds, seed)
+        self.world = BatchedWorld(cfg, num_worlds, seed, threads)
         self.cfg = cfg
         self.goal_mode = goal_mode
         self.invalid_action = invalid_action
@@ -163,14 +164,19 @@ class EventEngine:
         st = self.state
         live = ~st.done
         self._set_goals(np.asarray(actions), live)
-        assign_goals(live, self._goal_cells, st.goal, self.mstate, self._ma_rewards)
-        advance(
-            live, st.kernel, self.rules, 0 if max_ticks is None else int(max_ticks), self.mstate, self._prim,
-            self._tick_rewards, self._event_rewards, self._ma_rewards, self._event_ticks, self._terminated,
-            self._truncated,
-        )  # fmt: skip
-        self.world.observe(live)
-        self._masks(live)
+        limit = 0 if max_ticks is None else int(max_ticks)
+
+        def step_chunk(w: slice) -> None:  # the worlds of one thread (threads=): goals, ticks, observations
+            assign_goals(live[w], self._goal_cells[w], st.goal[w], self.mstate[w], self._ma_rewards[w])
+            advance(
+                live[w], st.kernel_chunk(w), self.rules, limit, self.mstate[w], self._prim[w],
+                self._tick_rewards[w], self._event_rewards[w], self._ma_rewards[w], self._event_ticks[w],
+                self._terminated[w], self._truncated[w],
+            )  # fmt: skip
+            self.world.observe_chunk(live, w)
+            self._masks_chunk(live, w)
+
+        self.world.chunks.run(step_chunk)
         return self._result()
 
     def refresh(self, worlds: np.ndarray | None = None) -> None:
@@ -193,10 +199,13 @@ class EventEngine:
         )
 
     def _masks(self, worlds: np.ndarray) -> None:
+        self.world.chunks.run(lambda w: self._masks_chunk(worlds, w))
+
+    def _masks_chunk(self, worlds: np.ndarray, w: slice) -> None:
         st = self.state
         action_masks(
-            worlds, self.goal_mode == "cell", self.cfg.window, st.belief, st.pos, st.comp, st.goal,
-            self.mstate, self.masks,
+            worlds[w], self.goal_mode == "cell", self.cfg.window, st.belief[w], st.pos[w], st.comp[w],
+            st.goal[w], self.mstate[w], self.masks[w],
         )  # fmt: skip
 
     def action_to_cell(self, b: int, i: int, action: int) -> tuple[int, int]:

@@ -162,7 +162,7 @@ def activate(
     return event
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)  # threads=: chunks of worlds run at once
 def advance(
     live: np.ndarray,  # (B,) bool worlds to run (those not done)
     s: KernelState,
@@ -243,7 +243,7 @@ def advance(
             done[b] = True
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)  # threads=: chunks of worlds run at once
 def start_activation(worlds: np.ndarray, target: np.ndarray, belief: np.ndarray, mstate: np.ndarray) -> None:
     """Reset-time macro state: everyone in standby and active (the joint first decision at t = 0)."""
     for b in range(worlds.shape[0]):
@@ -258,7 +258,7 @@ def start_activation(worlds: np.ndarray, target: np.ndarray, belief: np.ndarray,
             mstate[b, i, M_KNEW] = 1 if belief[b, i, tr, tc] & TARGET_BIT else 0
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)  # threads=: chunks of worlds run at once
 def assign_goals(
     worlds: np.ndarray,
     goal_cells: np.ndarray,  # (B, N, 2) int64 new goals (read for active robots only)
@@ -305,7 +305,7 @@ def _goal_valid(
     return True
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)  # threads=: chunks of worlds run at once
 def action_masks(
     worlds: np.ndarray,
     cell_mode: bool,

@@ -29,7 +29,7 @@ def _stamp3(obs: np.ndarray, b: int, i: int, ch: int, r: int, c: int) -> None:
             obs[b, i, ch, rr, cc] = OBS_ONE
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)  # threads=: chunks of worlds run at once
 def observe(
     worlds: np.ndarray,  # (B,) bool: build observations for these worlds
     belief: np.ndarray,  # (B, N, H, W) uint8

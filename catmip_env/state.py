@@ -86,6 +86,12 @@ class WorldState:
         """The same arrays (not copies) as one :class:`KernelState` value, built on first use."""
         return KernelState(*(getattr(self, f.name) for f in fields(self)))
 
+    def kernel_chunk(self, worlds: slice) -> KernelState:
+        """:attr:`kernel` of the worlds in ``worlds`` only (views: writes reach this state), for a thread
+        that steps a chunk of the worlds; ``used_occ``'s one-cell placeholder (no SLAM noise) is shared."""
+        b = self.grid.shape[0]
+        return KernelState(*(a if a.shape[0] != b else a[worlds] for a in self.kernel))
+
 
 #: The fields of :class:`WorldState`, same names, order and arrays, as one immutable value that numba
 #: kernels take as a single argument (field access ``s.grid``; heterogeneous namedtuples are supported).

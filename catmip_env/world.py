@@ -39,7 +39,7 @@ from catmip_env.observe import observe as build_observations
 from catmip_env.rng import seed_state
 from catmip_env.state import WorldState
 
-__all__ = ["BatchedWorld", "StepResult"]
+__all__ = ["BatchedWorld", "StepResult", "WorldChunks"]
 
 
 class StepResult(NamedTuple):
@@ -50,6 +50,40 @@ class StepResult(NamedTuple):
     truncated: np.ndarray  # (B,) bool horizon reached without success on this tick
 
 
+class WorldChunks:
+    """The worlds split into ``threads`` contiguous chunks, and a pool that runs a function on each at
+    once. The kernels release the GIL (``nogil``) and a world's episode depends only on its own arrays,
+    so a step on several threads gives exactly the results of one thread."""
+
+    def __init__(self, num_worlds: int, threads: int = 1) -> None:
+        if not isinstance(threads, (int, np.integer)) or threads < 1:
+            raise ValueError(f"threads must be an int >= 1, got {threads!r}")
+        bounds = np.linspace(0, num_worlds, min(int(threads), num_worlds) + 1).astype(int)
+        self.slices = [slice(int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:])]
+        self.threads = len(self.slices)
+        self._pool = None
+
+    def run(self, fn) -> None:
+        """``fn(chunk)`` for every chunk (a slice of the worlds), on the pool's threads; the first error
+        is raised once every chunk has finished."""
+        if self.threads == 1:
+            fn(self.slices[0])
+            return
+        if self._pool is None:
+            from concurrent.futures import ThreadPoolExecutor
+
+            self._pool = ThreadPoolExecutor(self.threads - 1, thread_name_prefix="catmip-worlds")
+        futures = [self._pool.submit(fn, w) for w in self.slices[1:]]
+        try:
+            fn(self.slices[0])  # the caller's thread takes the first chunk
+        finally:
+            for future in futures:
+                future.result()
+
+    def __getstate__(self) -> dict:  # a pickled engine (a Ray worker's copy) starts its own pool
+        return {**self.__dict__, "_pool": None}
+
+
 class BatchedWorld:
     """B independent worlds of one :class:`EnvConfig`, advanced one primitive tick per call.
 
@@ -57,11 +91,14 @@ class BatchedWorld:
     their next episode. Observations are rebuilt for every stepped or reset world.
     """
 
-    def __init__(self, cfg: EnvConfig, num_worlds: int = 1, seed: int | None = None) -> None:
+    def __init__(
+        self, cfg: EnvConfig, num_worlds: int = 1, seed: int | None = None, threads: int = 1
+    ) -> None:
         if not isinstance(cfg, EnvConfig):
             raise TypeError(f"cfg must be an EnvConfig, got {type(cfg).__name__}")
         if not isinstance(num_worlds, (int, np.integer)) or num_worlds < 1:
             raise ValueError(f"num_worlds must be an int >= 1, got {num_worlds!r}")
+        self.chunks = WorldChunks(int(num_worlds), threads)
         self.cfg = cfg
         self.num_worlds = int(num_worlds)
         self.num_robots = cfg.num_robots
@@ -199,8 +236,13 @@ class BatchedWorld:
         """
         actions = self._check_actions(actions)
         live = ~self.state.done
-        tick(live, actions, self.state.kernel, self.rules, self._rewards, self._terminated, self._truncated)
-        self.observe(live)
+
+        def step_chunk(w: slice) -> None:
+            tick(live[w], actions[w], self.state.kernel_chunk(w), self.rules, self._rewards[w],
+                 self._terminated[w], self._truncated[w])  # fmt: skip
+            self.observe_chunk(live, w)
+
+        self.chunks.run(step_chunk)
         return StepResult(self._rewards, self._terminated, self._truncated)
 
     def _check_actions(self, actions: np.ndarray) -> np.ndarray:
@@ -224,10 +266,15 @@ class BatchedWorld:
 
     def observe(self, worlds: np.ndarray) -> None:
         """Rebuild the macro-observations of the worlds in the bool mask ``worlds`` (B,)."""
-        st = self.state
+        self.chunks.run(lambda w: self.observe_chunk(worlds, w))
+
+    def observe_chunk(self, worlds: np.ndarray, chunk: slice) -> None:
+        """:meth:`observe` of the worlds of ``chunk`` (one thread's share)."""
+        st, w = self.state, chunk
+        used_occ = st.used_occ[w] if self.noisy else st.used_occ
         build_observations(
-            worlds, st.belief, st.used_occ, self.noisy, st.pos, st.cls, st.comp, st.goal,
-            st.target, self.obs_global, self.obs_local,
+            worlds[w], st.belief[w], used_occ, self.noisy, st.pos[w], st.cls[w], st.comp[w], st.goal[w],
+            st.target[w], self.obs_global[w], self.obs_local[w],
         )  # fmt: skip
 
     # -- read-outs -----------------------------------------------------------------------------

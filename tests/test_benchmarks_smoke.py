@@ -117,11 +117,14 @@ def test_run_all_runs_every_benchmark(tmp_path):
     tiny = ["--seconds", "0.05", "--pass", "scaling=--maps 15 20 --teams 2 3",
             "--pass", "amat=--repeats 3 --train-steps 1 --bf16-steps 1",
             "--pass", "train=--iterations 1 --epochs 2 --worlds 8",
-            "--pass", "events=--decisions 10", "--pass", "executor=--events 2"]  # fmt: skip
+            "--pass", "events=--decisions 10", "--pass", "executor=--events 2",
+            "--pass", "threads=--events 5 --worlds 8"]  # fmt: skip
     cmd = [sys.executable, str(BENCH / "run_all.py"), "--quick", "--out-dir", str(tmp_path), *tiny]
     proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=900)
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
-    for name in ("engine", "events", "amat", "train", "scaling", "executor"):
+    for row in json.loads((tmp_path / "threads.json").read_text())["rows"]:
+        assert row["same_worlds_as_one_thread"], row  # the engine on threads steps the same worlds
+    for name in ("engine", "events", "amat", "train", "scaling", "executor", "threads"):
         data = json.loads((tmp_path / f"{name}.json").read_text())
         assert data["machine"]["cpu_capability"] and isinstance(data["machine"]["native_bf16"], bool), name
     for row in json.loads((tmp_path / "executor.json").read_text())["results"]:

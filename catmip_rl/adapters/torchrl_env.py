@@ -96,13 +96,20 @@ class CatmipEnv(EnvBase):
         invalid_action: str = "raise",
         gamma: float = 1.0,
         device: str | torch.device = "cpu",
+        threads: int = 1,
         **overrides,
     ) -> None:
         cfg = make_config(preset, **overrides)
         super().__init__(device=device, batch_size=torch.Size([num_worlds]))
         self.cfg = cfg
         self.engine = EventEngine(
-            cfg, num_worlds, seed, goal_mode=goal_mode, invalid_action=invalid_action, gamma=gamma
+            cfg,
+            num_worlds,
+            seed,
+            goal_mode=goal_mode,
+            invalid_action=invalid_action,
+            gamma=gamma,
+            threads=threads,
         )
         self.group_map = {K.ROBOTS: [f"robot_{i}" for i in range(self.engine.num_robots)]}
         self._make_specs()

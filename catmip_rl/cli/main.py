@@ -102,7 +102,7 @@ def _eval(args: argparse.Namespace) -> int:
     torch_threads(args.threads)
     result = evaluate(
         args.method, _setting(args), args.episodes, args.seed, progress=not args.no_progress,
-        allow_other_maps=args.allow_other_maps,
+        allow_other_maps=args.allow_other_maps, threads=args.threads,
     )  # fmt: skip
     out = result.write(args.out)
     plot_curves(result.curve_rows(), out / "curve.png", title=f"{args.episodes} maps (seed {args.seed})")

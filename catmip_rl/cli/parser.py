@@ -182,7 +182,8 @@ def add_setting_flags(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--seed", type=NON_NEGATIVE_INT, default=0, help="map set: episode k plays map k of this seed"
     )
-    p.add_argument("--threads", type=UP_TO_CPUS, default=min(2, CPUS), help="torch CPU threads")
+    p.add_argument("--threads", type=UP_TO_CPUS, default=min(2, CPUS),
+                   help="CPU threads of torch and of the env (its worlds split over them)")  # fmt: skip
 
 
 def add_allow_other_maps(p: argparse.ArgumentParser) -> None:

@@ -179,6 +179,7 @@ def evaluate(
     sampled_too: bool = True,
     policy: Any = None,
     allow_other_maps: bool = False,
+    threads: int = 1,
 ) -> EvalResult:
     """Play ``episodes`` maps of ``setting`` (episode indices 0.. of ``seed``) with ``method``.
 
@@ -191,7 +192,8 @@ def evaluate(
     :mod:`~catmip_rl.evaluation.user_policy`), played under the name ``method``:
     ``evaluate("mine", setting, policy=MyPolicy())``. The maps are checked against the frozen map sets
     (:mod:`catmip_env.map_sets`) before any is played: other maps raise ``MapSetMismatch`` unless
-    ``allow_other_maps`` (the summary's ``map_set_*`` keys say what was found).
+    ``allow_other_maps`` (the summary's ``map_set_*`` keys say what was found). ``threads``: the env's
+    worlds stepped on that many threads (the same results).
     """
     if policy is not None:
         if not isinstance(method, str) or not method.strip() or ":" in method or "=" in method:
@@ -203,7 +205,7 @@ def evaluate(
     sync = method.synchronous
     policy, goal_mode, window = make_policy(method, setting.env_config(None, sync), seed, model, policy)
     cfg = setting.env_config(window, sync)
-    engine = EventEngine(cfg, num_worlds=episodes, seed=seed, goal_mode=goal_mode)
+    engine = EventEngine(cfg, num_worlds=episodes, seed=seed, goal_mode=goal_mode, threads=threads)
     engine.reset(episode_indices=np.arange(episodes))
     maps = [map_hash(engine, e) for e in range(episodes)]
     map_set = check_maps(setting.task, seed, maps, allow_other_maps)
