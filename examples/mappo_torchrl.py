@@ -78,6 +78,8 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     ap.add_argument("--entropy", type=float, default=0.01, help="entropy bonus")
     ap.add_argument("--reward-scale", type=float, default=0.01)
     ap.add_argument("--seed", type=int, default=0, help="training seed (worlds, sampling, initial weights)")
+    ap.add_argument("--pool", type=int, default=4, help="the CNN's output pooled to POOL x POOL: any map "
+                    "size; 0: flattened, the task's map size only (the recorded Task 1/2 runs)")  # fmt: skip
     ap.add_argument("--threads", type=int, default=1, help="torch threads")
     ap.add_argument("--out", default=None, help="run folder (new or empty): metrics, config, policy files")
     ap.add_argument("--save-every", type=int, default=20, help="iterations between policy saves")
@@ -98,8 +100,8 @@ def main(argv: list[str] | None = None) -> list[dict[str, float]]:
     cfg = make_config(args.task)
 
     env = make_env(args.task, args.worlds, args.seed)
-    actor = make_actor(cfg)
-    critic = make_critic(cfg, args.algo)
+    actor = make_actor(cfg, pool=args.pool)
+    critic = make_critic(cfg, args.algo, pool=args.pool)
     loss_module = ClipPPOLoss(
         actor, critic, clip_epsilon=0.2, entropy_coeff=args.entropy, loss_critic_type="l2"
     )
@@ -156,8 +158,9 @@ def main(argv: list[str] | None = None) -> list[dict[str, float]]:
         finished = row["minutes"] >= args.minutes or iteration + 1 >= args.iterations
         if out is not None and (finished or (iteration + 1) % args.save_every == 0):
             _write_metrics(out / "metrics.csv", history)
-            save_policy(actor, cfg, out, {"algo": args.algo, "task": args.task, "iteration": iteration,
-                                          "minutes": row["minutes"], "seed": args.seed})  # fmt: skip
+            info = {"algo": args.algo, "task": args.task, "iteration": iteration, "minutes": row["minutes"],
+                    "seed": args.seed}  # fmt: skip
+            save_policy(actor, cfg, out, info, args.pool)
         if finished:
             break
     collector.shutdown()

@@ -50,16 +50,15 @@ VALUE_TARGET = (K.ROBOTS, "value_target")
 FORMAT = "catmip-torchrl-marl-v1"
 
 
-def conv_trunk(channels: int, size: int) -> tuple[nn.Module, int]:
-    """(M, channels, size, size) -> (M, features): two stride-2 convolutions; returns (trunk, features)."""
-    trunk = nn.Sequential(
-        nn.Conv2d(channels, 16, 3, stride=2, padding=1),
-        nn.ReLU(),
-        nn.Conv2d(16, 32, 3, stride=2, padding=1),
-        nn.ReLU(),
-        nn.Flatten(),
-    )
-    return trunk, 32 * math.ceil(math.ceil(size / 2) / 2) ** 2
+def conv_trunk(channels: int, size: int | None, pool: int = 0) -> tuple[nn.Module, int]:
+    """(M, channels, S, S) -> (M, features): two stride-2 convolutions, then either flattened (``pool``
+    0: the features depend on the map side ``size``, so the network plays that size only) or max-pooled
+    to ``pool x pool`` (any map size: the size-agnostic baselines); returns (trunk, features)."""
+    layers = [nn.Conv2d(channels, 16, 3, stride=2, padding=1), nn.ReLU(),
+              nn.Conv2d(16, 32, 3, stride=2, padding=1), nn.ReLU()]  # fmt: skip
+    if pool:
+        return nn.Sequential(*layers, nn.AdaptiveMaxPool2d(pool), nn.Flatten()), 32 * pool * pool
+    return nn.Sequential(*layers, nn.Flatten()), 32 * math.ceil(math.ceil(size / 2) / 2) ** 2
 
 
 def _per_robot(module: nn.Module, x: torch.Tensor) -> torch.Tensor:
@@ -67,23 +66,21 @@ def _per_robot(module: nn.Module, x: torch.Tensor) -> torch.Tensor:
     return module(x.reshape(-1, *x.shape[-3:])).reshape(*x.shape[:-3], -1)
 
 
-def _shapes(cfg: EnvConfig) -> dict[str, int]:
-    """The sizes the networks are built from: classes C, map side S, local side L, actions A."""
-    return {
-        "classes": cfg.num_classes,
-        "size": cfg.map_size,
-        "local": cfg.local_size,
-        "actions": cfg.window**2,
-    }
+def _shapes(cfg: EnvConfig, pool: int = 0) -> dict[str, int]:
+    """The sizes the networks are built from: classes C, local side L, actions A, and the map side S
+    (only without ``pool``: a pooled network plays any map size)."""
+    shapes = {"classes": cfg.num_classes, "local": cfg.local_size, "actions": cfg.window**2}
+    return shapes | ({"pool": pool} if pool else {"size": cfg.map_size})
 
 
 class PolicyNet(nn.Module):
     """Per-robot action logits (..., A) from the robot's float global map (..., 5 + C, S, S), local map
     (..., 4 + C, L, L) and class one-hot (..., C)."""
 
-    def __init__(self, classes: int, size: int, local: int, actions: int, hidden: int = 128) -> None:
+    def __init__(self, classes: int, local: int, actions: int, size: int | None = None, pool: int = 0,
+                 hidden: int = 128) -> None:  # fmt: skip
         super().__init__()
-        self.global_trunk, features = conv_trunk(5 + classes, size)
+        self.global_trunk, features = conv_trunk(5 + classes, size, pool)
         inputs = features + (4 + classes) * local * local + classes
         self.head = nn.Sequential(
             nn.Linear(inputs, hidden),
@@ -102,11 +99,12 @@ class Critic(nn.Module):
     """Per-robot value (..., 1). ``centralised`` (MAPPO): from the ground-truth ``state`` (..., 4 + C, S, S)
     stacked on the robot's own global map; otherwise (IPPO) from the robot's own global and local maps."""
 
-    def __init__(self, classes: int, size: int, local: int, centralised: bool, hidden: int = 128) -> None:
+    def __init__(self, classes: int, local: int, centralised: bool, size: int | None = None, pool: int = 0,
+                 hidden: int = 128) -> None:  # fmt: skip
         super().__init__()
         self.centralised = centralised
         channels = (5 + classes) + ((4 + classes) if centralised else 0)
-        self.trunk, features = conv_trunk(channels, size)
+        self.trunk, features = conv_trunk(channels, size, pool)
         extra = 0 if centralised else (4 + classes) * local * local
         self.head = nn.Sequential(
             nn.Linear(features + extra + classes, hidden), nn.ReLU(), nn.Linear(hidden, 1)
@@ -120,10 +118,11 @@ class Critic(nn.Module):
         return self.head(torch.cat(parts, -1))
 
 
-def make_actor(cfg: EnvConfig, hidden: int = 128) -> ProbabilisticActor:
+def make_actor(cfg: EnvConfig, hidden: int = 128, pool: int = 0) -> ProbabilisticActor:
     """The shared policy as a TorchRL actor over ``CatmipEnv``'s float maps (``float_observation_transform``):
-    writes ``("robots", "action")`` and its log-prob."""
-    net = PolicyNet(**_shapes(cfg), hidden=hidden)
+    writes ``("robots", "action")`` and its log-prob. ``pool``: the global map pooled to ``pool x pool``
+    (any map size), or 0 (flattened: the task's map size only)."""
+    net = PolicyNet(**_shapes(cfg, pool), hidden=hidden)
     return ProbabilisticActor(
         TensorDictModule(net, in_keys=list(K.OBS_KEYS), out_keys=[LOGITS]),
         in_keys={"logits": LOGITS, "mask": K.ACTION_MASK},
@@ -133,12 +132,12 @@ def make_actor(cfg: EnvConfig, hidden: int = 128) -> ProbabilisticActor:
     )
 
 
-def make_critic(cfg: EnvConfig, algo: str, hidden: int = 128) -> TensorDictModule:
+def make_critic(cfg: EnvConfig, algo: str, hidden: int = 128, pool: int = 0) -> TensorDictModule:
     """The critic over flat per-robot samples (:func:`decision_samples`), writing the values."""
     if algo not in ALGOS:
         raise ValueError(f"unknown algorithm {algo!r}; choose one of {list(ALGOS)}")
-    s = _shapes(cfg)
-    net = Critic(s["classes"], s["size"], s["local"], centralised=algo == "mappo", hidden=hidden)
+    s = _shapes(cfg, pool)
+    net = Critic(s["classes"], s["local"], algo == "mappo", s.get("size"), pool, hidden=hidden)
     return TensorDictModule(
         net, in_keys=[(K.ROBOTS, "state"), *K.OBS_KEYS[:2], K.AGENT_CLASS], out_keys=[K.VALUE]
     )
@@ -238,14 +237,16 @@ def make_policy(env_config, seed):
 '''
 
 
-def save_policy(actor: ProbabilisticActor, cfg: EnvConfig, folder: str | Path, info: dict) -> Path:
+def save_policy(
+    actor: ProbabilisticActor, cfg: EnvConfig, folder: str | Path, info: dict, pool: int = 0
+) -> Path:
     """``policy.pt`` (the actor's weights only), ``policy.json`` (the shapes and ``info``) and
     ``policy.py`` (a ``catmip eval`` factory) in ``folder``, each written atomically."""
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     with atomic_path(folder / "policy.pt") as tmp:
         torch.save(actor.module[0].module.state_dict(), tmp)
-    meta = {"format": FORMAT, "shapes": _shapes(cfg), **info}
+    meta = {"format": FORMAT, "shapes": _shapes(cfg, pool), **info}
     atomic_write_text(folder / "policy.json", json.dumps(meta, indent=2))
     atomic_write_text(folder / "policy.py", POLICY_PY.replace("{folder}", str(folder)))
     return folder / "policy.pt"
@@ -263,11 +264,12 @@ def load_policy(path: str | Path, env_config: EnvConfig, deterministic: bool = T
         raise ValueError(f"{path} is not a readable saved policy ({type(err).__name__}: {err})") from None
     if meta.get("format") != FORMAT:
         raise ValueError(f"{path.with_suffix('.json')} is not a {FORMAT} policy file")
-    want = _shapes(env_config)
+    pool = int(meta["shapes"].get("pool", 0))  # pooled: any map size; else the one it was trained on
+    want = _shapes(env_config, pool)
     if meta["shapes"] != want:
         raise WorldNotSupported(
             f"{path} was trained for {meta['shapes']}, this setting needs {want}: train on its task"
         )
-    actor = make_actor(env_config, hidden=meta.get("hidden", 128))
+    actor = make_actor(env_config, hidden=meta.get("hidden", 128), pool=pool)
     actor.module[0].module.load_state_dict(state)
     return TorchRLPolicy(actor, float_maps=True, deterministic=deterministic)

@@ -118,3 +118,14 @@ def test_a_saved_policy_loads_as_the_same_actor(tmp_path):
     (tmp_path / "policy.pt").write_bytes(b"junk")
     with pytest.raises(ValueError, match="not a readable saved policy"):
         load_policy(tmp_path / "policy.pt", cfg)
+
+
+def test_a_pooled_policy_plays_every_map_size(tmp_path):
+    from catmip_rl.evaluation.evaluate import EvalSetting, evaluate
+
+    cfg = make_config("task1")
+    save_policy(make_actor(cfg, pool=4), cfg, tmp_path, {"algo": "ippo"}, pool=4)
+    for task in ("task1", "task2", "task3"):  # 15x15 / 20x20 / 32x32, 2 / 3 / 6 robots
+        policy = load_policy(tmp_path / "policy.pt", make_config(task))
+        result = evaluate("pooled", EvalSetting(task), episodes=1, seed=0, policy=policy, sampled_too=False)
+        assert result.summary["episodes"] == 1 and result.summary["actions"] == "argmax"
