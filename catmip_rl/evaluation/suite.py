@@ -65,18 +65,22 @@ def maps_digest(task: str, episodes: int) -> str:
     return hashlib.sha256("\n".join(hashes).encode()).hexdigest()
 
 
-def setting_numbers(rescue_tick: np.ndarray, horizon: int, seed: int = 0) -> dict[str, Any]:
+def setting_numbers(
+    rescue_tick: np.ndarray, horizon: int, seed: int = 0, intervals: bool = True
+) -> dict[str, Any]:
     """What an entry states for one setting, from its rescue ticks ((runs, maps), -1: not rescued):
     success by tick 100 and by the horizon (means over runs and maps, 95 % CIs over the maps, or runs and
-    maps together for several runs) and the mean rescue tick of the rescued episodes."""
+    maps together for several runs; ``intervals=False``: the means only) and the mean rescue tick of the
+    rescued episodes."""
     ticks = np.asarray(rescue_tick, np.int64)
     rescued = ticks >= 0
     by_100 = rescued & (ticks <= min(BY_TICK, horizon))
     out: dict[str, Any] = {}
     for key, success in (("success_by_100", by_100), ("success_rate", rescued)):
-        low, high, _over = success_interval(success, seed)
         out[key] = float(success.mean())
-        out[f"{key}_ci"] = [low, high]
+        if intervals:
+            low, high, _over = success_interval(success, seed)
+            out[f"{key}_ci"] = [low, high]
     out["mean_rescue_tick"] = float(ticks[rescued].mean()) if rescued.any() else None
     return out
 
@@ -92,11 +96,13 @@ def iqm_interval(success: list[np.ndarray], seed: int = 0) -> tuple[float, float
     scores = np.stack([s.mean(axis=1) for s in success], axis=1)  # (runs, settings)
     point = float(trim_mean(scores.ravel(), 0.25))
     runs = scores.shape[0]
-    draws = np.empty(RESAMPLES)
-    for k in range(RESAMPLES):
-        pick = rng.integers(runs, size=runs)
-        means = [s[pick][:, rng.integers(s.shape[1], size=s.shape[1])].mean(axis=1) for s in success]
-        draws[k] = trim_mean(np.stack(means, axis=1).ravel(), 0.25)
+    pick = rng.integers(runs, size=(RESAMPLES, runs))  # the runs of each resample, alike in every setting
+    means = np.empty((RESAMPLES, runs, len(success)))
+    for k, s in enumerate(success):  # each setting's maps drawn with replacement: (resamples, runs) means
+        maps = rng.integers(s.shape[1], size=(RESAMPLES, s.shape[1]))
+        per_map = s[:, maps].mean(axis=2).T  # (resamples, runs): every run's mean on the drawn maps
+        means[:, :, k] = np.take_along_axis(per_map, pick, axis=1)
+    draws = trim_mean(means.reshape(RESAMPLES, -1), 0.25, axis=1)
     low, high = np.quantile(draws, [(1 - CONFIDENCE) / 2, (1 + CONFIDENCE) / 2])
     return point, float(low), float(high)
 

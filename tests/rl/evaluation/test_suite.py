@@ -109,3 +109,15 @@ def test_a_tampered_entry_is_refused_with_one_line_naming_it(suite, tmp_path, ta
         == 2
     )
     assert capsys.readouterr().err.count("\n") == 1 and not (tmp_path / "o" / "leaderboard.md").exists()
+
+
+def test_the_committed_leaderboard_checks_and_is_up_to_date(tmp_path):
+    from pathlib import Path
+
+    from catmip_rl.evaluation.leaderboard import render_leaderboard
+
+    root = Path(__file__).resolve().parents[3] / "leaderboard"
+    entries = load_entries(root / "entries")  # every committed entry: the full suite, checked
+    assert {"nearest", "random-rescue", "random-uniform"} <= {e["method"] for e in entries}
+    md, _png = render_leaderboard(root / "entries", tmp_path)
+    assert md.read_text() == (root / "leaderboard.md").read_text()  # redrawn after the last entry
