@@ -175,10 +175,7 @@ def _bench(args: argparse.Namespace) -> int:
     if args.all == (args.figure is not None):
         raise ValueError("give --figure N or --all (one of them)")
     figures = sorted(FIGURES) if args.all else [args.figure]
-    if args.threads is not None and args.threads * args.jobs > CPUS:
-        raise ValueError(
-            f"--jobs {args.jobs} x --threads {args.threads} is more than this machine's {CPUS} CPUs"
-        )
+    _check_parallel(args)
     for fig in figures:  # every figure's folder, before the first run starts
         check_new_dir(Path(args.out) / f"fig{fig}", "--out", force=args.force)
     methods = [m for m in args.methods.split(",") if m.strip()] + list(args.method)
@@ -189,14 +186,19 @@ def _bench(args: argparse.Namespace) -> int:
     return 0
 
 
-def _suite(args: argparse.Namespace) -> int:
-    from catmip_rl.evaluation.suite import SUITE, run_suite
-    from catmip_rl.files import check_new_dir
-
+def _check_parallel(args: argparse.Namespace) -> None:
+    """--jobs x --threads within the machine's CPUs (each job starts that many torch threads)."""
     if args.threads is not None and args.threads * args.jobs > CPUS:
         raise ValueError(
             f"--jobs {args.jobs} x --threads {args.threads} is more than this machine's {CPUS} CPUs"
         )
+
+
+def _suite(args: argparse.Namespace) -> int:
+    from catmip_rl.evaluation.suite import SUITE, run_suite
+    from catmip_rl.files import check_new_dir
+
+    _check_parallel(args)
     if not args.resume:
         check_new_dir(args.out, "--out", advice="pick a new folder, or --resume the suite in it")
     paths = run_suite(args.method, args.out, args.episodes, args.jobs, args.threads, not args.no_progress,

@@ -226,6 +226,13 @@ def add_eval_render(sub) -> None:
     rd.set_defaults(name="render")
 
 
+def add_parallel_flags(p: argparse.ArgumentParser) -> None:
+    """--jobs and --threads of a command that plays a grid of evaluations (bench suite, bench paper)."""
+    p.add_argument("--jobs", type=UP_TO_CPUS, default=min(2, CPUS), help="parallel processes")
+    p.add_argument("--threads", type=UP_TO_CPUS, default=None,
+                   help="torch CPU threads of each process (default: 2 with one job, else 1)")  # fmt: skip
+
+
 def add_suite(suites) -> None:
     from catmip_rl.evaluation.suite import EPISODES, SEED, SETTINGS, SUITE
 
@@ -245,9 +252,7 @@ def add_suite(suites) -> None:
     su.add_argument("--episodes", type=number_type(int, 1, below=EPISODES + 1, bound=f"from 1 to {EPISODES}"),
                     default=EPISODES, help="maps per setting (an entry of fewer is a preview: the "
                     "leaderboard takes the suite's count)")  # fmt: skip
-    su.add_argument("--jobs", type=UP_TO_CPUS, default=min(2, CPUS), help="parallel processes")
-    su.add_argument("--threads", type=UP_TO_CPUS, default=None,
-                    help="torch CPU threads of each process (default: 2 with one job, else 1)")  # fmt: skip
+    add_parallel_flags(su)
     su.add_argument("--code", action="append", default=[], type=name_value, metavar="NAME=URL",
                     help="a link to a method's code, shown on the leaderboard (repeatable)")  # fmt: skip
     su.add_argument("--notes", action="append", default=[], type=name_value, metavar="NAME=TEXT",
@@ -298,9 +303,7 @@ def add_bench(sub) -> None:
                          "summarised as their mean with a CI over runs and maps")  # fmt: skip
     pa.add_argument("--episodes", type=POSITIVE_INT, default=100, help="maps per (panel, method)")
     pa.add_argument("--seed", type=NON_NEGATIVE_INT, default=0, help="map set")
-    pa.add_argument("--jobs", type=UP_TO_CPUS, default=min(2, CPUS), help="parallel processes")
-    pa.add_argument("--threads", type=UP_TO_CPUS, default=None,
-                    help="torch CPU threads of each process (default: 2 with one job, else 1)")  # fmt: skip
+    add_parallel_flags(pa)
     pa.add_argument("--out", default="out/paper", help="figures go to OUT/fig{N}/ (new or empty)")
     pa.add_argument("--force", action="store_true", help="write into non-empty OUT/fig{N}/ folders")
     add_allow_other_maps(pa)
