@@ -88,9 +88,24 @@ class WorldState:
 
     def kernel_chunk(self, worlds: slice) -> KernelState:
         """:attr:`kernel` of the worlds in ``worlds`` only (views: writes reach this state), for a thread
-        that steps a chunk of the worlds; ``used_occ``'s one-cell placeholder (no SLAM noise) is shared."""
-        b = self.grid.shape[0]
-        return KernelState(*(a if a.shape[0] != b else a[worlds] for a in self.kernel))
+        that steps a chunk of the worlds; ``used_occ``'s one-cell placeholder (no SLAM noise) is shared.
+        Built once per chunk (the arrays are never rebound); the whole range is :attr:`kernel` itself."""
+        key = (worlds.start, worlds.stop)
+        chunk = self._chunks.get(key)
+        if chunk is None:
+            b = self.grid.shape[0]
+            whole = range(b)[worlds] == range(b)
+            chunk = (
+                self.kernel
+                if whole
+                else KernelState(*(a if a.shape[0] != b else a[worlds] for a in self.kernel))
+            )
+            self._chunks[key] = chunk
+        return chunk
+
+    @cached_property
+    def _chunks(self) -> dict[tuple, KernelState]:
+        return {}
 
 
 #: The fields of :class:`WorldState`, same names, order and arrays, as one immutable value that numba

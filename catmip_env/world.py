@@ -80,9 +80,6 @@ class WorldChunks:
             for future in futures:
                 future.result()
 
-    def __getstate__(self) -> dict:  # a pickled engine (a Ray worker's copy) starts its own pool
-        return {**self.__dict__, "_pool": None}
-
 
 class BatchedWorld:
     """B independent worlds of one :class:`EnvConfig`, advanced one primitive tick per call.
@@ -270,11 +267,10 @@ class BatchedWorld:
 
     def observe_chunk(self, worlds: np.ndarray, chunk: slice) -> None:
         """:meth:`observe` of the worlds of ``chunk`` (one thread's share)."""
-        st, w = self.state, chunk
-        used_occ = st.used_occ[w] if self.noisy else st.used_occ
+        k, w = self.state.kernel_chunk(chunk), chunk
         build_observations(
-            worlds[w], st.belief[w], used_occ, self.noisy, st.pos[w], st.cls[w], st.comp[w], st.goal[w],
-            st.target[w], self.obs_global[w], self.obs_local[w],
+            worlds[w], k.belief, k.used_occ, self.noisy, k.pos, k.cls, k.comp, k.goal, k.target,
+            self.obs_global[w], self.obs_local[w],
         )  # fmt: skip
 
     # -- read-outs -----------------------------------------------------------------------------

@@ -42,9 +42,8 @@ def missing_extra(module: str | None) -> str:
 def explain(err: BaseException) -> str:
     """A user error's message, with the extra to install when it is a missing optional dependency."""
     what = str(err) or type(err).__name__
-    if isinstance(err, ModuleNotFoundError) and missing_extra(err.name):
-        what = f"{what}: this needs {missing_extra(err.name)}"
-    return what
+    extra = missing_extra(err.name) if isinstance(err, ModuleNotFoundError) else ""
+    return f"{what}: this needs {extra}" if extra else what
 
 
 def number_type(kind: type, low: float, below: float | None = None, bound: str = ""):

@@ -195,7 +195,7 @@ def _check_parallel(args: argparse.Namespace) -> None:
 
 
 def _suite(args: argparse.Namespace) -> int:
-    from catmip_rl.evaluation.suite import SUITE, run_suite
+    from catmip_rl.evaluation.suite import EPISODES, SUITE, run_suite
     from catmip_rl.files import check_new_dir
 
     _check_parallel(args)
@@ -212,7 +212,7 @@ def _suite(args: argparse.Namespace) -> int:
         print(f"{entry['method']}: suite {SUITE} IQM rescued by tick 100 {iqm:.3f} [{low:.3f}, {high:.3f}] "
               f"over {len(entry['settings'])} settings x {entry['episodes']} maps -> {path}")  # fmt: skip
     print(f"check and rank them: catmip leaderboard --entries {Path(args.out) / 'entries'}"
-          + ("" if args.episodes == 1000 else f" --episodes {args.episodes}"))  # fmt: skip
+          + ("" if args.episodes == EPISODES else f" --episodes {args.episodes}"))  # fmt: skip
     return 0
 
 

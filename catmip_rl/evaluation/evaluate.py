@@ -37,7 +37,7 @@ from catmip_env.play import (
     episode_columns,
     episode_metrics,
     play,
-    plays_one_world_at_a_time,  # fmt: skip
+    plays_one_world_at_a_time,
     success_curve,
 )
 from catmip_rl.evaluation.methods import Method, make_policy, method_source, parse_method
@@ -305,13 +305,14 @@ def episode_rows(
         }
         if sampled is not None:
             row["sampled_rescue_tick"] = tick(sampled.rescue_tick[e])
-        clash = set(columns) & set(row)
-        if clash:
-            raise ValueError(
-                f"policy {method.name}: episode_columns() names the protocol's own column(s) {sorted(clash)}"
-            )
-        row |= {name: values[e].item() for name, values in columns.items()}
         rows.append(row)
+    clash = set(columns) & set(rows[0])
+    if clash:
+        raise ValueError(
+            f"policy {method.name}: episode_columns() names the protocol's own column(s) {sorted(clash)}"
+        )
+    for e, row in enumerate(rows):
+        row |= {name: values[e].item() for name, values in columns.items()}
     return rows
 
 

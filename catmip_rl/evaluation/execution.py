@@ -16,6 +16,7 @@ import numpy as np
 import torch
 
 from catmip_env.events import EventEngine
+from catmip_env.play import MESSAGE_COLUMNS
 from catmip_rl.amat.batch1.fast_amat import FastAmat
 from catmip_rl.amat.config import AmatConfig
 from catmip_rl.amat.inputs import macro_observation
@@ -234,11 +235,7 @@ class AmatExecutor:
 
     def episode_columns(self) -> dict[str, np.ndarray]:
         """The decision traffic of each episode since :meth:`start_episodes` (catmip_env.play.Policy)."""
-        return {
-            "messages": self.messages,
-            "bytes_embedding": self.bytes_embedding,
-            "bytes_raw": self.bytes_raw,
-        }
+        return dict(zip(MESSAGE_COLUMNS, (self.messages, self.bytes_embedding, self.bytes_raw), strict=True))
 
     def start_episodes(self, num_worlds: int, num_robots: int = 0) -> None:
         """Zero the message counters (and the loop guard's memory) for a new batch of episodes."""

@@ -21,7 +21,7 @@ from catmip_rl.evaluation.evaluate import EvalSetting, evaluate, progress_bar
 from catmip_rl.evaluation.methods import Method, make_policy, method_source
 from catmip_rl.evaluation.warmup import torch_threads
 
-__all__ = ["Job", "run_one", "map_jobs", "check_methods", "run_dir"]
+__all__ = ["Job", "run_one", "map_jobs", "check_methods", "run_dir", "default_threads"]
 
 
 @dataclass(frozen=True)
@@ -140,6 +140,11 @@ def check_methods(
             else:
                 not_played[(panel, runs[0].name)] = why
     return plays, not_played
+
+
+def default_threads(jobs: int, threads: int | None) -> int:
+    """Torch threads of each job: ``threads`` if given, else 2 for one job and 1 for several."""
+    return (1 if jobs > 1 else 2) if threads is None else threads
 
 
 def run_dir(folder: Path, k: int, runs: int) -> Path:

@@ -26,7 +26,8 @@ from catmip_rl.evaluation.suite import (
     SETTINGS,
     SUITE,
     iqm_interval,
-    maps_digest,  # fmt: skip
+    maps_digest,
+    rescued_by_100,  # fmt: skip
     setting_numbers,
 )
 from catmip_rl.files import atomic_write_text
@@ -107,7 +108,7 @@ def check_entry(entry: Any, episodes: int = EPISODES) -> dict[str, Any]:
                     f"{st.label}: {key} {stated.get(key)!r} is not what its rescue ticks give "
                     f"({numbers[st.label][key]!r})"
                 )
-        success.append((ticks >= 0) & (ticks <= min(BY_TICK, horizon)))
+        success.append(rescued_by_100(ticks, horizon))
     iqm, low, high = iqm_interval(success)
     if not _same((entry.get("aggregate") or {}).get("iqm_success_by_100"), iqm):
         raise ValueError(f"aggregate iqm_success_by_100 is not what its rescue ticks give ({iqm!r})")

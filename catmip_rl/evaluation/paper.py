@@ -23,7 +23,7 @@ from typing import Any
 import numpy as np
 
 from catmip_rl.evaluation.evaluate import EvalSetting
-from catmip_rl.evaluation.jobs import Job, check_methods, map_jobs, run_dir
+from catmip_rl.evaluation.jobs import Job, check_methods, default_threads, map_jobs, run_dir
 from catmip_rl.evaluation.methods import Method, parse_runs
 from catmip_rl.evaluation.plots import check_matplotlib, plot_figure
 from catmip_rl.evaluation.stats import curve_band, success_interval
@@ -98,7 +98,7 @@ def run_figure(
     names = [runs[0].name for runs in groups]
     if len(set(names)) != len(names):
         raise ValueError(f"method names must be unique (use NAME=METHOD), got {names}")
-    threads = (1 if jobs > 1 else 2) if threads is None else threads
+    threads = default_threads(jobs, threads)
     for what, value, low in (
         ("episodes", episodes, 1),
         ("seed", seed, 0),

@@ -34,14 +34,14 @@ import numpy as np
 from catmip_env.machine import machine_info
 from catmip_env.map_sets import HELDOUT_SEED, MANIFEST_EPISODES, manifest
 from catmip_rl.evaluation.evaluate import EvalSetting
-from catmip_rl.evaluation.jobs import Job, check_methods, map_jobs, run_dir
+from catmip_rl.evaluation.jobs import Job, check_methods, default_threads, map_jobs, run_dir
 from catmip_rl.evaluation.methods import Method, method_source, parse_runs
 from catmip_rl.evaluation.stats import CONFIDENCE, success_interval
 from catmip_rl.files import atomic_write_text
 
 __all__ = [
     "SUITE", "SEED", "EPISODES", "SETTINGS", "ENTRY_FORMAT", "run_suite", "make_entry", "setting_numbers",
-    "iqm_interval", "maps_digest", "entry_json",
+    "iqm_interval", "maps_digest", "entry_json", "rescued_by_100",
 ]  # fmt: skip
 
 SUITE = "v1"
@@ -65,6 +65,12 @@ def maps_digest(task: str, episodes: int) -> str:
     return hashlib.sha256("\n".join(hashes).encode()).hexdigest()
 
 
+def rescued_by_100(rescue_tick: np.ndarray, horizon: int) -> np.ndarray:
+    """Per run and map (bool): rescued by tick 100 (or by the horizon if shorter); -1 is never."""
+    ticks = np.asarray(rescue_tick, np.int64)
+    return (ticks >= 0) & (ticks <= min(BY_TICK, horizon))
+
+
 def setting_numbers(
     rescue_tick: np.ndarray, horizon: int, seed: int = 0, intervals: bool = True
 ) -> dict[str, Any]:
@@ -74,7 +80,7 @@ def setting_numbers(
     rescued episodes."""
     ticks = np.asarray(rescue_tick, np.int64)
     rescued = ticks >= 0
-    by_100 = rescued & (ticks <= min(BY_TICK, horizon))
+    by_100 = rescued_by_100(ticks, horizon)
     out: dict[str, Any] = {}
     for key, success in (("success_by_100", by_100), ("success_rate", rescued)):
         out[key] = float(success.mean())
@@ -140,7 +146,7 @@ def make_entry(name: str, runs: list[Method], results: dict[str, list[dict[str, 
             "horizon": horizon, "maps_sha256": maps_digest(st.task, episodes),
             **setting_numbers(ticks, horizon), "rescue_tick": ticks.tolist(),
         }  # fmt: skip
-        success.append((ticks >= 0) & (ticks <= min(BY_TICK, horizon)))
+        success.append(rescued_by_100(ticks, horizon))
     iqm, low, high = iqm_interval(success)
     first = results[SETTINGS[0].label][0]["summary"]
     return {
@@ -195,7 +201,7 @@ def run_suite(
     if not_played:
         (label, name), why = next(iter(not_played.items()))
         raise ValueError(f"method {name} cannot play {label} ({why}): a suite entry needs every setting")
-    threads = (1 if jobs > 1 else 2) if threads is None else threads
+    threads = default_threads(jobs, threads)
     out = Path(out)
     tasks = [
         Job(m, st, episodes, SEED, str(run_dir(out / "runs" / st.label / m.name, k, len(runs))), threads,
@@ -213,7 +219,7 @@ def run_suite(
         entry = make_entry(
             name, runs, per_setting, episodes, (code or {}).get(name, ""), (notes or {}).get(name, "")
         )
-        path = out / "entries" / f"{_file_name(runs[0].name)}.json"
+        path = out / "entries" / f"{_file_name(name)}.json"
         atomic_write_text(path, entry_json(entry))
         paths.append(path)
     return paths
