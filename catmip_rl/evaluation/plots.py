@@ -179,7 +179,8 @@ def plot_curves(rows: list[dict[str, Any]], png: str | Path, title: str = "") ->
         ax.set_xlabel("mission time (ticks)")
         ax.set_ylim(0, 1.02)
         ax.grid(alpha=0.3)
-    axes[0][0].set_ylabel("success rate (95 % band)")
+    banded = any(r.get("ci_low") not in (None, "") for r in rows)
+    axes[0][0].set_ylabel("success rate (95 % band)" if banded else "success rate")
     handles, labels = axes[0][0].get_legend_handles_labels()
     columns = min(len(labels), 4)
     rows = -(-len(labels) // columns)  # below the panels, so that no curve is hidden
