@@ -17,6 +17,7 @@ from hypothesis import strategies as st
 
 import catmip_rl
 import catmip_rl.evaluation.evaluate
+import catmip_rl.evaluation.leaderboard
 import catmip_rl.evaluation.paper
 import catmip_rl.evaluation.suite
 import catmip_rl.training.collect
@@ -603,6 +604,7 @@ def test_fuzz_random_arguments_exit_0_or_2_without_a_traceback(
         m.setattr(catmip_rl.evaluation.evaluate, "EventEngine", _work_started)
         m.setattr(catmip_rl.evaluation.paper, "map_jobs", _work_started)
         m.setattr(catmip_rl.evaluation.suite, "map_jobs", _work_started)
+        m.setattr(catmip_rl.evaluation.leaderboard, "render_leaderboard", _work_started)
         m.setattr(catmip_rl.training.train, "make_model", _work_started)
         m.setattr(subprocess, "call", _work_started)  # bench perf's benchmarks
         threads = torch.get_num_threads()
