@@ -8,7 +8,8 @@ Legend (one character per cell, rows top to bottom; rows may differ from columns
 Clue cells are not drawn: every free cell among the target's 8 neighbours becomes a clue, as in
 generated maps. Robots start facing east unless a last line ``headings: E S W N`` (one letter per
 robot, in id order) says otherwise. Leading/trailing blank lines and common indentation are ignored.
-A robot may not start next to the target (the mission would be over before it began).
+A robot may not start next to the target (the mission would be over before it began), and every robot
+must be able to reach a cell next to it (as on generated maps; walls and obstacles block, robots do not).
 """
 
 from __future__ import annotations
@@ -19,7 +20,7 @@ from functools import lru_cache
 
 import numpy as np
 
-from catmip_env.constants import CLUE, FREE, OBSTACLE, TARGET, WALL
+from catmip_env.constants import CLUE, FREE, OBSTACLE, STEPS, TARGET, WALL
 
 __all__ = ["Layout", "parse_layout"]
 
@@ -104,7 +105,31 @@ def parse_layout(text: str) -> Layout:
         for dc in (-1, 0, 1):
             if (dr or dc) and grid[tr + dr, tc + dc] == FREE:
                 grid[tr + dr, tc + dc] = CLUE
+    _check_target_reachable(grid, robots, target)
     robot_cells = np.array([robots[i] for i in range(len(robots))], dtype=np.int64)
     grid.setflags(write=False)
     robot_cells.setflags(write=False)
     return Layout(grid=grid, robots=robot_cells, target=target, headings=headings)
+
+
+def _check_target_reachable(
+    grid: np.ndarray, robots: dict[int, tuple[int, int]], target: tuple[int, int]
+) -> None:
+    """ValueError unless every robot can walk (4-connected, over free and clue cells; robots make way) to
+    a cell next to the target: the target itself is impassable, and a rescue is made from beside it.
+    One flood fill from the target's sides (plain Python: mapgen's numba fill is a layer above this)."""
+    passable = ((grid == FREE) | (grid == CLUE)).tolist()
+    seen = [[False] * len(row) for row in passable]
+    tr, tc = target
+    todo = [(tr + dr, tc + dc) for dr, dc in STEPS]  # the walled border keeps every step inside the grid
+    while todo:
+        r, c = todo.pop()
+        if passable[r][c] and not seen[r][c]:
+            seen[r][c] = True
+            todo += [(r + dr, c + dc) for dr, dc in STEPS]
+    cut_off = [i for i, (r, c) in sorted(robots.items()) if not seen[r][c]]
+    if cut_off:
+        raise ValueError(
+            f"layout target {target} is unreachable from the start of robot(s) {cut_off}: walls and "
+            "obstacles cut them off from every cell next to the target"
+        )

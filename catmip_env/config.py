@@ -15,7 +15,10 @@ from typing import Any
 
 from catmip_env.fields import BOOL, INT, NUMBER, STR, Rule, check, is_int, is_number, is_str
 
-__all__ = ["EnvConfig", "RobotClass", "PRESETS", "EXPLORER", "RESCUER", "make_config", "MAX_MAP_SIZE"]
+__all__ = [
+    "EnvConfig", "RobotClass", "PRESETS", "EXPLORER", "RESCUER", "make_config", "MAX_MAP_SIZE",
+    "MIN_COMM_SIGMA",
+]  # fmt: skip
 
 #: Spawn box side: robots start on free cells of the 4x4 box just inside a map corner.
 SPAWN_BOX = 4
@@ -26,11 +29,15 @@ VIEW_SIZE = 7
 #: Largest generated map side: beliefs, observations and planner buffers grow as S^2 per robot and
 #: world (a 512 x 512 world's observations are ~2 MB per robot), so larger maps only exhaust memory.
 MAX_MAP_SIZE = 512
+#: Smallest communication range sigma (cells). Robots stand >= 1 cell apart, so below ~0.037 a link's
+#: probability exp(-d^2/sigma^2) is exactly 0.0 in float64 anyway; a tinier sigma only breaks the maths
+#: (1/sigma^2 overflows below ~1e-154, and sigma^2 is 0.0 below ~1e-162: a ZeroDivisionError in the kernels).
+MIN_COMM_SIGMA = 0.01
 
 
 def _is_comm_range(v: Any) -> bool:
-    """A communication range: None (full communication) or a finite number > 0."""
-    return v is None or (is_number(v) and v > 0)
+    """A communication range: None (full communication) or a finite number >= MIN_COMM_SIGMA."""
+    return v is None or (is_number(v) and v >= MIN_COMM_SIGMA)
 
 
 # the fields that hold lists: stored as tuples (hashable, immutable), whatever list they were given as
@@ -93,7 +100,8 @@ class EnvConfig:
     wall_prob: float = 0.9
     """Probability that a wall segment (with one doorway) separates two adjacent rooms."""
     comm_sigma: float | None = None
-    """Communication range sigma in cells; ``None`` is full communication. Link prob exp(-d^2/sigma^2)."""
+    """Communication range sigma in cells (>= MIN_COMM_SIGMA = 0.01); ``None`` is full communication. Link
+    prob exp(-d^2/sigma^2)."""
     comm_sigma_choices: tuple[float | None, ...] = ()
     """If not empty, each episode draws its communication range uniformly from these (``None``: full
     communication), from the episode's map stream after its map, and ``comm_sigma`` is not used: one
@@ -214,9 +222,9 @@ _RULES: dict[str, Rule] = {
                           ">= 0", lambda v: v is None or v >= 0),
     "wall_prob": NUMBER("in [0, 1]", _probability),
     "comm_sigma": Rule("None (full communication) or a finite number", lambda v: v is None or is_number(v),
-                       "> 0", lambda v: v is None or v > 0),
-    "comm_sigma_choices": Rule("a list of finite numbers > 0 or null (full communication)",
-                               _list_of(_is_comm_range)),
+                       f">= {MIN_COMM_SIGMA} (cells)", _is_comm_range),
+    "comm_sigma_choices": Rule(f"a list of finite numbers >= {MIN_COMM_SIGMA} (cells) or null (full "
+                               "communication)", _list_of(_is_comm_range)),
     "slam_noise": NUMBER("in [0, 1]", _probability),
     "local_size": INT("that is odd and >= 1", _odd),
     "window": INT("that is odd and >= 1", _odd),

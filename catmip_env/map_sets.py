@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import re
 import zlib
 from dataclasses import dataclass
 from functools import cache
@@ -46,6 +47,7 @@ MANIFEST_EPISODES = 1000
 TASKS = ("task1", "task2", "task3")
 FORMAT = "catmip-map-set-v1"
 HERE = Path(__file__).resolve().parent / "frozen_maps"
+_HASH = re.compile(r"[0-9a-f]{8}")  # map_hash's form
 
 
 def map_hash(engine, b: int) -> str:
@@ -96,9 +98,34 @@ def manifest(task: str) -> dict:
         raise ValueError(
             f"the map-set manifest {path} is missing or corrupt ({err}); reinstall catmip"
         ) from None
-    if data.get("format") != FORMAT or data.get("task") != task:
+    if not isinstance(data, dict) or data.get("format") != FORMAT or data.get("task") != task:
         raise ValueError(f"{path} is not a {FORMAT} manifest of {task}")
+    problem = _manifest_problem(data)
+    if problem:
+        raise ValueError(f"the map-set manifest {path} is malformed: {problem}; reinstall catmip")
     return data
+
+
+def _manifest_problem(data: dict) -> str:
+    """What is wrong with a manifest's ``"seeds"`` ('' if nothing): an object holding every frozen seed
+    (decimal strings), each a list of MANIFEST_EPISODES map hashes (8 lowercase hex digits, as
+    :func:`map_hash` writes them). A seed or maps left out would pass as "not frozen" or go unchecked."""
+    seeds = data.get("seeds")
+    if not isinstance(seeds, dict):
+        return f'"seeds" must be an object {{seed: [hash, ...]}}, got {type(seeds).__name__}'
+    missing = [s for s in FROZEN_SEEDS if str(s) not in seeds]
+    if missing:
+        return f'"seeds" lacks the frozen seed(s) {missing}'
+    for seed, hashes in seeds.items():
+        if not seed.isdecimal():
+            return f'seed {seed!r} of "seeds" is not a non-negative int'
+        if not isinstance(hashes, list) or len(hashes) != MANIFEST_EPISODES:
+            got = f"{len(hashes)} hashes" if isinstance(hashes, list) else type(hashes).__name__
+            return f"seed {seed} must be a list of {MANIFEST_EPISODES} map hashes, got {got}"
+        bad = next((e for e, h in enumerate(hashes) if not (isinstance(h, str) and _HASH.fullmatch(h))), None)
+        if bad is not None:
+            return f"map {bad} of seed {seed} is not a map hash (8 hex digits): {hashes[bad]!r}"
+    return ""
 
 
 def check_maps(task: str, seed: int, hashes: list[str], allow_other: bool = False) -> MapSetReport:
@@ -114,6 +141,8 @@ def check_maps(task: str, seed: int, hashes: list[str], allow_other: bool = Fals
     if frozen is None:
         return MapSetReport(name, "not frozen", 0)
     n = min(len(hashes), len(frozen))
+    if n == 0:  # nothing compared: never "verified"
+        return MapSetReport(name, "not frozen", 0)
     diff = next((e for e in range(n) if hashes[e] != frozen[e]), None)
     if diff is None:
         return MapSetReport(name, "verified", n)

@@ -39,7 +39,7 @@ from catmip_env.spaces import (
     robot_observations,
     state_space,
 )
-from catmip_env.world import BatchedWorld
+from catmip_env.world import BatchedWorld, episode_index_array
 
 __all__ = ["SearchRescueEnv", "parallel_env", "env", "raw_env", "LEVELS", "OBS_FORMATS", "integer_action"]
 
@@ -221,7 +221,7 @@ class SearchRescueEnv(ParallelEnv):
     def reset(self, seed: int | None = None, options: dict[str, Any] | None = None):
         episode = None
         if options and "episode_index" in options:
-            episode = [int(options["episode_index"])]
+            episode = episode_index_array([options["episode_index"]], 'options["episode_index"]')
         if seed is not None:
             self.engine.seed(seed)
         self.engine.reset(episode_indices=episode)

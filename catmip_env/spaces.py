@@ -10,7 +10,7 @@ mask; ``obs_format="flat"`` ravels them in C order and concatenates them in that
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from typing import Any
 
 import numpy as np
@@ -145,10 +145,15 @@ def parse_actions(
     strict: bool,  # invalid_action="raise"
     out: np.ndarray,  # (N,) int64, written; omitted robots get 0
 ) -> None:
-    """The action of every robot from ``{agent: action}``; unknown ids, non-integers and missing robots
-    raise. An integer no int64 holds (``2**63``) is out of range like ``-1``: strict mode raises naming it
-    (for a robot whose action applies), else it is stored as -1 and replaced and flagged (or ignored,
-    for a busy robot) with the other out-of-range actions."""
+    """The action of every robot from ``{agent: action}``; anything but a dict (TypeError), unknown ids,
+    non-integers and missing robots raise. An integer no int64 holds (``2**63``) is out of range like
+    ``-1``: strict mode raises naming it (for a robot whose action applies), else it is stored as -1 and
+    replaced and flagged (or ignored, for a busy robot) with the other out-of-range actions."""
+    if not isinstance(actions, Mapping):
+        raise TypeError(
+            f"actions must be a dict of robot id -> action ({{{agents[0]!r}: 0, ...}}), got "
+            f"{type(actions).__name__}"
+        )
     out[:] = 0  # omitted busy robots: ignored by the engine
     for agent, action in actions.items():
         i, value = index(agent), integer_action(agent, action)

@@ -17,7 +17,8 @@ depends only on ``(s, k)`` and its actions — not on B or on other worlds.
 
 from __future__ import annotations
 
-from typing import NamedTuple
+import numbers
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -39,7 +40,28 @@ from catmip_env.observe import observe as build_observations
 from catmip_env.rng import seed_state
 from catmip_env.state import WorldState
 
-__all__ = ["BatchedWorld", "StepResult", "WorldChunks"]
+__all__ = ["BatchedWorld", "StepResult", "WorldChunks", "EPISODE_INDEX_LIMIT", "episode_index_array"]
+
+#: Episode indices are below this: they are stored as int64 (``WorldState.episode``), and the numbering
+#: goes on after the largest one used.
+EPISODE_INDEX_LIMIT = 2**62
+
+
+def episode_index_array(indices: Any, what: str = "episode index") -> np.ndarray:
+    """(E,) int64 episode indices from a list or array of ints, each in [0, EPISODE_INDEX_LIMIT); else a
+    ValueError naming ``what`` and the first bad value (not numpy's OverflowError, nor a silent cast)."""
+    array = np.asarray(indices)
+    if array.dtype.kind not in "iu":  # numpy turns [0, 2**63] to floats: take the values as given instead
+        array = np.asarray(indices, dtype=object)
+    values = array.reshape(-1).tolist()  # Python numbers: comparing them cannot overflow
+
+    def ok(v: Any) -> bool:
+        return isinstance(v, numbers.Integral) and not isinstance(v, bool) and 0 <= v < EPISODE_INDEX_LIMIT
+
+    bad = next((e for e, v in enumerate(values) if not ok(v)), None)
+    if bad is not None:
+        raise ValueError(f"{what} must be an int in [0, 2**62), got {values[bad]!r}")
+    return np.array(values, np.int64)
 
 
 class StepResult(NamedTuple):
@@ -141,11 +163,9 @@ class BatchedWorld:
         idx = self.world_indices(worlds)
         if episode_indices is None:
             episode_indices = np.arange(self.next_episode, self.next_episode + len(idx))
-        episode_indices = np.asarray(episode_indices, dtype=np.int64).reshape(-1)
+        episode_indices = episode_index_array(episode_indices)
         if len(episode_indices) != len(idx):
             raise ValueError(f"got {len(episode_indices)} episode indices for {len(idx)} worlds being reset")
-        if len(episode_indices) and episode_indices.min() < 0:
-            raise ValueError("episode indices must be >= 0")
         if len(episode_indices):
             self.next_episode = max(self.next_episode, int(episode_indices.max()) + 1)
         st = self.state

@@ -189,6 +189,15 @@ class CatmipEnv(EnvBase):
         return worlds.numpy()
 
     # -- EnvBase API --------------------------------------------------------------------------------
+    def step(self, tensordict: TensorDictBase) -> TensorDictBase:
+        """TorchRL's ``step``; anything but a TensorDict is a TypeError saying what it must hold."""
+        if not isinstance(tensordict, TensorDictBase):
+            raise TypeError(
+                f"CatmipEnv.step takes a TensorDict with the actions at {K.ACTION} (num_worlds, num_robots)"
+                f" int64, got {type(tensordict).__name__}"
+            )
+        return super().step(tensordict)
+
     def _reset(self, tensordict: TensorDictBase | None = None, **kwargs) -> TensorDictBase:
         self.engine.reset(worlds=self._worlds_to_reset(tensordict))
         out = self._observation()

@@ -58,7 +58,9 @@ def test_an_episode_plays_exactly_as_with_its_drawn_range_fixed(level):
     assert len(set(sigmas.tolist())) > 1
 
 
-@pytest.mark.parametrize("bad", [[0], [-2.0], ["4"], [float("nan")], [True], "4", 4])
+@pytest.mark.parametrize(
+    "bad", [[0], [-2.0], ["4"], [float("nan")], [float("inf")], [None, 1e-300], [True], "4", 4]
+)
 def test_bad_choices_are_refused_naming_the_field(bad):
     with pytest.raises(ValueError, match="comm_sigma_choices"):
         make_config("train", comm_sigma_choices=bad)

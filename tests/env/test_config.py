@@ -1,4 +1,5 @@
 import json
+import re
 
 import numpy as np
 import pytest
@@ -53,6 +54,10 @@ def test_default_classes():
         ({"layout": 5}, "layout must be None or one string"),
         ({"comm_sigma": "abc"}, "comm_sigma must be None .* finite number"),
         ({"comm_sigma": float("inf")}, "comm_sigma"),
+        ({"comm_sigma": float("nan")}, "comm_sigma must be None .* finite number"),
+        # tiny but positive: 1/sigma^2 would divide by zero in the link kernel
+        ({"comm_sigma": 1e-300}, r"comm_sigma must be .* >= 0\.01 \(cells\), got 1e-300"),
+        ({"comm_sigma": 0.009}, r"comm_sigma .* >= 0\.01 .*, got 0\.009"),
         ({"wall_prob": "x"}, "wall_prob must be a finite number"),
         ({"slam_noise": float("nan")}, "slam_noise must be a finite number"),
         ({"step_reward": "x"}, "step_reward must be a finite number"),
@@ -90,6 +95,61 @@ def test_valid_values_of_any_spelling_still_work():
     assert EnvConfig().replace(map_size=512).map_size == 512
     with pytest.raises(ValueError, match="JSON object"):
         EnvConfig.from_dict(None)
+
+
+# hand-drawn layouts whose target some robot cannot reach: walls and obstacles block, robots and clues do not
+SEALED = """
+#########
+#0..#...#
+#...#.T.#
+#1..#...#
+#########
+"""
+BEHIND_OBSTACLES = """
+#########
+#0......#
+#....o..#
+#...oTo.#
+#1...o..#
+#########
+"""
+ONLY_DIAGONAL = """
+#######
+#0....#
+#..#..#
+#.#T#.#
+#..#..#
+#1....#
+#######
+"""
+ONE_WALLED_IN = """
+##########
+#0.......#
+#.....T..#
+####.....#
+#1.#.....#
+##########
+"""
+# reachable: through a doorway, past a robot standing in it, over the clues around the target
+THROUGH_A_DOOR = """
+#########
+#0..#...#
+#...1.T.#
+#...#...#
+#########
+"""
+
+
+@pytest.mark.parametrize(
+    "layout, target, cut_off",
+    [(SEALED, (2, 6), [0, 1]), (BEHIND_OBSTACLES, (3, 5), [0, 1]), (ONLY_DIAGONAL, (3, 3), [0, 1]),
+     (ONE_WALLED_IN, (2, 6), [1])],
+)  # fmt: skip
+def test_a_layout_whose_target_a_robot_cannot_reach_is_refused(layout, target, cut_off):
+    wanted = f"layout target {target} is unreachable from the start of robot(s) {cut_off}: walls and"
+    with pytest.raises(ValueError, match=re.escape(wanted)):
+        EnvConfig(layout=layout, team=("rescuer", "explorer"))
+    assert EnvConfig(layout=THROUGH_A_DOOR, team=("rescuer", "explorer")).map_shape == (5, 9)
 
 
 def test_bad_robot_class_and_unknown_fields():

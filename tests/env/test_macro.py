@@ -57,8 +57,10 @@ def test_unreachable_goal_ends_at_once():
     #########
     #0..#...#
     #...#...#
-    #...#.T.#
+    #...#...#
     #1..#...#
+    #...#####
+    #.T.#####
     #########
     """
     eng = engine(walled, goal_mode="cell")

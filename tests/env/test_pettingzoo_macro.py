@@ -233,6 +233,9 @@ def test_strict_mode_and_errors():
         env.step({"robot_0": 24, "robot_1": masked})
     with pytest.raises(ValueError, match="unknown robot id"):
         env.step({"robot_0": 24, "robot_1": 24, "robot_5": 0})
+    for not_a_dict in ([24, 24], None, (24, 24)):
+        with pytest.raises(TypeError, match=r"actions must be a dict of robot id -> action \({'robot_0': 0"):
+            env.step(not_a_dict)
     _, _, _, _, infos = env.step({"robot_0": 24, "robot_1": 24})  # the errors left the env untouched
     assert infos["robot_0"]["tick"] >= 1 and infos["robot_0"]["invalid_actions"] == 0
     for bad in ({"goal_mode": "polar"}, {"invalid_action": "ignore"}, {"obs_format": "tensor"}):

@@ -1,6 +1,7 @@
 """Primitive level: PettingZoo conformance (the library's own battery, unmodified) and the contract."""
 
 import functools
+import re
 import subprocess
 import sys
 
@@ -167,6 +168,9 @@ def test_bad_input_raises_clear_errors():
         env.step({"robot_0": 0, "robot_1": 9})
     with pytest.raises(ValueError, match=r"missing actions for robots \['robot_1'\]"):
         env.step({"robot_0": 0})
+    for not_a_dict, name in (([0, 0], "list"), (None, "NoneType"), (np.zeros(2, np.int64), "ndarray")):
+        with pytest.raises(TypeError, match=f"actions must be a dict of robot id -> action .*, got {name}$"):
+            env.step(not_a_dict)
     with pytest.raises(ValueError, match="unknown robot id"):
         env.action_space("robot_9")
     with pytest.raises(ValueError, match="unknown level"):
@@ -178,6 +182,17 @@ def test_bad_input_raises_clear_errors():
     assert env.agents == []
     with pytest.raises(RuntimeError, match="episode ended"):
         env.step({"robot_0": 3, "robot_1": 3})
+
+
+@pytest.mark.parametrize("level", ["primitive", "macro"])
+@pytest.mark.parametrize("episode", [2**70, 2**63, 2**62, -1, 1.5, True, "3", None])
+def test_a_bad_episode_index_is_refused_naming_it(level, episode):
+    env = search_rescue_v0.parallel_env(preset="task1", level=level)
+    wanted = rf'options\["episode_index"\] must be an int in \[0, 2\*\*62\), got {re.escape(repr(episode))}$'
+    with pytest.raises(ValueError, match=wanted):
+        env.reset(seed=0, options={"episode_index": episode})
+    env.reset(seed=0, options={"episode_index": np.int64(2**62 - 1)})  # the largest one plays
+    assert env.unwrapped.world.state.episode[0] == 2**62 - 1
 
 
 def test_registry():

@@ -79,6 +79,12 @@ def test_engine_input_errors():
         eng.reset(worlds=[5])
     with pytest.raises(ValueError, match="episode indices"):
         eng.reset(worlds=[0, 1], episode_indices=[1])
+    # never numpy's OverflowError, nor a silent cast: the first bad index is named
+    bad_indices = [[2**70, 1], [0, -1], [0, 2**63], np.array([1.0, 2.0]), [1, None]]
+    for bad, shown in zip(bad_indices, [2**70, -1, 2**63, 1.0, None]):
+        wanted = rf"episode index must be an int in \[0, 2\*\*62\), got {shown}$"
+        with pytest.raises(ValueError, match=wanted):
+            eng.reset(episode_indices=bad)
     with pytest.raises(ValueError, match="seed"):
         eng.seed(-3)
     with pytest.raises(ValueError, match="num_worlds"):

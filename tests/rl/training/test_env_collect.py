@@ -30,6 +30,14 @@ def test_env_passes_check_env_specs_and_runs_the_actor():
     assert (td["next", "event_ticks"] >= 1).all()
 
 
+def test_step_without_a_tensordict_is_a_type_error_naming_the_action_key():
+    env = CatmipEnv("task1", num_worlds=2, seed=0)
+    env.reset()
+    for not_a_tensordict, name in (([0, 0], "list"), (None, "NoneType"), ({"robot_0": 0}, "dict")):
+        with pytest.raises(TypeError, match=rf"CatmipEnv.step takes a TensorDict .*'action'.*, got {name}$"):
+            env.step(not_a_tensordict)
+
+
 def test_env_partial_reset():
     env = CatmipEnv("task1", num_worlds=3, seed=1, horizon_ticks=5)
     td = env.reset()
