@@ -31,8 +31,10 @@ ENV_GROUPS = {
     "env: play": ("play", "map_sets", "render", "warmup", "demo"),
     "env: PettingZoo": ("search_rescue_v0", "spaces"),
 }
-RL_TOP = {"__init__": "rl: checkpoint", "checkpoint": "rl: checkpoint", "files": "rl: checkpoint",
-          "shipped": "rl: checkpoint"}  # fmt: skip
+RL_TOP = {
+    name: "rl: checkpoint"
+    for name in ("__init__", "checkpoint", "files", "shipped", "model_files", "outputs")
+}
 
 
 def modules(root: Path = ROOT) -> dict[str, Path]:

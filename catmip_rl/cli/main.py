@@ -95,17 +95,15 @@ def _setting(args: argparse.Namespace):
 
 def _eval(args: argparse.Namespace) -> int:
     from catmip_rl.evaluation.evaluate import evaluate
-    from catmip_rl.evaluation.plots import plot_curves
-    from catmip_rl.files import check_new_dir
+    from catmip_rl.outputs import output_folder
 
-    check_new_dir(args.out, "--out", force=args.force)
-    torch_threads(args.threads)
-    result = evaluate(
-        args.method, _setting(args), args.episodes, args.seed, progress=not args.no_progress,
-        allow_other_maps=args.allow_other_maps, threads=args.threads,
-    )  # fmt: skip
-    out = result.write(args.out)
-    plot_curves(result.curve_rows(), out / "curve.png", title=f"{args.episodes} maps (seed {args.seed})")
+    with output_folder(args.out, "--out", force=args.force) as out:
+        torch_threads(args.threads)
+        result = evaluate(
+            args.method, _setting(args), args.episodes, args.seed, progress=not args.no_progress,
+            allow_other_maps=args.allow_other_maps, threads=args.threads,
+        )  # fmt: skip
+        result.write(out, curve_title=f"{args.episodes} maps (seed {args.seed})")
     s = result.summary
     rescue = "-" if s["mean_rescue_tick"] is None else f"{s['mean_rescue_tick']:.1f}"
     p, n = s["success_by_100"], s["episodes"]
@@ -142,17 +140,17 @@ def _eval(args: argparse.Namespace) -> int:
             f"{s['bytes_per_decision_raw']:.0f} bytes with raw macro-observations"
         )
     print(f"  maps: {s['map_set']} {s['map_set_status']} ({s['map_set_verified_episodes']} checked)")
-    print(f"wrote {out}/episodes.csv, episodes.json, curve.csv, curve.png, summary.json")
+    print(f"wrote {out}/episodes.csv, episodes.json, curve.csv, curve.png, summary.json, run.json")
     return 0
 
 
 def _render(args: argparse.Namespace) -> int:
     from catmip_rl.evaluation.evaluate import render_episode
-    from catmip_rl.files import check_new_file
+    from catmip_rl.outputs import output_file
 
-    check_new_file(args.out, "--out", force=args.force, suffixes=(".gif",))
-    torch_threads(args.threads)
-    path = render_episode(args.method, _setting(args), args.out, args.episode, args.seed, args.fps)
+    with output_file(args.out, "--out", force=args.force, suffixes=(".gif",)):
+        torch_threads(args.threads)
+        path = render_episode(args.method, _setting(args), args.out, args.episode, args.seed, args.fps)
     print(f"wrote {path}")
     return 0
 
@@ -171,18 +169,26 @@ def _bench(args: argparse.Namespace) -> int:
         return _suite(args)
     from catmip_rl.evaluation.paper import FIGURES, run_figure
     from catmip_rl.files import check_new_dir
+    from catmip_rl.outputs import output_folder, remove_debris, remove_results
 
     if args.all == (args.figure is not None):
         raise ValueError("give --figure N or --all (one of them)")
     figures = sorted(FIGURES) if args.all else [args.figure]
     _check_parallel(args)
-    for fig in figures:  # every figure's folder, before the first run starts
-        check_new_dir(Path(args.out) / f"fig{fig}", "--out", force=args.force)
     methods = [m for m in args.methods.split(",") if m.strip()] + list(args.method)
-    for fig in figures:
-        out = run_figure(fig, methods, args.episodes, args.seed, args.out, args.jobs,
-                         allow_other_maps=args.allow_other_maps, threads=args.threads)  # fmt: skip
-        print(f"figure {fig}: {out}/fig{fig}.png, curves.csv, summary.csv, marl_eval.json")
+    folders = [Path(args.out) / f"fig{fig}" for fig in figures]
+    for folder in folders:  # every figure's folder, before the lock is taken (and again once held)
+        check_new_dir(folder, "--out", force=args.force)
+    with output_folder(args.out, "--out", keep=True):  # other figures' folders stay
+        for folder in folders:
+            check_new_dir(folder, "--out", force=args.force)
+            remove_debris(folder)
+            if args.force:  # the earlier run's method folders go too: compare would report them
+                remove_results(folder)
+        for fig in figures:
+            out = run_figure(fig, methods, args.episodes, args.seed, args.out, args.jobs,
+                             allow_other_maps=args.allow_other_maps, threads=args.threads)  # fmt: skip
+            print(f"figure {fig}: {out}/fig{fig}.png, curves.csv, summary.csv, marl_eval.json")
     return 0
 
 
@@ -196,13 +202,13 @@ def _check_parallel(args: argparse.Namespace) -> None:
 
 def _suite(args: argparse.Namespace) -> int:
     from catmip_rl.evaluation.suite import EPISODES, SUITE, run_suite
-    from catmip_rl.files import check_new_dir
+    from catmip_rl.outputs import output_folder
 
     _check_parallel(args)
-    if not args.resume:
-        check_new_dir(args.out, "--out", advice="pick a new folder, or --resume the suite in it")
-    paths = run_suite(args.method, args.out, args.episodes, args.jobs, args.threads, not args.no_progress,
-                      dict(args.code), dict(args.notes))  # fmt: skip
+    advice = "pick a new folder, or --resume the suite in it"
+    with output_folder(args.out, "--out", keep=args.resume, advice=advice):
+        paths = run_suite(args.method, args.out, args.episodes, args.jobs, args.threads,
+                          not args.no_progress, dict(args.code), dict(args.notes))  # fmt: skip
     for path in paths:
         entry = json.loads(path.read_text())
         iqm, (low, high) = (
@@ -219,10 +225,14 @@ def _suite(args: argparse.Namespace) -> int:
 def _leaderboard(args: argparse.Namespace) -> int:
     from catmip_rl.evaluation.leaderboard import render_leaderboard
     from catmip_rl.files import check_new_file
+    from catmip_rl.outputs import output_folder
 
     for name in ("leaderboard.md", "leaderboard.png"):
         check_new_file(Path(args.out) / name, "--out", force=args.force)
-    md, png = render_leaderboard(args.entries, args.out, args.episodes)
+    with output_folder(args.out, "--out", keep=True):  # the README and entries beside stay
+        for name in ("leaderboard.md", "leaderboard.png"):  # again, once held: a writer since
+            check_new_file(Path(args.out) / name, "--out", force=args.force)
+        md, png = render_leaderboard(args.entries, args.out, args.episodes)
     print(md.read_text().split("\n\n", 2)[2].rstrip())  # the table
     print(f"wrote {md}, {png}")
     return 0
@@ -231,10 +241,11 @@ def _leaderboard(args: argparse.Namespace) -> int:
 def _export(args: argparse.Namespace) -> int:
     from catmip_rl.checkpoint import export_model
     from catmip_rl.files import check_new_file
+    from catmip_rl.outputs import output_file
 
-    out = check_new_file(args.out, "--out", force=args.force, suffixes=(".pt",))
-    check_new_file(out.with_suffix(".json"), "--out's config file", force=args.force)  # written beside it
-    path, extra = export_model(args.source, out, half=args.half)
+    with output_file(args.out, "--out", force=args.force, suffixes=(".pt",)) as out:
+        check_new_file(out.with_suffix(".json"), "--out's config file", force=args.force)  # written beside it
+        path, extra = export_model(args.source, out, half=args.half)
     print(
         f"wrote {path} (+ {path.with_suffix('.json').name}): iteration {extra['iteration']}, "
         f"{extra['training_minutes']:.1f} training minutes"
@@ -244,12 +255,17 @@ def _export(args: argparse.Namespace) -> int:
 
 def _compare(args: argparse.Namespace) -> int:
     from catmip_rl.evaluation.compare import compare, load_results
-    from catmip_rl.files import check_new_dir
+    from catmip_rl.outputs import output_folder
 
-    check_new_dir(args.out, "--out", force=args.force)
-    results = load_results(args.results)
-    report = compare(results, seed=args.seed, vs=args.vs, pairs=args.pairs)
-    written = report.write(args.out)  # the files first: a closed pipe on stdout loses nothing
+    with output_folder(args.out, "--out", force=args.force, replace_results=False):  # it may sit beside them
+        results = load_results(args.results)
+        unrecorded = [str(r.path) for r in results if not r.recorded]
+        if unrecorded:  # said, not hidden: their files could not be checked as one run's
+            print(f"note: {len(unrecorded)} result folder(s) have no run.json (written by an older catmip), "
+                  f"so their files were not checked as one run's: {', '.join(unrecorded[:3])}"
+                  + (", ..." if len(unrecorded) > 3 else ""), file=sys.stderr)  # fmt: skip
+        report = compare(results, seed=args.seed, vs=args.vs, pairs=args.pairs)
+        written = report.write(args.out)  # the files first: a closed pipe on stdout loses nothing
     print(report.markdown())
     print(f"wrote {args.out}/: {', '.join(p.name for p in written)}")
     return 0

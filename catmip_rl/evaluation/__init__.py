@@ -5,6 +5,7 @@
 * ``execution`` — decentralised AMAT execution (per-neighbourhood decisions, message sizes);
 * ``evaluate`` — settings and the evaluation itself (frozen map sets checked);
 * ``compare`` — paired per-map differences and across-seed statistics with CIs;
+* ``results_check`` — what ``compare`` checks in the result folders it reads (counts, ranges, copies);
 * ``plots`` — every plot the evaluation commands draw (the paper figures, ``catmip compare``'s);
 * ``paper`` — the paper's figures: every method on every panel, tables and plots.
 """

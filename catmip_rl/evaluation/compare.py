@@ -8,7 +8,9 @@ A *result* is a folder ``catmip eval`` wrote (``summary.json`` + ``episodes.json
 recursively, so a ``catmip bench paper`` figure folder gives all its runs. Results of one method are
 grouped by its name (``NAME=DIR[,DIR...]`` renames every result found under those folders: the
 training seeds of one algorithm). The score of an episode is "rescued by tick 100" (or by the horizon
-if shorter), the paper's headline measure.
+if shorter), the paper's headline measure. What is read is checked first
+(:mod:`~catmip_rl.evaluation.results_check`: one line naming the folder for an empty, inconsistent or
+duplicated result, or a copied folder given as a second run of its method).
 
 * **Paired comparisons** (every pair of methods, in every setting where both played the same maps, map
   hash by map hash): the mean per-map difference in success by tick 100 with a 95 % percentile
@@ -32,8 +34,17 @@ from typing import Any
 
 import numpy as np
 
+from catmip_rl.evaluation.results_check import (
+    check_counts,
+    check_csv,
+    check_runs,
+    episode_ticks,
+    episodes_digest,
+    summary_fields,
+)
 from catmip_rl.evaluation.stats import CONFIDENCE, mcnemar_p, paired_difference, success_interval
 from catmip_rl.files import atomic_write_csv, atomic_write_text
+from catmip_rl.outputs import check_record
 
 __all__ = ["Result", "load_results", "compare", "Comparison"]
 
@@ -51,31 +62,36 @@ class Result:
     maps: list[str]  # map hash of each episode
     success: np.ndarray  # (E,) bool rescued by tick 100 (or the horizon)
     rescue_tick: np.ndarray  # (E,) float, nan where not rescued
+    digest: str = ""  # results_check.episodes_digest of episodes.json: equal for a copied folder
+    recorded: bool = True  # its files checked against its run.json (False: written before records)
 
 
 def _load_one(folder: Path, name: str | None) -> Result:
+    """The result in ``folder``, checked: one run's files (its record, :func:`~catmip_rl.outputs.
+    check_record`), and consistent (:mod:`~catmip_rl.evaluation.results_check`)."""
+    record = check_record(folder)
     try:
         summary = json.loads((folder / "summary.json").read_text())
         rows = json.loads((folder / "episodes.json").read_text())
-        label, horizon = summary["label"], int(summary["horizon"])
-        by = min(100, horizon)
-        ticks = np.array([np.nan if r["rescue_tick"] is None else r["rescue_tick"] for r in rows], float)
-        maps = [r["map_hash"] for r in rows]
-        seed = int(summary["seed"])
-        method = name or summary["method"]
-    except (OSError, ValueError, KeyError, TypeError) as err:
+    except (OSError, ValueError) as err:  # unreadable, not UTF-8, not JSON
         raise ValueError(
             f"{folder} is not a readable catmip eval result ({type(err).__name__}: {err})"
         ) from None
+    label, method, horizon, seed = summary_fields(folder, summary, name)
+    maps, ticks = episode_ticks(folder, rows, horizon)
+    check_counts(folder, summary, ticks, horizon)
+    check_csv(folder, maps, ticks)
     with np.errstate(invalid="ignore"):
-        success = ticks <= by
-    return Result(folder, method, label, seed, maps, success, ticks)
+        success = ticks <= min(100, horizon)
+    digest, recorded = episodes_digest(rows), record is not None
+    return Result(folder, method, label, seed, maps, success, ticks, digest, recorded)
 
 
 def load_results(specs: list[str]) -> list[Result]:
     """The results under each ``DIR`` or ``NAME=DIR[,DIR...]`` of ``specs``; ValueError on a path
-    without results or a corrupt one (one line naming it)."""
+    without results, a corrupt one or one given twice (one line naming it)."""
     results = []
+    given: set[Path] = set()
     for spec in specs:
         name, sep, paths = spec.partition("=")
         if not sep:
@@ -93,7 +109,11 @@ def load_results(specs: list[str]) -> list[Result]:
                 raise ValueError(
                     f"{root} holds no catmip eval result (a folder with summary.json and episodes.json)"
                 )
-            results += [_load_one(f, name.strip() if name else None) for f in found]
+            for f in found:
+                if f.resolve() in given:
+                    raise ValueError(f"{f} is given twice: each result folder counts once")
+                given.add(f.resolve())
+                results.append(_load_one(f, name.strip() if name else None))
     return results
 
 
@@ -297,6 +317,7 @@ def compare(
     CIs and the probability of improvement across runs and settings."""
     if not results:
         raise ValueError("nothing to compare: no results")
+    check_runs(results)
     names = sorted({r.method for r in results})
     for wanted in ([vs] if vs is not None else []) + [m for pair in pairs or [] for m in pair]:
         if wanted not in names:

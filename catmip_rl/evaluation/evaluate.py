@@ -142,19 +142,26 @@ class EvalResult:
                 rows.append(at | {"tick": t, "success_rate": float(v), "ci_low": low[t], "ci_high": high[t]})
         return rows
 
-    def write(self, out: str | Path) -> Path:
-        """``episodes.csv``, ``episodes.json``, ``curve.csv``, ``summary.json`` in ``out`` (atomic)."""
-        out = Path(out)
-        out.mkdir(parents=True, exist_ok=True)
-        atomic_write_text(out / "episodes.json", json.dumps(self.episodes, indent=1))
-        atomic_write_csv(out / "episodes.csv", self.episodes)
+    def write(self, out: str | Path, curve_title: str | None = None) -> Path:
+        """``episodes.csv``, ``episodes.json``, ``curve.csv``, ``summary.json`` (and ``curve.png`` with
+        ``curve_title``) in ``out``: written aside, moved in together, with their record ``run.json``
+        last (:func:`~catmip_rl.outputs.commit_results`)."""
+        from catmip_rl.outputs import commit_results, staging_dir
+
+        stage = staging_dir(out)
+        atomic_write_text(stage / "episodes.json", json.dumps(self.episodes, indent=1))
+        atomic_write_csv(stage / "episodes.csv", self.episodes)
         curve = [{"tick": t, "success_rate": float(v)} for t, v in enumerate(self.curve)]
         if self.sampled_curve is not None:
             for row, v in zip(curve, self.sampled_curve):
                 row["sampled_success_rate"] = float(v)
-        atomic_write_csv(out / "curve.csv", curve)
-        atomic_write_text(out / "summary.json", json.dumps(self.summary, indent=2))
-        return out
+        atomic_write_csv(stage / "curve.csv", curve)
+        atomic_write_text(stage / "summary.json", json.dumps(self.summary, indent=2))
+        if curve_title is not None:
+            from catmip_rl.evaluation.plots import plot_curves
+
+            plot_curves(self.curve_rows(), stage / "curve.png", title=curve_title)
+        return commit_results(stage)
 
 
 def progress_bar(total: int, desc: str, enabled: bool = True, unit: str = "ep", leave: bool = False):

@@ -8,6 +8,9 @@ from __future__ import annotations
 import csv
 import json
 import multiprocessing
+import os
+import sys
+import time
 from concurrent.futures import ProcessPoolExecutor
 from contextlib import ExitStack
 from dataclasses import dataclass
@@ -20,8 +23,9 @@ from catmip_env.play import WorldNotSupported
 from catmip_rl.evaluation.evaluate import EvalSetting, evaluate, progress_bar
 from catmip_rl.evaluation.methods import Method, make_policy, method_source
 from catmip_rl.evaluation.warmup import torch_threads
+from catmip_rl.outputs import check_record
 
-__all__ = ["Job", "run_one", "map_jobs", "check_methods", "run_dir", "default_threads"]
+__all__ = ["Job", "run_one", "map_jobs", "check_methods", "run_dir", "default_threads", "die_with_parent"]
 
 
 @dataclass(frozen=True)
@@ -57,6 +61,7 @@ def _done(job: Job) -> dict[str, Any] | None:
             f"{job.out} holds other results ({', '.join(f'{k} {summary.get(k)!r}' for k in differs)}, "
             f"not {', '.join(repr(want[k]) for k in differs)}): give a new output folder"
         )
+    check_record(job.out)  # its files one run's (a folder of an older catmip has no record)
     return summary
 
 
@@ -99,7 +104,9 @@ def map_jobs(tasks: list[Job], jobs: int, progress: bool, desc: str) -> list[dic
             runs = map(run_one, tasks)
         else:
             spawn = multiprocessing.get_context("spawn")
-            pool = stack.enter_context(ProcessPoolExecutor(max_workers=jobs, mp_context=spawn))
+            pool = stack.enter_context(ProcessPoolExecutor(
+                max_workers=jobs, mp_context=spawn, initializer=die_with_parent, initargs=(os.getpid(),)
+            ))  # fmt: skip
             runs = pool.map(run_one, tasks)
         for res in runs:
             results.append(res)
@@ -108,6 +115,29 @@ def map_jobs(tasks: list[Job], jobs: int, progress: bool, desc: str) -> list[dic
     if bar is not None:
         bar.close()
     return results
+
+
+def die_with_parent(parent: int) -> None:
+    """In a worker: end when process ``parent`` ends, however it ends (SIGKILL included), so that a
+    killed ``catmip bench`` leaves no worker behind. Linux asks the kernel (``PR_SET_PDEATHSIG``);
+    elsewhere a daemon thread polls for the parent."""
+    import signal
+    import threading
+
+    if sys.platform.startswith("linux"):
+        import ctypes
+
+        ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGKILL)  # 1: PR_SET_PDEATHSIG
+        if os.getppid() != parent:  # the parent died before the call
+            os._exit(1)
+        return
+
+    def watch() -> None:
+        while os.getppid() == parent:
+            time.sleep(1.0)
+        os._exit(1)
+
+    threading.Thread(target=watch, daemon=True, name="die-with-parent").start()
 
 
 def check_methods(

@@ -63,6 +63,8 @@ class PolicyError(ValueError):
 
 
 def _describe(exc: BaseException) -> str:
+    if isinstance(exc, SystemExit):
+        return f"SystemExit({exc.code!r}): the policy called sys.exit() or exit()"
     text = " ".join(str(exc).split())
     return f"{type(exc).__name__}: {text}" if text else type(exc).__name__
 
@@ -175,7 +177,7 @@ def make_user_policy(
         raise
     except WorldNotSupported as exc:  # a policy for other worlds: bench paper leaves this panel out
         raise WorldNotSupported(f"policy {name} cannot play this world: {exc}") from None
-    except Exception as exc:
+    except (Exception, SystemExit) as exc:
         raise PolicyError(f"policy {name}: the factory raised {_describe(exc)}") from None
     return wrap_user_policy(policy, name)
 
@@ -245,7 +247,7 @@ class WrappedUserPolicy:
             raise
         except PolicyError:
             raise
-        except Exception as exc:
+        except (Exception, SystemExit) as exc:  # sys.exit() in user code is its failure, not ours
             raise PolicyError(f"policy {self.name}: {what} raised {_describe(exc)}") from None
 
     def forward_hooks(self, policy: Any) -> None:
