@@ -24,6 +24,13 @@ from catmip_rl.amat.model import AMAT
 from catmip_rl.amat.pointer import make_model
 from catmip_rl.amat.weights import finer_pool
 from catmip_rl.files import atomic_write_text
+from catmip_rl.model_files import (
+    CheckpointError,
+    check_archive,
+    check_extra,
+    check_model_size,
+    check_training_entries,
+)
 from catmip_rl.shipped import SHIPPED_DIR, model_file, resolve_model, shipped_models
 
 __all__ = [
@@ -35,16 +42,23 @@ __all__ = [
 FORMAT = "catmip-amat-v1"
 
 
-class CheckpointError(ValueError):
-    """A file that cannot be read as a checkpoint (the message names it and says why)."""
-
-
 def atomic_torch_save(obj: Any, path: str | Path) -> Path:
-    """``torch.save`` to a temporary file in the same folder, fsync, then rename into place."""
-    with atomic_path(path) as tmp, open(tmp, "wb") as f:
-        torch.save(obj, f)
-        f.flush()
-        os.fsync(f.fileno())
+    """``torch.save`` to a temporary file in the same folder, fsync, then rename into place. A failed
+    write (a full disk: torch then raises its own error on top of the OSError) is one ``OSError`` naming
+    the file; the file there before is kept."""
+    try:
+        with atomic_path(path) as tmp, open(tmp, "wb") as f:
+            torch.save(obj, f)
+            f.flush()
+            os.fsync(f.fileno())
+    except (OSError, RuntimeError) as err:
+        cause = err if isinstance(err, OSError) else err.__context__
+        if not isinstance(cause, OSError):
+            raise
+        kept = " (the previous one is kept)" if Path(path).exists() else ""
+        failed = OSError(f"cannot write {path}{kept}: {cause.strerror or cause}")
+        failed.errno = cause.errno
+        raise failed from None
     return Path(path)
 
 
@@ -70,10 +84,17 @@ def read_checkpoint(path: str | Path, map_location: str | torch.device = "cpu") 
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"no checkpoint at {path}" + (" (it is a folder)" if path.is_dir() else ""))
+    if zipfile.is_zipfile(path):  # whole, and of bounded size, before torch reads it
+        check_archive(path)
     try:
-        return torch.load(path, map_location=map_location, weights_only=True)
+        blob = torch.load(path, map_location=map_location, weights_only=True)
     except Exception as err:  # torch reports a bad file as any of a dozen types (pickle, zip, OS, key...)
         raise CheckpointError(f"{path} is not a readable checkpoint: {_diagnose(path, err)}") from None
+    if _is_training_checkpoint(blob):
+        check_training_entries(blob, path)
+    elif isinstance(blob, dict) and blob.get("format") == FORMAT and blob.get("extra") is not None:
+        check_extra(blob["extra"], path)
+    return blob
 
 
 def _diagnose(path: Path, err: Exception) -> str:
@@ -140,9 +161,11 @@ def model_from(blob: Any, path: Path) -> AMAT:
     if not isinstance(blob, dict) or blob.get("format") != FORMAT:
         raise ValueError(f"{path} is not an AMAT checkpoint (expected format {FORMAT!r})")
     try:
-        model = make_model(AmatConfig.from_dict(blob["config"]))
+        config = AmatConfig.from_dict(blob["config"])
     except (TypeError, ValueError, KeyError, AttributeError) as err:
         raise CheckpointError(f"{path} holds no valid AMAT config: {err}") from None
+    check_model_size(make_model, config, path)  # counted before anything is allocated
+    model = make_model(config)
     state = blob.get("state_dict")
     reason = _state_mismatch(state, model.state_dict())  # short: torch's message lists every key
     if not reason:

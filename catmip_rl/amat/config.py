@@ -13,6 +13,9 @@ __all__ = ["AmatConfig", "GOAL_KINDS", "CELL_MASKS"]
 
 GOAL_KINDS = ("window", "cell")
 CELL_MASKS = ("known", "reachable")
+LIMITS = {"window": 99, "local_size": 99, "pool": 64, "embed_dim": 8192, "n_heads": 128, "n_blocks": 64,
+          "n_classes": 64, "cell_channels": 4096, "cell_layers": 64}  # fmt: skip
+"""The largest value of each size field (far above any trained model's)."""
 
 
 @dataclass(frozen=True)
@@ -46,12 +49,11 @@ class AmatConfig:
     """Goals "cell": convolutions of the per-cell encoder: a 3x3, then residual 3x3s dilated 1, 1, 2, 4..."""
 
     def __post_init__(self) -> None:
-        odd, positive = INT("that is odd and >= 1", lambda v: v >= 1 and v % 2), INT(">= 1", lambda v: v >= 1)
-        for name in ("window", "local_size", "pool", "embed_dim", "n_heads", "n_blocks", "n_classes",
-                     "cell_channels", "cell_layers"):  # fmt: skip
-            check(
-                "AmatConfig", name, getattr(self, name), odd if name in ("window", "local_size") else positive
-            )
+        for name, most in LIMITS.items():  # bounded: a file cannot declare a model too large to count
+            odd = name in ("window", "local_size")
+            rule = INT(f"{'that is odd and ' if odd else ''}from 1 to {most}",
+                       lambda v, most=most, odd=odd: 1 <= v <= most and (v % 2 or not odd))  # fmt: skip
+            check("AmatConfig", name, getattr(self, name), rule)
         if self.embed_dim % self.n_heads:
             raise ValueError(f"embed_dim {self.embed_dim} is not divisible by n_heads {self.n_heads}")
         if self.cell_mask not in CELL_MASKS:

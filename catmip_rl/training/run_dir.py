@@ -10,16 +10,14 @@ checkpoint removes what it wrote (:func:`remove_run_files`), so that its run dir
 
 from __future__ import annotations
 
-import os
 import shutil
-import sys
-import time
 from pathlib import Path
 
 import torch
 
 from catmip_rl.checkpoint import initial_weights, resume_checkpoint
 from catmip_rl.files import check_new_dir, check_not_dangling
+from catmip_rl.outputs import OutputInUse, OutputLock, first_missing
 from catmip_rl.training.config import TrainConfig
 
 __all__ = [
@@ -31,49 +29,31 @@ LOCK_NAME = ".lock"
 """The file in a run dir that its live run holds locked (and names itself in)."""
 
 
-class RunDirInUse(OSError):
-    """Another live process holds the run dir."""
+RunDirInUse = OutputInUse
+"""Another live process holds the run dir."""
 
 
-class RunDirLock:
-    """The exclusive hold of a run dir by this process: an advisory OS lock (``flock``) on
-    ``RUN_DIR/.lock``, which also records the holder's process id and command for the refusal message.
-    The kernel drops the lock when the process ends, however it ends (SIGKILL included), so a dead run
-    never leaves a stale lock; the file itself stays (removing it would let two processes lock two
-    different files of one name). Creates the run dir if needed: ``created`` is the outermost folder it
-    made (None if the run dir existed), and ``release(undo=True)`` removes what acquiring added."""
+class RunDirLock(OutputLock):
+    """The exclusive hold of a run dir by this process (:class:`~catmip_rl.outputs.OutputLock` on
+    ``RUN_DIR/.lock``, which stays when released: a dead run never leaves a stale lock, and its run dir
+    resumes at once). Creates the run dir if needed: ``created`` is the outermost folder it made (None
+    if the run dir existed), and ``release(undo=True)`` removes what acquiring added."""
 
     def __init__(self, run_dir: str | Path) -> None:
-        self.path = Path(run_dir) / LOCK_NAME
+        super().__init__(Path(run_dir) / LOCK_NAME, f"run dir {run_dir}",
+                         "wait for that run to end or stop it (its checkpoints resume with --resume)",
+                         keep_file=True)  # fmt: skip
         self.created: Path | None = None
         self._new_file = False
-        self._fd: int | None = None
 
     def acquire(self) -> RunDirLock:
         """Hold the run dir, or raise :class:`RunDirInUse` naming the process that holds it."""
-        import fcntl  # POSIX; the training runs this project supports are on Linux and macOS
-
         check_not_dangling(self.path.parent, "run dir")
         if self.path.parent.exists() and not self.path.parent.is_dir():
             raise NotADirectoryError(f"run dir {self.path.parent} is a file, not a folder")
         self.created = first_missing(self.path.parent)
         self._new_file = not self.path.exists()
-        self.path.parent.mkdir(parents=True, exist_ok=True)
-        fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            holder = os.pread(fd, 4096, 0).decode(errors="replace").strip() or "another process"
-            os.close(fd)
-            raise RunDirInUse(
-                f"run dir {self.path.parent} is in use by {holder}; wait for that run to end or stop it "
-                "(its checkpoints resume with --resume)"
-            ) from None
-        os.ftruncate(fd, 0)
-        command = " ".join([Path(sys.argv[0]).name, *sys.argv[1:]]) if sys.argv and sys.argv[0] else "python"
-        started = time.strftime("%Y-%m-%d %H:%M:%S")
-        os.pwrite(fd, f"process {os.getpid()} ({command}, since {started})\n".encode(), 0)
-        self._fd = fd
+        super().acquire()
         for folder in (self.path.parent, self.path.parent / "checkpoints"):  # what a killed writer left
             for debris in folder.glob(".*.tmp*"):
                 debris.unlink(missing_ok=True)
@@ -86,19 +66,11 @@ class RunDirLock:
             shutil.rmtree(self.created, ignore_errors=True)
         elif undo and self._new_file:
             self.path.unlink(missing_ok=True)
-        if self._fd is not None:
-            os.close(self._fd)  # closing the last descriptor drops the flock
-            self._fd = None
+        super().release()
 
     def check_free(self) -> None:
         """Raise :class:`RunDirInUse` if a live process holds the run dir; hold nothing, leave no trace."""
         self.acquire().release(undo=True)
-
-    def __enter__(self) -> RunDirLock:
-        return self.acquire()
-
-    def __exit__(self, *exc) -> None:
-        self.release()
 
 
 def check_run(cfg: TrainConfig, run_dir: Path, resume: bool) -> dict | None:
@@ -115,6 +87,7 @@ def check_run(cfg: TrainConfig, run_dir: Path, resume: bool) -> dict | None:
                 f"--resume: the checkpoint in {run_dir} was trained with another model or task "
                 f"({saved_cfg.amat_config()} on {saved_cfg.env_preset}); start a new run dir instead"
             )
+        _check_own_checkpoint(run_dir, saved_cfg)
     elif (run_dir / "checkpoints" / "latest.pt").exists():
         raise FileExistsError(
             f"{run_dir} already holds a run; pass --resume to continue it or pick a new dir"
@@ -147,15 +120,26 @@ def tensorboard_writer(run_dir: Path):
     return SummaryWriter(str(run_dir / "tensorboard"))
 
 
-def first_missing(path: Path) -> Path | None:
-    """The outermost folder of ``path`` (itself included) that does not exist yet: what ``mkdir(parents=
-    True)`` creates; None if ``path`` exists."""
-    missing = None
-    for p in (path, *path.parents):
-        if p.exists():
-            break
-        missing = p
-    return missing
+def _check_own_checkpoint(run_dir: Path, saved: TrainConfig) -> None:
+    """The checkpoint to resume belongs to the run of ``RUN_DIR/config.json``: the same model, task and
+    seed (what a resumed run never changes); another run's checkpoint copied in is refused, so that
+    ``--resume`` never rewrites a run's config to a foreign one."""
+    path = run_dir / "config.json"
+    if not path.exists():
+        return  # a run stopped before writing its config: the checkpoint is all there is
+    try:
+        own = TrainConfig.from_json(path.read_text())
+    except (OSError, ValueError, TypeError, KeyError) as err:
+        why = " ".join(str(err).split())
+        raise ValueError(f"--resume: {path} is not a training config ({why})") from None
+    differs = [what for what, a, b in (("model", own.amat_config(), saved.amat_config()),
+                                       ("task", own.env_config(), saved.env_config()),
+                                       ("seed", own.seed, saved.seed)) if a != b]  # fmt: skip
+    if differs:
+        raise ValueError(
+            f"--resume: checkpoints/latest.pt in {run_dir} is another run's (its {' and '.join(differs)} "
+            f"differ from {path}); put back this run's checkpoint, or resume the other run in its own dir"
+        )
 
 
 def remove_run_files(run_dir: Path, created: Path | None) -> None:
