@@ -42,7 +42,8 @@ _RANGES: dict[str, tuple[str, Callable[[Any], bool]]] = {
                      "ray_workers"), (">= 1", lambda v: v >= 1)),
     "warm_start_worlds": (">= 0", lambda v: v >= 0),
     **dict.fromkeys(("micro_batch", "eval_every", "checkpoint_every", "value_warmup_iterations",
-                     "budget_minutes", "target_kl", "entropy_coef", "value_coef", "rescue_coef"),
+                     "budget_minutes", "target_kl", "entropy_coef", "value_coef", "rescue_coef",
+                     "anchor_coef"),
                     (">= 0", lambda v: v >= 0)),
     **dict.fromkeys(("lr", "adam_eps", "clip", "value_clip", "huber_delta", "max_grad_norm", "warm_start_lr"),
                     ("> 0", lambda v: v > 0)),
@@ -56,6 +57,7 @@ _VALUES: dict[str, Rule] = {
     "precision": Rule(", ".join(PRECISIONS[:-1]) + " or " + PRECISIONS[-1], lambda v: v in PRECISIONS),
     "collector": Rule("local or ray", lambda v: v in ("local", "ray")),
     "warm_start": Rule(f"'' or a planner name {sorted(PLANNERS)}", lambda v: v == "" or v in PLANNERS),
+    "anchor": Rule(f"'' or a planner name {sorted(PLANNERS)}", lambda v: v == "" or v in PLANNERS),
     "ray_address": Rule(
         "None, 'auto', 'host:port' or 'ray://host:port'", lambda v: v is None or (is_str(v) and v != "")
     ),
@@ -150,6 +152,13 @@ class TrainConfig:
     """Whether the rescue loss's label projects the way to the target into the window along the
     controller's own path, which starts in the robot's heading (``window:nearest``), or along a
     heading-free one (``window-noheading:nearest``): a label that depends only on what AMAT observes."""
+    anchor: str = ""
+    """A planner (e.g. "rrt") whose own cell goal labels every decision of a cell-goal model during PPO,
+    for an auxiliary cross-entropy weighted by ``anchor_coef`` (it takes the rescue loss's place, and
+    its ``loss/rescue`` column): PPO moves the policy where the advantage says while the anchor keeps
+    it near the planner it imitated, so that argmax play does not drift into loops. "" = none."""
+    anchor_coef: float = 0.0
+    """Weight of the ``anchor`` loss (> 0 exactly when ``anchor`` is set)."""
     max_grad_norm: float = 10.0
     """Gradient-norm clip of each step."""
     gamma: float = 1.0
@@ -231,10 +240,17 @@ class TrainConfig:
                 "in this process); warm-start locally, then --resume with --collector ray "
                 "--set warm_start=''"
             )
-        if self.rescue_coef > 0 and self.collector != "local":
+        if bool(self.anchor) != (self.anchor_coef > 0):
+            raise ValueError("TrainConfig.anchor and anchor_coef > 0 go together: set both, or neither")
+        if self.anchor and (self.rescue_coef > 0 or self.amat_config().goals != "cell"):
             raise ValueError(
-                "TrainConfig.rescue_coef > 0 needs collector 'local' (the rescue rule labels decisions in "
-                "this process); set rescue_coef = 0 with --collector ray"
+                "TrainConfig.anchor labels a cell-goal model's decisions (amat goals 'cell') and takes the "
+                "rescue loss's place: set rescue_coef = 0"
+            )
+        if (self.rescue_coef > 0 or self.anchor) and self.collector != "local":
+            raise ValueError(
+                "TrainConfig.rescue_coef > 0 and anchor need collector 'local' (the rule or planner labels "
+                "decisions in this process); set them off with --collector ray"
             )
         if self.update_processes > 1 and self.device != "cpu":
             raise ValueError(

@@ -104,6 +104,19 @@ class RescueLabeler:
         return out
 
 
+class PlannerLabeler:
+    """``act(engine)`` -> (B, N) labels for PPO's anchor loss (``TrainConfig.anchor``): the planner's own
+    cell goal for every active robot of a live world, -1 for every other robot."""
+
+    def __init__(self, teacher: str, seed: int = 0) -> None:
+        self.teacher = make_planner(teacher, seed=seed)
+
+    def act(self, engine: EventEngine) -> np.ndarray:
+        out = np.asarray(self.teacher.act(engine), np.int64).copy()
+        out[~(engine.active & ~engine.state.done[:, None])] = -1
+        return out
+
+
 def imitation_loss(
     model: AMAT,
     batch: dict[str, torch.Tensor],

@@ -32,7 +32,7 @@ from typing import Any
 import torch
 import torch.nn.functional as F
 
-from catmip_rl.amat.model import AMAT
+from catmip_rl.amat.model import AMAT, INVALID_LOGIT
 from catmip_rl.training.config import PRECISIONS, TrainConfig
 from catmip_rl.training.gae import SampleBatch
 
@@ -91,7 +91,9 @@ def ppo_loss(
     if rescue_coef > 0 and batch.rescue_label is not None:
         label = batch.rescue_label[sel]
         has = label >= 0
-        rescue_loss = -logp_all[has].gather(-1, label[has][:, None]).sum() / count
+        picked = logp_all[has].gather(-1, label[has][:, None])[:, 0]
+        picked = picked[logits[has].gather(-1, label[has][:, None])[:, 0] > INVALID_LOGIT / 2]  # mask's
+        rescue_loss = -picked.sum() / count
         loss = loss + rescue_coef * rescue_loss
     with torch.no_grad():
         stats = {
@@ -134,7 +136,8 @@ def loss_kwargs(cfg: TrainConfig, bf16: bool | None = None) -> dict[str, float]:
     (``bf16``, or ``cfg.precision`` resolved by the CPU's flags; ``train`` measures "auto")."""
     return {
         "clip": cfg.clip, "value_clip": cfg.value_clip, "huber_delta": cfg.huber_delta,
-        "entropy_coef": cfg.entropy_coef, "value_coef": cfg.value_coef, "rescue_coef": cfg.rescue_coef,
+        "entropy_coef": cfg.entropy_coef, "value_coef": cfg.value_coef,
+        "rescue_coef": cfg.rescue_coef or cfg.anchor_coef,  # the auxiliary label loss: rescue or anchor
         "bf16": use_bf16(cfg.precision, cfg.device) if bf16 is None else bf16,
     }  # fmt: skip
 

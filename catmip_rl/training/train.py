@@ -35,7 +35,7 @@ from catmip_rl.training.allocator import keep_freed_memory
 from catmip_rl.training.collect import Collector, Rollout
 from catmip_rl.training.config import TrainConfig
 from catmip_rl.training.gae import ValueNorm, build_batch
-from catmip_rl.training.imitation import RescueLabeler, warm_start
+from catmip_rl.training.imitation import PlannerLabeler, RescueLabeler, warm_start
 from catmip_rl.training.parallel_update import ParallelGradients
 from catmip_rl.training.ppo import choose_bf16, loss_kwargs, lr_factor, make_optimizer, ppo_update
 from catmip_rl.training.run_dir import (
@@ -100,7 +100,7 @@ class Run:
     bf16: bool | None = None  # the update's precision, chosen on the first batch (kept on resume)
     parallel: ParallelGradients | None = None  # the update's helper processes, started on the first batch
     init_source: dict | None = None  # where a new run's initial weights came from (init_from)
-    rescue_labeler: RescueLabeler | None = None  # labels for the auxiliary rescue loss (cfg.rescue_coef)
+    rescue_labeler: RescueLabeler | PlannerLabeler | None = None  # auxiliary loss labels (rescue, anchor)
     # make_collectors: the training worlds, taking turns (Collectors, or one Ray collector); the warm
     # start's (none without one, or on resume); the evaluator (None without evaluation)
     collectors: list[Any] = field(default_factory=list)
@@ -146,6 +146,8 @@ def build_run(cfg: TrainConfig, saved: dict | None = None) -> Run:
     run.collectors, run.dagger, run.evaluator = make_collectors(cfg, model, resume=saved is not None)
     if cfg.rescue_coef > 0:
         run.rescue_labeler = RescueLabeler(follow_heading=cfg.rescue_heading)
+    elif cfg.anchor:
+        run.rescue_labeler = PlannerLabeler(cfg.anchor, seed=cfg.seed)
     return run
 
 

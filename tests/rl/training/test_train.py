@@ -365,3 +365,51 @@ def test_a_warm_start_on_a_mixture_imitates_in_every_world(tmp_path):
     train(sized, tmp_path / "b", progress=False)
     rounds = list(csv.DictReader((tmp_path / "b" / "warm_start.csv").open()))
     assert [int(r["episodes"]) for r in rounds] == [12, 24]  # 6 in each world
+
+
+def _anchored(**overrides):
+    from catmip_rl.training.train import build_run
+
+    amat = {"embed_dim": 16, "goals": "cell", "cell_channels": 8, "cell_layers": 2, "cell_mask": "reachable"}
+    cfg = make_train_config("tiny", amat=amat, anchor="nearest", anchor_coef=0.5, iterations=2, eval_every=0,
+                            **overrides)  # fmt: skip
+    run = build_run(cfg)
+    rollout = run.collector_for(1).collect(run.model, first_episode=0, generator=run.gen,
+                                           labeler=run.rescue_labeler)  # fmt: skip
+    return cfg, run, rollout
+
+
+def test_the_anchor_labels_every_decision_with_the_planners_cell_and_trains(tmp_path):
+    """``anchor``: the planner's own cell goal labels each active robot's decision during PPO, and the
+    auxiliary loss toward it is logged (as ``loss/rescue``, whose place it takes)."""
+    amat = {"embed_dim": 16, "goals": "cell", "cell_channels": 8, "cell_layers": 2}
+    for bad, match in (({"anchor": "rrt"}, "go together"), ({"anchor_coef": 0.5}, "go together"),
+                       ({"anchor": "rrt", "anchor_coef": 0.5, "amat": {}}, "cell-goal model"),
+                       ({"anchor": "teleport", "anchor_coef": 0.5}, "anchor must be")):  # fmt: skip
+        with pytest.raises(ValueError, match=match):
+            make_train_config("tiny", **({"amat": amat} | bad))
+    cfg, _, rollout = _anchored()
+    label, active = rollout.label, rollout.active.astype(bool)
+    assert active.any() and (label[active] >= 0).all()  # every decision labelled
+    assert (label[active] < cfg.env_config().map_size ** 2).all()  # a cell r * W + c of the map
+    train(cfg, tmp_path / "run", progress=False)
+    with open(tmp_path / "run" / "metrics.csv") as f:
+        rows = list(csv.DictReader(f))
+    assert len(rows) == 2 and all(float(r["loss/rescue"]) > 0 for r in rows)
+
+
+def test_the_anchor_loss_skips_labels_the_models_mask_rules_out():
+    import dataclasses
+
+    from catmip_rl.training.gae import build_batch
+    from catmip_rl.training.ppo import ppo_loss
+
+    cfg, run, rollout = _anchored()
+    n_classes = cfg.env_config().num_classes
+    batch, _ = build_batch(rollout, run.value_norm, cfg.gamma, cfg.lam, n_classes, run.device)
+    _, stats = ppo_loss(run.model, batch, rescue_coef=1.0)
+    assert 0 < float(stats["loss/rescue"]) < 50
+    walls = batch.rescue_label.clone()
+    walls[batch.trainable.bool()] = 0  # cell (0, 0): the map's wall, which no mask allows
+    _, stats = ppo_loss(run.model, dataclasses.replace(batch, rescue_label=walls), rescue_coef=1.0)
+    assert float(stats["loss/rescue"]) == 0.0
