@@ -18,6 +18,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import shutil
 import sys
 from pathlib import Path
 from typing import Any
@@ -185,9 +186,13 @@ def _bench(args: argparse.Namespace) -> int:
             remove_debris(folder)
             if args.force:  # the earlier run's method folders go too: compare would report them
                 remove_results(folder)
-        for fig in figures:
-            out = run_figure(fig, methods, args.episodes, args.seed, args.out, args.jobs,
-                             allow_other_maps=args.allow_other_maps, threads=args.threads)  # fmt: skip
+        for fig, folder in zip(figures, folders):
+            try:
+                out = run_figure(fig, methods, args.episodes, args.seed, args.out, args.jobs,
+                                 allow_other_maps=args.allow_other_maps, threads=args.threads)  # fmt: skip
+            except BaseException:  # a figure's folder holds a whole figure or nothing
+                shutil.rmtree(folder, ignore_errors=True)
+                raise
             print(f"figure {fig}: {out}/fig{fig}.png, curves.csv, summary.csv, marl_eval.json")
     return 0
 

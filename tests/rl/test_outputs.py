@@ -181,6 +181,18 @@ def _alive(pid: int) -> bool:
     return state != "Z"  # a zombie has ended (its parent, init, reaps it)
 
 
+def test_a_failed_bench_leaves_no_partial_figure(tmp_path, capsys):
+    policy = tmp_path / "quits.py"
+    policy.write_text("import sys\nclass P:\n    def act(self, engine):\n        sys.exit(0)\n"
+                      "def make(env_config, seed):\n    return P()\n")  # fmt: skip
+    out = tmp_path / "bench"
+    argv = ["bench", "paper", "--figure", "6", "--methods", "nearest", "--method", f"py:{policy}:make",
+            "--episodes", "2", "--jobs", "1", "--out", str(out)]  # fmt: skip
+    assert main(argv) == 2
+    assert "SystemExit(0)" in capsys.readouterr().err
+    assert not out.exists()  # the nearest runs it finished went with the figure
+
+
 @pytest.mark.parametrize("where", ["act", "factory"])
 @pytest.mark.parametrize("code", [0, 3])
 def test_sys_exit_in_a_policy_is_one_line_and_exit_2(tmp_path, capsys, where, code):
