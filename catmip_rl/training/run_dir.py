@@ -15,7 +15,7 @@ from pathlib import Path
 
 import torch
 
-from catmip_rl.checkpoint import initial_weights, resume_checkpoint
+from catmip_rl.checkpoint import CheckpointError, initial_weights, model_from, resume_checkpoint
 from catmip_rl.files import check_new_dir, check_not_dangling
 from catmip_rl.outputs import OutputInUse, OutputLock, first_missing
 from catmip_rl.training.config import TrainConfig
@@ -88,6 +88,7 @@ def check_run(cfg: TrainConfig, run_dir: Path, resume: bool) -> dict | None:
                 f"({saved_cfg.amat_config()} on {saved_cfg.env_preset}); start a new run dir instead"
             )
         _check_own_checkpoint(run_dir, saved_cfg)
+        _check_restorable(saved, run_dir / "checkpoints" / "latest.pt", cfg)
     elif (run_dir / "checkpoints" / "latest.pt").exists():
         raise FileExistsError(
             f"{run_dir} already holds a run; pass --resume to continue it or pick a new dir"
@@ -118,6 +119,24 @@ def tensorboard_writer(run_dir: Path):
     except ImportError:  # tensorboard comes with the rl extra
         return None
     return SummaryWriter(str(run_dir / "tensorboard"))
+
+
+def _check_restorable(saved: dict, path: Path, cfg: TrainConfig) -> None:
+    """The checkpoint's model, optimiser and value normaliser load into fresh ones of ``cfg`` (as
+    ``--resume`` will load them), or a CheckpointError naming ``path``."""
+    from catmip_rl.training.gae import ValueNorm
+    from catmip_rl.training.ppo import make_optimizer
+
+    model = model_from(saved, path)  # its own error names the file
+    try:
+        make_optimizer(model, cfg).load_state_dict(saved["optimizer"])
+        ValueNorm().load_state_dict(saved["value_norm"])
+        torch.Generator().set_state(saved["generator"])
+    except (RuntimeError, KeyError, ValueError, TypeError, IndexError) as err:
+        why = " ".join(str(err).split())
+        raise CheckpointError(
+            f"{path}: its optimiser or value normaliser does not fit the model ({why[:160]})"
+        ) from None
 
 
 def _check_own_checkpoint(run_dir: Path, saved: TrainConfig) -> None:

@@ -100,6 +100,21 @@ def test_inconsistent_training_checkpoints_are_one_line_naming_the_file(tmp_path
     _one_line(capsys, "latest.pt")
 
 
+def test_resume_refuses_a_checkpoint_whose_parts_do_not_fit_before_building_the_run(tmp_path, capsys):
+    from catmip_rl.training.train import build_run
+
+    run = tmp_path / "run"
+    (run / "checkpoints").mkdir(parents=True)
+    good = build_run(make_train_config("tiny"))
+    model = {k: v.clone() for k, v in good.model.state_dict().items()}
+    torch.save(_training_checkpoint(model={}), run / "checkpoints" / "latest.pt")
+    assert main(["train", "--run-dir", str(run), "--resume"]) == 2
+    _one_line(capsys, "latest.pt", "does not fit the AMAT", "missing keys")
+    torch.save(_training_checkpoint(model=model, optimizer={"state": 1}), run / "checkpoints" / "latest.pt")
+    assert main(["train", "--run-dir", str(run), "--resume"]) == 2
+    _one_line(capsys, "latest.pt: its optimiser or value normaliser does not fit")
+
+
 def test_a_model_files_extra_of_wrong_types_is_refused(tmp_path, capsys):
     blob = read_checkpoint(SHIPPED)
     torch.save(blob | {"extra": {"training_minutes": "long"}}, tmp_path / "m.pt")
