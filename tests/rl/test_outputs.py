@@ -212,3 +212,40 @@ def test_sys_exit_in_a_policy_is_one_line_and_exit_2(tmp_path, capsys, where, co
     )
     _one_line(capsys, "SystemExit", "sys.exit()")
     assert not out.exists()
+
+
+def _hammer(out: str, rounds: int, errors) -> None:
+    """Take and release ``out``'s lock ``rounds`` times; inside, a sentinel file must not exist."""
+    sentinel = Path(out) / "held"
+    done = 0
+    while done < rounds:
+        try:
+            lock = holding(out).acquire()
+        except OutputInUse:
+            continue
+        try:
+            if sentinel.exists():
+                errors.put("two holders at once")
+            sentinel.touch()
+            time.sleep(0.0005)
+            sentinel.unlink()
+        finally:
+            lock.release()  # removes the lock file: the next holder locks a new one
+        done += 1
+
+
+def test_concurrent_writers_never_hold_one_output_together(tmp_path):
+    """Four processes racing for one output's lock (each release removes the lock file, so a racer may
+    lock a file just removed: it must notice and try again) never overlap."""
+    import multiprocessing
+
+    ctx = multiprocessing.get_context("fork" if sys.platform == "linux" else "spawn")
+    errors = ctx.Queue()
+    procs = [ctx.Process(target=_hammer, args=(str(tmp_path), 40, errors)) for _ in range(4)]
+    for p in procs:
+        p.start()
+    for p in procs:
+        p.join(timeout=120)
+    assert all(p.exitcode == 0 for p in procs)
+    assert errors.empty()
+    assert not (tmp_path / ".lock").exists()
