@@ -25,8 +25,11 @@ from catmip_env.play import Policy, play
 
 __all__ = [
     "render_world", "render_ansi", "episode_status", "add_caption", "save_gif", "episode_frames",
-    "render_episode", "CLASS_COLOURS",
+    "render_episode", "CLASS_COLOURS", "RENDER_FPS",
 ]  # fmt: skip
+
+RENDER_FPS = 8
+"""Frames (ticks) per second of a rendered episode: the env's ``metadata["render_fps"]`` and the GIFs'."""
 
 _FREE = np.array([255, 255, 255], np.uint8)
 _COLOURS = {

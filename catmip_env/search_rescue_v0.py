@@ -23,7 +23,7 @@ from pettingzoo.utils import parallel_to_aec, wrappers
 from catmip_env.config import EnvConfig, make_config
 from catmip_env.constants import PRIMITIVE_ACTIONS
 from catmip_env.events import GOAL_MODES, INVALID_ACTION_MODES, EventEngine
-from catmip_env.render import render_ansi, render_world
+from catmip_env.render import RENDER_FPS, render_ansi, render_world
 from catmip_env.spaces import (
     LEVELS,
     OBS_FORMATS,
@@ -138,7 +138,7 @@ class SearchRescueEnv(ParallelEnv):
         "name": "catmip_search_rescue_v0",
         "render_modes": ["rgb_array", "human", "ansi"],
         "is_parallelizable": True,
-        "render_fps": 8,
+        "render_fps": RENDER_FPS,
     }
 
     def __init__(

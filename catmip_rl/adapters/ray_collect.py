@@ -42,11 +42,12 @@ RAY_MISSING = "--collector ray needs the distributed extra: pip install 'catmip[
 
 
 def import_ray() -> Any:
-    """The ``ray`` module, or a RuntimeError naming the extra to install."""
+    """The ``ray`` module, or an ImportError naming the extra to install (a run checks it before it
+    starts: ``training.run_dir.check_run``)."""
     try:
         import ray
-    except ImportError as err:
-        raise RuntimeError(RAY_MISSING) from err
+    except ImportError:
+        raise ImportError(RAY_MISSING) from None
     return ray
 
 
@@ -173,7 +174,6 @@ class RayRolloutCollector:
     """
 
     def __init__(self, cfg: TrainConfig, model: AMAT) -> None:
-        import_ray()
         from torchrl.collectors.distributed import RayCollector
         from torchrl.weight_update import _ray as weight_sync
 

@@ -76,13 +76,6 @@ def _train(args: argparse.Namespace) -> int:
             raise ValueError(
                 f"{name} = {getattr(cfg, name)} is more than this machine's {CPUS} CPUs; use at most {CPUS}"
             )
-    if cfg.collector == "ray":
-        from catmip_rl.adapters.ray_collect import import_ray
-
-        try:
-            import_ray()
-        except RuntimeError as err:  # the distributed extra is missing
-            raise ImportError(str(err)) from None
     train(cfg, args.run_dir, resume=args.resume, progress=not args.no_progress)
     print(f"run written to {args.run_dir} (config.json, metrics.csv, tensorboard/, checkpoints/)")
     return 0

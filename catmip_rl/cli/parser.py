@@ -195,7 +195,7 @@ def add_allow_other_maps(p: argparse.ArgumentParser) -> None:
 
 
 def add_eval_render(sub) -> None:
-    from catmip_env.search_rescue_v0 import SearchRescueEnv
+    from catmip_env.render import RENDER_FPS
 
     ev = sub.add_parser(
         "eval", help="evaluate a method on the paper's protocol", formatter_class=Formatter,
@@ -219,7 +219,7 @@ def add_eval_render(sub) -> None:
     )  # fmt: skip
     add_setting_flags(rd)
     rd.add_argument("--episode", type=NON_NEGATIVE_INT, default=0, help="which map of the seed's map set")
-    rd.add_argument("--fps", type=POSITIVE_INT, default=SearchRescueEnv.metadata["render_fps"],
+    rd.add_argument("--fps", type=POSITIVE_INT, default=RENDER_FPS,
                     help="frames (ticks) per second (the env's metadata render_fps)")  # fmt: skip
     rd.add_argument("--out", required=True, help="path of the GIF to write (ending in .gif)")
     rd.add_argument("--force", action="store_true", help="overwrite an existing --out")

@@ -366,7 +366,7 @@ def render_episode(
     """GIF of one evaluation episode (the map of ``episode`` of ``seed``, as in :func:`evaluate`),
     one frame per tick (:func:`catmip_env.render.render_episode`): robots, their goals, explored area,
     communication links; ``fps`` defaults to the env's ``metadata["render_fps"]``."""
-    from catmip_env.search_rescue_v0 import SearchRescueEnv
+    from catmip_env.render import RENDER_FPS
 
     method = parse_method(method) if isinstance(method, str) else method
     sync = method.synchronous
@@ -374,5 +374,5 @@ def render_episode(
     eng = EventEngine(setting.env_config(window, sync), num_worlds=1, seed=seed, goal_mode=goal_mode)
     if plays_one_world_at_a_time(policy):
         policy.reset()
-    fps = SearchRescueEnv.metadata["render_fps"] if fps is None else fps
+    fps = RENDER_FPS if fps is None else fps
     return render.render_episode(eng, policy, path, episode, fps=fps, max_frames=max_frames)

@@ -108,7 +108,7 @@ def check_run(cfg: TrainConfig, run_dir: Path, resume: bool) -> dict | None:
     if cfg.collector == "ray":
         from catmip_rl.adapters.ray_collect import import_ray
 
-        import_ray()  # RuntimeError naming the extra to install
+        import_ray()  # ImportError naming the extra to install: the one check, before anything is built
     return saved
 
 

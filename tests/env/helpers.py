@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 from functools import partial
 from types import SimpleNamespace
 
@@ -114,3 +115,10 @@ def _seeded(make, **kw):
 def masked_random_action(rng: np.random.Generator, mask: np.ndarray) -> int:
     """A uniformly random allowed action of one robot."""
     return int(rng.choice(np.flatnonzero(mask)))
+
+
+def turns_per_second(printed: str) -> float:
+    """The turns per second PettingZoo's ``performance_benchmark`` printed."""
+    match = re.search(r"([\d.e+]+) turns per second", printed)
+    assert match, printed
+    return float(match.group(1))

@@ -14,6 +14,7 @@ from pettingzoo.test import (
 )
 
 from catmip_env import PRESETS, search_rescue_v0
+from tests.env.helpers import turns_per_second
 
 from .helpers import (
     COMM_NOISE,
@@ -52,8 +53,9 @@ def test_pettingzoo_battery_flat(preset, goal_mode):
 
 
 @pytest.mark.slow
-def test_performance_benchmark_runs():
+def test_performance_benchmark_runs(capsys):
     performance_benchmark(search_rescue_v0.env())  # 5 s of random masked play; prints turns per second
+    assert turns_per_second(capsys.readouterr().out) > 10
 
 
 @pytest.mark.parametrize(

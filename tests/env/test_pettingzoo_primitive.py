@@ -12,6 +12,7 @@ from pettingzoo.test import performance_benchmark, render_test
 
 import catmip_env
 from catmip_env import PRESETS, search_rescue_v0
+from tests.env.helpers import turns_per_second
 
 from .helpers import COMM_NOISE, HUGE_INTEGERS, INVALID_FLAGS, NOT_INTEGERS, pettingzoo_battery
 
@@ -32,8 +33,9 @@ def test_render(obs_format):
 
 
 @pytest.mark.slow
-def test_performance_benchmark_runs():
+def test_performance_benchmark_runs(capsys):
     performance_benchmark(prim_env())  # 5 s of random play; prints turns per second
+    assert turns_per_second(capsys.readouterr().out) > 10
 
 
 def test_full_episode_determinism():

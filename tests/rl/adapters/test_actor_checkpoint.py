@@ -58,12 +58,23 @@ def test_actor_samples_valid_goals_and_get_dist_rescores_them(engine):
 
 
 def test_actor_engine_roundtrip_plays_episodes(engine):
+    """The actor's actions, fed back to the engine event after event, are the active robots' allowed
+    goals with finite log-probabilities, and the worlds play on (their ticks advance)."""
     actor = AmatActor(AMAT())
+    decisions = 0
     for _ in range(30):
         td = actor(_td_from_engine(engine))
-        engine.step(td[K.ACTION].numpy())
+        action, active = td[K.ACTION].numpy(), engine.active & ~engine.state.done[:, None]
+        b, i = np.nonzero(active)
+        assert (engine.masks[b, i, action[b, i]] == 1).all()
+        assert torch.isfinite(td[K.LOG_PROB][torch.from_numpy(active)]).all()
+        decisions += len(b)
+        before = engine.state.ticks.copy()
+        engine.step(action)
+        assert (engine.state.ticks >= before).all() and (engine.state.ticks > before).any()
         if engine.state.done.any():
             engine.reset(worlds=engine.state.done)
+    assert decisions >= 30
 
 
 def test_deterministic_interaction_type(engine):

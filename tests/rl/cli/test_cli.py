@@ -23,12 +23,10 @@ import catmip_rl.evaluation.suite
 import catmip_rl.training.collect
 import catmip_rl.training.train
 from catmip_env.search_rescue_v0 import SearchRescueEnv
-from catmip_rl import AMAT, AmatConfig, save_model
-from catmip_rl.checkpoint import SHIPPED_DIR, CheckpointError, load_model, read_checkpoint, resume_checkpoint
+from catmip_rl.checkpoint import SHIPPED_DIR, CheckpointError, read_checkpoint, resume_checkpoint
 from catmip_rl.cli.args import CPUS
 from catmip_rl.cli.main import main
 from catmip_rl.cli.parser import DEFAULT_PRESET, build_parser
-from catmip_rl.evaluation.methods import parse_method
 from catmip_rl.files import open_csv_log
 from catmip_rl.training.presets import TRAIN_PRESETS, make_train_config
 
@@ -109,15 +107,6 @@ def test_a_corrupted_checkpoint_is_refused_naming_it_before_any_work(files, tmp_
     }[command]  # fmt: skip
     _fails(capsys, argv, str(bad), "not a readable checkpoint")
     assert not (tmp_path / "out").exists()
-
-
-def test_checkpoints_are_read_weights_only(tmp_path):
-    import fractions
-
-    torch.save({"x": fractions.Fraction(1, 3)}, tmp_path / "pickle.pt")  # loading it would run code
-    with pytest.raises(CheckpointError, match="unsafe"):
-        read_checkpoint(tmp_path / "pickle.pt")
-    assert set(read_checkpoint(SHIPPED)) == {"format", "config", "state_dict", "extra"}
 
 
 def test_train_resume_from_a_corrupted_latest_names_the_newest_readable_checkpoint(files, capsys):
@@ -423,24 +412,6 @@ def test_render_defaults_to_the_envs_fps_and_overwrites_only_with_force(tmp_path
 
 
 # -- shipped models, version, help ------------------------------------------------------------------------
-def test_shipped_models_load_by_name(tmp_path, monkeypatch):
-    assert load_model("task1").config.embed_dim == 64
-    assert catmip_rl.load_model("task1").config == load_model(SHIPPED).config
-    assert Path(parse_method("amat:task1").target) == SHIPPED
-    assert parse_method("best=amat-guard:task1").loop_guard
-    assert load_model("paper").config.embed_dim == 192  # the Table-2 size
-    assert load_model("smallma").config.window == 5  # SmallMA, D = 5
-    assert parse_method("amat:sync").synchronous and not parse_method("amat:paper").synchronous  # Synch-AMAT
-    with pytest.raises(FileNotFoundError, match=r"shipped: paper, smallma, sync, task1"):
-        load_model("task9")
-    monkeypatch.chdir(tmp_path)  # a path named like a shipped model wins: paths keep working
-    save_model(AMAT(AmatConfig(embed_dim=32)), tmp_path / "task1")
-    assert parse_method("amat:task1").target == "task1"
-    (tmp_path / "task2").mkdir()  # a folder without a checkpoint is named as such
-    with pytest.raises(FileNotFoundError, match=r"no AMAT checkpoint in the folder task2"):
-        parse_method("amat:task2")
-
-
 def test_version(capsys):
     assert main(["--version"]) == 0
     assert capsys.readouterr().out.strip() == f"catmip {catmip_rl.__version__}"
@@ -480,19 +451,6 @@ def test_every_flag_has_help_and_train_defaults_to_a_short_preset(capsys):
     assert main(["bench", "perf", "--help"]) == 0
     text = capsys.readouterr().out
     assert "--quick" in text and "--figure" not in text and "--episodes" not in text
-
-
-def test_a_model_loads_from_a_run_dir_or_its_checkpoints_folder(tmp_path):
-    (tmp_path / "run" / "checkpoints").mkdir(parents=True)
-    (tmp_path / "run" / "checkpoints" / "latest.pt").write_bytes(SHIPPED.read_bytes())
-    shipped = load_model(SHIPPED).config
-    assert (
-        load_model(tmp_path / "run").config == load_model(tmp_path / "run" / "checkpoints").config == shipped
-    )
-    with pytest.raises(
-        FileNotFoundError, match="give a training run dir .* its checkpoints/ folder, or a .pt"
-    ):
-        load_model(tmp_path)
 
 
 def test_a_state_dict_that_does_not_fit_is_summed_up_in_a_short_line(files, tmp_path, capsys):

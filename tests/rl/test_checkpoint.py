@@ -1,4 +1,5 @@
-"""Model and checkpoint files are verified before they are trusted: flipped bytes, a model too big to
+"""Model files and checkpoints (``catmip_rl.checkpoint``, ``catmip_rl.model_files``): read weights-only, by
+name, path or run dir, and verified before they are trusted: flipped bytes, a model too big to
 build, entries of the wrong types, another run's checkpoint, random bytes and truncations are each one
 line naming the file (exit 2 from the CLI), and nothing large is allocated on the way."""
 
@@ -8,13 +9,17 @@ import errno
 import json
 import random
 import resource
+from pathlib import Path
 
 import pytest
 import torch
 
+import catmip_rl
+from catmip_rl import AMAT, save_model
 from catmip_rl.amat.config import LIMITS, AmatConfig
 from catmip_rl.checkpoint import SHIPPED_DIR, CheckpointError, atomic_torch_save, load_model, read_checkpoint
 from catmip_rl.cli.main import main
+from catmip_rl.evaluation.methods import parse_method
 from catmip_rl.model_files import MAX_PARAMETERS
 from catmip_rl.training.presets import make_train_config
 
@@ -184,3 +189,43 @@ def test_fuzzed_model_files_are_refused_or_load(tmp_path):
             assert "\n" not in str(err) and str(path) in str(err), err
             outcomes["refused"] += 1
     assert outcomes["refused"] >= len(cases) - 2, outcomes  # a flip in unread padding may still load
+
+
+def test_checkpoints_are_read_weights_only(tmp_path):
+    import fractions
+
+    torch.save({"x": fractions.Fraction(1, 3)}, tmp_path / "pickle.pt")  # loading it would run code
+    with pytest.raises(CheckpointError, match="unsafe"):
+        read_checkpoint(tmp_path / "pickle.pt")
+    assert set(read_checkpoint(SHIPPED)) == {"format", "config", "state_dict", "extra"}
+
+
+def test_shipped_models_load_by_name(tmp_path, monkeypatch):
+    assert load_model("task1").config.embed_dim == 64
+    assert catmip_rl.load_model("task1").config == load_model(SHIPPED).config
+    assert Path(parse_method("amat:task1").target) == SHIPPED
+    assert parse_method("best=amat-guard:task1").loop_guard
+    assert load_model("paper").config.embed_dim == 192  # the Table-2 size
+    assert load_model("smallma").config.window == 5  # SmallMA, D = 5
+    assert parse_method("amat:sync").synchronous and not parse_method("amat:paper").synchronous  # Synch-AMAT
+    with pytest.raises(FileNotFoundError, match=r"shipped: paper, smallma, sync, task1"):
+        load_model("task9")
+    monkeypatch.chdir(tmp_path)  # a path named like a shipped model wins: paths keep working
+    save_model(AMAT(AmatConfig(embed_dim=32)), tmp_path / "task1")
+    assert parse_method("amat:task1").target == "task1"
+    (tmp_path / "task2").mkdir()  # a folder without a checkpoint is named as such
+    with pytest.raises(FileNotFoundError, match=r"no AMAT checkpoint in the folder task2"):
+        parse_method("amat:task2")
+
+
+def test_a_model_loads_from_a_run_dir_or_its_checkpoints_folder(tmp_path):
+    (tmp_path / "run" / "checkpoints").mkdir(parents=True)
+    (tmp_path / "run" / "checkpoints" / "latest.pt").write_bytes(SHIPPED.read_bytes())
+    shipped = load_model(SHIPPED).config
+    assert (
+        load_model(tmp_path / "run").config == load_model(tmp_path / "run" / "checkpoints").config == shipped
+    )
+    with pytest.raises(
+        FileNotFoundError, match="give a training run dir .* its checkpoints/ folder, or a .pt"
+    ):
+        load_model(tmp_path)

@@ -111,5 +111,7 @@ def test_ray_config_errors_and_missing_extra(tmp_path, monkeypatch):
                 "--collector", "ray"]) == 2  # fmt: skip
     monkeypatch.setitem(sys.modules, "ray", None)  # as if the extra were not installed
     cfg = make_train_config("tiny", collector="ray", iterations=1)
-    with pytest.raises(RuntimeError, match=r"pip install 'catmip\[distributed\]'"):
+    with pytest.raises(ImportError, match=r"pip install 'catmip\[distributed\]'"):
         train(cfg, tmp_path / "r", progress=False)
+    assert cli(["train", "--preset", "tiny", "--collector", "ray", "--run-dir", str(tmp_path / "c")]) == 2
+    assert not (tmp_path / "r").exists() and not (tmp_path / "c").exists()
