@@ -26,7 +26,7 @@ ENV_GROUPS = {
     "env: state": ("state",),
     "env: numba kernels": ("mapgen", "sensing", "bfs", "dynamics", "macro", "observe"),
     "env: world": ("world",),
-    "env: events": ("events", "decision_stats"),
+    "env: events": ("events", "episode_stats"),
     "env: planners": ("planners", "window_planner"),
     "env: play": ("play", "map_sets", "render", "warmup", "demo"),
     "env: PettingZoo": ("search_rescue_v0", "spaces"),

@@ -30,10 +30,10 @@ import torch
 from tensordict import TensorDict
 from torchrl.collectors import BaseCollector
 
-from catmip_env.play import EpisodeRecords
+from catmip_env.episode_stats import EpisodeRecords, training_stats
 from catmip_rl.amat.model import AMAT
 from catmip_rl.amat.weights import cpu_mirror
-from catmip_rl.training.collect import STEP_FIELDS, Collector, Rollout, episode_stats
+from catmip_rl.training.collect import STEP_FIELDS, Collector, Rollout
 from catmip_rl.training.config import TrainConfig
 
 __all__ = ["ShardCollector", "RayRolloutCollector", "import_ray", "RAY_MISSING"]
@@ -237,7 +237,7 @@ class RayRolloutCollector:
             terminated=td["terminated"].numpy().copy(),
             records=records,
             returns=returns,
-            stats=episode_stats(records, returns, self.cfg.env_config()),
+            stats=training_stats(records, returns, self.cfg.env_config()),
         )
 
     def close(self) -> None:

@@ -29,17 +29,10 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from catmip_env import EnvConfig, make_config, render
+from catmip_env.episode_stats import EpisodeRecords, decision_metrics, episode_metrics, success_curve
 from catmip_env.events import EventEngine
 from catmip_env.map_sets import check_maps, map_hash
-from catmip_env.play import (
-    EpisodeRecords,
-    decision_metrics,
-    episode_columns,
-    episode_metrics,
-    play,
-    plays_one_world_at_a_time,
-    success_curve,
-)
+from catmip_env.play import episode_columns, play, plays_one_world_at_a_time
 from catmip_rl.evaluation.methods import Method, make_policy, method_source, parse_method
 from catmip_rl.files import atomic_write_csv, atomic_write_text
 

@@ -18,14 +18,13 @@ import numpy as np
 import torch
 
 from catmip_env import EnvConfig
-from catmip_env.decision_stats import DecisionTracker
+from catmip_env.episode_stats import DecisionTracker, EpisodeRecords, episode_records, training_stats
 from catmip_env.events import EventEngine
-from catmip_env.play import EpisodeRecords, decision_metrics, episode_metrics, episode_records
 from catmip_rl.amat.inputs import macro_observation
 from catmip_rl.amat.model import AMAT, decision_order
 from catmip_rl.amat.weights import cpu_mirror
 
-__all__ = ["Rollout", "Collector", "episode_stats", "STEP_FIELDS"]
+__all__ = ["Rollout", "Collector", "STEP_FIELDS"]
 
 
 @dataclass
@@ -50,7 +49,7 @@ class Rollout:
     terminated: np.ndarray  # (B,) bool the episode ended in a rescue (its last macro-actions are trained)
     records: EpisodeRecords  # the B episodes' records (catmip_env.play), decisions and stalls included
     returns: np.ndarray  # (B, N) float64 each robot's episode return
-    stats: dict[str, float]  # episode_stats of records and returns: what the training log shows
+    stats: dict[str, float]  # training_stats of records and returns: what the training log shows
 
     @property
     def steps(self) -> int:
@@ -64,22 +63,6 @@ class Rollout:
 # the (T, B, ...) arrays of a Rollout, one row per decision event: the collector's storage
 _PER_EPISODE = ("label", "final_return", "terminated", "records", "returns", "stats")
 STEP_FIELDS = tuple(f.name for f in fields(Rollout) if f.name not in _PER_EPISODE)
-
-
-def episode_stats(records: EpisodeRecords, returns: np.ndarray, cfg: EnvConfig) -> dict[str, float]:
-    """The training logs' episode statistics, under the names of the metrics every evaluation uses
-    (``catmip_env.play.episode_metrics``: ``success_rate``, ``success_by_100``, ``mean_rescue_tick``,
-    ``mean_target_found_tick``, ... with NaN where a mean has no episode), plus ``mean_episode_ticks``,
-    the mean episode return of each class (``return_<class>``) and the decisions and stalls per episode
-    (``decision_metrics``)."""
-    m = episode_metrics(records, cfg.horizon_ticks)
-    m = {k: v for k, v in m.items() if k not in ("episodes", "horizon")}
-    out = {k: float("nan") if v is None else float(v) for k, v in m.items()}
-    out["mean_episode_ticks"] = float(records.ticks.mean())
-    for k, cls in enumerate(cfg.classes):
-        sel = records.cls == k
-        out[f"return_{cls.name}"] = float(returns[sel].mean()) if sel.any() else float("nan")
-    return out | decision_metrics(records, cfg.classes)
 
 
 class Collector:
@@ -197,5 +180,5 @@ class Collector:
             terminated=self._terminated.copy(),
             records=records,
             returns=returns,
-            stats=episode_stats(records, returns, eng.cfg),
+            stats=training_stats(records, returns, eng.cfg),
         )

@@ -23,9 +23,10 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from catmip_env.episode_stats import episode_metrics
 from catmip_env.events import EventEngine
 from catmip_env.planners import make_planner
-from catmip_env.play import episode_metrics, play
+from catmip_env.play import play
 from catmip_rl.cli.args import parse_set
 from catmip_rl.files import atomic_savefig, atomic_write_csv, atomic_write_text
 from catmip_rl.training.config import TrainConfig

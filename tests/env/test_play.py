@@ -7,17 +7,17 @@ import numpy as np
 import pytest
 
 from catmip_env import make_config
-from catmip_env.decision_stats import DecisionTracker
-from catmip_env.events import EventEngine, random_valid_actions
-from catmip_env.planners import make_planner
-from catmip_env.play import (
+from catmip_env.episode_stats import (
+    DecisionTracker,
     EpisodeRecords,
     decision_metrics,
     episode_metrics,
     episode_records,
-    play,
     success_curve,
 )
+from catmip_env.events import EventEngine, random_valid_actions
+from catmip_env.planners import make_planner
+from catmip_env.play import play
 from catmip_env.render import episode_frames, episode_status
 
 

@@ -83,8 +83,7 @@ def test_a_rescued_worlds_last_decisions_are_trained_with_advantage_r_minus_v():
 def test_shards_merged_as_records_give_the_whole_batchs_statistics():
     """What the Ray collector does with its workers' shards: concatenate their episode records and
     compute the statistics once; they equal those of one collector over all the worlds."""
-    from catmip_env.play import EpisodeRecords
-    from catmip_rl.training.collect import episode_stats
+    from catmip_env.episode_stats import EpisodeRecords, training_stats
 
     cfg = make_config("task1", map_size=10, horizon_ticks=60)
     model = AMAT(AmatConfig(embed_dim=32))
@@ -92,7 +91,7 @@ def test_shards_merged_as_records_give_the_whole_batchs_statistics():
     shards = [Collector(cfg, 2, seed=3).collect(model, first, deterministic=True) for first in (0, 2)]
     records = EpisodeRecords.concat([r.records for r in shards])
     returns = np.concatenate([r.returns for r in shards])
-    merged = episode_stats(records, returns, cfg)
+    merged = training_stats(records, returns, cfg)
     assert merged.keys() == whole.stats.keys()
     for key, value in whole.stats.items():
         assert merged[key] == pytest.approx(value, rel=1e-12, nan_ok=True), key

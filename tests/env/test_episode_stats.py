@@ -1,9 +1,9 @@
-"""Decision and stall counts (catmip_env.decision_stats)."""
+"""Decision and stall counts (catmip_env.episode_stats)."""
 
 import numpy as np
 
 from catmip_env import make_config
-from catmip_env.decision_stats import DecisionTracker
+from catmip_env.episode_stats import DecisionTracker
 from catmip_env.events import EventEngine
 from catmip_env.window_planner import make_window_planner
 
