@@ -1,4 +1,4 @@
-"""The figure tables of docs/reproducing.md and docs/tasks/ are the committed summaries
+"""The figure tables of docs/notes/reproducing-figures.md and docs/tasks/ are the committed summaries
 (docs/figures/paper/figN_summary.csv), as ``docs/figures/paper_tables.py --update`` writes them, and the
 splice replaces only the figure's table."""
 
@@ -22,7 +22,7 @@ def _tables_module():
 
 @pytest.mark.parametrize(
     ("page", "shown"),
-    [("reproducing.md", [6, 7, 8, 9, 10, 11]), ("tasks/task1.md", [6]), ("tasks/task2.md", [7, 11]),
+    [("notes/reproducing-figures.md", [9, 10]), ("tasks/task1.md", [6]), ("tasks/task2.md", [7, 11]),
      ("tasks/task3.md", [8])],
 )  # fmt: skip
 def test_the_pages_show_the_committed_summaries(page, shown):

@@ -1,11 +1,12 @@
-"""The tables of docs/reproducing.md from the summaries ``catmip bench paper`` wrote: one markdown table per
-figure, a row per method and a column per panel, each cell "success by tick 100 / success by the horizon /
-mean rescue tick"; with ``--bold`` the best by-tick-100 value of each column is bold. With ``--update FILE
-...`` the table of each figure a FILE has a heading for (the first table after a heading that starts
-with "### Figure N") is replaced in place; otherwise the tables are printed.
+"""The figure tables of docs/tasks/ and docs/notes/reproducing-figures.md from the summaries ``catmip
+bench paper`` wrote: one markdown table per figure, a row per method and a column per panel, each cell
+"success by tick 100 / success by the horizon / mean rescue tick"; with ``--bold`` the best by-tick-100
+value of each column is bold. With ``--update FILE ...`` the table of each figure a FILE has a heading
+for (the first table after a heading that starts with "### Figure N") is replaced in place; otherwise
+the tables are printed.
 
     python docs/figures/paper_tables.py [--dir docs/figures/paper] [--bold] \
-        [--update docs/reproducing.md docs/tasks/task*.md]
+        [--update docs/notes/reproducing-figures.md docs/tasks/task*.md]
 """
 
 from __future__ import annotations
