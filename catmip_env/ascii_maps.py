@@ -25,6 +25,7 @@ from catmip_env.constants import CLUE, FREE, OBSTACLE, STEPS, TARGET, WALL
 __all__ = ["Layout", "parse_layout"]
 
 _ROBOT_CHARS = "0123456789ABCDEF"
+_TERRAIN = {"#": WALL, "o": OBSTACLE, ".": FREE}  # cell codes of the characters that are only terrain
 
 
 @dataclass(frozen=True)
@@ -42,6 +43,28 @@ class Layout:
 @lru_cache(maxsize=64)
 def parse_layout(text: str) -> Layout:
     """Parse an ASCII map; raises ``ValueError`` naming the problem for malformed maps."""
+    lines, heading_letters = _map_rows(text)
+    grid, robots, target = _read_cells(lines)
+    _check_pieces(grid, robots)
+    headings = _read_headings(heading_letters, len(robots))
+    tr, tc = target
+    for i, (r, c) in robots.items():
+        if abs(r - tr) <= 1 and abs(c - tc) <= 1:
+            raise ValueError(f"layout robot {i} starts next to the target")
+    for dr in (-1, 0, 1):
+        for dc in (-1, 0, 1):
+            if (dr or dc) and grid[tr + dr, tc + dc] == FREE:
+                grid[tr + dr, tc + dc] = CLUE
+    _check_target_reachable(grid, robots, target)
+    robot_cells = np.array([robots[i] for i in range(len(robots))], dtype=np.int64)
+    grid.setflags(write=False)
+    robot_cells.setflags(write=False)
+    return Layout(grid=grid, robots=robot_cells, target=target, headings=headings)
+
+
+def _map_rows(text: str) -> tuple[list[str], list[str] | None]:
+    """The map's rows (dedented and stripped, blank lines dropped; equally long, at least 3x3) and the
+    letters of its ``headings:`` line (None without one)."""
     lines = [ln.rstrip() for ln in textwrap.dedent(text).strip("\n").splitlines()]
     lines = [ln for ln in lines if ln.strip()]
     heading_letters = None
@@ -56,22 +79,24 @@ def parse_layout(text: str) -> Layout:
     h, w = len(lines), width
     if h < 3 or w < 3:
         raise ValueError(f"layout must be at least 3x3, got {h}x{w}")
-    grid = np.full((h, w), FREE, dtype=np.uint8)
+    return lines, heading_letters
+
+
+def _read_cells(lines: list[str]) -> tuple[np.ndarray, dict[int, tuple[int, int]], tuple[int, int]]:
+    """The grid of cell codes (no clues yet), each robot's cell by id and the target's cell, read
+    character by character; a second target or robot, or an unknown character, is refused where met."""
+    grid = np.full((len(lines), len(lines[0])), FREE, dtype=np.uint8)
     robots: dict[int, tuple[int, int]] = {}
     target = None
     for r, line in enumerate(lines):
         for c, ch in enumerate(line):
-            if ch == "#":
-                grid[r, c] = WALL
-            elif ch == "o":
-                grid[r, c] = OBSTACLE
+            if ch in _TERRAIN:
+                grid[r, c] = _TERRAIN[ch]
             elif ch == "T":
                 if target is not None:
                     raise ValueError(f"layout has more than one target (second at {(r, c)})")
                 target = (r, c)
                 grid[r, c] = TARGET
-            elif ch == ".":
-                pass
             elif ch in _ROBOT_CHARS:
                 i = _ROBOT_CHARS.index(ch)
                 if i in robots:
@@ -81,6 +106,11 @@ def parse_layout(text: str) -> Layout:
                 raise ValueError(f"unknown layout character {ch!r} at row {r}, col {c}")
     if target is None:
         raise ValueError("layout has no target 'T'")
+    return grid, robots, target
+
+
+def _check_pieces(grid: np.ndarray, robots: dict[int, tuple[int, int]]) -> None:
+    """ValueError unless there are robots, numbered 0 .. N-1, and the map is enclosed by walls."""
     if not robots:
         raise ValueError("layout has no robot (digits 0-9 or A-F)")
     if sorted(robots) != list(range(len(robots))):
@@ -88,28 +118,15 @@ def parse_layout(text: str) -> Layout:
     border = np.concatenate([grid[0], grid[-1], grid[:, 0], grid[:, -1]])
     if not np.all(border == WALL):
         raise ValueError("layout must be enclosed by a ring of walls '#'")
-    n = len(robots)
-    if heading_letters is None:
-        headings = (0,) * n
-    else:
-        if len(heading_letters) != n or any(x.upper() not in "ESWN" for x in heading_letters):
-            raise ValueError(
-                f"layout 'headings:' line must give one of E/S/W/N per robot ({n}), got {heading_letters}"
-            )
-        headings = tuple("ESWN".index(x.upper()) for x in heading_letters)
-    tr, tc = target
-    for i, (r, c) in robots.items():
-        if abs(r - tr) <= 1 and abs(c - tc) <= 1:
-            raise ValueError(f"layout robot {i} starts next to the target")
-    for dr in (-1, 0, 1):
-        for dc in (-1, 0, 1):
-            if (dr or dc) and grid[tr + dr, tc + dc] == FREE:
-                grid[tr + dr, tc + dc] = CLUE
-    _check_target_reachable(grid, robots, target)
-    robot_cells = np.array([robots[i] for i in range(len(robots))], dtype=np.int64)
-    grid.setflags(write=False)
-    robot_cells.setflags(write=False)
-    return Layout(grid=grid, robots=robot_cells, target=target, headings=headings)
+
+
+def _read_headings(letters: list[str] | None, n: int) -> tuple[int, ...]:
+    """Each of the ``n`` robots' heading (0=E 1=S 2=W 3=N) from the ``headings:`` letters; east without."""
+    if letters is None:
+        return (0,) * n
+    if len(letters) != n or any(x.upper() not in "ESWN" for x in letters):
+        raise ValueError(f"layout 'headings:' line must give one of E/S/W/N per robot ({n}), got {letters}")
+    return tuple("ESWN".index(x.upper()) for x in letters)
 
 
 def _check_target_reachable(

@@ -11,7 +11,7 @@ import dataclasses
 import json
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, NoReturn
 
 from catmip_env.fields import BOOL, INT, NUMBER, STR, Rule, check, is_int, is_number, is_str
 
@@ -242,47 +242,59 @@ _RULES: dict[str, Rule] = {
 
 
 def _validate(cfg: EnvConfig) -> None:
-    def fail(msg: str) -> None:
-        raise ValueError(f"EnvConfig: {msg}")
-
+    """Every field's rule, then the checks across fields; ValueError naming the first problem."""
     for f in dataclasses.fields(cfg):
         check("EnvConfig", f.name, getattr(cfg, f.name), _RULES[f.name])
+    _validate_team(cfg)
+    _validate_world(cfg)
+
+
+def _fail(msg: str) -> NoReturn:
+    raise ValueError(f"EnvConfig: {msg}")
+
+
+def _validate_team(cfg: EnvConfig) -> None:
+    """The classes have unique names, and the team's slots (and random_classes) name them."""
     if not cfg.classes:
-        fail("classes must name at least one RobotClass")
+        _fail("classes must name at least one RobotClass")
     names = [c.name for c in cfg.classes]
     if len(set(names)) != len(names):
-        fail(f"class names must be unique, got {names}")
+        _fail(f"class names must be unique, got {names}")
     if "random" in names:
-        fail("'random' is reserved for team slots and cannot be a class name")
+        _fail("'random' is reserved for team slots and cannot be a class name")
     if not cfg.team:
-        fail("team must contain at least one robot")
+        _fail("team must contain at least one robot")
     for slot in cfg.team:
         if slot != "random" and slot not in names:
-            fail(f"unknown class name {slot!r} in team; known classes: {names} (or 'random')")
+            _fail(f"unknown class name {slot!r} in team; known classes: {names} (or 'random')")
     if "random" in cfg.team:
         if not cfg.random_classes:
-            fail("random_classes must not be empty when the team has a 'random' slot")
+            _fail("random_classes must not be empty when the team has a 'random' slot")
         for name in cfg.random_classes:
             if name not in names:
-                fail(f"unknown class name {name!r} in random_classes; known classes: {names}")
+                _fail(f"unknown class name {name!r} in random_classes; known classes: {names}")
+
+
+def _validate_world(cfg: EnvConfig) -> None:
+    """The team fits the map (spawn box or layout), the obstacles fit the map, one way to set the range."""
     if cfg.layout is None and cfg.num_robots > SPAWN_BOX * SPAWN_BOX:
-        fail(
+        _fail(
             f"{cfg.num_robots} robots do not fit the {SPAWN_BOX}x{SPAWN_BOX} spawn box "
             f"({SPAWN_BOX * SPAWN_BOX} cells)"
         )
     if cfg.comm_sigma is not None and cfg.comm_sigma_choices:
-        fail(
+        _fail(
             f"give comm_sigma ({cfg.comm_sigma!r}) or comm_sigma_choices ({cfg.comm_sigma_choices!r}), not "
             "both: with choices every episode draws its range from them"
         )
     if cfg.layout is None and cfg.obstacles > (cfg.map_size - 2) ** 2 // 4:
-        fail(f"num_obstacles={cfg.obstacles} is too many for a {cfg.map_size}x{cfg.map_size} map")
+        _fail(f"num_obstacles={cfg.obstacles} is too many for a {cfg.map_size}x{cfg.map_size} map")
     if cfg.layout is not None:
         from catmip_env.ascii_maps import parse_layout
 
         lay = parse_layout(cfg.layout)
         if lay.num_robots != cfg.num_robots:
-            fail(f"layout places {lay.num_robots} robots but team has {cfg.num_robots}")
+            _fail(f"layout places {lay.num_robots} robots but team has {cfg.num_robots}")
 
 
 def make_config(preset: str | EnvConfig = "task2", **overrides: Any) -> EnvConfig:

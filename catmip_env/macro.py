@@ -31,6 +31,36 @@ M_UNREACHABLE = 7  # 1 if the controller found the goal unreachable this tick
 M_FIELDS = 8
 
 
+@njit(cache=True, inline="always")
+def _plan_map(
+    b: int,
+    i: int,
+    pos: np.ndarray,
+    belief: np.ndarray,
+    used_occ: np.ndarray,
+    noisy: bool,
+    blocked: np.ndarray,
+) -> None:
+    """blocked (H, W) = the cells robot i's controller plans around: occupied in its belief (its noisy
+    occupancy under SLAM noise), the map's outer ring, and the other robots' cells (never its own)."""
+    n, h, w = pos.shape[1], belief.shape[2], belief.shape[3]
+    for r in range(h):
+        for c in range(w):
+            if noisy:
+                blocked[r, c] = used_occ[b, i, r, c] != 0
+            else:
+                blocked[r, c] = (belief[b, i, r, c] & OCCUPIED) != 0
+    # the map's extent is known: its outer ring is wall even where not yet seen
+    blocked[0, :] = True
+    blocked[h - 1, :] = True
+    blocked[:, 0] = True
+    blocked[:, w - 1] = True
+    for j in range(n):
+        if j != i:
+            blocked[pos[b, j, 0], pos[b, j, 1]] = True
+    blocked[pos[b, i, 0], pos[b, i, 1]] = False
+
+
 @njit(cache=True)
 def controller(
     b: int,
@@ -54,28 +84,14 @@ def controller(
 
     Unknown cells count as free, except the map's outer ring (the map's extent is known).
     """
-    n, h, w = pos.shape[1], belief.shape[2], belief.shape[3]
+    n = pos.shape[1]
     for i in range(n):
         actions[b, i] = STAY
         mstate[b, i, M_UNREACHABLE] = 0
         if mstate[b, i, M_STANDBY] or goal[b, i, 0] < 0 or t0 % speed[b, i] != 0:
             continue
-        for r in range(h):
-            for c in range(w):
-                if noisy:
-                    blocked[r, c] = used_occ[b, i, r, c] != 0
-                else:
-                    blocked[r, c] = (belief[b, i, r, c] & OCCUPIED) != 0
-        # the map's extent is known: its outer ring is wall even where not yet seen
-        blocked[0, :] = True
-        blocked[h - 1, :] = True
-        blocked[:, 0] = True
-        blocked[:, w - 1] = True
-        for j in range(n):
-            if j != i:
-                blocked[pos[b, j, 0], pos[b, j, 1]] = True
+        _plan_map(b, i, pos, belief, used_occ, noisy, blocked)
         r, c = pos[b, i, 0], pos[b, i, 1]
-        blocked[r, c] = False
         d = next_step(blocked, r, c, heading[b, i], goal[b, i, 0], goal[b, i, 1], dist, queue)
         if d == -1:
             mstate[b, i, M_UNREACHABLE] = 1
@@ -162,6 +178,23 @@ def activate(
     return event
 
 
+@njit(cache=True, inline="always")
+def _credit_tick(
+    b: int,
+    tick_rewards: np.ndarray,
+    gamma: float,
+    mstate: np.ndarray,
+    event_rewards: np.ndarray,
+    ma_rewards: np.ndarray,
+) -> None:
+    """Add world b's rewards of this tick to the event's and, discounted by the ticks since each robot's
+    activation, to its macro-action's."""
+    for i in range(tick_rewards.shape[1]):
+        r = tick_rewards[b, i]
+        event_rewards[b, i] += r
+        ma_rewards[b, i] += r * gamma ** mstate[b, i, M_ELAPSED]
+
+
 @njit(cache=True, nogil=True)  # threads=: chunks of worlds run at once
 def advance(
     live: np.ndarray,  # (B,) bool worlds to run (those not done)
@@ -224,10 +257,7 @@ def advance(
             )  # fmt: skip
             ticks[b] = t0 + 1
             event_ticks[b] += 1
-            for i in range(n):
-                r = tick_rewards[b, i]
-                event_rewards[b, i] += r
-                ma_rewards[b, i] += r * gamma ** mstate[b, i, M_ELAPSED]
+            _credit_tick(b, tick_rewards, gamma, mstate, event_rewards, ma_rewards)
             end_macro_actions(b, pos, goal, target, belief, mstate, rng, max_ma, t_min, t_max)
             if success:
                 terminated[b] = True

@@ -46,7 +46,6 @@ def observe(
     n, h, w = belief.shape[1], belief.shape[2], belief.shape[3]
     hw = h * w
     n_cls = obs_local.shape[2] - 4
-    half = obs_local.shape[3] // 2
     for b in range(worlds.shape[0]):
         if not worlds[b]:
             continue
@@ -79,31 +78,40 @@ def observe(
                 if j != i and comp[b, j] == comp[b, i]:
                     _stamp3(obs_global, b, i, 4 + cls[b, j], pos[b, j, 0], pos[b, j, 1])
             _stamp3(obs_global, b, i, 4 + n_cls, pos[b, i, 0], pos[b, i, 1])
+            _local_map(b, i, belief, pos, cls, comp, goal, obs_global, obs_local)
 
-            # -- local map ------------------------------------------------------------------
-            r0, c0 = pos[b, i, 0] - half, pos[b, i, 1] - half
-            size = 2 * half + 1
-            for lr in range(size):
-                r = r0 + lr
-                for lc in range(size):
-                    c = c0 + lc
-                    for ch in range(4 + n_cls):
-                        obs_local[b, i, ch, lr, lc] = 0
-                    if r < 0 or c < 0 or r >= h or c >= w:
-                        obs_local[b, i, 0, lr, lc] = OBS_ONE
-                        obs_local[b, i, 1, lr, lc] = OBS_ONE
-                        continue
-                    obs_local[b, i, 0, lr, lc] = obs_global[b, i, 0, r, c]
-                    obs_local[b, i, 1, lr, lc] = obs_global[b, i, 1, r, c]
-                    v = belief[b, i, r, c]
-                    if v & TARGET_BIT:
-                        obs_local[b, i, 2, lr, lc] = OBS_ONE
-                    elif v & CLUE_BIT:
-                        obs_local[b, i, 2, lr, lc] = OBS_CLUE
-                    if r == gr and c == gc:
-                        obs_local[b, i, 3, lr, lc] = OBS_ONE
-            for j in range(n):
-                if j != i and comp[b, j] == comp[b, i]:
-                    lr, lc = pos[b, j, 0] - r0, pos[b, j, 1] - c0
-                    if 0 <= lr < size and 0 <= lc < size:
-                        obs_local[b, i, 4 + cls[b, j], lr, lc] = OBS_ONE
+
+@njit(cache=True, inline="always")
+def _local_map(b, i, belief, pos, cls, comp, goal, obs_global, obs_local) -> None:
+    """Robot i's local map, centred on it: explored and occupied copied from its global map (both set
+    outside the map), target / clue, own goal, the robots of its neighbourhood by class."""
+    n, h, w = belief.shape[1], belief.shape[2], belief.shape[3]
+    n_cls = obs_local.shape[2] - 4
+    half = obs_local.shape[3] // 2
+    gr, gc = goal[b, i, 0], goal[b, i, 1]
+    r0, c0 = pos[b, i, 0] - half, pos[b, i, 1] - half
+    size = 2 * half + 1
+    for lr in range(size):
+        r = r0 + lr
+        for lc in range(size):
+            c = c0 + lc
+            for ch in range(4 + n_cls):
+                obs_local[b, i, ch, lr, lc] = 0
+            if r < 0 or c < 0 or r >= h or c >= w:
+                obs_local[b, i, 0, lr, lc] = OBS_ONE
+                obs_local[b, i, 1, lr, lc] = OBS_ONE
+                continue
+            obs_local[b, i, 0, lr, lc] = obs_global[b, i, 0, r, c]
+            obs_local[b, i, 1, lr, lc] = obs_global[b, i, 1, r, c]
+            v = belief[b, i, r, c]
+            if v & TARGET_BIT:
+                obs_local[b, i, 2, lr, lc] = OBS_ONE
+            elif v & CLUE_BIT:
+                obs_local[b, i, 2, lr, lc] = OBS_CLUE
+            if r == gr and c == gc:
+                obs_local[b, i, 3, lr, lc] = OBS_ONE
+    for j in range(n):
+        if j != i and comp[b, j] == comp[b, i]:
+            lr, lc = pos[b, j, 0] - r0, pos[b, j, 1] - c0
+            if 0 <= lr < size and 0 <= lc < size:
+                obs_local[b, i, 4 + cls[b, j], lr, lc] = OBS_ONE

@@ -212,7 +212,7 @@ class UniformWindow(RandomWindow):
 
 
 @njit(cache=True)
-def _grow_rrt(
+def _grow_rrt(  # noqa: C901 - numba kernel: one RRT loop nest; planners.py is at its 400-line limit
     explored: np.ndarray,  # (H, W) bool
     occupied: np.ndarray,  # (H, W) bool
     r0: float,

@@ -96,8 +96,20 @@ def project_goal(
     to_goal = dist.copy()
     if to_goal[r0 * w + c0] == UNREACHED:
         return stay
-    # follow the path the controller would take (the heading first, then E, S, W, N among equally short
-    # moves) and keep its farthest allowed cell inside the window
+    best = _farthest_on_path(to_goal, h, w, r0, c0, heading, window, window_mask)
+    if best >= 0:
+        return best
+    bfs_from(blocked, r0, c0, dist, queue, -1)  # dist: from the robot
+    return _nearest_to_goal(to_goal, dist, h, w, r0, c0, window, window_mask)
+
+
+@njit(cache=True)
+def _farthest_on_path(
+    to_goal: np.ndarray, h: int, w: int, r0: int, c0: int, heading: int, window: int, window_mask: np.ndarray
+) -> int:
+    """The farthest allowed window cell (as a window action) of the path the controller would take from
+    (r0, c0) down ``to_goal`` (the heading first, then E, S, W, N among equally short moves); -1: none."""
+    half = window // 2
     best, r, c, hd, g = -1, r0, c0, heading, to_goal[r0 * w + c0]
     while g > 0:
         step = downhill(to_goal, h, w, r, c, hd, g)
@@ -109,9 +121,24 @@ def project_goal(
         a = (r - r0 + half) * window + c - c0 + half
         if window_mask[a] != 0:
             best = a
-    if best >= 0:
-        return best
-    bfs_from(blocked, r0, c0, dist, queue, -1)  # dist: from the robot
+    return best
+
+
+@njit(cache=True)
+def _nearest_to_goal(
+    to_goal: np.ndarray,
+    dist: np.ndarray,
+    h: int,
+    w: int,
+    r0: int,
+    c0: int,
+    window: int,
+    window_mask: np.ndarray,
+) -> int:
+    """The allowed window cell with the shortest path ``to_goal``, nearer to it than (r0, c0) (ties: the
+    nearest by ``dist``, the path from the robot, then row-major); the centre ("stay") if none is."""
+    half = window // 2
+    stay = half * window + half
     best, best_g, best_r = stay, to_goal[r0 * w + c0], 0
     for a in range(window * window):
         r, c = r0 + a // window - half, c0 + a % window - half

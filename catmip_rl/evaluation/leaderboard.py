@@ -18,6 +18,7 @@ from typing import Any
 import numpy as np
 
 from catmip_env.files import atomic_path
+from catmip_rl.evaluation.evaluate import EvalSetting
 from catmip_rl.evaluation.suite import (
     BY_TICK,
     ENTRY_FORMAT,
@@ -69,6 +70,28 @@ def _same(stated: Any, recomputed: float | None) -> bool:
 def check_entry(entry: Any, episodes: int = EPISODES) -> dict[str, Any]:
     """The leaderboard's numbers of ``entry`` (aggregate and per setting, recomputed from its ticks);
     ValueError naming the first thing that makes it no entry of this suite."""
+    _check_header(entry, episodes)
+    numbers, success = {}, []
+    for st in SETTINGS:
+        ticks, horizon = _setting_ticks(entry, st, episodes)
+        numbers[st.label] = setting_numbers(ticks, horizon, intervals=False)  # the table shows the means
+        stated = entry["settings"][st.label]
+        for key in ("success_by_100", "success_rate", "mean_rescue_tick"):
+            if not _same(stated.get(key), numbers[st.label][key]):
+                raise ValueError(
+                    f"{st.label}: {key} {stated.get(key)!r} is not what its rescue ticks give "
+                    f"({numbers[st.label][key]!r})"
+                )
+        success.append(rescued_by_100(ticks, horizon))
+    iqm, low, high = iqm_interval(success)
+    if not _same((entry.get("aggregate") or {}).get("iqm_success_by_100"), iqm):
+        raise ValueError(f"aggregate iqm_success_by_100 is not what its rescue ticks give ({iqm!r})")
+    return {"iqm": iqm, "iqm_ci": [low, high], "settings": numbers}
+
+
+def _check_header(entry: Any, episodes: int) -> None:
+    """ValueError unless ``entry`` is an entry of this suite (format, suite, seed, episodes), names a
+    method and its training runs, and holds every setting of the suite and no other."""
     if not isinstance(entry, dict) or entry.get("format") != ENTRY_FORMAT:
         raise ValueError(f"not a {ENTRY_FORMAT} file")
     for key, want in (("suite", SUITE), ("seed", SEED), ("episodes", episodes)):
@@ -86,33 +109,24 @@ def check_entry(entry: Any, episodes: int = EPISODES) -> dict[str, Any]:
     if missing or extra:
         problem = f"missing setting(s) {missing}" if missing else f"setting(s) not in suite {SUITE}: {extra}"
         raise ValueError(problem)
-    numbers, success = {}, []
-    for st in SETTINGS:
-        stated = settings[st.label]
-        if not isinstance(stated, dict):
-            raise ValueError(f"{st.label}: not an object")
-        for key in ("task", "comm", "noise", "max_ma_ticks"):
-            if stated.get(key) != getattr(st, key):
-                suite_value = getattr(st, key)
-                raise ValueError(f"{st.label}: {key} is {stated.get(key)!r}, the suite's is {suite_value!r}")
-        if stated.get("maps_sha256") != maps_digest(st.task, episodes):
-            raise ValueError(f"{st.label}: its maps are not the frozen held-out maps (maps_sha256 differs)")
-        horizon = stated.get("horizon")
-        if type(horizon) is not int or horizon < BY_TICK:
-            raise ValueError(f"{st.label}: horizon {horizon!r} is not a horizon of the suite")
-        ticks = _ticks(entry, st.label, horizon, episodes)
-        numbers[st.label] = setting_numbers(ticks, horizon, intervals=False)  # the table shows the means
-        for key in ("success_by_100", "success_rate", "mean_rescue_tick"):
-            if not _same(stated.get(key), numbers[st.label][key]):
-                raise ValueError(
-                    f"{st.label}: {key} {stated.get(key)!r} is not what its rescue ticks give "
-                    f"({numbers[st.label][key]!r})"
-                )
-        success.append(rescued_by_100(ticks, horizon))
-    iqm, low, high = iqm_interval(success)
-    if not _same((entry.get("aggregate") or {}).get("iqm_success_by_100"), iqm):
-        raise ValueError(f"aggregate iqm_success_by_100 is not what its rescue ticks give ({iqm!r})")
-    return {"iqm": iqm, "iqm_ci": [low, high], "settings": numbers}
+
+
+def _setting_ticks(entry: dict[str, Any], st: EvalSetting, episodes: int) -> tuple[np.ndarray, int]:
+    """The rescue ticks ``(runs, episodes)`` and horizon of setting ``st`` of ``entry``; ValueError
+    unless the setting is the suite's (task, communication, noise, macro-action length, frozen maps)."""
+    stated = entry["settings"][st.label]
+    if not isinstance(stated, dict):
+        raise ValueError(f"{st.label}: not an object")
+    for key in ("task", "comm", "noise", "max_ma_ticks"):
+        if stated.get(key) != getattr(st, key):
+            suite_value = getattr(st, key)
+            raise ValueError(f"{st.label}: {key} is {stated.get(key)!r}, the suite's is {suite_value!r}")
+    if stated.get("maps_sha256") != maps_digest(st.task, episodes):
+        raise ValueError(f"{st.label}: its maps are not the frozen held-out maps (maps_sha256 differs)")
+    horizon = stated.get("horizon")
+    if type(horizon) is not int or horizon < BY_TICK:
+        raise ValueError(f"{st.label}: horizon {horizon!r} is not a horizon of the suite")
+    return _ticks(entry, st.label, horizon, episodes), horizon
 
 
 def load_entries(folder: str | Path, episodes: int = EPISODES) -> list[dict[str, Any]]:

@@ -69,6 +69,28 @@ def _tick(at: str, key: str, value: Any, horizon: int) -> int | None:
     return int(value)
 
 
+def _episode_tick(at: str, row: dict[str, Any], horizon: int) -> int | None:
+    """The rescue tick of the episode ``row`` (``at`` names it): None (not rescued) or 0..horizon, with
+    ``sampled_rescue_tick``, ``rescued`` and ``ticks`` (the episode's length) agreeing where present."""
+    if "rescue_tick" not in row:
+        raise ValueError(f"{at} has no rescue_tick")
+    tick = _tick(at, "rescue_tick", row["rescue_tick"], horizon)
+    _tick(at, "sampled_rescue_tick", row.get("sampled_rescue_tick"), horizon)
+    rescued = row.get("rescued", tick is not None)
+    if not isinstance(rescued, bool):
+        raise ValueError(f"{at} has rescued {rescued!r}: expected true or false")
+    if rescued != (tick is not None):
+        said = "rescued" if rescued else "not rescued"
+        raise ValueError(f"{at} says {said} but its rescue_tick is {json.dumps(tick)}")
+    if "ticks" in row:  # the episode's length: it ends at the rescue or the horizon
+        length = row["ticks"]
+        if not _whole(length) or not 0 <= length <= horizon:
+            raise ValueError(f"{at} has ticks {length!r}: expected a whole number from 0 to {horizon}")
+        if tick is not None and tick > length:
+            raise ValueError(f"{at} has rescue_tick {tick} after its end (ticks {int(length)})")
+    return tick
+
+
 def episode_ticks(folder: Path, rows: Any, horizon: int) -> tuple[list[str], np.ndarray]:
     """The map hash and rescue tick (``(E,)`` float, nan where not rescued) of each episode of
     ``folder``'s episodes.json (``rows``, parsed)."""
@@ -92,23 +114,7 @@ def episode_ticks(folder: Path, rows: Any, horizon: int) -> tuple[list[str], np.
                 "each episode of a result is another map"
             )
         first[h] = e
-        at = f"{where}: episode {e} (map {h})"
-        if "rescue_tick" not in row:
-            raise ValueError(f"{at} has no rescue_tick")
-        tick = _tick(at, "rescue_tick", row["rescue_tick"], horizon)
-        _tick(at, "sampled_rescue_tick", row.get("sampled_rescue_tick"), horizon)
-        rescued = row.get("rescued", tick is not None)
-        if not isinstance(rescued, bool):
-            raise ValueError(f"{at} has rescued {rescued!r}: expected true or false")
-        if rescued != (tick is not None):
-            said = "rescued" if rescued else "not rescued"
-            raise ValueError(f"{at} says {said} but its rescue_tick is {json.dumps(tick)}")
-        if "ticks" in row:  # the episode's length: it ends at the rescue or the horizon
-            length = row["ticks"]
-            if not _whole(length) or not 0 <= length <= horizon:
-                raise ValueError(f"{at} has ticks {length!r}: expected a whole number from 0 to {horizon}")
-            if tick is not None and tick > length:
-                raise ValueError(f"{at} has rescue_tick {tick} after its end (ticks {int(length)})")
+        tick = _episode_tick(f"{where}: episode {e} (map {h})", row, horizon)
         maps.append(h)
         ticks.append(math.nan if tick is None else float(tick))
     return maps, np.array(ticks, float)

@@ -111,12 +111,25 @@ class Run:
         """The collector of PPO iteration ``iteration`` (1, 2, ...): a mixture's worlds take turns."""
         return self.collectors[(iteration - 1) % len(self.collectors)]
 
+    def evaluate(self) -> dict[str, float]:
+        """The evaluator's episodes (:func:`evaluate_policy`, sampled actions seeded by ``cfg.eval_seed``)."""
+        return evaluate_policy(self.model, self.evaluator, self.cfg.eval_seed)
+
+    def checkpoint(self, ckpt_dir: Path) -> None:
+        """Save the run as ``ckpt_dir/latest.pt`` and ``ckpt_dir/iter_NNNNNN.pt`` (its iteration)."""
+        self.save(ckpt_dir / "latest.pt")
+        self.save(ckpt_dir / f"iter_{self.iteration:06d}.pt")
+
     def save(self, path: Path) -> None:
         save_training_checkpoint(
             path, iteration=self.iteration, episodes=self.episodes, elapsed_s=self.elapsed, bf16=self.bf16,
             model=self.model, optimizer=self.opt, value_norm=self.value_norm, generator=self.gen,
             config=self.cfg,
         )  # fmt: skip
+
+    def out_of_time(self) -> bool:
+        """Whether the time budget (``cfg.budget_minutes`` of training, evaluation excluded) is spent."""
+        return bool(self.cfg.budget_minutes) and self.elapsed >= 60.0 * self.cfg.budget_minutes
 
     def close(self) -> None:
         if self.cfg.collector == "ray":
@@ -220,6 +233,76 @@ def ppo_iteration(run: Run, run_dir: Path) -> tuple[dict[str, float], list[dict[
     return row, epochs, rollout
 
 
+class _RunLogs:
+    """A run's logs: metrics.csv and ppo_epochs.csv (continued from the checkpoint on resume) and
+    TensorBoard (None without it), each opened by :meth:`open` in turn; :meth:`close` closes those open."""
+
+    def __init__(self) -> None:
+        self.csv_file = self.epoch_file = self.tb = None
+        self.csv_writer = self.epoch_writer = None
+
+    def open(self, run_dir: Path, start: int | None) -> None:
+        self.csv_file, self.csv_writer = open_csv_log(run_dir / "metrics.csv", METRICS, start)
+        self.epoch_file, self.epoch_writer = open_csv_log(run_dir / "ppo_epochs.csv", EPOCH_METRICS, start)
+        self.tb = tensorboard_writer(run_dir)
+
+    def scalars(self, row: dict, step: int, skip: str) -> None:
+        """The numbers of ``row`` (not NaN, not the column ``skip``) to TensorBoard at ``step``."""
+        if self.tb is not None:
+            for k, v in row.items():
+                if k != skip and isinstance(v, (int, float)) and not math.isnan(v):
+                    self.tb.add_scalar(k, v, step)
+
+    def write(self, it: int, row: dict, epochs: list[dict[str, float]]) -> None:
+        """PPO iteration ``it``'s metrics row and its epochs' statistics, to the CSVs and TensorBoard."""
+        write_csv_row(self.csv_writer, self.csv_file, row)
+        for e in epochs:
+            write_csv_row(self.epoch_writer, self.epoch_file, {"iteration": it} | e)
+        self.scalars(row, it, "iteration")
+
+    def close(self) -> None:
+        for log in (self.csv_file, self.epoch_file, self.tb):
+            if log is not None:
+                log.close()
+
+
+def _write_run_files(run: Run, run_dir: Path) -> None:
+    """``run_dir/config.json`` and, for a run started from other weights, ``init_from.json``."""
+    run_dir.mkdir(parents=True, exist_ok=True)
+    atomic_write_text(run_dir / "config.json", run.cfg.to_json())
+    if run.init_source is not None:  # the weights' provenance: file, iteration, training minutes
+        atomic_write_text(run_dir / "init_from.json", json.dumps(run.init_source, indent=2))
+
+
+def _warm_start(run: Run, run_dir: Path, progress: bool, log_scalars) -> None:
+    """The DAgger rounds (``training.imitation.warm_start``) of a new run, evaluated after each where the
+    run has an evaluator; their training time and episodes count as the run's."""
+    cfg = run.cfg
+    evaluate_now = run.evaluate if run.evaluator else None
+    run.elapsed = warm_start(
+        cfg, run.model, run.dagger, run.gen, run_dir, progress, evaluate_now, log_scalars, run.value_norm
+    )
+    per_round = sum(c.num_worlds for c in run.dagger)
+    run.episodes = cfg.warm_start_rounds * per_round  # PPO's episodes follow the warm start's maps
+
+
+def _progress_bar(run: Run, progress: bool):
+    """A tqdm bar over the run's PPO iterations, from where it stands (None without ``progress``)."""
+    if not progress:
+        return None
+    from tqdm import tqdm
+
+    return tqdm(total=run.cfg.iterations, initial=run.iteration, desc="train", unit="it")
+
+
+def _show_progress(bar, row: dict) -> None:
+    bar.update(1)
+    bar.set_postfix(
+        success=f"{row.get('rollout/success_rate', 0):.2f}", kl=f"{row['ppo/approx_kl']:.4f}",
+        t=f"{row['time/iteration_s']:.1f}s",
+    )  # fmt: skip
+
+
 def train(cfg: TrainConfig, run_dir: str | Path, resume: bool = False, progress: bool = True) -> AMAT:
     """Run (or continue, with ``resume``) a training run in ``run_dir``; returns the model. The run holds
     ``run_dir`` while it lives (``run_dir.RunDirLock``: a second writer is refused); refusals
@@ -234,72 +317,36 @@ def train(cfg: TrainConfig, run_dir: str | Path, resume: bool = False, progress:
         lock.release(undo=True)  # a refused run leaves nothing behind
         raise
     created = lock.created  # a new run stopped before its first checkpoint removes its files
-    csv_file = epoch_file = tb = None
+    logs = _RunLogs()
     finished = False
 
-    def save(it: int) -> None:
-        run.save(latest)
-        run.save(ckpt_dir / f"iter_{it:06d}.pt")
-
-    def log_scalars(row: dict, step: int, skip: str) -> None:
-        if tb is not None:
-            for k, v in row.items():
-                if k != skip and isinstance(v, (int, float)) and not math.isnan(v):
-                    tb.add_scalar(k, v, step)
-
-    def evaluate() -> dict[str, float]:
-        return evaluate_policy(run.model, run.evaluator, cfg.eval_seed)
-
     try:
-        run_dir.mkdir(parents=True, exist_ok=True)
-        atomic_write_text(run_dir / "config.json", cfg.to_json())
-        if run.init_source is not None:  # the weights' provenance: file, iteration, training minutes
-            atomic_write_text(run_dir / "init_from.json", json.dumps(run.init_source, indent=2))
-        start = run.iteration if resume else None
-        csv_file, csv_writer = open_csv_log(run_dir / "metrics.csv", METRICS, start)
-        epoch_file, epoch_writer = open_csv_log(run_dir / "ppo_epochs.csv", EPOCH_METRICS, start)
-        tb = tensorboard_writer(run_dir)
+        _write_run_files(run, run_dir)
+        logs.open(run_dir, run.iteration if resume else None)
 
         # -- imitation warm start (DAgger against a window-projected planner), once, before PPO -------
         # (every checkpoint, iter_000000.pt included, is written after it: a resumed run never repeats it)
         if cfg.warm_start and not resume:
-            evaluate_now = evaluate if run.evaluator else None
-            run.elapsed = warm_start(
-                cfg, run.model, run.dagger, run.gen, run_dir, progress, evaluate_now, log_scalars,
-                run.value_norm,
-            )  # fmt: skip
-            per_round = sum(c.num_worlds for c in run.dagger)
-            run.episodes = cfg.warm_start_rounds * per_round  # PPO's episodes follow the warm start's maps
-            save(0)
-        bar = None
-        if progress:
-            from tqdm import tqdm
-
-            bar = tqdm(total=cfg.iterations, initial=run.iteration, desc="train", unit="it")
+            _warm_start(run, run_dir, progress, logs.scalars)
+            run.checkpoint(ckpt_dir)
+        bar = _progress_bar(run, progress)
 
         # -- the loop ------------------------------------------------------------------------------------
         while run.iteration < cfg.iterations:
-            if cfg.budget_minutes and run.elapsed >= 60.0 * cfg.budget_minutes:
+            if run.out_of_time():
                 break
             t0 = time.perf_counter()
             row, epochs, _ = ppo_iteration(run, run_dir)
             it = run.iteration
-            last = it == cfg.iterations or (cfg.budget_minutes and run.elapsed >= 60.0 * cfg.budget_minutes)
+            last = it == cfg.iterations or run.out_of_time()
             if cfg.eval_every and (it % cfg.eval_every == 0 or last):
-                row |= {f"eval/{k}": v for k, v in evaluate().items() if f"eval/{k}" in METRICS}
+                row |= {f"eval/{k}": v for k, v in run.evaluate().items() if f"eval/{k}" in METRICS}
             row["time/iteration_s"] = time.perf_counter() - t0
-            write_csv_row(csv_writer, csv_file, row)
-            for e in epochs:
-                write_csv_row(epoch_writer, epoch_file, {"iteration": it} | e)
-            log_scalars(row, it, "iteration")
+            logs.write(it, row, epochs)
             if cfg.checkpoint_every and (it % cfg.checkpoint_every == 0 or last):
-                save(it)
+                run.checkpoint(ckpt_dir)
             if bar is not None:
-                bar.update(1)
-                bar.set_postfix(
-                    success=f"{row.get('rollout/success_rate', 0):.2f}", kl=f"{row['ppo/approx_kl']:.4f}",
-                    t=f"{row['time/iteration_s']:.1f}s",
-                )  # fmt: skip
+                _show_progress(bar, row)
         if bar is not None:
             bar.close()
         finished = True
@@ -307,9 +354,7 @@ def train(cfg: TrainConfig, run_dir: str | Path, resume: bool = False, progress:
         err.add_note(stopped_note(run_dir, resume, created))
         raise
     finally:
-        for log in (csv_file, epoch_file, tb):
-            if log is not None:
-                log.close()
+        logs.close()
         run.close()
         nothing_to_resume = not (finished or resume or latest.exists())
         if nothing_to_resume:  # leave the dir as it was

@@ -93,7 +93,9 @@ def _forward(w, gmap, scale, ones, g, pooled, where, m0, m1):
 
 
 @_jit
-def _weight_grad(gmap, scale, grad, where, k, r0, r1, acc):
+def _weight_grad(  # noqa: C901 - numba kernel: one tuned, vectorised loop nest (backward hot path)
+    gmap, scale, grad, where, k, r0, r1, acc
+):
     """acc (O, k (ty), k (tx), 8) += the weight gradient of robots r0 .. r1-1: grad * the input patch at
     each bin's winning cell, summed. gmap (R, C, S, S) uint8 / float, grad and where (R, O, g, g).
 

@@ -208,7 +208,7 @@ def test_train_with_the_rescue_loss_logs_it_and_it_pulls_toward_the_rescue_rule(
     assert float(next(csv.DictReader((tmp_path / "plain" / "metrics.csv").open()))["loss/rescue"]) == 0.0
     with pytest.raises(ValueError, match="rescue_coef"):
         make_train_config("tiny", rescue_coef=-0.1)
-    with pytest.raises(ValueError, match="rescue_coef > 0 needs collector 'local'"):
+    with pytest.raises(ValueError, match="rescue_coef > 0 and anchor need collector 'local'"):
         make_train_config("tiny", rescue_coef=0.5, collector="ray", ray_workers=1)
 
 
