@@ -25,8 +25,8 @@ refresh(Path(__file__).parent)  # before any kernel loads its cache (catmip_env.
 from catmip_env.ascii_maps import Layout, parse_layout  # noqa: E402
 from catmip_env.config import EXPLORER, PRESETS, RESCUER, EnvConfig, RobotClass, make_config  # noqa: E402
 from catmip_env.events import EventEngine  # noqa: E402
+from catmip_env.kernels.state import WorldState  # noqa: E402
 from catmip_env.planners import make_planner  # noqa: E402
-from catmip_env.state import WorldState  # noqa: E402
 from catmip_env.world import BatchedWorld, StepResult  # noqa: E402
 
 __version__ = "0.1.0"

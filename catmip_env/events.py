@@ -18,8 +18,8 @@ from typing import NamedTuple
 import numpy as np
 
 from catmip_env.config import EnvConfig
-from catmip_env.dynamics import Rules
-from catmip_env.macro import (
+from catmip_env.kernels.dynamics import Rules
+from catmip_env.kernels.macro import (
     M_ACTIVE,
     M_ELAPSED,
     M_FIELDS,

@@ -1,6 +1,6 @@
 """Frozen map sets: the maps of the evaluation protocol, shipped as manifests of map hashes.
 
-A map depends only on the task, the seed and the episode index (``catmip_env.rng``), so "maps 0 .. E-1
+A map depends only on the task, the seed and the episode index (``catmip_env.kernels.rng``), so "maps 0 .. E-1
 of seed s" names the same episodes on every machine -- as long as map generation itself does not change
 (another catmip version, another numpy or numba). The manifests ``frozen_maps/task1.json`` ..
 ``task3.json`` hold the hash of each of the first 1,000 maps of the frozen seeds; :func:`check_maps`

@@ -36,9 +36,9 @@ import math
 import numpy as np
 from numba import njit
 
-from catmip_env.bfs import bfs_from
 from catmip_env.constants import EXPLORED, OCCUPIED, STEPS, TARGET_BIT
 from catmip_env.events import EventEngine
+from catmip_env.kernels.bfs import bfs_from
 
 __all__ = ["PLANNERS", "Planner", "make_planner"]
 

@@ -35,10 +35,10 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from catmip_env.bfs import UNREACHED, bfs_from, downhill
 from catmip_env.constants import OCCUPIED, STEP_COL, STEP_ROW
 from catmip_env.events import EventEngine
-from catmip_env.macro import action_masks
+from catmip_env.kernels.bfs import UNREACHED, bfs_from, downhill
+from catmip_env.kernels.macro import action_masks
 from catmip_env.planners import Planner, make_planner
 
 __all__ = ["WINDOW_KINDS", "WindowPlanner", "make_window_planner", "project_goal", "window_method_name"]

@@ -34,11 +34,11 @@ from catmip_env.constants import (
     global_channels,
     local_channels,
 )
-from catmip_env.dynamics import Rules, perceive_at_reset, tick
-from catmip_env.mapgen import Episode, generate
-from catmip_env.observe import observe as build_observations
-from catmip_env.rng import seed_state
-from catmip_env.state import WorldState
+from catmip_env.kernels.dynamics import Rules, perceive_at_reset, tick
+from catmip_env.kernels.mapgen import Episode, generate
+from catmip_env.kernels.observe import observe as build_observations
+from catmip_env.kernels.rng import seed_state
+from catmip_env.kernels.state import WorldState
 
 __all__ = ["BatchedWorld", "StepResult", "WorldChunks", "EPISODE_INDEX_LIMIT", "episode_index_array"]
 

@@ -10,12 +10,12 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGES = ("catmip_env", "catmip_rl")
 
-# catmip_env is one flat folder, layered: its groups, lowest first (catmip_rl's groups are its folders)
+# catmip_env's flat modules, layered: their groups, lowest first; a folder of catmip_env (kernels/, the
+# numba engine room) and of catmip_rl is a group of its own
 ENV_GROUPS = {
     "env: config": (
         "constants",
         "config",
-        "rng",
         "ascii_maps",
         "files",
         "fields",
@@ -23,8 +23,6 @@ ENV_GROUPS = {
         "machine",
         "__init__",
     ),
-    "env: state": ("state",),
-    "env: numba kernels": ("mapgen", "sensing", "bfs", "dynamics", "macro", "observe"),
     "env: world": ("world",),
     "env: events": ("events", "episode_stats"),
     "env: planners": ("planners", "window_planner"),
@@ -52,6 +50,8 @@ def group(module: str) -> str:
     pkg, *rest = module.split(".")
     if pkg == "catmip_rl":
         return f"rl: {rest[0]}" if len(rest) > 1 else RL_TOP[rest[0]]
+    if len(rest) > 1:  # a folder: catmip_env/kernels/
+        return f"env: {rest[0]}"
     name = rest[0] if rest else "__init__"
     return next(g for g, names in ENV_GROUPS.items() if name in names)
 

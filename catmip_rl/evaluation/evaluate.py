@@ -336,7 +336,7 @@ def _play_maps(policy, engine: EventEngine, bar, engine_hook) -> EpisodeRecords:
 
     if not plays_one_world_at_a_time(policy):
         return play(engine, policy, on_event=on_event)
-    # a world's episode depends only on the seed, its index and the actions (catmip_env.rng)
+    # a world's episode depends only on the seed, its index and the actions (catmip_env.kernels.rng)
     one = EventEngine(engine.cfg, num_worlds=1, seed=engine.world.base_seed, goal_mode=engine.goal_mode)
     records = []
     for e in range(engine.num_worlds):

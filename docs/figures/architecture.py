@@ -21,7 +21,7 @@ from tests.architecture_graph import group, group_edges, import_graph  # noqa: E
 
 # where each group's box is drawn (x, y of its centre, in box units)
 POSITION = {
-    "env: config": (0, 0), "env: state": (0, 1), "env: numba kernels": (0, 2), "env: world": (0, 3),
+    "env: config": (0, 0), "env: kernels": (0, 1.5), "env: world": (0, 3),
     "env: events": (0, 4), "env: planners": (-1, 5), "env: play": (0.2, 6), "env: PettingZoo": (-1, 7),
     "rl: amat": (2.2, 3), "rl: training": (2.2, 5), "rl: checkpoint": (3.4, 6.5), "rl: evaluation": (2, 7),
     "rl: adapters": (4, 4), "rl: cli": (3.4, 8),

@@ -6,7 +6,7 @@ import pytest
 from catmip_env import PRESETS, BatchedWorld, make_config
 from catmip_env.config import SPAWN_BOX, TARGET_EXCLUSION_BOX
 from catmip_env.constants import CLUE, FREE, OBSTACLE, TARGET, WALL
-from catmip_env.mapgen import generate, room_bounds, target_exclusion_side
+from catmip_env.kernels.mapgen import generate, room_bounds, target_exclusion_side
 
 from .helpers import bfs_distance
 

@@ -5,7 +5,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from catmip_env.constants import EXPLORED, OBSTACLE, WALL
-from catmip_env.sensing import (
+from catmip_env.kernels.sensing import (
     RAY_CELLS,
     RAY_NBLOCK,
     VIEW_BLOCKERS,

@@ -8,7 +8,7 @@ import pytest
 
 from catmip_env import BatchedWorld, EventEngine, make_config
 from catmip_env.events import random_valid_actions
-from catmip_env.state import WorldState
+from catmip_env.kernels.state import WorldState
 
 FIELDS = WorldState.__dataclass_fields__
 

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from catmip_env import BatchedWorld, make_config
-from catmip_env.state import WorldState
+from catmip_env.kernels.state import WorldState
 
 from .helpers import random_actions
 

@@ -11,8 +11,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from catmip_env.bfs import bfs_from
 from catmip_env.constants import OBS_ONE
+from catmip_env.kernels.bfs import bfs_from
 
 __all__ = ["cell_fields"]
 

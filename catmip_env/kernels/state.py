@@ -4,7 +4,7 @@
   of N robots on H x W maps. Its fields are allocated once and never rebound (the dataclass is frozen):
   code changes the state by writing *into* the arrays.
 * :class:`KernelState` — the same arrays as one ``typing.NamedTuple`` (``WorldState.kernel``), which
-  the entry kernels (:func:`catmip_env.dynamics.tick`, :func:`catmip_env.macro.advance`) take as one
+  the entry kernels (:func:`~.dynamics.tick`, :func:`~.macro.advance`) take as one
   argument. numba compiles namedtuple arguments like any other and caches them on disk; a ``jitclass``
   is passed a few microseconds faster per call but compiled again in every process (2-3 s per start).
 """

@@ -10,7 +10,7 @@ One call of :func:`tick` advances every live world by one tick:
 6. noise     the occupancy map each robot *uses* this tick is redrawn (if ``slam_noise > 0``).
 
 The entry kernels (:func:`tick`, :func:`perceive_at_reset`) take the world state as one value ``s``
-(:class:`catmip_env.state.KernelState`, the arrays of :class:`catmip_env.state.WorldState`) and the
+(:class:`~catmip_env.kernels.state.KernelState`, the arrays of :class:`~.state.WorldState`) and the
 constants of the run as one :class:`Rules` value. They unpack ``s`` once per call and hand the per-world
 steps the arrays they use: numba reference-counts every array of a namedtuple each time the tuple is
 passed or read, which done per world and tick more than doubled the time of a tick.
@@ -37,9 +37,9 @@ from catmip_env.constants import (
     TURN_LEFT,
     TURN_RIGHT,
 )
-from catmip_env.rng import uniform
-from catmip_env.sensing import RAY_NBLOCK, VIEW_BLOCKERS, VIEW_OFFSETS, sense_robot
-from catmip_env.state import KernelState
+from catmip_env.kernels.rng import uniform
+from catmip_env.kernels.sensing import RAY_NBLOCK, VIEW_BLOCKERS, VIEW_OFFSETS, sense_robot
+from catmip_env.kernels.state import KernelState
 
 
 class Rules(NamedTuple):

@@ -13,11 +13,11 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from catmip_env.bfs import next_step
 from catmip_env.constants import FORWARD, OCCUPIED, STAY, TARGET_BIT, TURN_LEFT, TURN_RIGHT
-from catmip_env.dynamics import Rules, move_robots, perceive
-from catmip_env.rng import randint
-from catmip_env.state import KernelState
+from catmip_env.kernels.bfs import next_step
+from catmip_env.kernels.dynamics import Rules, move_robots, perceive
+from catmip_env.kernels.rng import randint
+from catmip_env.kernels.state import KernelState
 
 # Columns of mstate.
 M_MA_TICKS = 0  # ticks the current macro-action has run

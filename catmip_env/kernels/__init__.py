@@ -1,0 +1,13 @@
+"""The engine room: the numba kernels every world runs on, and the arrays they share.
+
+* ``state`` — :class:`WorldState`, the worlds' arrays (one row per world), and their kernel views;
+* ``rng`` — each world's random stream (a counter-based generator the kernels draw from);
+* ``mapgen`` — the maps: walls, obstacles, target, clues, the robots' start;
+* ``sensing`` — what a robot sees, and the maps it shares with the robots it is linked to;
+* ``dynamics`` — one primitive tick: moves, collisions, perception, communication, rewards;
+* ``bfs`` — shortest paths on a robot's map (the controller's and the planners');
+* ``macro`` — macro-actions: the controller that walks a robot to its goal, events, activation;
+* ``observe`` — the observations (global and local maps) built from a robot's belief.
+
+Nothing here is a public API: ``catmip_env``'s world, engine and env are built on it.
+"""
