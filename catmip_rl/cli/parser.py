@@ -354,7 +354,13 @@ def add_compare(sub) -> None:
     co.add_argument("--seed", type=NON_NEGATIVE_INT, default=0, help="seed of the bootstrap resampling")
     pick = co.add_mutually_exclusive_group()
     pick.add_argument("--vs", metavar="METHOD", help="pair every method with this one only (METHOD - it)")
-    pick.add_argument("--pairs", type=pair_list, metavar="A:B,...", help="only these pairs (A - B)")
+    pick.add_argument(
+        "--pairs",
+        type=pair_list,
+        action="extend",
+        metavar="A:B,...",
+        help="only these pairs (A - B); repeat the flag or separate pairs by commas",
+    )
     co.set_defaults(name="compare")
 
 

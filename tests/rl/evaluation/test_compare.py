@@ -128,5 +128,18 @@ def test_vs_and_pairs_choose_the_comparisons_and_one_run_each_draws_no_aggregate
     assert main(["compare", str(tmp_path / "r"), "--vs", "ref", "--out", str(out)]) == 0
     assert (out / "paired.png").is_file() and not (out / "aggregate.png").exists()
     assert "No aggregate.png or profile.png: every method has one run" in (out / "compare.md").read_text()
+    argv = [
+        "compare",
+        str(tmp_path / "r"),
+        "--pairs",
+        "a:ref",
+        "--pairs",
+        "b:ref,a:b",
+        "--out",
+        str(tmp_path / "o3"),
+    ]
+    assert main(argv) == 0  # a repeated --pairs adds its pairs (it once kept only the last)
+    rows = (tmp_path / "o3" / "paired.csv").read_text().splitlines()[1:]
+    assert sorted(tuple(r.split(",")[1:3]) for r in rows) == [("a", "b"), ("a", "ref"), ("b", "ref")]
     assert main(["compare", str(tmp_path / "r"), "--pairs", "a", "--out", str(tmp_path / "o2")]) == 2
     assert "expected pairs of two method names" in capsys.readouterr().err
