@@ -15,7 +15,19 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from catmip_env.constants import CLUE_BIT, EXPLORED, OBS_CLUE, OBS_ONE, OCCUPIED, TARGET_BIT
+from catmip_env.constants import (
+    CH_CLASS0,
+    CH_EXPLORED,
+    CH_GOAL,
+    CH_OCCUPIED,
+    CH_TARGET,
+    CLUE_BIT,
+    EXPLORED,
+    OBS_CLUE,
+    OBS_ONE,
+    OCCUPIED,
+    TARGET_BIT,
+)
 
 # The branch-free channel loops below turn belief bits into observation values by shifting.
 assert EXPLORED << 2 == OBS_ONE and OCCUPIED << 1 == OBS_ONE and CLUE_BIT >> 2 == OBS_CLUE
@@ -53,9 +65,9 @@ def observe(
         for i in range(n):
             # -- global map: belief channels (branch-free flat loops) -------------------------
             bel = belief[b, i].reshape(hw)
-            g_exp = obs_global[b, i, 0].reshape(hw)
-            g_occ = obs_global[b, i, 1].reshape(hw)
-            g_tgt = obs_global[b, i, 2].reshape(hw)
+            g_exp = obs_global[b, i, CH_EXPLORED].reshape(hw)
+            g_occ = obs_global[b, i, CH_OCCUPIED].reshape(hw)
+            g_tgt = obs_global[b, i, CH_TARGET].reshape(hw)
             for k in range(hw):
                 v = bel[k]
                 g_exp[k] = (v & EXPLORED) << 2  # 1.0 -> 4
@@ -67,17 +79,17 @@ def observe(
             else:
                 for k in range(hw):
                     g_occ[k] = (bel[k] & OCCUPIED) << 1
-            obs_global[b, i, 3:] = 0
+            obs_global[b, i, CH_GOAL:] = 0
             knows = (belief[b, i, tr, tc] & TARGET_BIT) != 0
             if knows:
-                _stamp3(obs_global, b, i, 2, tr, tc)
+                _stamp3(obs_global, b, i, CH_TARGET, tr, tc)
             gr, gc = goal[b, i, 0], goal[b, i, 1]
             if gr >= 0:
-                obs_global[b, i, 3, gr, gc] = OBS_ONE
+                obs_global[b, i, CH_GOAL, gr, gc] = OBS_ONE
             for j in range(n):
                 if j != i and comp[b, j] == comp[b, i]:
-                    _stamp3(obs_global, b, i, 4 + cls[b, j], pos[b, j, 0], pos[b, j, 1])
-            _stamp3(obs_global, b, i, 4 + n_cls, pos[b, i, 0], pos[b, i, 1])
+                    _stamp3(obs_global, b, i, CH_CLASS0 + cls[b, j], pos[b, j, 0], pos[b, j, 1])
+            _stamp3(obs_global, b, i, CH_CLASS0 + n_cls, pos[b, i, 0], pos[b, i, 1])
             _local_map(b, i, belief, pos, cls, comp, goal, obs_global, obs_local)
 
 
@@ -86,7 +98,7 @@ def _local_map(b, i, belief, pos, cls, comp, goal, obs_global, obs_local) -> Non
     """Robot i's local map, centred on it: explored and occupied copied from its global map (both set
     outside the map), target / clue, own goal, the robots of its neighbourhood by class."""
     n, h, w = belief.shape[1], belief.shape[2], belief.shape[3]
-    n_cls = obs_local.shape[2] - 4
+    n_cls = obs_local.shape[2] - CH_CLASS0
     half = obs_local.shape[3] // 2
     gr, gc = goal[b, i, 0], goal[b, i, 1]
     r0, c0 = pos[b, i, 0] - half, pos[b, i, 1] - half
@@ -95,23 +107,23 @@ def _local_map(b, i, belief, pos, cls, comp, goal, obs_global, obs_local) -> Non
         r = r0 + lr
         for lc in range(size):
             c = c0 + lc
-            for ch in range(4 + n_cls):
+            for ch in range(CH_CLASS0 + n_cls):
                 obs_local[b, i, ch, lr, lc] = 0
             if r < 0 or c < 0 or r >= h or c >= w:
-                obs_local[b, i, 0, lr, lc] = OBS_ONE
-                obs_local[b, i, 1, lr, lc] = OBS_ONE
+                obs_local[b, i, CH_EXPLORED, lr, lc] = OBS_ONE
+                obs_local[b, i, CH_OCCUPIED, lr, lc] = OBS_ONE
                 continue
-            obs_local[b, i, 0, lr, lc] = obs_global[b, i, 0, r, c]
-            obs_local[b, i, 1, lr, lc] = obs_global[b, i, 1, r, c]
+            obs_local[b, i, CH_EXPLORED, lr, lc] = obs_global[b, i, CH_EXPLORED, r, c]
+            obs_local[b, i, CH_OCCUPIED, lr, lc] = obs_global[b, i, CH_OCCUPIED, r, c]
             v = belief[b, i, r, c]
             if v & TARGET_BIT:
-                obs_local[b, i, 2, lr, lc] = OBS_ONE
+                obs_local[b, i, CH_TARGET, lr, lc] = OBS_ONE
             elif v & CLUE_BIT:
-                obs_local[b, i, 2, lr, lc] = OBS_CLUE
+                obs_local[b, i, CH_TARGET, lr, lc] = OBS_CLUE
             if r == gr and c == gc:
-                obs_local[b, i, 3, lr, lc] = OBS_ONE
+                obs_local[b, i, CH_GOAL, lr, lc] = OBS_ONE
     for j in range(n):
         if j != i and comp[b, j] == comp[b, i]:
             lr, lc = pos[b, j, 0] - r0, pos[b, j, 1] - c0
             if 0 <= lr < size and 0 <= lc < size:
-                obs_local[b, i, 4 + cls[b, j], lr, lc] = OBS_ONE
+                obs_local[b, i, CH_CLASS0 + cls[b, j], lr, lc] = OBS_ONE

@@ -18,6 +18,7 @@ import numpy as np
 import torch
 
 from catmip_env import EnvConfig
+from catmip_env.constants import global_channels, local_channels
 from catmip_env.episode_stats import DecisionTracker, EpisodeRecords, episode_records, training_stats
 from catmip_env.events import EventEngine
 from catmip_rl.amat.inputs import macro_observation
@@ -80,7 +81,8 @@ class Collector:
         t = cfg.horizon_ticks + 1  # every event takes >= 1 tick, so no episode has more decisions
         l = cfg.local_size
         shapes = {  # per (T, B) row: trailing shape and dtype of each STEP_FIELDS array
-            "global_map": ((n, 5 + c, h, w), np.uint8), "local_map": ((n, 4 + c, l, l), np.uint8),
+            "global_map": ((n, global_channels(c), h, w), np.uint8),
+            "local_map": ((n, local_channels(c), l, l), np.uint8),
             "agent_class": ((n,), np.int64), "neighbourhood": ((n,), np.int64),
             "action_mask": ((n, eng.num_actions), np.bool_), "active": ((n,), np.bool_),
             "order": ((n,), np.int64), "action": ((n,), np.int64),
