@@ -1,9 +1,9 @@
 """Model checkpoints: the state dict and the :class:`AmatConfig` in one file, written atomically, with
 the config also beside it as JSON; loadable on CPU whatever device it was saved on.
 
-Checkpoints are read with ``torch.load(weights_only=True)`` (:func:`read_checkpoint`): tensors and plain
-containers only, never arbitrary pickled objects; a file that is not one (empty, truncated, corrupted,
-or holding other objects) raises :class:`CheckpointError` naming the file and the problem. Shipped
+Files are read and verified by :mod:`catmip_rl.model_files` (``torch.load(weights_only=True)`` after the
+archive's checks: tensors and plain containers only; a file that is not one raises its
+``CheckpointError`` naming the file and the problem). Shipped
 models (``catmip_rl/models/amat_NAME.pt``) load by name: ``load_model("task1")``."""
 
 from __future__ import annotations
@@ -11,7 +11,6 @@ from __future__ import annotations
 import hashlib
 import json
 import os
-import zipfile
 from dataclasses import asdict, replace
 from pathlib import Path
 from typing import Any
@@ -21,25 +20,22 @@ import torch
 from catmip_env.files import atomic_path
 from catmip_rl.amat.config import AmatConfig
 from catmip_rl.amat.model import AMAT
-from catmip_rl.amat.pointer import make_model
 from catmip_rl.amat.weights import finer_pool
 from catmip_rl.files import atomic_write_text
 from catmip_rl.model_files import (
+    FORMAT,
     CheckpointError,
-    check_archive,
-    check_extra,
-    check_model_size,
-    check_training_entries,
+    is_training_checkpoint,
+    model_from,
+    read_checkpoint,
 )
 from catmip_rl.shipped import SHIPPED_DIR, model_file, resolve_model, shipped_models
 
 __all__ = [
-    "save_model", "load_model", "atomic_torch_save", "read_checkpoint", "resolve_model", "shipped_models",
-    "CheckpointError", "SHIPPED_DIR", "resume_checkpoint", "initial_weights", "load_initial_weights",
-    "export_model", "model_from", "model_record", "trained_synchronous",
+    "save_model", "load_model", "atomic_torch_save", "resolve_model", "shipped_models", "SHIPPED_DIR",
+    "resume_checkpoint", "initial_weights", "load_initial_weights", "export_model", "model_record",
+    "trained_synchronous",
 ]  # fmt: skip
-
-FORMAT = "catmip-amat-v1"
 
 
 def atomic_torch_save(obj: Any, path: str | Path) -> Path:
@@ -78,42 +74,6 @@ def save_model(
     return path
 
 
-def read_checkpoint(path: str | Path, map_location: str | torch.device = "cpu") -> Any:
-    """``torch.load(path, weights_only=True)``, or :class:`CheckpointError` (``FileNotFoundError`` when
-    there is no file) saying what is wrong with the file."""
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"no checkpoint at {path}" + (" (it is a folder)" if path.is_dir() else ""))
-    if zipfile.is_zipfile(path):  # whole, and of bounded size, before torch reads it
-        check_archive(path)
-    try:
-        blob = torch.load(path, map_location=map_location, weights_only=True)
-    except Exception as err:  # torch reports a bad file as any of a dozen types (pickle, zip, OS, key...)
-        raise CheckpointError(f"{path} is not a readable checkpoint: {_diagnose(path, err)}") from None
-    if _is_training_checkpoint(blob):
-        check_training_entries(blob, path)
-    elif isinstance(blob, dict) and blob.get("format") == FORMAT and blob.get("extra") is not None:
-        check_extra(blob["extra"], path)
-    return blob
-
-
-def _diagnose(path: Path, err: Exception) -> str:
-    """Why ``torch.load`` failed on ``path``, in words (torch's own message can advise
-    ``weights_only=False``, which would run any code the file holds: never repeated here)."""
-    size = path.stat().st_size
-    if size == 0:
-        return "the file is empty"
-    with open(path, "rb") as f:
-        head = f.read(4)
-    if head != b"PK\x03\x04":
-        return f"not a torch checkpoint (a {size}-byte file that does not start like one)"
-    if not zipfile.is_zipfile(path):
-        return f"truncated or corrupted (a {size}-byte torch archive without its index)"
-    if "weights only" in str(err).lower():
-        return "it holds pickled objects other than tensors and plain containers (refused: unsafe to load)"
-    return f"corrupted torch archive ({type(err).__name__})"
-
-
 def load_model(path: str | Path, map_location: str | torch.device = "cpu") -> AMAT:
     """Rebuild the model (on CPU by default) from a file written by :func:`save_model`, a training
     checkpoint (``RUN_DIR/checkpoints/*.pt``), a training run dir or its ``checkpoints/`` folder (the
@@ -128,7 +88,7 @@ def trained_synchronous(spec: str | Path) -> bool:
     config in its checkpoint or exported file says; a file without one (a bare :func:`save_model`) was not."""
     path = model_file(resolve_model(spec))
     blob = read_checkpoint(path)
-    if _is_training_checkpoint(blob):
+    if is_training_checkpoint(blob):
         train_config = json.loads(blob["config"])
     else:
         extra = (blob.get("extra") if isinstance(blob, dict) else None) or {}
@@ -141,7 +101,7 @@ def model_record(spec: str | Path) -> dict[str, Any]:
     training minutes (its run's and with the runs it started from), the training seed and preset or
     config; None for what it does not say (a bare :func:`save_model`)."""
     blob = read_checkpoint(model_file(resolve_model(spec)))
-    if _is_training_checkpoint(blob):
+    if is_training_checkpoint(blob):
         config = json.loads(blob["config"])
         state = {"iteration": blob["iteration"], "episodes": blob["episodes"],
                  "training_minutes": blob.get("elapsed_s", 0.0) / 60.0}  # fmt: skip
@@ -152,52 +112,6 @@ def model_record(spec: str | Path) -> dict[str, Any]:
     record = {k: state.get(k) for k in keys}
     record["seed"] = config.get("seed") if isinstance(config, dict) else None
     return record
-
-
-def model_from(blob: Any, path: Path) -> AMAT:
-    """The AMAT of a checkpoint already read from ``path`` (a model file or a training checkpoint)."""
-    if isinstance(blob, dict) and "model" in blob and "amat_config" in blob:  # a training checkpoint
-        blob = {"format": FORMAT, "config": blob["amat_config"], "state_dict": blob["model"]}
-    if not isinstance(blob, dict) or blob.get("format") != FORMAT:
-        raise ValueError(f"{path} is not an AMAT checkpoint (expected format {FORMAT!r})")
-    try:
-        config = AmatConfig.from_dict(blob["config"])
-    except (TypeError, ValueError, KeyError, AttributeError) as err:
-        raise CheckpointError(f"{path} holds no valid AMAT config: {err}") from None
-    check_model_size(make_model, config, path)  # counted before anything is allocated
-    model = make_model(config)
-    state = blob.get("state_dict")
-    reason = _state_mismatch(state, model.state_dict())  # short: torch's message lists every key
-    if not reason:
-        try:
-            model.load_state_dict(state)
-        except (RuntimeError, KeyError, TypeError, AttributeError) as err:
-            reason = " ".join(str(err).split())
-            reason = reason if len(reason) <= 300 else reason[:300] + " ..."
-    if reason:
-        raise ValueError(f"checkpoint {path} does not fit the AMAT its config describes: {reason}")
-    return model
-
-
-def _state_mismatch(state: Any, expected: dict[str, torch.Tensor], shown: int = 3) -> str:
-    """How ``state`` differs from the model's ``expected`` state dict, in one short line (the first
-    ``shown`` keys of each kind and their counts; torch's own message lists every key); "" if it fits
-    by keys and shapes."""
-    if not isinstance(state, dict):
-        return f"its state_dict is a {type(state).__name__}, not a dict of tensors"
-
-    def some(keys: list[str]) -> str:
-        return ", ".join(keys[:shown]) + (f", ... ({len(keys)} in all)" if len(keys) > shown else "")
-
-    missing = [k for k in expected if k not in state]
-    unexpected = [k for k in state if k not in expected]
-    resized = [
-        f"{k} {tuple(state[k].shape)} vs {tuple(v.shape)}"
-        for k, v in expected.items()
-        if k in state and getattr(state[k], "shape", None) is not None and state[k].shape != v.shape
-    ]
-    kinds = {"missing keys": missing, "unexpected keys": unexpected, "shape mismatch": resized}
-    return "; ".join(f"{what}: {some(keys)}" for what, keys in kinds.items() if keys)
 
 
 # what a training checkpoint must hold to be resumed (save_training_checkpoint writes them all)
@@ -294,10 +208,6 @@ def resume_checkpoint(run_dir: str | Path) -> dict:
         raise type(err)(f"cannot resume {run_dir}: {err}{hint}") from None
 
 
-def _is_training_checkpoint(blob: Any) -> bool:
-    return isinstance(blob, dict) and "amat_config" in blob and "config" in blob
-
-
 def _origin(path: Path) -> dict | None:
     """``init_from.json`` of the run a training checkpoint belongs to (RUN_DIR/checkpoints/X.pt), if any."""
     source = path.parent.parent / "init_from.json" if path.parent.name == "checkpoints" else None
@@ -339,7 +249,7 @@ def initial_weights(spec: str, config: AmatConfig) -> dict[str, Any]:
             f"init_from {spec!r} is an AMAT of another configuration ({diff}): set the run's amat fields to "
             "match, or start from another model"
         )
-    if _is_training_checkpoint(blob):
+    if is_training_checkpoint(blob):
         state = {"iteration": blob["iteration"], "training_minutes": blob.get("elapsed_s", 0.0) / 60.0,
                  "init_from": _origin(path), "value_norm": blob["value_norm"]}  # fmt: skip
     else:  # a model file; export_model's carry their run's state in extra
@@ -378,7 +288,7 @@ def export_model(source: str | Path, out: str | Path, half: bool = False) -> tup
     Returns (path, extra)."""
     path = model_file(resolve_model(source))
     blob = read_checkpoint(path)
-    if not _is_training_checkpoint(blob):
+    if not is_training_checkpoint(blob):
         raise CheckpointError(f"{path} is not a training checkpoint (a model file needs no export)")
     if Path(out).resolve() in (path.resolve(), path.with_suffix(".json").resolve()):
         raise ValueError(f"--out {out} would replace the checkpoint it exports; write the model elsewhere")

@@ -1,7 +1,9 @@
-"""Model and checkpoint files checked before they are trusted: the archive whole (every member's CRC-32,
-which ``torch.load`` does not check), its sizes within bounds before anything is read, the model a
-config declares counted before it is built, and a training checkpoint's entries of the right types.
-Each failure is a :class:`CheckpointError` (a ``ValueError``) naming the file and the problem.
+"""Model and checkpoint files read, and checked before they are trusted (:func:`read_checkpoint`,
+:func:`model_from`): the archive whole (every member's CRC-32, which ``torch.load`` does not check), its
+sizes within bounds before anything is read, ``torch.load(weights_only=True)`` (tensors and plain
+containers only, never pickled objects), a training checkpoint's entries of the right types, and the
+model a config declares counted before it is built and its state dict fitted to it. Each failure is a
+:class:`CheckpointError` (a ``ValueError``) naming the file and the problem.
 """
 
 from __future__ import annotations
@@ -13,11 +15,17 @@ from typing import Any
 
 import torch
 
+from catmip_rl.amat.config import AmatConfig
+from catmip_rl.amat.model import AMAT
+from catmip_rl.amat.pointer import make_model
+
 __all__ = [
-    "CheckpointError", "MAX_ARCHIVE_BYTES", "MAX_PARAMETERS", "check_archive", "check_model_size",
-    "check_training_entries", "check_extra",
+    "CheckpointError", "FORMAT", "MAX_ARCHIVE_BYTES", "MAX_PARAMETERS", "read_checkpoint", "model_from",
+    "is_training_checkpoint", "check_archive", "check_model_size", "check_training_entries", "check_extra",
 ]  # fmt: skip
 
+FORMAT = "catmip-amat-v1"
+"""The format tag of a model file (:func:`~catmip_rl.checkpoint.save_model`)."""
 MAX_ARCHIVE_BYTES = 1 << 30
 """The most bytes a model or checkpoint file may unpack to (the shipped models: ~5 MB; a training
 checkpoint with its optimiser: ~3x its model)."""
@@ -55,7 +63,7 @@ def check_archive(path: Path) -> None:
         )
 
 
-def check_model_size(make_model, config, path: Path) -> None:
+def check_model_size(config: AmatConfig, path: Path) -> None:
     """The model ``make_model(config)`` would build, counted on the meta device (nothing allocated):
     refused with the count when it exceeds :data:`MAX_PARAMETERS`."""
     with torch.device("meta"):
@@ -112,3 +120,89 @@ def _check_types(blob: dict, types: dict[str, tuple[type, ...]], path: Path, whe
                 f"{path}: its {where}{key} is a {type(value).__name__}, not {names} (the file was not "
                 "written by catmip, or was edited)"
             )
+
+
+def read_checkpoint(path: str | Path, map_location: str | torch.device = "cpu") -> Any:
+    """``torch.load(path, weights_only=True)``, or :class:`CheckpointError` (``FileNotFoundError`` when
+    there is no file) saying what is wrong with the file."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"no checkpoint at {path}" + (" (it is a folder)" if path.is_dir() else ""))
+    if zipfile.is_zipfile(path):  # whole, and of bounded size, before torch reads it
+        check_archive(path)
+    try:
+        blob = torch.load(path, map_location=map_location, weights_only=True)
+    except Exception as err:  # torch reports a bad file as any of a dozen types (pickle, zip, OS, key...)
+        raise CheckpointError(f"{path} is not a readable checkpoint: {_diagnose(path, err)}") from None
+    if is_training_checkpoint(blob):
+        check_training_entries(blob, path)
+    elif isinstance(blob, dict) and blob.get("format") == FORMAT and blob.get("extra") is not None:
+        check_extra(blob["extra"], path)
+    return blob
+
+
+def _diagnose(path: Path, err: Exception) -> str:
+    """Why ``torch.load`` failed on ``path``, in words (torch's own message can advise
+    ``weights_only=False``, which would run any code the file holds: never repeated here)."""
+    size = path.stat().st_size
+    if size == 0:
+        return "the file is empty"
+    with open(path, "rb") as f:
+        head = f.read(4)
+    if head != b"PK\x03\x04":
+        return f"not a torch checkpoint (a {size}-byte file that does not start like one)"
+    if not zipfile.is_zipfile(path):
+        return f"truncated or corrupted (a {size}-byte torch archive without its index)"
+    if "weights only" in str(err).lower():
+        return "it holds pickled objects other than tensors and plain containers (refused: unsafe to load)"
+    return f"corrupted torch archive ({type(err).__name__})"
+
+
+def is_training_checkpoint(blob: Any) -> bool:
+    return isinstance(blob, dict) and "amat_config" in blob and "config" in blob
+
+
+def model_from(blob: Any, path: Path) -> AMAT:
+    """The AMAT of a checkpoint already read from ``path`` (a model file or a training checkpoint)."""
+    if isinstance(blob, dict) and "model" in blob and "amat_config" in blob:  # a training checkpoint
+        blob = {"format": FORMAT, "config": blob["amat_config"], "state_dict": blob["model"]}
+    if not isinstance(blob, dict) or blob.get("format") != FORMAT:
+        raise ValueError(f"{path} is not an AMAT checkpoint (expected format {FORMAT!r})")
+    try:
+        config = AmatConfig.from_dict(blob["config"])
+    except (TypeError, ValueError, KeyError, AttributeError) as err:
+        raise CheckpointError(f"{path} holds no valid AMAT config: {err}") from None
+    check_model_size(config, path)  # counted before anything is allocated
+    model = make_model(config)
+    state = blob.get("state_dict")
+    reason = _state_mismatch(state, model.state_dict())  # short: torch's message lists every key
+    if not reason:
+        try:
+            model.load_state_dict(state)
+        except (RuntimeError, KeyError, TypeError, AttributeError) as err:
+            reason = " ".join(str(err).split())
+            reason = reason if len(reason) <= 300 else reason[:300] + " ..."
+    if reason:
+        raise ValueError(f"checkpoint {path} does not fit the AMAT its config describes: {reason}")
+    return model
+
+
+def _state_mismatch(state: Any, expected: dict[str, torch.Tensor], shown: int = 3) -> str:
+    """How ``state`` differs from the model's ``expected`` state dict, in one short line (the first
+    ``shown`` keys of each kind and their counts; torch's own message lists every key); "" if it fits
+    by keys and shapes."""
+    if not isinstance(state, dict):
+        return f"its state_dict is a {type(state).__name__}, not a dict of tensors"
+
+    def some(keys: list[str]) -> str:
+        return ", ".join(keys[:shown]) + (f", ... ({len(keys)} in all)" if len(keys) > shown else "")
+
+    missing = [k for k in expected if k not in state]
+    unexpected = [k for k in state if k not in expected]
+    resized = [
+        f"{k} {tuple(state[k].shape)} vs {tuple(v.shape)}"
+        for k, v in expected.items()
+        if k in state and getattr(state[k], "shape", None) is not None and state[k].shape != v.shape
+    ]
+    kinds = {"missing keys": missing, "unexpected keys": unexpected, "shape mismatch": resized}
+    return "; ".join(f"{what}: {some(keys)}" for what, keys in kinds.items() if keys)

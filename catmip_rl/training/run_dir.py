@@ -15,9 +15,9 @@ from pathlib import Path
 
 import torch
 
-from catmip_rl.checkpoint import initial_weights, model_from, resume_checkpoint
+from catmip_rl.checkpoint import initial_weights, resume_checkpoint
 from catmip_rl.files import check_new_dir, check_not_dangling
-from catmip_rl.model_files import CheckpointError
+from catmip_rl.model_files import CheckpointError, model_from
 from catmip_rl.outputs import OutputInUse, OutputLock, first_missing
 from catmip_rl.training.config import TrainConfig
 

@@ -17,10 +17,10 @@ import torch
 import catmip_rl
 from catmip_rl import AMAT, save_model
 from catmip_rl.amat.config import LIMITS, AmatConfig
-from catmip_rl.checkpoint import SHIPPED_DIR, CheckpointError, atomic_torch_save, load_model, read_checkpoint
+from catmip_rl.checkpoint import SHIPPED_DIR, atomic_torch_save, load_model
 from catmip_rl.cli.main import main
 from catmip_rl.evaluation.methods import parse_method
-from catmip_rl.model_files import MAX_PARAMETERS
+from catmip_rl.model_files import MAX_PARAMETERS, CheckpointError, read_checkpoint
 from catmip_rl.training.presets import make_train_config
 
 SHIPPED = SHIPPED_DIR / "amat_task1.pt"

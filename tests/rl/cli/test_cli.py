@@ -23,11 +23,12 @@ import catmip_rl.evaluation.suite
 import catmip_rl.training.collect
 import catmip_rl.training.train
 from catmip_env.search_rescue_v0 import SearchRescueEnv
-from catmip_rl.checkpoint import SHIPPED_DIR, CheckpointError, read_checkpoint, resume_checkpoint
+from catmip_rl.checkpoint import SHIPPED_DIR, resume_checkpoint
 from catmip_rl.cli.args import CPUS
 from catmip_rl.cli.main import main
 from catmip_rl.cli.parser import DEFAULT_PRESET, build_parser
 from catmip_rl.files import open_csv_log
+from catmip_rl.model_files import CheckpointError, read_checkpoint
 from catmip_rl.training.presets import TRAIN_PRESETS, make_train_config
 
 SHIPPED = SHIPPED_DIR / "amat_task1.pt"
