@@ -14,3 +14,12 @@ def shaken_model(config=None, seed=0, scale=0.2):
         for p in m.parameters():
             p.add_(scale * torch.randn_like(p))
     return m.eval()
+
+
+def one_line_error(capsys, *needles: str) -> str:
+    """What the command printed on stderr: one line, no traceback, holding every needle."""
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1 and "Traceback" not in err, err
+    for needle in needles:
+        assert needle in err, (needle, err)
+    return err

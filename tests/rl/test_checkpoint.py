@@ -22,16 +22,9 @@ from catmip_rl.cli.main import main
 from catmip_rl.evaluation.methods import parse_method
 from catmip_rl.model_files import MAX_PARAMETERS, CheckpointError, read_checkpoint
 from catmip_rl.training.presets import make_train_config
+from tests.rl.helpers import one_line_error
 
 SHIPPED = SHIPPED_DIR / "amat_task1.pt"
-
-
-def _one_line(capsys, *needles: str) -> str:
-    err = capsys.readouterr().err
-    assert len(err.strip().splitlines()) == 1 and "Traceback" not in err, err
-    for needle in needles:
-        assert needle in err, (needle, err)
-    return err
 
 
 def _flipped(tmp_path, start: int, count: int = 2000):
@@ -49,7 +42,7 @@ def test_a_model_file_with_flipped_bytes_is_refused(tmp_path, capsys):
         load_model(bad)
     out = tmp_path / "out"
     assert main(["eval", "--method", f"amat:{bad}", "--episodes", "1", "--out", str(out)]) == 2
-    _one_line(capsys, str(bad), "corrupted")
+    one_line_error(capsys, str(bad), "corrupted")
     assert not out.exists()
 
 
@@ -64,7 +57,7 @@ def test_a_file_declaring_a_huge_model_is_refused_before_building_it(tmp_path, c
     torch.save(blob | {"config": blob["config"] | {"n_blocks": 10**6}}, tmp_path / "blocks.pt")
     assert main(["eval", "--method", f"amat:{tmp_path / 'blocks.pt'}", "--episodes", "1",
                  "--out", str(tmp_path / "out")]) == 2  # fmt: skip
-    _one_line(capsys, "blocks.pt", "n_blocks must be an int from 1 to 64")
+    one_line_error(capsys, "blocks.pt", "n_blocks must be an int from 1 to 64")
 
 
 def test_config_fields_are_bounded():
@@ -100,9 +93,9 @@ def test_inconsistent_training_checkpoints_are_one_line_naming_the_file(tmp_path
     with pytest.raises(CheckpointError, match=needle):
         read_checkpoint(run / "checkpoints" / "latest.pt")
     assert main(["train", "--run-dir", str(run), "--resume"]) == 2
-    _one_line(capsys, "latest.pt", needle)
+    one_line_error(capsys, "latest.pt", needle)
     assert main(["export", str(run), "--out", str(tmp_path / "m.pt")]) == 2
-    _one_line(capsys, "latest.pt")
+    one_line_error(capsys, "latest.pt")
 
 
 def test_resume_refuses_a_checkpoint_whose_parts_do_not_fit_before_building_the_run(tmp_path, capsys):
@@ -114,10 +107,10 @@ def test_resume_refuses_a_checkpoint_whose_parts_do_not_fit_before_building_the_
     model = {k: v.clone() for k, v in good.model.state_dict().items()}
     torch.save(_training_checkpoint(model={}), run / "checkpoints" / "latest.pt")
     assert main(["train", "--run-dir", str(run), "--resume"]) == 2
-    _one_line(capsys, "latest.pt", "does not fit the AMAT", "missing keys")
+    one_line_error(capsys, "latest.pt", "does not fit the AMAT", "missing keys")
     torch.save(_training_checkpoint(model=model, optimizer={"state": 1}), run / "checkpoints" / "latest.pt")
     assert main(["train", "--run-dir", str(run), "--resume"]) == 2
-    _one_line(capsys, "latest.pt: its optimiser or value normaliser does not fit")
+    one_line_error(capsys, "latest.pt: its optimiser or value normaliser does not fit")
 
 
 def test_a_model_files_extra_of_wrong_types_is_refused(tmp_path, capsys):
@@ -125,7 +118,7 @@ def test_a_model_files_extra_of_wrong_types_is_refused(tmp_path, capsys):
     torch.save(blob | {"extra": {"training_minutes": "long"}}, tmp_path / "m.pt")
     assert main(["eval", "--method", f"amat:{tmp_path / 'm.pt'}", "--episodes", "1",
                  "--out", str(tmp_path / "out")]) == 2  # fmt: skip
-    _one_line(capsys, "m.pt", "extra training_minutes is a str")
+    one_line_error(capsys, "m.pt", "extra training_minutes is a str")
 
 
 def test_resume_refuses_another_runs_checkpoint(tmp_path, capsys):
@@ -135,7 +128,7 @@ def test_resume_refuses_another_runs_checkpoint(tmp_path, capsys):
     torch.save(_training_checkpoint(config=make_train_config("tiny", seed=2).to_json()),
                run / "checkpoints" / "latest.pt")  # fmt: skip
     assert main(["train", "--run-dir", str(run), "--resume"]) == 2
-    _one_line(capsys, "another run's", "seed")
+    one_line_error(capsys, "another run's", "seed")
     assert json.loads((run / "config.json").read_text())["seed"] == 1  # not rewritten
 
 

@@ -27,16 +27,9 @@ from catmip_rl.outputs import (
     remove_results,
     staging_dir,
 )
+from tests.rl.helpers import one_line_error
 
 EVAL = ["eval", "--method", "nearest", "--task", "task1", "--episodes", "3", "--no-progress"]
-
-
-def _one_line(capsys, *needles: str) -> str:
-    err = capsys.readouterr().err
-    assert len(err.strip().splitlines()) == 1 and "Traceback" not in err, err
-    for needle in needles:
-        assert needle in err, (needle, err)
-    return err
 
 
 def test_a_held_folder_refuses_a_second_writer_naming_the_first(tmp_path, capsys):
@@ -45,7 +38,7 @@ def test_a_held_folder_refuses_a_second_writer_naming_the_first(tmp_path, capsys
         with pytest.raises(OutputInUse, match=f"process {os.getpid()}"):
             holding(out, "--out").acquire()
         assert main([*EVAL, "--out", str(out)]) == 2
-        _one_line(capsys, f"--out {out} is in use by process {os.getpid()}")
+        one_line_error(capsys, f"--out {out} is in use by process {os.getpid()}")
         assert sorted(p.name for p in out.iterdir()) == [".lock"]  # nothing written
     assert not (out / ".lock").exists()  # released: the lock file goes
     assert main([*EVAL, "--out", str(out)]) == 0
@@ -70,7 +63,7 @@ def test_two_catmip_evals_into_one_folder_leave_one_runs_results(tmp_path, capsy
         main(["eval", "--method", "random-uniform", "--episodes", "5", "--no-progress", "--out", str(out)])
         == 2
     )
-    _one_line(capsys, f"is in use by process {first.pid}")
+    one_line_error(capsys, f"is in use by process {first.pid}")
     assert first.wait(timeout=300) == 0, first.stderr.read()
     record = check_record(out)
     assert record["process"] == first.pid
@@ -87,7 +80,7 @@ def test_a_folder_mixed_by_two_runs_is_refused_by_compare(tmp_path, capsys):
         check_record(tmp_path / "a")
     capsys.readouterr()
     assert main(["compare", str(tmp_path / "a"), "--out", str(tmp_path / "cmp")]) == 2
-    _one_line(capsys, str(tmp_path / "a"), "not written by the run of its run.json")
+    one_line_error(capsys, str(tmp_path / "a"), "not written by the run of its run.json")
     (tmp_path / "b" / RECORD).write_text("[]")
     with pytest.raises(ValueError, match="not a catmip results record"):
         load_results([str(tmp_path / "b")])
@@ -210,7 +203,7 @@ def test_sys_exit_in_a_policy_is_one_line_and_exit_2(tmp_path, capsys, where, co
         main(["eval", "--method", f"py:{policy}:make", "--episodes", "2", "--no-progress", "--out", str(out)])
         == 2
     )
-    _one_line(capsys, "SystemExit", "sys.exit()")
+    one_line_error(capsys, "SystemExit", "sys.exit()")
     assert not out.exists()
 
 
