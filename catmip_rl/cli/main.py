@@ -18,7 +18,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import shutil
 import sys
 from pathlib import Path
 from typing import Any
@@ -161,9 +160,10 @@ def _bench(args: argparse.Namespace) -> int:
         return subprocess.call([sys.executable, str(script), *(["--quick"] if args.quick else [])])
     if args.suite == "suite":
         return _suite(args)
+    from contextlib import ExitStack
+
     from catmip_rl.evaluation.paper import FIGURES, run_figure
-    from catmip_rl.files import check_new_dir
-    from catmip_rl.outputs import output_folder, remove_debris, remove_results
+    from catmip_rl.outputs import output_folder, remove_results
 
     if args.all == (args.figure is not None):
         raise ValueError("give --figure N or --all (one of them)")
@@ -171,20 +171,15 @@ def _bench(args: argparse.Namespace) -> int:
     _check_parallel(args)
     methods = [m for m in args.methods.split(",") if m.strip()] + list(args.method)
     folders = [Path(args.out) / f"fig{fig}" for fig in figures]
-    for folder in folders:  # every figure's folder, before the lock is taken (and again once held)
-        check_new_dir(folder, "--out", force=args.force)
-    with output_folder(args.out, "--out", keep=True):  # other figures' folders stay
-        for folder in folders:
-            check_new_dir(folder, "--out", force=args.force)
-            remove_debris(folder)
-            if args.force:  # the earlier run's method folders go too: compare would report them
-                remove_results(folder)
+    with ExitStack() as held:
+        for folder in folders:  # every figure's folder held and checked before the first run starts
+            held.enter_context(output_folder(folder, "--out", force=args.force))
         for fig, folder in zip(figures, folders):
             try:
                 out = run_figure(fig, methods, args.episodes, args.seed, args.out, args.jobs,
                                  allow_other_maps=args.allow_other_maps, threads=args.threads)  # fmt: skip
-            except BaseException:  # a figure's folder holds a whole figure or nothing
-                shutil.rmtree(folder, ignore_errors=True)
+            except BaseException:  # a figure's folder holds a whole figure or none: its runs go
+                remove_results(folder)
                 raise
             print(f"figure {fig}: {out}/fig{fig}.png, curves.csv, summary.csv, marl_eval.json")
     return 0
@@ -225,10 +220,8 @@ def _leaderboard(args: argparse.Namespace) -> int:
     from catmip_rl.files import check_new_file
     from catmip_rl.outputs import output_folder
 
-    for name in ("leaderboard.md", "leaderboard.png"):
-        check_new_file(Path(args.out) / name, "--out", force=args.force)
     with output_folder(args.out, "--out", keep=True):  # the README and entries beside stay
-        for name in ("leaderboard.md", "leaderboard.png"):  # again, once held: a writer since
+        for name in ("leaderboard.md", "leaderboard.png"):  # checked once held: no writer since
             check_new_file(Path(args.out) / name, "--out", force=args.force)
         md, png = render_leaderboard(args.entries, args.out, args.episodes)
     print(md.read_text().split("\n\n", 2)[2].rstrip())  # the table

@@ -29,6 +29,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from catmip_env import EnvConfig, make_config, render
+from catmip_env.config import MIN_COMM_SIGMA
 from catmip_env.episode_stats import EpisodeRecords, decision_metrics, episode_metrics, success_curve
 from catmip_env.events import EventEngine
 from catmip_env.map_sets import check_maps, map_hash
@@ -92,7 +93,7 @@ class EvalSetting:
 
 
 def comm_sigma(comm: str | float | None) -> float | None:
-    """``"full"``/None -> None, ``"4"`` -> 4.0; anything else raises."""
+    """``"full"``/None -> None, ``"4"`` -> 4.0; anything else (below ``MIN_COMM_SIGMA`` included) raises."""
     if comm is None or comm == "full":
         return None
     try:
@@ -101,6 +102,8 @@ def comm_sigma(comm: str | float | None) -> float | None:
         raise ValueError(f"comm must be 'full' or a positive, finite range sigma, got {comm!r}") from None
     if not (sigma > 0 and math.isfinite(sigma)):
         raise ValueError(f"comm must be 'full' or a positive, finite range sigma, got {comm!r}")
+    if sigma < MIN_COMM_SIGMA:  # a tinier range breaks the link maths
+        raise ValueError(f"comm must be 'full' or a range sigma >= {MIN_COMM_SIGMA} (cells), got {comm!r}")
     return sigma
 
 

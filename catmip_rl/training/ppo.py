@@ -91,9 +91,9 @@ def ppo_loss(
     if rescue_coef > 0 and batch.rescue_label is not None:
         label = batch.rescue_label[sel]
         has = label >= 0
-        picked = logp_all[has].gather(-1, label[has][:, None])[:, 0]
-        picked = picked[logits[has].gather(-1, label[has][:, None])[:, 0] > INVALID_LOGIT / 2]  # mask's
-        rescue_loss = -picked.sum() / count
+        column = label[has][:, None]
+        allowed = logits[has].gather(-1, column)[:, 0] > INVALID_LOGIT / 2  # not scored outside the mask
+        rescue_loss = -logp_all[has].gather(-1, column)[:, 0][allowed].sum() / count
         loss = loss + rescue_coef * rescue_loss
     with torch.no_grad():
         stats = {

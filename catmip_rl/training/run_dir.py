@@ -18,7 +18,7 @@ import torch
 from catmip_rl.checkpoint import initial_weights, resume_checkpoint
 from catmip_rl.files import check_new_dir, check_not_dangling
 from catmip_rl.model_files import CheckpointError, model_from
-from catmip_rl.outputs import OutputInUse, OutputLock, first_missing
+from catmip_rl.outputs import OutputInUse, OutputLock, first_missing, remove_debris
 from catmip_rl.training.config import TrainConfig
 
 __all__ = [
@@ -55,9 +55,7 @@ class RunDirLock(OutputLock):
         self.created = first_missing(self.path.parent)
         self._new_file = not self.path.exists()
         super().acquire()
-        for folder in (self.path.parent, self.path.parent / "checkpoints"):  # what a killed writer left
-            for debris in folder.glob(".*.tmp*"):
-                debris.unlink(missing_ok=True)
+        remove_debris(self.path.parent)  # what a killed writer left
         return self
 
     def release(self, undo: bool = False) -> None:
