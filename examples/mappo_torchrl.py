@@ -66,8 +66,15 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         "--algo", default="mappo", choices=ALGOS, help="centralised (mappo) or local (ippo) critic"
     )
     ap.add_argument("--task", default="task1", choices=sorted(PRESETS), help="the world trained on")
-    ap.add_argument("--minutes", type=float, default=5.0, help="wall-clock budget (the LR decays over it)")
-    ap.add_argument("--iterations", type=int, default=1_000_000, help="budget in iterations")
+    ap.add_argument(
+        "--minutes",
+        type=float,
+        default=None,
+        help="wall-clock budget (the LR decays over it); 5 without --iterations",
+    )
+    ap.add_argument(
+        "--iterations", type=int, default=None, help="budget in iterations (no time limit unless --minutes)"
+    )
     ap.add_argument("--worlds", type=int, default=32, help="worlds stepped together")
     ap.add_argument("--events", type=int, default=64, help="events per world per iteration")
     ap.add_argument("--epochs", type=int, default=4)
@@ -87,7 +94,18 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         "--eval-episodes", type=int, default=100, help="protocol maps evaluated at the end (0: none)"
     )
     ap.add_argument("--eval-seed", type=int, default=0, help="the map set of that evaluation")
-    return ap.parse_args(argv)
+    args = ap.parse_args(argv)
+    if args.minutes is None and args.iterations is None:
+        args.minutes = 5.0
+    return args
+
+
+def _spent(args: argparse.Namespace, minutes: float, iterations: int) -> float:
+    """The fraction of the budget spent: of whichever of --minutes / --iterations ends first."""
+    return max(
+        minutes / args.minutes if args.minutes else 0.0,
+        iterations / args.iterations if args.iterations else 0.0,
+    )
 
 
 def main(argv: list[str] | None = None) -> list[dict[str, float]]:
@@ -121,7 +139,7 @@ def main(argv: list[str] | None = None) -> list[dict[str, float]]:
     for iteration, data in enumerate(collector):
         minutes = (time.perf_counter() - start) / 60
         for group in optim.param_groups:  # linear decay over whichever budget ends first
-            group["lr"] = args.lr * max(0.0, 1 - max(minutes / args.minutes, iteration / args.iterations))
+            group["lr"] = args.lr * max(0.0, 1 - _spent(args, minutes, iteration))
         data.set(("next", *K.REWARD), data.get(("next", *K.REWARD)) * args.reward_scale)
         samples = decision_samples(data, critic, args.gamma, args.lmbda)
         adv = samples.get(ADVANTAGE)
@@ -155,7 +173,7 @@ def main(argv: list[str] | None = None) -> list[dict[str, float]]:
             f"loss π {row['loss_objective']:+.3f} V {row['loss_critic']:.3f} H {row['loss_entropy']:+.4f}",
             flush=True,
         )
-        finished = row["minutes"] >= args.minutes or iteration + 1 >= args.iterations
+        finished = _spent(args, row["minutes"], iteration + 1) >= 1
         if out is not None and (finished or (iteration + 1) % args.save_every == 0):
             _write_metrics(out / "metrics.csv", history)
             info = {"algo": args.algo, "task": args.task, "iteration": iteration, "minutes": row["minutes"],

@@ -49,6 +49,16 @@ def test_demo_writes_results_and_gif(tmp_path):
     assert (tmp_path / "episode.gif").stat().st_size > 1000
 
 
+def test_mappo_torchrl_budget_is_the_one_given():
+    mod = _load(ROOT / "examples" / "mappo_torchrl.py")
+    quick = mod.parse_args([])  # neither budget: five minutes
+    assert (quick.minutes, quick.iterations) == (5.0, None)
+    long = mod.parse_args(["--iterations", "2000"])  # an iteration budget alone has no time limit
+    assert long.minutes is None and mod._spent(long, 600.0, 1000) == 0.5
+    both = mod.parse_args(["--iterations", "2000", "--minutes", "10"])  # whichever ends first
+    assert mod._spent(both, 6.0, 1000) == 0.6 and mod._spent(both, 1.0, 2000) == 1.0
+
+
 @pytest.mark.parametrize("algo", ["mappo", "ippo"])
 def test_mappo_torchrl_trains_saves_and_evaluates_through_its_factory(tmp_path, algo, capsys, monkeypatch):
     out = tmp_path / algo
