@@ -21,7 +21,7 @@ from catmip_rl.amat.pointer import make_model
 
 __all__ = [
     "CheckpointError", "FORMAT", "MAX_ARCHIVE_BYTES", "MAX_PARAMETERS", "read_checkpoint", "model_from",
-    "is_training_checkpoint", "check_archive", "check_model_size", "check_training_entries", "check_extra",
+    "is_training_checkpoint", "check_archive", "declared_config", "check_training_entries", "check_extra",
 ]  # fmt: skip
 
 FORMAT = "catmip-amat-v1"
@@ -63,9 +63,14 @@ def check_archive(path: Path) -> None:
         )
 
 
-def check_model_size(config: AmatConfig, path: Path) -> None:
-    """The model ``make_model(config)`` would build, counted on the meta device (nothing allocated):
-    refused with the count when it exceeds :data:`MAX_PARAMETERS`."""
+def declared_config(fields: Any, path: Path) -> AmatConfig:
+    """The :class:`AmatConfig` of the ``fields`` a file declares, and the model ``make_model`` would build
+    of it counted on the meta device (nothing allocated): refused when the fields are no valid config,
+    or with the count when it exceeds :data:`MAX_PARAMETERS`."""
+    try:
+        config = AmatConfig.from_dict(fields)
+    except (TypeError, ValueError, KeyError, AttributeError) as err:
+        raise CheckpointError(f"{path} holds no valid AMAT config: {err}") from None
     with torch.device("meta"):
         count = sum(p.numel() for p in make_model(config).parameters())
     if count > MAX_PARAMETERS:
@@ -73,6 +78,7 @@ def check_model_size(config: AmatConfig, path: Path) -> None:
             f"{path} declares a model of {count:,} parameters, more than a model file may "
             f"({MAX_PARAMETERS:,}); refused before building it"
         )
+    return config
 
 
 _TYPES: dict[str, tuple[type, ...]] = {
@@ -168,11 +174,7 @@ def model_from(blob: Any, path: Path) -> AMAT:
         blob = {"format": FORMAT, "config": blob["amat_config"], "state_dict": blob["model"]}
     if not isinstance(blob, dict) or blob.get("format") != FORMAT:
         raise ValueError(f"{path} is not an AMAT checkpoint (expected format {FORMAT!r})")
-    try:
-        config = AmatConfig.from_dict(blob["config"])
-    except (TypeError, ValueError, KeyError, AttributeError) as err:
-        raise CheckpointError(f"{path} holds no valid AMAT config: {err}") from None
-    check_model_size(config, path)  # counted before anything is allocated
+    config = declared_config(blob["config"], path)  # counted before anything is allocated
     model = make_model(config)
     state = blob.get("state_dict")
     reason = _state_mismatch(state, model.state_dict())  # short: torch's message lists every key

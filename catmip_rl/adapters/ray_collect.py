@@ -32,8 +32,7 @@ from torchrl.collectors import BaseCollector
 
 from catmip_env.episode_stats import EpisodeRecords, training_stats
 from catmip_rl.amat.model import AMAT
-from catmip_rl.amat.weights import cpu_mirror
-from catmip_rl.training.collect import STEP_FIELDS, Collector, Rollout
+from catmip_rl.training.collect import STEP_FIELDS, Collector, Rollout, cpu_mirror
 from catmip_rl.training.config import TrainConfig
 
 __all__ = ["ShardCollector", "RayRolloutCollector", "import_ray", "RAY_MISSING"]
@@ -186,6 +185,7 @@ class RayRolloutCollector:
         self.workers = cfg.ray_workers
         self.num_worlds = cfg.num_worlds  # episodes a collect() call plays, as Collector.num_worlds
         self.model = model
+        ray_init = _ray_init_config(cfg.ray_address, cfg.ray_workers)
         self._mirror = cpu_mirror(model)
         share = cfg.num_worlds // cfg.ray_workers
         make = functools.partial(Collector, cfg.env_config(), share, cfg.seed, cfg.gamma)
@@ -197,7 +197,7 @@ class RayRolloutCollector:
                 collector_kwargs={"seed": cfg.seed, "pad_steps": cfg.env_config().horizon_ticks + 1},
                 num_collectors=cfg.ray_workers,
                 remote_configs={"num_cpus": 1},
-                ray_init_config=_ray_init_config(cfg.ray_address, cfg.ray_workers),
+                ray_init_config=ray_init,
                 frames_per_batch=cfg.num_worlds,  # a frame is a world's episode here
                 total_frames=2**62,  # endless: the training loop decides when to stop (-1 ends at once)
                 sync=True,

@@ -40,7 +40,7 @@ from catmip_env.constants import OBS_ONE
 from catmip_rl.amat.config import AmatConfig
 from catmip_rl.amat.kernels.cell_fields import cell_fields
 from catmip_rl.amat.layers import DecoderBlock
-from catmip_rl.amat.model import AMAT, INVALID_LOGIT, as_float, gather_robots
+from catmip_rl.amat.model import AMAT, INVALID_LOGIT, as_float
 
 __all__ = ["PointerAMAT", "Embedded", "CellContext", "make_model"]
 
@@ -62,6 +62,16 @@ class Embedded(NamedTuple):
 
     x: torch.Tensor  # (B, N, d)
     cells: CellContext
+
+
+class _InOrder(NamedTuple):
+    """What the decoder reads of each robot, in decision order (:func:`_in_decision_order`)."""
+
+    rep: torch.Tensor  # (B, N, d) encoder output
+    actions: torch.Tensor  # (B, N) long: the robots' goals (a new tensor: the decoder may fill it in)
+    pos: torch.Tensor  # (B, N, 2) long: the robots' cells
+    cls: torch.Tensor  # (B, N, C) class one-hots, in the encoder's dtype
+    earlier: torch.Tensor  # (B, N, N) bool: position j comes before k in k's neighbourhood
 
 
 def make_model(config: AmatConfig | None = None) -> AMAT:
@@ -163,23 +173,14 @@ class PointerAMAT(AMAT):
         return logits.masked_fill(~allowed, INVALID_LOGIT)
 
     # -- decoder --------------------------------------------------------------------------------------
-    def _decode(
-        self,
-        rep_o: torch.Tensor,
-        actions_o: torch.Tensor,
-        pos_o: torch.Tensor,
-        earlier: torch.Tensor,
-        cls_o: torch.Tensor,
-        w: int,
-    ) -> torch.Tensor:
-        """Decoder outputs (B, N, d) in decision order, teacher-forced on actions_o (B, N) (each
-        position fed the goal of the previous position of its neighbourhood: ``earlier`` (B, N, N),
-        :func:`_earlier_same_group`; ``pos_o`` (B, N, 2) the robots' cells in decision order)."""
-        prev = _previous_goal_features(actions_o, pos_o, earlier, w)  # (B, N, 4)
-        x = self.dec_ln(F.gelu(self.prev_enc(prev.to(rep_o.dtype))) + F.gelu(self.dec_class_enc(cls_o)))
-        allowed = (earlier | torch.eye(x.shape[1], dtype=torch.bool, device=x.device))[:, None]
+    def _decode(self, seq: _InOrder, w: int) -> torch.Tensor:
+        """Decoder outputs (B, N, d) in decision order, teacher-forced on ``seq.actions`` (each position
+        fed the goal of the previous position of its neighbourhood, ``seq.earlier``)."""
+        prev = _previous_goal_features(seq.actions, seq.pos, seq.earlier, w)  # (B, N, 4)
+        x = self.dec_ln(F.gelu(self.prev_enc(prev.to(seq.rep.dtype))) + F.gelu(self.dec_class_enc(seq.cls)))
+        allowed = (seq.earlier | torch.eye(x.shape[1], dtype=torch.bool, device=x.device))[:, None]
         for block in self.dec_blocks:
-            x = block(x, rep_o, allowed)
+            x = block(x, seq.rep, allowed)
         return x
 
     def score(
@@ -207,22 +208,15 @@ class PointerAMAT(AMAT):
     def _score_encoded(self, rep, actions, order, agent_class, select, action_mask):
         """Logits (K, H * W) of the selected robots from encoder output, and their flat rows (K,)."""
         b, n = select.shape
-        cells, w = rep.cells, rep.cells.global_map.shape[-1]
-        actions_o, earlier = (
-            gather_robots(actions, order),
-            _earlier_same_group(_groups_in_order(cells, order)),
-        )
-        cls_o = gather_robots(agent_class.to(rep.x.dtype), order)
-        x = self._decode(
-            gather_robots(rep.x, order), actions_o, gather_robots(cells.pos, order), earlier, cls_o, w
-        )
+        seq = _in_decision_order(rep, actions, order, agent_class)
+        x = self._decode(seq, rep.cells.global_map.shape[-1])
         rows = select.flatten().nonzero()[:, 0]
         pos = torch.empty_like(order).scatter_(1, order, torch.arange(n, device=order.device).expand(b, n))
         rows_o = (pos + torch.arange(b, device=order.device)[:, None] * n).flatten()[rows]
-        feats, allowed = self.cell_features(cells, rows)
+        feats, allowed = self.cell_features(rep.cells, rows)
         if action_mask is not None:
             allowed = allowed & action_mask.flatten(0, 1)[rows].bool()
-        claimed = _claimed(actions_o, earlier, rows_o, feats)
+        claimed = _claimed(seq.actions, seq.earlier, rows_o, feats)
         return self.point(x.flatten(0, 1)[rows_o], feats, allowed, claimed), rows
 
     @torch.no_grad()
@@ -247,19 +241,17 @@ class PointerAMAT(AMAT):
         steps = int(n_active.max()) if b else 0
         if steps == 0:
             return actions, log_probs
-        cells, w = rep.cells, rep.cells.global_map.shape[-1]
-        rep_o, cls_o = gather_robots(rep.x, order), gather_robots(agent_class.to(rep.x.dtype), order)
-        pos_o, earlier = gather_robots(cells.pos, order), _earlier_same_group(_groups_in_order(cells, order))
+        seq, w = _in_decision_order(rep, actions, order, agent_class), rep.cells.global_map.shape[-1]
+        chosen_o = seq.actions  # (B, N) decision order, filled in position by position
         flat_o = order + torch.arange(b, device=order.device)[:, None] * n  # robot-order flat index
-        chosen_o = gather_robots(actions, order).clone()  # (B, N) decision order
         for k in range(steps):
             worlds = (n_active > k).nonzero()[:, 0]  # worlds whose k-th position is an active robot
-            x = self._decode(rep_o, chosen_o, pos_o, earlier, cls_o, w)[worlds, k]  # (K, d)
+            x = self._decode(seq, w)[worlds, k]  # (K, d)
             rows = flat_o[worlds, k]
-            feats, allowed = self.cell_features(cells, rows)
+            feats, allowed = self.cell_features(rep.cells, rows)
             allowed = allowed & mask.flatten(0, 1)[rows]
             rows_o = worlds * n + k
-            claimed = _claimed(chosen_o, earlier, rows_o, feats)
+            claimed = _claimed(chosen_o, seq.earlier, rows_o, feats)
             logits = self.point(x, feats, allowed, claimed)
             logp_all = torch.log_softmax(logits.float(), -1)
             if deterministic:
@@ -285,16 +277,23 @@ def _same_group(groups: torch.Tensor) -> torch.Tensor:
     return (groups[:, :, None] == groups[:, None, :])[:, None]
 
 
+def _in_decision_order(
+    rep: Embedded, actions: torch.Tensor, order: torch.Tensor, agent_class: torch.Tensor
+) -> _InOrder:
+    """The encoder output ``rep``, the robots' ``actions`` (B, N), cells and classes (B, N, C) in decision
+    order ``order`` (B, N), and which positions come earlier in each one's neighbourhood."""
+    cells, worlds = rep.cells, torch.arange(len(order), device=order.device)[:, None]
+    rep_o, actions_o, pos_o, cls_o, groups_o = (  # one index for all: x[b, k] = x[b, order[b, k]]
+        x[worlds, order] for x in (rep.x, actions, cells.pos, agent_class.to(rep.x.dtype), cells.groups)
+    )
+    return _InOrder(rep_o, actions_o, pos_o, cls_o, _earlier_same_group(groups_o))
+
+
 def _earlier_same_group(groups_o: torch.Tensor) -> torch.Tensor:
     """(B, N, N) bool in decision order: position j comes before k in k's neighbourhood."""
     n = groups_o.shape[1]
     before = torch.ones(n, n, dtype=torch.bool, device=groups_o.device).tril(-1)
     return (groups_o[:, :, None] == groups_o[:, None, :]) & before
-
-
-def _groups_in_order(cells: CellContext, order: torch.Tensor) -> torch.Tensor:
-    """(B, N) neighbourhood labels in decision order."""
-    return torch.gather(cells.groups, 1, order)
 
 
 def _previous_goal_features(

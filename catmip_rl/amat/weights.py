@@ -1,28 +1,10 @@
-"""Weights between models: a CPU copy of a model trained elsewhere, and a coarse model's weights for a
-finer pooled global grid."""
+"""Weights between models: a coarse model's weights for a finer pooled global grid."""
 
 from __future__ import annotations
 
-import copy
-
 import torch
 
-from catmip_rl.amat.model import AMAT
-
-__all__ = ["cpu_mirror", "finer_pool"]
-
-
-def cpu_mirror(model: AMAT, mirror: AMAT | None = None) -> AMAT:
-    """The policy to run on the CPU: ``model`` itself when its weights live there; else ``mirror`` (a
-    copy this returned before, of a model of the same config) or a new copy, on the CPU with
-    ``model``'s current weights. Collection plays it, so a model trained on a GPU still acts on the CPU
-    cores, beside the numpy worlds."""
-    if all(p.device.type == "cpu" for p in model.parameters()):
-        return model
-    if mirror is None or mirror.config != model.config:
-        return copy.deepcopy(model).cpu()
-    mirror.load_state_dict(model.state_dict())
-    return mirror
+__all__ = ["finer_pool"]
 
 
 def finer_pool(state: dict[str, torch.Tensor], pool: int, new_pool: int) -> dict[str, torch.Tensor]:

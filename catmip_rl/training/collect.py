@@ -12,6 +12,7 @@ tensordict copies per step than the whole engine step costs here.
 
 from __future__ import annotations
 
+import copy
 from dataclasses import dataclass, fields
 
 import numpy as np
@@ -21,11 +22,11 @@ from catmip_env import EnvConfig
 from catmip_env.constants import global_channels, local_channels
 from catmip_env.episode_stats import DecisionTracker, EpisodeRecords, episode_records, training_stats
 from catmip_env.events import EventEngine
+from catmip_env.play import Policy
 from catmip_rl.amat.inputs import macro_observation
 from catmip_rl.amat.model import AMAT, decision_order
-from catmip_rl.amat.weights import cpu_mirror
 
-__all__ = ["Rollout", "Collector", "STEP_FIELDS"]
+__all__ = ["Rollout", "Collector", "STEP_FIELDS", "cpu_mirror"]
 
 
 @dataclass
@@ -66,9 +67,22 @@ _PER_EPISODE = ("label", "final_return", "terminated", "records", "returns", "st
 STEP_FIELDS = tuple(f.name for f in fields(Rollout) if f.name not in _PER_EPISODE)
 
 
+def cpu_mirror(model: AMAT, mirror: AMAT | None = None) -> AMAT:
+    """The policy to run on the CPU: ``model`` itself when its weights live there; else ``mirror`` (a
+    copy this returned before, of a model of the same config) or a new copy, on the CPU with
+    ``model``'s current weights. Collection plays it, so a model trained on a GPU still acts on the CPU
+    cores, beside the numpy worlds."""
+    if all(p.device.type == "cpu" for p in model.parameters()):
+        return model
+    if mirror is None or mirror.config != model.config:
+        return copy.deepcopy(model).cpu()
+    mirror.load_state_dict(model.state_dict())
+    return mirror
+
+
 class Collector:
     """Runs B worlds of ``cfg`` for one episode each per call, with the policy on the CPU (a model
-    trained on a GPU plays through its CPU copy, refreshed at every call: ``amat.weights.cpu_mirror``).
+    trained on a GPU plays through its CPU copy, refreshed at every call: ``cpu_mirror``).
     ``goal_mode`` is the model's (``AmatConfig.goals``): "window" or "cell"."""
 
     def __init__(
@@ -107,7 +121,7 @@ class Collector:
         first_episode: int,
         generator: torch.Generator | None = None,
         deterministic: bool = False,
-        labeler=None,
+        labeler: Policy | None = None,
         teacher_prob: float = 0.0,
     ) -> Rollout:
         """One episode per world (episode indices ``first_episode + b``); returns the samples.

@@ -27,15 +27,27 @@ import torch
 
 from catmip_env.constants import TARGET_BIT
 from catmip_env.events import EventEngine
-from catmip_env.planners import make_planner
-from catmip_env.window_planner import make_window_planner, window_method_name
+from catmip_env.planners import Planner, make_planner
+from catmip_env.play import Policy
+from catmip_env.window_planner import WindowPlanner, make_window_planner
 from catmip_rl.amat.inputs import one_hot_class
 from catmip_rl.amat.model import AMAT, INVALID_LOGIT
 from catmip_rl.files import open_csv_log, write_csv_row
 from catmip_rl.training.collect import Collector, Rollout
+from catmip_rl.training.config import TrainConfig
 from catmip_rl.training.gae import ValueNorm, async_gae
 
-__all__ = ["DemoBuffer", "RescueLabeler", "imitation_loss", "dagger", "warm_start", "WARM_START_METRICS"]
+__all__ = [
+    "DemoBuffer",
+    "RescueLabeler",
+    "PlannerLabeler",
+    "auxiliary_labeler",
+    "make_teacher",
+    "imitation_loss",
+    "dagger",
+    "warm_start",
+    "WARM_START_METRICS",
+]
 
 WARM_START_METRICS = [
     "round", "episodes", "beta", "buffer_events", "rollout/success_rate", "rollout/success_by_100",
@@ -83,15 +95,27 @@ class DemoBuffer:
         return {k: v.to(device) for k, v in out.items()}
 
 
+def make_teacher(
+    name: str, goals: str, seed: int = 0, follow_heading: bool = True
+) -> Planner | WindowPlanner:
+    """The teacher planner ``name`` for a model whose goals are ``goals`` (``AmatConfig.goals``): its goals
+    projected into the goal window ("window"; ``follow_heading=False``: along a heading-free path, see
+    :class:`~catmip_env.window_planner.WindowPlanner`), or the planner itself ("cell": the same action
+    space, nothing projected)."""
+    if goals == "window":
+        return make_window_planner(name, seed=seed, follow_heading=follow_heading)
+    return make_planner(name, seed=seed)
+
+
+@dataclass
 class RescueLabeler:
     """``act(engine)`` -> (B, N) labels for PPO's auxiliary rescue loss (``TrainConfig.rescue_coef``):
-    the rescue rule's window action (the planners' shared rule, projected as ``window:nearest`` projects
-    it, or ``window-noheading:nearest`` with ``follow_heading=False``) for every active robot of a live
-    world that can rescue and knows where the target is; -1 for every other robot. The teacher runs only
-    on events where such a robot decides."""
+    the rescue rule's window action (the planners' shared rule, as ``teacher`` projects it:
+    :func:`auxiliary_labeler` gives ``window:nearest``, or ``window-noheading:nearest``) for every active
+    robot of a live world that can rescue and knows where the target is; -1 for every other robot. The
+    teacher runs only on events where such a robot decides."""
 
-    def __init__(self, teacher: str = "nearest", follow_heading: bool = True) -> None:
-        self.teacher = make_window_planner(teacher, follow_heading=follow_heading)
+    teacher: WindowPlanner
 
     def act(self, engine: EventEngine) -> np.ndarray:
         st = engine.state
@@ -104,17 +128,28 @@ class RescueLabeler:
         return out
 
 
+@dataclass
 class PlannerLabeler:
-    """``act(engine)`` -> (B, N) labels for PPO's anchor loss (``TrainConfig.anchor``): the planner's own
-    cell goal for every active robot of a live world, -1 for every other robot."""
+    """``act(engine)`` -> (B, N) labels for PPO's anchor loss (``TrainConfig.anchor``): the planner's
+    (``teacher``'s) own cell goal for every active robot of a live world, -1 for every other robot."""
 
-    def __init__(self, teacher: str, seed: int = 0) -> None:
-        self.teacher = make_planner(teacher, seed=seed)
+    teacher: Planner
 
     def act(self, engine: EventEngine) -> np.ndarray:
         out = np.asarray(self.teacher.act(engine), np.int64).copy()
         out[~(engine.active & ~engine.state.done[:, None])] = -1
         return out
+
+
+def auxiliary_labeler(cfg: TrainConfig) -> RescueLabeler | PlannerLabeler | None:
+    """The labeler of PPO's auxiliary loss of ``cfg``: the rescue rule as ``window:nearest`` projects it
+    (``rescue_coef`` > 0; ``window-noheading:nearest`` without ``rescue_heading``), or the planner
+    ``anchor`` itself (seeded by the run's seed); None without either."""
+    if cfg.rescue_coef > 0:
+        return RescueLabeler(make_window_planner("nearest", follow_heading=cfg.rescue_heading))
+    if cfg.anchor:
+        return PlannerLabeler(make_planner(cfg.anchor, seed=cfg.seed))
+    return None
 
 
 def imitation_loss(
@@ -165,7 +200,7 @@ def imitation_loss(
 def dagger(
     model: AMAT,
     collector: Collector | list[Collector],
-    teacher: str,
+    teacher: str | Policy,
     rounds: int,
     steps_per_round: int,
     batch_events: int = 256,
@@ -182,12 +217,13 @@ def dagger(
     value_norm: ValueNorm | None = None,
     gamma: float = 1.0,
 ) -> tuple[int, list[dict[str, float]]]:
-    """Train ``model`` by DAgger against the window-projected ``teacher`` planner; returns (episodes
-    used, one log row per round). The policy's own actions in the rollouts are argmax with
-    ``deterministic`` (as it will be evaluated), else sampled. ``on_round(row)`` is called after each
+    """Train ``model`` by DAgger against ``teacher``: a planner's name (the teacher for the model's goals,
+    :func:`make_teacher`, seeded by ``seed``) or the teacher itself; returns (episodes used, one log row
+    per round). The policy's own actions in the rollouts are argmax with ``deterministic`` (as it will
+    be evaluated), else sampled. ``on_round(row)`` is called after each
     round (logging, progress). A list of collectors (a mixture of worlds) collects from each every
     round into a buffer of its own (their maps differ in size and team), and the steps take their
-    batches from the buffers in turn. ``follow_heading=False`` projects the teacher's goals along a
+    batches from the buffers in turn. ``follow_heading=False`` projects a named teacher's goals along a
     heading-free path (:class:`~catmip_env.window_planner.WindowPlanner`). ``imitate_stay=False`` leaves
     the teacher's "stay" labels unscored (``TrainConfig.warm_start_stay``). With ``value_norm`` the value
     head learns the rollouts' returns (discounted by ``gamma``) beside the labels, and ``value_norm``
@@ -196,10 +232,8 @@ def dagger(
         raise ValueError("dagger: rounds, steps_per_round and batch_events must be >= 1")
     gen = generator if generator is not None else torch.Generator().manual_seed(seed)
     rng = np.random.default_rng(seed)
-    if model.config.goals == "cell":  # the planner itself: the same action space, nothing projected
-        label_teacher = make_planner(teacher, seed=seed)
-    else:
-        label_teacher = make_window_planner(teacher, seed=seed, follow_heading=follow_heading)
+    if isinstance(teacher, str):
+        teacher = make_teacher(teacher, model.config.goals, seed=seed, follow_heading=follow_heading)
     collectors = collector if isinstance(collector, list) else [collector]
     buffers = [DemoBuffer(buffer_events // len(collectors)) for _ in collectors]
     device = next(model.parameters()).device
@@ -216,7 +250,7 @@ def dagger(
         stats = []
         for col, buffer in zip(collectors, buffers):
             rollout = col.collect(
-                model, episodes, gen, deterministic=deterministic, labeler=label_teacher, teacher_prob=beta
+                model, episodes, gen, deterministic=deterministic, labeler=teacher, teacher_prob=beta
             )
             episodes += col.num_worlds
             returns = buffer.add(rollout, gamma)
@@ -262,15 +296,16 @@ def warm_start(
     with ``evaluate()`` (a dict with success_rate, success_by_100 and their sampled_ forms) after each
     round if given and ``log_scalars(row, step, skip)`` for TensorBoard; returns the seconds spent
     (evaluation excluded)."""
+    teacher = make_teacher(
+        cfg.warm_start, model.config.goals, seed=cfg.seed, follow_heading=cfg.warm_start_heading
+    )
     file, writer = open_csv_log(run_dir / "warm_start.csv", WARM_START_METRICS, None, key="round")
     elapsed = 0.0
     bar = None
     if progress:
         from tqdm import tqdm
 
-        cell = model.config.goals == "cell"  # the planner itself, or its goals projected into the window
-        teacher = cfg.warm_start if cell else window_method_name(cfg.warm_start, cfg.warm_start_heading)
-        bar = tqdm(total=cfg.warm_start_rounds, desc=f"warm start ({teacher})", unit="round")
+        bar = tqdm(total=cfg.warm_start_rounds, desc=f"warm start ({teacher.name})", unit="round")
 
     def on_round(row: dict) -> None:
         nonlocal elapsed
@@ -290,11 +325,10 @@ def warm_start(
 
     try:
         dagger(
-            model, collector, cfg.warm_start, cfg.warm_start_rounds, cfg.warm_start_steps,
+            model, collector, teacher, cfg.warm_start_rounds, cfg.warm_start_steps,
             batch_events=cfg.warm_start_batch, lr=cfg.warm_start_lr, generator=gen, seed=cfg.seed,
-            max_grad_norm=cfg.max_grad_norm, on_round=on_round, follow_heading=cfg.warm_start_heading,
-            imitate_stay=cfg.warm_start_stay, value_norm=value_norm if cfg.warm_start_value else None,
-            gamma=cfg.gamma,
+            max_grad_norm=cfg.max_grad_norm, on_round=on_round, imitate_stay=cfg.warm_start_stay,
+            value_norm=value_norm if cfg.warm_start_value else None, gamma=cfg.gamma,
         )  # fmt: skip
     finally:
         file.close()

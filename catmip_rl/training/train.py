@@ -35,7 +35,7 @@ from catmip_rl.training.allocator import keep_freed_memory
 from catmip_rl.training.collect import Collector, Rollout
 from catmip_rl.training.config import TrainConfig
 from catmip_rl.training.gae import ValueNorm, build_batch
-from catmip_rl.training.imitation import PlannerLabeler, RescueLabeler, warm_start
+from catmip_rl.training.imitation import PlannerLabeler, RescueLabeler, auxiliary_labeler, warm_start
 from catmip_rl.training.parallel_update import ParallelGradients
 from catmip_rl.training.ppo import choose_bf16, loss_kwargs, lr_factor, make_optimizer, ppo_update
 from catmip_rl.training.run_dir import (
@@ -157,10 +157,7 @@ def build_run(cfg: TrainConfig, saved: dict | None = None) -> Run:
     elif cfg.init_from:
         run.init_source = load_initial_weights(cfg.init_from, model, run.value_norm)
     run.collectors, run.dagger, run.evaluator = make_collectors(cfg, model, resume=saved is not None)
-    if cfg.rescue_coef > 0:
-        run.rescue_labeler = RescueLabeler(follow_heading=cfg.rescue_heading)
-    elif cfg.anchor:
-        run.rescue_labeler = PlannerLabeler(cfg.anchor, seed=cfg.seed)
+    run.rescue_labeler = auxiliary_labeler(cfg)
     return run
 
 
@@ -208,8 +205,9 @@ def ppo_iteration(run: Run, run_dir: Path) -> tuple[dict[str, float], list[dict[
     batch, info = build_batch(rollout, run.value_norm, cfg.gamma, cfg.lam, n_classes, run.device)
     t2 = time.perf_counter()
     if run.bf16 is None:
+        fp32_kwargs = loss_kwargs(cfg, False)  # the loss that "auto" times in both precisions
         run.bf16, decision = choose_bf16(
-            cfg.precision, cfg.device, run.model, batch, loss_kwargs(cfg, False), cfg.micro_batch or 512
+            cfg.precision, cfg.device, run.model, batch, fp32_kwargs, cfg.micro_batch or 512
         )
         atomic_write_text(run_dir / "precision.json", json.dumps(decision, indent=2))
     if run.parallel is None and cfg.update_processes > 1:  # data-parallel gradients (parallel_update.py)
@@ -254,11 +252,11 @@ class _RunLogs:
                     self.tb.add_scalar(k, v, step)
 
     def write(self, it: int, row: dict, epochs: list[dict[str, float]]) -> None:
-        """PPO iteration ``it``'s metrics row and its epochs' statistics, to the CSVs and TensorBoard."""
+        """PPO iteration ``it``'s metrics row and its epochs' statistics, to TensorBoard and the CSVs."""
+        self.scalars(row, it, "iteration")
         write_csv_row(self.csv_writer, self.csv_file, row)
         for e in epochs:
             write_csv_row(self.epoch_writer, self.epoch_file, {"iteration": it} | e)
-        self.scalars(row, it, "iteration")
 
     def close(self) -> None:
         for log in (self.csv_file, self.epoch_file, self.tb):
@@ -342,11 +340,11 @@ def train(cfg: TrainConfig, run_dir: str | Path, resume: bool = False, progress:
             if cfg.eval_every and (it % cfg.eval_every == 0 or last):
                 row |= {f"eval/{k}": v for k, v in run.evaluate().items() if f"eval/{k}" in METRICS}
             row["time/iteration_s"] = time.perf_counter() - t0
+            if bar is not None:
+                _show_progress(bar, row)
             logs.write(it, row, epochs)
             if cfg.checkpoint_every and (it % cfg.checkpoint_every == 0 or last):
                 run.checkpoint(ckpt_dir)
-            if bar is not None:
-                _show_progress(bar, row)
         if bar is not None:
             bar.close()
         finished = True

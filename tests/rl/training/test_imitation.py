@@ -180,7 +180,7 @@ def test_rescue_labeler_labels_only_rescuers_that_know_the_target_with_the_rescu
     cfg = make_config("task2", comm_sigma=2.0)  # rescuer, explorer and a third robot; partial news
     eng = EventEngine(cfg, 8, seed=3)
     eng.reset(episode_indices=np.arange(8))
-    labeler = RescueLabeler(follow_heading=follow_heading)
+    labeler = RescueLabeler(make_window_planner("nearest", follow_heading=follow_heading))
     teacher = make_window_planner("nearest", follow_heading=follow_heading)
     labelled = unlabelled_rescuers = 0
     while not eng.state.done.all():
