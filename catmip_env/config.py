@@ -108,6 +108,10 @@ class EnvConfig:
     policy trained across ranges. Empty (default): every episode uses ``comm_sigma``."""
     slam_noise: float = 0.0
     """Per-tick probability that each explored cell of a robot's used occupancy map is flipped."""
+    teammate_memory: bool = False
+    """Observation option: the global map also shows each teammate outside the robot's neighbourhood where
+    the robot last had news of it (0.5; 0.25 if it did not know the target the robot knows). The paper's
+    observation is without it; the memory itself is always kept in the state (``heard_*``)."""
     local_size: int = 7
     """Side L of the robot-centred local map (odd)."""
     window: int = 7
@@ -226,6 +230,7 @@ _RULES: dict[str, Rule] = {
     "comm_sigma_choices": Rule(f"a list of finite numbers >= {MIN_COMM_SIGMA} (cells) or null (full "
                                "communication)", _list_of(_is_comm_range)),
     "slam_noise": NUMBER("in [0, 1]", _probability),
+    "teammate_memory": BOOL,
     "local_size": INT("that is odd and >= 1", _odd),
     "window": INT("that is odd and >= 1", _odd),
     "step_reward": NUMBER,

@@ -36,6 +36,7 @@ PRIMITIVE_ACTIONS = ("turn_left", "turn_right", "forward", "stay")
 OBS_SCALE = 0.25
 OBS_ONE = 4
 OBS_CLUE = 1
+OBS_HALF = 2  # 0.5: a teammate remembered where it was last heard of (EnvConfig.teammate_memory)
 
 # Channel indices of the macro-observation maps (C = number of robot classes).
 CH_EXPLORED = 0

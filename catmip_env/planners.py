@@ -10,6 +10,10 @@ which goal an active robot picks from its own clean belief (docs/design.md#plann
                        landing in unexplored space are exploration targets (<= 500), clustered
                        (8-connected cells); score = unexplored fraction of the 15x15 square around a
                        cluster - path distance / farthest reachable distance; the best cluster wins;
+* ``rrt-relay``        RRT, and an explorer that knows the target carries the news to the nearest
+                       rescuer it last had news of without it (toward the cell it was last heard of,
+                       from the robot's own memory, ``WorldState.heard_*``); one that finds that cell
+                       empty explores on. Not one of the paper's baselines: a communication-aware one;
 * ``apf``              an artificial potential field: attraction to every frontier cluster (weight =
                        cluster size / (1 + path distance)), repulsion from teammates within radius 5,
                        greedy descent from the robot; stops at a frontier or a local minimum;
@@ -31,14 +35,12 @@ blocked, as in the controller. Planners are seeded and deterministic.
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
-from numba import njit
 
 from catmip_env.constants import EXPLORED, OCCUPIED, STEPS, TARGET_BIT
 from catmip_env.events import EventEngine
 from catmip_env.kernels.bfs import bfs_from
+from catmip_env.kernels.rrt import grow_rrt
 
 __all__ = ["PLANNERS", "Planner", "make_planner"]
 
@@ -211,72 +213,6 @@ class UniformWindow(RandomWindow):
 # -- RRT --------------------------------------------------------------------------------------------
 
 
-@njit(cache=True)
-def _grow_rrt(  # noqa: C901 - numba kernel: one RRT loop nest; planners.py is at its 400-line limit
-    explored: np.ndarray,  # (H, W) bool
-    occupied: np.ndarray,  # (H, W) bool
-    r0: float,
-    c0: float,
-    u: np.ndarray,  # (iterations, 2) uniforms
-    step: float,
-    max_targets: int,
-    targets: np.ndarray,  # (max_targets, 2) int64 out
-) -> int:
-    """Grow an RRT from (r0, c0) over free explored space; returns the number of exploration targets
-    (cells of unexplored space that the tree reached) written to ``targets``."""
-    h, w = explored.shape
-    n_iter = u.shape[0]
-    nodes = np.empty((n_iter + 1, 2), np.float64)
-    nodes[0, 0], nodes[0, 1] = r0, c0
-    n_nodes, n_targets = 1, 0
-    # bucket grid for nearest-node queries: per cell, a linked list of nodes
-    head = np.full(h * w, -1, np.int64)
-    nxt = np.full(n_iter + 1, -1, np.int64)
-    head[int(r0 + 0.5) * w + int(c0 + 0.5)] = 0
-    for it in range(n_iter):
-        sr, sc = u[it, 0] * h - 0.5, u[it, 1] * w - 0.5
-        cr, cc = min(max(int(sr + 0.5), 0), h - 1), min(max(int(sc + 0.5), 0), w - 1)
-        best, best_d2 = -1, 1e18
-        ring = 0
-        while ring < h + w:
-            for rr in range(cr - ring, cr + ring + 1):
-                if rr < 0 or rr >= h:
-                    continue
-                for c2 in range(cc - ring, cc + ring + 1):
-                    if c2 < 0 or c2 >= w or (abs(rr - cr) != ring and abs(c2 - cc) != ring):
-                        continue
-                    k = head[rr * w + c2]
-                    while k >= 0:
-                        d2 = (nodes[k, 0] - sr) ** 2 + (nodes[k, 1] - sc) ** 2
-                        if d2 < best_d2:
-                            best, best_d2 = k, d2
-                        k = nxt[k]
-            if best >= 0 and (ring - 1) ** 2 >= best_d2:
-                break  # no node in a further ring can be closer
-            ring += 1
-        dist = math.sqrt(best_d2)
-        if dist < 1e-9:
-            continue
-        f = min(step / dist, 1.0)
-        nr = nodes[best, 0] + (sr - nodes[best, 0]) * f
-        nc = nodes[best, 1] + (sc - nodes[best, 1]) * f
-        gr, gc = int(nr + 0.5), int(nc + 0.5)
-        if gr < 1 or gc < 1 or gr > h - 2 or gc > w - 2 or occupied[gr, gc]:
-            continue
-        if not explored[gr, gc]:
-            targets[n_targets, 0], targets[n_targets, 1] = gr, gc
-            n_targets += 1
-            if n_targets >= max_targets:
-                break
-            continue
-        nodes[n_nodes, 0], nodes[n_nodes, 1] = nr, nc
-        cell = gr * w + gc
-        nxt[n_nodes] = head[cell]
-        head[cell] = n_nodes
-        n_nodes += 1
-    return n_targets
-
-
 class RRT(Planner):
     name = "rrt"
 
@@ -284,7 +220,7 @@ class RRT(Planner):
         h, w = ctx.explored.shape
         targets = np.empty((RRT_TARGETS, 2), np.int64)
         u = self.rng.random((RRT_ITERATIONS, 2))
-        n = _grow_rrt(ctx.explored, ctx.occupied, float(ctx.own[0]), float(ctx.own[1]), u, RRT_STEP,
+        n = grow_rrt(ctx.explored, ctx.occupied, float(ctx.own[0]), float(ctx.own[1]), u, RRT_STEP,
                       RRT_TARGETS, targets)  # fmt: skip
         if n == 0:
             return None
@@ -306,6 +242,45 @@ class RRT(Planner):
             score = counts[m[0], m[1]] - ctx.dist[m[0], m[1]] / far
             if score > best_score:
                 best, best_score = (int(m[0]), int(m[1])), score
+        return best
+
+
+class RRTRelay(RRT):
+    name = "rrt-relay"
+
+    def __init__(self, seed: int = 0) -> None:
+        super().__init__(seed)
+        self._given_up: set[tuple[int, ...]] = set()  # (world, episode, robot, rescuer, news tick)
+
+    def choose(self, ctx):
+        cell = self._rescuer_to_tell(ctx)
+        if cell is None:
+            return super().choose(ctx)
+        ok = ctx.valid & (ctx.dist > 0)  # the goal nearest that cell, ties by path distance
+        cells = np.argwhere(ok)
+        if len(cells) == 0:
+            return None
+        key = ((cells - cell) ** 2).sum(axis=1) * (ctx.dist.size + 1) + ctx.dist[cells[:, 0], cells[:, 1]]
+        r, c = cells[np.argmin(key)]
+        return int(r), int(c)
+
+    def _rescuer_to_tell(self, ctx: _Context) -> np.ndarray | None:
+        """Where the nearest rescuer this explorer last had news of, without the target, was then."""
+        if ctx.can_rescue or not ctx.knows_target:
+            return None
+        st, b, i = ctx.engine.state, ctx.b, ctx.i
+        best, best_d = None, np.inf
+        for j in np.flatnonzero(st.can_rescue[b]):
+            tick = int(st.heard_tick[b, i, j])
+            key = (b, int(st.episode[b]), i, int(j), tick)
+            if tick < 0 or st.heard_knows[b, i, j] or key in self._given_up:
+                continue
+            cell = st.heard_pos[b, i, j]
+            d = float(np.hypot(*(cell - ctx.own)))
+            if d <= 1.5:  # there, and the rescuer is not: explore on until newer news of it
+                self._given_up.add(key)
+            elif d < best_d:
+                best, best_d = cell, d
         return best
 
 
@@ -389,11 +364,14 @@ class APF(Planner):
         return r, c
 
 
-PLANNERS = {p.name: p for p in (Nearest, Utility, RRT, APF, RandomFrontier, RandomWindow, UniformWindow)}
+PLANNERS = {
+    p.name: p for p in (Nearest, Utility, RRT, RRTRelay, APF, RandomFrontier, RandomWindow, UniformWindow)
+}
 
 
 def make_planner(name: str, seed: int = 0) -> Planner:
-    """A planner by name: nearest, utility, rrt, apf, random-frontier, random-rescue, random-uniform."""
+    """A planner by name: nearest, utility, rrt, rrt-relay, apf, random-frontier, random-rescue,
+    random-uniform."""
     try:
         return PLANNERS[name](seed=seed)
     except KeyError:

@@ -123,6 +123,7 @@ class BatchedWorld:
         self.num_robots = cfg.num_robots
         self.shape = cfg.map_shape
         self.noisy = cfg.slam_noise > 0.0
+        self.memory = cfg.teammate_memory
         self._layout = parse_layout(cfg.layout) if cfg.layout is not None else None
         self.state = WorldState.allocate(self.num_worlds, self.num_robots, self.shape, self.noisy)
         b, n, (h, w), c = self.num_worlds, self.num_robots, self.shape, cfg.num_classes
@@ -208,6 +209,7 @@ class BatchedWorld:
         st.found_tick[b] = -1
         st.informed_tick[b] = -1
         st.rescue_tick[b] = -1
+        st.heard_tick[b] = -1
         st.done[b] = False
         st.episode[b] = episode
         # drawn after the map, and only if there is a choice: the maps never depend on it
@@ -290,7 +292,7 @@ class BatchedWorld:
         k, w = self.state.kernel_chunk(chunk), chunk
         build_observations(
             worlds[w], k.belief, k.used_occ, self.noisy, k.pos, k.cls, k.comp, k.goal, k.target,
-            self.obs_global[w], self.obs_local[w],
+            self.obs_global[w], self.obs_local[w], self.memory, k.heard_tick, k.heard_pos, k.heard_knows,
         )  # fmt: skip
 
     # -- read-outs -----------------------------------------------------------------------------

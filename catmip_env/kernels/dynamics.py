@@ -37,6 +37,7 @@ from catmip_env.constants import (
     TURN_LEFT,
     TURN_RIGHT,
 )
+from catmip_env.kernels.comms import draw_neighbourhoods, merge_beliefs, remember
 from catmip_env.kernels.rng import uniform
 from catmip_env.kernels.sensing import RAY_NBLOCK, VIEW_BLOCKERS, VIEW_OFFSETS, sense_robot
 from catmip_env.kernels.state import KernelState
@@ -125,71 +126,6 @@ def move_robots(
                 pos[b, i, 1] = c
                 rewards[b, i] += step_reward
                 moves[b, i] += 1
-
-
-@njit(cache=True)
-def _find(parent: np.ndarray, i: int) -> int:
-    while parent[i] != i:
-        parent[i] = parent[parent[i]]
-        i = parent[i]
-    return i
-
-
-@njit(cache=True)
-def draw_neighbourhoods(
-    b: int, pos: np.ndarray, comm_sigma: float, rng: np.ndarray, comp: np.ndarray
-) -> None:
-    """Label each robot with its neighbourhood (the lowest robot id of its component).
-
-    ``comm_sigma <= 0`` means full communication. Otherwise pair (i, j) is linked with probability
-    exp(-d^2 / sigma^2); one uniform draw per pair, pairs in (i, j) lexicographic order.
-    """
-    n = pos.shape[1]
-    if comm_sigma <= 0.0:
-        for i in range(n):
-            comp[b, i] = 0
-        return
-    parent = np.arange(n)
-    inv_s2 = 1.0 / (comm_sigma * comm_sigma)
-    for i in range(n):
-        for j in range(i + 1, n):
-            dr = pos[b, i, 0] - pos[b, j, 0]
-            dc = pos[b, i, 1] - pos[b, j, 1]
-            p = math.exp(-(dr * dr + dc * dc) * inv_s2)
-            if uniform(rng, b) < p:
-                ri, rj = _find(parent, i), _find(parent, j)
-                if ri != rj:
-                    parent[max(ri, rj)] = min(ri, rj)
-    for i in range(n):
-        comp[b, i] = _find(parent, i)
-
-
-@njit(cache=True)
-def merge_beliefs(b: int, comp: np.ndarray, belief: np.ndarray) -> None:
-    """OR-merge the beliefs of every neighbourhood and write the result back to each member.
-
-    The first member's map accumulates the OR (flat, vectorisable loops), then is copied to the rest.
-    """
-    n = belief.shape[1]
-    hw = belief.shape[2] * belief.shape[3]
-    for root in range(n):
-        if comp[b, root] != root:
-            continue  # labels are the lowest member id, so every component is visited once
-        acc = belief[b, root].reshape(hw)
-        members = 1
-        for i in range(root + 1, n):
-            if comp[b, i] == root:
-                src = belief[b, i].reshape(hw)
-                for k in range(hw):
-                    acc[k] |= src[k]
-                members += 1
-        if members < 2:
-            continue
-        for i in range(root + 1, n):
-            if comp[b, i] == root:
-                dst = belief[b, i].reshape(hw)
-                for k in range(hw):
-                    dst[k] = acc[k]
 
 
 @njit(cache=True)
@@ -337,6 +273,7 @@ def perceive_at_reset(worlds: np.ndarray, s: KernelState, rules: Rules) -> None:
     comm_sigma, horizon, noise = s.comm_sigma, rules.horizon_ticks, rules.slam_noise
     find_reward, rescue_reward = rules.find_reward, rules.rescue_reward
     view_offsets, view_blockers, ray_nblock = rules.view_offsets, rules.view_blockers, rules.ray_nblock
+    heard_tick, heard_pos, heard_knows = s.heard_tick, s.heard_pos, s.heard_knows
     for b in range(worlds.shape[0]):
         if worlds[b]:
             perceive(
@@ -344,6 +281,7 @@ def perceive_at_reset(worlds: np.ndarray, s: KernelState, rules: Rules) -> None:
                 informed_tick, rescue_tick, pending, horizon, comm_sigma[b], noise, find_reward,
                 rescue_reward, view_offsets, view_blockers, ray_nblock,
             )  # fmt: skip
+            remember(b, 0, pos, comp, belief, target, heard_tick, heard_pos, heard_knows)
 
 
 @njit(cache=True, nogil=True)  # threads=: chunks of worlds run at once
@@ -366,7 +304,7 @@ def tick(
     can_rescue, belief, comp, rng, used_occ = s.can_rescue, s.belief, s.comp, s.rng, s.used_occ
     ticks, moves, collisions, pending, done = s.ticks, s.moves, s.collisions, s.pending_reward, s.done
     found_tick, informed_tick, rescue_tick = s.found_tick, s.informed_tick, s.rescue_tick
-    comm_sigma = s.comm_sigma
+    comm_sigma, heard_tick, heard_pos, heard_knows = s.comm_sigma, s.heard_tick, s.heard_pos, s.heard_knows
     horizon, noise = rules.horizon_ticks, rules.slam_noise
     step_reward, collision_penalty = rules.step_reward, rules.collision_penalty
     find_reward, rescue_reward = rules.find_reward, rules.rescue_reward
@@ -392,6 +330,7 @@ def tick(
             informed_tick, rescue_tick, rewards, horizon, comm_sigma[b], noise, find_reward, rescue_reward,
             view_offsets, view_blockers, ray_nblock,
         )  # fmt: skip
+        remember(b, t0 + 1, pos, comp, belief, target, heard_tick, heard_pos, heard_knows)
         ticks[b] = t0 + 1
         terminated[b] = success
         truncated[b] = (not success) and t0 + 1 >= horizon

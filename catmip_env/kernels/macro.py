@@ -15,6 +15,7 @@ from numba import njit
 
 from catmip_env.constants import FORWARD, OCCUPIED, STAY, TARGET_BIT, TURN_LEFT, TURN_RIGHT
 from catmip_env.kernels.bfs import next_step
+from catmip_env.kernels.comms import remember
 from catmip_env.kernels.dynamics import Rules, move_robots, perceive
 from catmip_env.kernels.rng import randint
 from catmip_env.kernels.state import KernelState
@@ -218,6 +219,7 @@ def advance(
     can_rescue, belief, comp, rng, used_occ = s.can_rescue, s.belief, s.comp, s.rng, s.used_occ
     ticks, moves, collisions, pending, done = s.ticks, s.moves, s.collisions, s.pending_reward, s.done
     found_tick, informed_tick, rescue_tick = s.found_tick, s.informed_tick, s.rescue_tick
+    heard_tick, heard_pos, heard_knows = s.heard_tick, s.heard_pos, s.heard_knows
     horizon, max_ma, t_min, t_max = rules.horizon_ticks, rules.max_ma_ticks, rules.t_min, rules.t_max
     comm_sigma, noise, gamma, sync = s.comm_sigma, rules.slam_noise, rules.gamma, rules.synchronous
     step_r, coll_r = rules.step_reward, rules.collision_penalty
@@ -255,6 +257,7 @@ def advance(
                 found_tick, informed_tick, rescue_tick, tick_rewards, horizon, comm_sigma[b], noise, find_r,
                 rescue_r, view_offsets, view_blockers, ray_nblock,
             )  # fmt: skip
+            remember(b, t0 + 1, pos, comp, belief, target, heard_tick, heard_pos, heard_knows)
             ticks[b] = t0 + 1
             event_ticks[b] += 1
             _credit_tick(b, tick_rewards, gamma, mstate, event_rewards, ma_rewards)

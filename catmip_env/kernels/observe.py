@@ -7,6 +7,11 @@ clue 0.25 -> 1):
   other robots of each class in the robot's neighbourhood (3x3 blocks), own position (3x3 block).
 * ``local_map (4 + C, L, L)`` centred on the robot, single cells, outside the map explored + occupied.
 
+With ``memory`` (``EnvConfig.teammate_memory``) the global map's class channels also show each teammate
+outside the neighbourhood at the cell where the robot last had news of it (``comms.remember``), as a
+3x3 block of 0.5 — or 0.25 when the robot knows the target and that teammate did not know it then
+(news it has not heard from this robot's side). Neighbours (1.0) are drawn over remembered teammates.
+
 ``occupied`` is the occupancy the robot uses this tick (noisy under SLAM noise).
 """
 
@@ -24,6 +29,7 @@ from catmip_env.constants import (
     CLUE_BIT,
     EXPLORED,
     OBS_CLUE,
+    OBS_HALF,
     OBS_ONE,
     OCCUPIED,
     TARGET_BIT,
@@ -41,6 +47,30 @@ def _stamp3(obs: np.ndarray, b: int, i: int, ch: int, r: int, c: int) -> None:
             obs[b, i, ch, rr, cc] = OBS_ONE
 
 
+@njit(cache=True, inline="always")
+def _stamp3_under(obs: np.ndarray, b: int, i: int, ch: int, r: int, c: int, v: int) -> None:
+    """A 3x3 block of value ``v`` that keeps any larger value already there."""
+    h, w = obs.shape[3], obs.shape[4]
+    for rr in range(max(r - 1, 0), min(r + 2, h)):
+        for cc in range(max(c - 1, 0), min(c + 2, w)):
+            obs[b, i, ch, rr, cc] = max(obs[b, i, ch, rr, cc], v)
+
+
+@njit(cache=True, inline="always")
+def _teammates(obs_global, b, i, knows, pos, cls, comp, memory, heard_tick, heard_pos, heard_knows) -> None:
+    """Robot i's teammates on its global map: those of its neighbourhood (1.0) and, with ``memory``, the
+    others where it last had news of them (0.5; 0.25 for one that did not know the target i knows)."""
+    for j in range(cls.shape[1]):
+        if j == i:
+            continue
+        if comp[b, j] == comp[b, i]:
+            _stamp3(obs_global, b, i, CH_CLASS0 + cls[b, j], pos[b, j, 0], pos[b, j, 1])
+        elif memory and heard_tick[b, i, j] >= 0:
+            v = OBS_CLUE if knows and not heard_knows[b, i, j] else OBS_HALF
+            r, c = heard_pos[b, i, j, 0], heard_pos[b, i, j, 1]
+            _stamp3_under(obs_global, b, i, CH_CLASS0 + cls[b, j], r, c, v)
+
+
 @njit(cache=True, nogil=True)  # threads=: chunks of worlds run at once
 def observe(
     worlds: np.ndarray,  # (B,) bool: build observations for these worlds
@@ -54,6 +84,10 @@ def observe(
     target: np.ndarray,  # (B, 2)
     obs_global: np.ndarray,  # (B, N, 5 + C, H, W) uint8 out
     obs_local: np.ndarray,  # (B, N, 4 + C, L, L) uint8 out
+    memory: bool,  # show remembered teammates (EnvConfig.teammate_memory)
+    heard_tick: np.ndarray,  # (B, N, N) int64, -1 = no news
+    heard_pos: np.ndarray,  # (B, N, N, 2) int64
+    heard_knows: np.ndarray,  # (B, N, N) bool
 ) -> None:
     n, h, w = belief.shape[1], belief.shape[2], belief.shape[3]
     hw = h * w
@@ -86,9 +120,7 @@ def observe(
             gr, gc = goal[b, i, 0], goal[b, i, 1]
             if gr >= 0:
                 obs_global[b, i, CH_GOAL, gr, gc] = OBS_ONE
-            for j in range(n):
-                if j != i and comp[b, j] == comp[b, i]:
-                    _stamp3(obs_global, b, i, CH_CLASS0 + cls[b, j], pos[b, j, 0], pos[b, j, 1])
+            _teammates(obs_global, b, i, knows, pos, cls, comp, memory, heard_tick, heard_pos, heard_knows)
             _stamp3(obs_global, b, i, CH_CLASS0 + n_cls, pos[b, i, 0], pos[b, i, 1])
             _local_map(b, i, belief, pos, cls, comp, goal, obs_global, obs_local)
 

@@ -46,6 +46,9 @@ class WorldState:
     episode: np.ndarray  # (B,) int64 episode index of each world's current episode
     pending_reward: np.ndarray  # (B, N) float64 rewards earned at reset, paid with the next step
     comm_sigma: np.ndarray  # (B,) float64 communication range of the episode, 0 = full communication
+    heard_tick: np.ndarray  # (B, N, N) int64 tick of i's latest news of j, -1 = none (comms)
+    heard_pos: np.ndarray  # (B, N, N, 2) int64 where robot j was then
+    heard_knows: np.ndarray  # (B, N, N) bool whether robot j knew the target then
 
     @classmethod
     def allocate(cls, num_worlds: int, num_robots: int, shape: tuple[int, int], noisy: bool) -> WorldState:
@@ -75,6 +78,9 @@ class WorldState:
             episode=np.full(b, -1, np.int64),
             pending_reward=np.zeros((b, n), np.float64),
             comm_sigma=np.zeros(b, np.float64),
+            heard_tick=np.full((b, n, n), -1, np.int64),
+            heard_pos=np.zeros((b, n, n, 2), np.int64),
+            heard_knows=np.zeros((b, n, n), np.bool_),
         )
 
     def copy(self) -> WorldState:

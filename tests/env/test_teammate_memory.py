@@ -1,0 +1,140 @@
+"""What robots remember of each other (``WorldState.heard_*``), its observation option
+(``EnvConfig.teammate_memory``) and the planner that uses it (``rrt-relay``).
+
+The rules: docs/design.md#communication-and-slam-noise.
+"""
+
+import numpy as np
+
+from catmip_env import EnvConfig
+from catmip_env.constants import CH_CLASS0, OBS_CLUE, OBS_HALF, OBS_ONE, TARGET_BIT
+from catmip_env.events import EventEngine
+from catmip_env.planners import make_planner
+from tests.env.helpers import preset_engine, random_actions
+
+
+def _knows(st, b):
+    tr, tc = st.target[b]
+    return (st.belief[b, :, tr, tc] & TARGET_BIT) != 0
+
+
+def _check_reset(st, worlds):
+    """A new episode remembers nothing from the last: news only of the neighbours at t = 0."""
+    for b in np.flatnonzero(worlds):
+        same = st.comp[b][:, None] == st.comp[b][None, :]
+        assert (st.heard_tick[b] == np.where(same, 0, -1)).all()
+
+
+def test_news_is_first_hand_in_the_neighbourhood_shared_inside_it_and_never_older():
+    rng = np.random.default_rng(5)
+    eng = preset_engine("task3", num_worlds=6, seed=5, comm_sigma=2.0)
+    st, n = eng.state, eng.num_robots
+    _check_reset(st, np.ones(6, bool))
+    relayed = False
+    for _ in range(150):
+        before, episode = st.heard_tick.copy(), st.episode.copy()
+        eng.step(random_actions(rng, eng))
+        for b in range(6):
+            same = st.comp[b][:, None] == st.comp[b][None, :]
+            assert (st.heard_tick[b][same] == st.ticks[b]).all()
+            i, j = np.nonzero(same)
+            assert (st.heard_pos[b, i, j] == st.pos[b, j]).all()
+            assert (st.heard_knows[b, i, j] == _knows(st, b)[j]).all()
+            assert (st.heard_tick[b][~same] < st.ticks[b]).all()
+            for k in range(n):  # members hold the same news of everyone
+                assert (st.heard_tick[b, k] == st.heard_tick[b, st.comp[b, k]]).all()
+            if st.episode[b] == episode[b]:
+                assert (st.heard_tick[b] >= before[b]).all()
+                # news of j got fresher without meeting j: it came through a teammate
+                relayed |= bool(((st.heard_tick[b] > before[b]) & ~same).any())
+        if st.done.any():
+            done = st.done.copy()
+            eng.reset(worlds=done)
+            _check_reset(st, done)
+    assert relayed, "with sigma = 2 some news should travel through a third robot"
+
+
+def test_memory_option_changes_only_the_teammate_channels_of_the_global_map():
+    rng = np.random.default_rng(1)
+    plain = preset_engine("task3", num_worlds=4, seed=1, comm_sigma=2.0)
+    shown = preset_engine("task3", num_worlds=4, seed=1, comm_sigma=2.0, teammate_memory=True)
+    channels = plain.obs_global.shape[2]
+    c = channels - CH_CLASS0 - 1  # the teammates' class channels, then the own position
+    remembered = set()
+    for _ in range(120):
+        actions = random_actions(rng, plain)
+        plain.step(actions)
+        shown.step(actions)
+        for name in ("pos", "belief", "comp", "heard_tick", "rescue_tick"):
+            assert np.array_equal(getattr(plain.state, name), getattr(shown.state, name)), name
+        assert np.array_equal(plain.obs_local, shown.obs_local)
+        others = np.r_[0:CH_CLASS0, CH_CLASS0 + c : channels]  # every channel but the teammates' classes
+        assert np.array_equal(plain.obs_global[:, :, others], shown.obs_global[:, :, others])
+        teammates = slice(CH_CLASS0, CH_CLASS0 + c)
+        assert (shown.obs_global[:, :, teammates] >= plain.obs_global[:, :, teammates]).all()
+        remembered |= set(np.unique(shown.obs_global[:, :, teammates]).tolist())
+        for d in (plain, shown):
+            if d.state.done.any():
+                d.reset(worlds=d.state.done.copy())
+    assert remembered <= {0, OBS_CLUE, OBS_HALF, OBS_ONE} and OBS_HALF in remembered
+
+
+# The explorer (robot 1) sees the target at reset; the rescuer (robot 0) is far away and out of range.
+CORRIDOR = """
+##################
+#0...............#
+#................#
+#...........1..T.#
+##################
+"""
+
+
+def _corridor():
+    cfg = EnvConfig(
+        layout=CORRIDOR, team=("rescuer", "explorer"), comm_sigma=0.01, activation=(0, 0), horizon_ticks=100
+    )
+    eng = EventEngine(cfg, 1, seed=0, goal_mode="cell")
+    eng.reset()
+    st = eng.state
+    assert st.found_tick[0] == 0 and not _knows(st, 0)[0] and eng.active[0, 1]
+    return eng, cfg
+
+
+def _explorer_goal(eng, planner):
+    return divmod(int(planner.act(eng)[0, 1]), eng.shape[1])
+
+
+def _nearest_goal_to(eng, cell) -> float:
+    """The smallest squared distance from ``cell`` to a goal the explorer may choose (not a robot's cell)."""
+    valid = eng.masks[0, 1].reshape(eng.shape) != 0
+    valid[tuple(eng.state.pos[0].T)] = False
+    return float(((np.argwhere(valid) - cell) ** 2).sum(axis=1).min())
+
+
+def test_relay_explorer_carries_the_news_to_where_it_last_heard_of_an_uninformed_rescuer():
+    eng, _ = _corridor()
+    st = eng.state
+    rescuer, explorer = st.pos[0, 0].copy(), st.pos[0, 1].copy()
+    st.heard_tick[0, 1, 0], st.heard_pos[0, 1, 0], st.heard_knows[0, 1, 0] = 0, rescuer, False
+    goal = np.array(_explorer_goal(eng, make_planner("rrt-relay", seed=0)))
+    assert ((goal - rescuer) ** 2).sum() == _nearest_goal_to(eng, rescuer)  # as near the rescuer as it may
+    assert np.hypot(*(goal - rescuer)) < np.hypot(*(explorer - rescuer)) - 2
+    # a rescuer that knew the target when last heard of needs no news: RRT's own choice
+    st.heard_knows[0, 1, 0] = True
+    assert _explorer_goal(eng, make_planner("rrt-relay", seed=0)) == _explorer_goal(
+        eng, make_planner("rrt", seed=0)
+    )
+
+
+def test_relay_explorer_that_finds_the_cell_empty_explores_on():
+    eng, _ = _corridor()
+    st = eng.state
+    st.heard_tick[0, 1, 0], st.heard_knows[0, 1, 0] = 0, False
+    st.heard_pos[0, 1, 0] = st.pos[0, 1] + [0, -1]  # last heard of next to where the explorer stands
+    relay = make_planner("rrt-relay", seed=0)
+    assert _explorer_goal(eng, relay) == _explorer_goal(eng, make_planner("rrt", seed=0))
+    st.heard_pos[0, 1, 0] = st.pos[0, 0]  # the same news, now far away: given up until newer news
+    assert _explorer_goal(eng, relay) == _explorer_goal(eng, make_planner("rrt", seed=0))
+    st.heard_tick[0, 1, 0] = 1  # newer news of it
+    goal = np.array(_explorer_goal(eng, relay))
+    assert ((goal - st.pos[0, 0]) ** 2).sum() == _nearest_goal_to(eng, st.pos[0, 0])
