@@ -227,8 +227,9 @@ def initial_weights(spec: str, config: AmatConfig) -> dict[str, Any]:
     they came from: the spec, the file, its SHA-256, the iteration and the training minutes behind the
     weights (counting the runs they came from in turn; None where unknown), and ``pool`` [theirs, ours]
     where a model whose pooled grid divides ``config.pool`` (and is otherwise ``config``) was spread over
-    the finer grid (:func:`~catmip_rl.amat.weights.finer_pool`), and ``cell_mask`` [theirs, ours] where a
-    cell-goal model is to choose among other cells (the mask holds no weights). Raises ``ValueError``
+    the finer grid (:func:`~catmip_rl.amat.weights.finer_pool`), ``cell_mask`` [theirs, ours] where a
+    cell-goal model is to choose among other cells, and ``teammate_memory`` [theirs, ours] where it is to
+    see remembered teammates (neither holds weights). Raises ``ValueError``
     (the message starts with "init_from") if the file is missing, unreadable or not an AMAT of ``config``."""
     try:
         path = model_file(resolve_model(spec))
@@ -242,7 +243,9 @@ def initial_weights(spec: str, config: AmatConfig) -> dict[str, Any]:
             weights = finer_pool(weights, model.config.pool, config.pool)
         except ValueError as err:
             raise ValueError(f"init_from {spec!r}: {err}") from None
-    elif model.config != replace(config, cell_mask=model.config.cell_mask):  # the mask holds no weights
+    elif model.config != replace(  # neither the mask nor the memory holds weights
+        config, cell_mask=model.config.cell_mask, teammate_memory=model.config.teammate_memory
+    ):
         theirs, ours = asdict(model.config), asdict(config)
         diff = ", ".join(f"{k} {theirs[k]!r} there vs {ours[k]!r} here" for k in ours if theirs[k] != ours[k])
         raise ValueError(
@@ -262,7 +265,7 @@ def initial_weights(spec: str, config: AmatConfig) -> dict[str, Any]:
         "iteration": state.get("iteration"),
         "elapsed_min": None if own is None else _minutes_behind(own, state.get("init_from")),
     }
-    for name in ("pool", "cell_mask"):  # what the new run changed
+    for name in ("pool", "cell_mask", "teammate_memory"):  # what the new run changed
         if getattr(model.config, name) != getattr(config, name):
             source[name] = [getattr(model.config, name), getattr(config, name)]
     return {"model": weights, "value_norm": state.get("value_norm"), "source": source}

@@ -7,7 +7,7 @@ import json
 from dataclasses import asdict, dataclass
 from typing import Any
 
-from catmip_env.fields import INT, check
+from catmip_env.fields import BOOL, INT, check
 
 __all__ = ["AmatConfig", "GOAL_KINDS", "CELL_MASKS"]
 
@@ -47,6 +47,10 @@ class AmatConfig:
     occupied with a path to it, unknown cells included: where RRT sends robots)."""
     cell_layers: int = 4
     """Goals "cell": convolutions of the per-cell encoder: a 3x3, then residual 3x3s dilated 1, 1, 2, 4..."""
+    teammate_memory: bool = False
+    """Observes teammates outside its neighbourhood where it last had news of them (the env's
+    ``EnvConfig.teammate_memory``; not the paper's observation): training worlds and evaluation turn
+    the option on for such a model, and an engine without it is refused."""
 
     def __post_init__(self) -> None:
         for name, most in LIMITS.items():  # bounded: a file cannot declare a model too large to count
@@ -60,6 +64,7 @@ class AmatConfig:
             raise ValueError(
                 f"AmatConfig.cell_mask must be one of {list(CELL_MASKS)}, got {self.cell_mask!r}"
             )
+        check("AmatConfig", "teammate_memory", self.teammate_memory, BOOL)
         if self.goals not in GOAL_KINDS:
             raise ValueError(f"AmatConfig.goals must be one of {list(GOAL_KINDS)}, got {self.goals!r}")
 
@@ -74,6 +79,11 @@ class AmatConfig:
     @property
     def local_channels(self) -> int:
         return 4 + self.n_classes
+
+    def env_overrides(self) -> dict[str, Any]:
+        """What an env must set to give this model its observations and actions: the goal window, and
+        the teammate memory when the model reads it."""
+        return {"window": self.window, **({"teammate_memory": True} if self.teammate_memory else {})}
 
     def to_json(self) -> str:
         return json.dumps(asdict(self), indent=2, sort_keys=True)

@@ -73,10 +73,11 @@ class EvalSetting:
         if not isinstance(self.max_ma_ticks, int) or self.max_ma_ticks < 1:
             raise ValueError(f"max_ma_ticks must be an int >= 1, got {self.max_ma_ticks!r}")
 
-    def env_config(self, window: int | None = None, synchronous: bool = False) -> EnvConfig:
-        """The task's evaluation config (activation (0, 0)); ``window`` = the policy's goal window D;
-        ``synchronous``: every robot decides together every ``max_ma_ticks`` ticks (Synch-CATMiP)."""
-        extra = {} if window is None else {"window": window}
+    def env_config(self, needs: dict | None = None, synchronous: bool = False) -> EnvConfig:
+        """The task's evaluation config (activation (0, 0)); ``needs``: what the policy sets of it (an
+        AMAT's goal window D and teammate memory, ``make_policy``'s third answer); ``synchronous``: every
+        robot decides together every ``max_ma_ticks`` ticks (Synch-CATMiP)."""
+        extra = needs or {}
         return make_config(
             self.task,
             comm_sigma=comm_sigma(self.comm),
@@ -206,8 +207,8 @@ def evaluate(
     if not isinstance(episodes, int) or episodes < 1:
         raise ValueError(f"episodes must be an int >= 1, got {episodes!r}")
     sync = method.synchronous
-    policy, goal_mode, window = make_policy(method, setting.env_config(None, sync), seed, model, policy)
-    cfg = setting.env_config(window, sync)
+    policy, goal_mode, needs = make_policy(method, setting.env_config(None, sync), seed, model, policy)
+    cfg = setting.env_config(needs, sync)
     engine = EventEngine(cfg, num_worlds=episodes, seed=seed, goal_mode=goal_mode, threads=threads)
     engine.reset(episode_indices=np.arange(episodes))
     maps = [map_hash(engine, e) for e in range(episodes)]
@@ -366,8 +367,8 @@ def render_episode(
 
     method = parse_method(method) if isinstance(method, str) else method
     sync = method.synchronous
-    policy, goal_mode, window = make_policy(method, setting.env_config(None, sync), seed, model)
-    eng = EventEngine(setting.env_config(window, sync), num_worlds=1, seed=seed, goal_mode=goal_mode)
+    policy, goal_mode, needs = make_policy(method, setting.env_config(None, sync), seed, model)
+    eng = EventEngine(setting.env_config(needs, sync), num_worlds=1, seed=seed, goal_mode=goal_mode)
     if plays_one_world_at_a_time(policy):
         policy.reset()
     fps = RENDER_FPS if fps is None else fps

@@ -262,6 +262,15 @@ class AmatExecutor:
         self._last_pose[active] = pose[active]
         return masks
 
+    def check_memory(self, engine: EventEngine) -> None:
+        """ValueError unless the engine shows remembered teammates exactly when the model reads them."""
+        if engine.cfg.teammate_memory != self.model.config.teammate_memory:
+            raise ValueError(
+                f"this AMAT was trained {'with' if self.model.config.teammate_memory else 'without'} the "
+                f"teammate memory in its observation; the engine has teammate_memory="
+                f"{engine.cfg.teammate_memory}"
+            )
+
     @torch.no_grad()
     def act(self, engine: EventEngine) -> np.ndarray:
         """Goal actions (B, N) of the active robots of live worlds (others: anything valid)."""
@@ -270,6 +279,7 @@ class AmatExecutor:
                 f"AMAT with window {self.model.config.window} needs an EventEngine in window mode with "
                 f"window {self.model.config.window}, got {engine.goal_mode!r} / {engine.cfg.window}"
             )
+        self.check_memory(engine)
         if self.messages is None or self._last_action.shape != (engine.num_worlds, engine.num_robots):
             self.start_episodes(engine.num_worlds, engine.num_robots)
         st = engine.state
@@ -320,6 +330,7 @@ class CellGoalExecutor(AmatExecutor):
             raise ValueError(
                 f"a cell-goal AMAT needs an EventEngine with goal_mode='cell', got {engine.goal_mode!r}"
             )
+        self.check_memory(engine)
         if self.messages is None or self._last_action.shape != (engine.num_worlds, engine.num_robots):
             self.start_episodes(engine.num_worlds, engine.num_robots)
         st = engine.state

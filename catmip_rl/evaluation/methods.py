@@ -163,8 +163,9 @@ def parse_runs(spec: str) -> list[Method]:
 def make_policy(
     method: Method, env_config: EnvConfig, seed: int, model: AMAT | None = None, policy: Any = None
 ) -> tuple[Any, str, int | None]:
-    """(policy with ``act(engine)``, goal mode, the policy's goal window or None) for ``method`` in the
-    setting whose config is ``env_config``. ``model`` overrides loading an AMAT checkpoint; ``policy``
+    """(policy with ``act(engine)``, goal mode, what the policy needs of the env config or None: an AMAT's
+    goal window and teammate memory, :meth:`AmatConfig.env_overrides`) for ``method`` in the setting whose
+    config is ``env_config``. ``model`` overrides loading an AMAT checkpoint; ``policy``
     is the object of a "policy" method (what a ``py:`` factory returns: a policy at either level)."""
     if method.kind == "planner":
         return make_planner(method.target, seed=seed), "cell", None
@@ -182,6 +183,8 @@ def make_policy(
     from catmip_rl.evaluation.execution import AmatExecutor, CellGoalExecutor
 
     model = model if model is not None else load_model(method.target)
+    needs = model.config.env_overrides()
     if model.config.goals == "cell":
-        return CellGoalExecutor(model, loop_guard=method.loop_guard), "cell", None
-    return AmatExecutor(model, loop_guard=method.loop_guard), "window", model.config.window
+        needs.pop("window")  # cell goals: the window does not matter
+        return CellGoalExecutor(model, loop_guard=method.loop_guard), "cell", needs or None
+    return AmatExecutor(model, loop_guard=method.loop_guard), "window", needs

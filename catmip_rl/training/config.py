@@ -273,7 +273,11 @@ class TrainConfig:
                 raise ValueError(f"AMAT local_size / n_classes must match {where} local map and classes")
 
     def env_config(self) -> EnvConfig:
-        return make_config(self.env_preset, **self.env_overrides)
+        return self._for_model(make_config(self.env_preset, **self.env_overrides))
+
+    def _for_model(self, env: EnvConfig) -> EnvConfig:
+        """``env`` with the teammate memory on when the model reads it (``AmatConfig.teammate_memory``)."""
+        return env.replace(teammate_memory=True) if self.amat.get("teammate_memory") else env
 
     def world_configs(self) -> list[tuple[EnvConfig, int]]:
         """(EnvConfig, episodes per iteration) of each training world (see ``worlds``); ValueError
@@ -287,6 +291,7 @@ class TrainConfig:
             check(f"TrainConfig.worlds[{k}]", "num_worlds", n, INT(">= 1", lambda v: v >= 1))
             try:
                 env = make_config(preset, **entry) if preset else self.env_config().replace(**entry)
+                env = self._for_model(env)
             except (ValueError, TypeError) as err:
                 raise ValueError(f"TrainConfig.worlds[{k}]: {err}") from None
             out.append((env, n))
