@@ -10,10 +10,10 @@ which goal an active robot picks from its own clean belief (docs/design.md#plann
                        landing in unexplored space are exploration targets (<= 500), clustered
                        (8-connected cells); score = unexplored fraction of the 15x15 square around a
                        cluster - path distance / farthest reachable distance; the best cluster wins;
-* ``rrt-relay``        RRT, and an explorer that knows the target carries the news to the nearest
-                       rescuer it last had news of without it (toward the cell it was last heard of,
-                       from the robot's own memory, ``WorldState.heard_*``); one that finds that cell
-                       empty explores on. Not one of the paper's baselines: a communication-aware one;
+* ``rrt-relay``       RRT (``nearest-relay``: Nearest), and an explorer that knows the target carries
+                       it to the nearest rescuer it last had news of without it (toward the cell it
+                       was last heard of, from the robot's own memory, ``WorldState.heard_*``); one
+                       that finds that cell empty explores on. Not among the paper's baselines;
 * ``apf``              an artificial potential field: attraction to every frontier cluster (weight =
                        cluster size / (1 + path distance)), repulsion from teammates within radius 5,
                        greedy descent from the robot; stops at a frontier or a local minimum;
@@ -245,8 +245,12 @@ class RRT(Planner):
         return best
 
 
-class RRTRelay(RRT):
-    name = "rrt-relay"
+class Relay:
+    """The relay rule on top of a planner (``class NearestRelay(Relay, Nearest)``): an explorer that knows
+    the target carries it to the nearest rescuer it last had news of without it (the valid goal nearest
+    to where that rescuer was then, ties by path distance); at that cell with the rescuer gone, it gives
+    that news up until newer news of the rescuer. Otherwise the planner chooses. It reads the robot's own
+    memory of its teammates (``WorldState.heard_*``)."""
 
     def __init__(self, seed: int = 0) -> None:
         super().__init__(seed)
@@ -256,8 +260,7 @@ class RRTRelay(RRT):
         cell = self._rescuer_to_tell(ctx)
         if cell is None:
             return super().choose(ctx)
-        ok = ctx.valid & (ctx.dist > 0)  # the goal nearest that cell, ties by path distance
-        cells = np.argwhere(ok)
+        cells = np.argwhere(ctx.valid & (ctx.dist > 0))
         if len(cells) == 0:
             return None
         key = ((cells - cell) ** 2).sum(axis=1) * (ctx.dist.size + 1) + ctx.dist[cells[:, 0], cells[:, 1]]
@@ -282,6 +285,14 @@ class RRTRelay(RRT):
             elif d < best_d:
                 best, best_d = cell, d
         return best
+
+
+class RRTRelay(Relay, RRT):
+    name = "rrt-relay"
+
+
+class NearestRelay(Relay, Nearest):
+    name = "nearest-relay"
 
 
 def _label8(mask: np.ndarray) -> tuple[np.ndarray, int]:
@@ -365,13 +376,14 @@ class APF(Planner):
 
 
 PLANNERS = {
-    p.name: p for p in (Nearest, Utility, RRT, RRTRelay, APF, RandomFrontier, RandomWindow, UniformWindow)
+    p.name: p
+    for p in (Nearest, NearestRelay, Utility, RRT, RRTRelay, APF, RandomFrontier, RandomWindow, UniformWindow)
 }
 
 
 def make_planner(name: str, seed: int = 0) -> Planner:
-    """A planner by name: nearest, utility, rrt, rrt-relay, apf, random-frontier, random-rescue,
-    random-uniform."""
+    """A planner by name: nearest, nearest-relay, utility, rrt, rrt-relay, apf, random-frontier,
+    random-rescue, random-uniform."""
     try:
         return PLANNERS[name](seed=seed)
     except KeyError:
