@@ -254,7 +254,7 @@ class Relay:
 
     def __init__(self, seed: int = 0) -> None:
         super().__init__(seed)
-        self._given_up: set[tuple[int, ...]] = set()  # (world, episode, robot, rescuer, news tick)
+        self._given_up: dict[int, tuple[int, set]] = {}  # world -> (episode, {(robot, rescuer, news tick)})
 
     def choose(self, ctx):
         cell = self._rescuer_to_tell(ctx)
@@ -272,16 +272,20 @@ class Relay:
         if ctx.can_rescue or not ctx.knows_target:
             return None
         st, b, i = ctx.engine.state, ctx.b, ctx.i
+        episode, given_up = self._given_up.get(b, (None, None))
+        if episode != st.episode[b]:  # a new episode forgets the last one's
+            given_up = set()
+            self._given_up[b] = (int(st.episode[b]), given_up)
         best, best_d = None, np.inf
         for j in np.flatnonzero(st.can_rescue[b]):
             tick = int(st.heard_tick[b, i, j])
-            key = (b, int(st.episode[b]), i, int(j), tick)
-            if tick < 0 or st.heard_knows[b, i, j] or key in self._given_up:
+            key = (i, int(j), tick)
+            if tick < 0 or st.heard_knows[b, i, j] or key in given_up:
                 continue
             cell = st.heard_pos[b, i, j]
             d = float(np.hypot(*(cell - ctx.own)))
             if d <= 1.5:  # there, and the rescuer is not: explore on until newer news of it
-                self._given_up.add(key)
+                given_up.add(key)
             elif d < best_d:
                 best, best_d = cell, d
         return best
