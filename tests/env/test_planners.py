@@ -30,7 +30,9 @@ def floor():
     return _run("random-rescue")
 
 
-@pytest.mark.parametrize("name", ["nearest", "utility", "rrt", "rrt-relay", "nearest-relay", "apf", "random-frontier"])
+@pytest.mark.parametrize(
+    "name", ["nearest", "utility", "rrt", "rrt-relay", "nearest-relay", "apf", "random-frontier"]
+)
 def test_baseline_finishes_task1_and_beats_the_random_window_floor(name, floor):
     rescue, mean_tick = _run(name)
     floor_rescue, floor_mean = floor
