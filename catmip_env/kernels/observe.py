@@ -40,16 +40,8 @@ assert EXPLORED << 2 == OBS_ONE and OCCUPIED << 1 == OBS_ONE and CLUE_BIT >> 2 =
 
 
 @njit(cache=True, inline="always")
-def _stamp3(obs: np.ndarray, b: int, i: int, ch: int, r: int, c: int) -> None:
-    h, w = obs.shape[3], obs.shape[4]
-    for rr in range(max(r - 1, 0), min(r + 2, h)):
-        for cc in range(max(c - 1, 0), min(c + 2, w)):
-            obs[b, i, ch, rr, cc] = OBS_ONE
-
-
-@njit(cache=True, inline="always")
-def _stamp3_under(obs: np.ndarray, b: int, i: int, ch: int, r: int, c: int, v: int) -> None:
-    """A 3x3 block of value ``v`` that keeps any larger value already there."""
+def _stamp3(obs: np.ndarray, b: int, i: int, ch: int, r: int, c: int, v: int = OBS_ONE) -> None:
+    """A 3x3 block of value ``v`` (1.0 by default) that keeps any larger value already there."""
     h, w = obs.shape[3], obs.shape[4]
     for rr in range(max(r - 1, 0), min(r + 2, h)):
         for cc in range(max(c - 1, 0), min(c + 2, w)):
@@ -68,7 +60,7 @@ def _teammates(obs_global, b, i, knows, pos, cls, comp, memory, heard_tick, hear
         elif memory and heard_tick[b, i, j] >= 0:
             v = OBS_CLUE if knows and not heard_knows[b, i, j] else OBS_HALF
             r, c = heard_pos[b, i, j, 0], heard_pos[b, i, j, 1]
-            _stamp3_under(obs_global, b, i, CH_CLASS0 + cls[b, j], r, c, v)
+            _stamp3(obs_global, b, i, CH_CLASS0 + cls[b, j], r, c, v)
 
 
 @njit(cache=True, nogil=True)  # threads=: chunks of worlds run at once

@@ -81,9 +81,10 @@ class AmatConfig:
         return 4 + self.n_classes
 
     def env_overrides(self) -> dict[str, Any]:
-        """What an env must set to give this model its observations and actions: the goal window, and
-        the teammate memory when the model reads it."""
-        return {"window": self.window, **({"teammate_memory": True} if self.teammate_memory else {})}
+        """What an env must set to give this model its observations and actions: the goal window (window
+        goals), and the teammate memory when the model reads it."""
+        needs = {"window": self.window} if self.goals == "window" else {}
+        return needs | ({"teammate_memory": True} if self.teammate_memory else {})
 
     def to_json(self) -> str:
         return json.dumps(asdict(self), indent=2, sort_keys=True)

@@ -185,6 +185,5 @@ def make_policy(
     model = model if model is not None else load_model(method.target)
     needs = model.config.env_overrides()
     if model.config.goals == "cell":
-        needs.pop("window")  # cell goals: the window does not matter
         return CellGoalExecutor(model, loop_guard=method.loop_guard), "cell", needs or None
     return AmatExecutor(model, loop_guard=method.loop_guard), "window", needs
