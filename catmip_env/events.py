@@ -19,6 +19,7 @@ import numpy as np
 
 from catmip_env.config import EnvConfig
 from catmip_env.kernels.dynamics import Rules
+from catmip_env.kernels.goals import goal_cells
 from catmip_env.kernels.macro import (
     M_ACTIVE,
     M_ELAPSED,
@@ -103,6 +104,7 @@ class EventEngine:
         self._terminated = np.zeros(b, np.bool_)
         self._truncated = np.zeros(b, np.bool_)
         self._goal_cells = np.zeros((b, n, 2), np.int64)
+        self._refused = np.zeros((b, n), np.bool_)  # scratch of _set_goals
         self.rules = Rules.of(cfg, self.gamma)
 
     # -- views of the world --------------------------------------------------------------------
@@ -199,7 +201,7 @@ class EventEngine:
         )
 
     def _masks(self, worlds: np.ndarray) -> None:
-        self.world.chunks.run(lambda w: self._masks_chunk(worlds, w))
+        self.world.chunks.run(lambda w: self._masks_chunk(worlds, w), worlds)
 
     def _masks_chunk(self, worlds: np.ndarray, w: slice) -> None:
         st = self.state
@@ -224,33 +226,20 @@ class EventEngine:
             )
         if not np.issubdtype(actions.dtype, np.integer):
             raise ValueError(f"goal actions must be integers, got dtype {actions.dtype}")
-        act = self.active & live[:, None]
-        a = np.where(act, actions, 0).astype(np.int64)
-        in_range = (a >= 0) & (a < self.num_actions)
-        ok = in_range.copy()
-        bb, ii = np.nonzero(in_range & act)
-        ok[bb, ii] = self.masks[bb, ii, a[bb, ii]] == 1
-        bad = act & ~ok
-        if bad.any():
-            if self.invalid_action == "raise":
-                b, i = (int(x) for x in np.argwhere(bad)[0])
-                v = int(actions[b, i])
-                if in_range[b, i]:
-                    what = f"masked: its goal cell {self.action_to_cell(b, i, v)} is not allowed by the mask"
-                else:
-                    what = f"out of range: {self.goal_mode} actions are 0..{self.num_actions - 1}"
-                raise ValueError(
-                    f"action {v} of robot_{i} (world {b}) is {what} "
-                    f"(invalid_action='stay' would replace it with 'stay here')"
-                )
-            pos = self.state.pos
-            stay = pos[..., 0] * self.shape[1] + pos[..., 1] if self.goal_mode == "cell" else self.stay_action
-            a = np.where(bad, stay, a)
-        self.invalid[:] = bad
-        st = self.state
-        if self.goal_mode == "cell":
-            self._goal_cells[..., 0], self._goal_cells[..., 1] = np.divmod(a, self.shape[1])
-        else:
-            d = self.cfg.window
-            self._goal_cells[..., 0] = st.pos[..., 0] + a // d - d // 2
-            self._goal_cells[..., 1] = st.pos[..., 1] + a % d - d // 2
+        decides = self.active & live[:, None]
+        refused = goal_cells(
+            actions.astype(np.int64), decides, self.masks, self.goal_mode == "cell", self.shape[1],
+            self.cfg.window, self.stay_action, self.state.pos, self._goal_cells, self._refused,
+        )  # fmt: skip
+        if refused and self.invalid_action == "raise":
+            b, i = (int(x) for x in np.argwhere(self._refused)[0])
+            v = int(actions[b, i])
+            if 0 <= v < self.num_actions:
+                what = f"masked: its goal cell {self.action_to_cell(b, i, v)} is not allowed by the mask"
+            else:
+                what = f"out of range: {self.goal_mode} actions are 0..{self.num_actions - 1}"
+            raise ValueError(
+                f"action {v} of robot_{i} (world {b}) is {what} "
+                f"(invalid_action='stay' would replace it with 'stay here')"
+            )
+        self.invalid[:] = self._refused

@@ -23,6 +23,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from catmip_env.ascii_maps import parse_layout
+from catmip_env.chunks import WorldChunks
 from catmip_env.config import EnvConfig
 from catmip_env.constants import (
     CLUE,
@@ -70,37 +71,6 @@ class StepResult(NamedTuple):
     rewards: np.ndarray  # (B, N) float64 reward of each robot on this tick
     terminated: np.ndarray  # (B,) bool mission succeeded on this tick
     truncated: np.ndarray  # (B,) bool horizon reached without success on this tick
-
-
-class WorldChunks:
-    """The worlds split into ``threads`` contiguous chunks, and a pool that runs a function on each at
-    once. The kernels release the GIL (``nogil``) and a world's episode depends only on its own arrays,
-    so a step on several threads gives exactly the results of one thread."""
-
-    def __init__(self, num_worlds: int, threads: int = 1) -> None:
-        if not isinstance(threads, (int, np.integer)) or threads < 1:
-            raise ValueError(f"threads must be an int >= 1, got {threads!r}")
-        bounds = np.linspace(0, num_worlds, min(int(threads), num_worlds) + 1).astype(int)
-        self.slices = [slice(int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:])]
-        self.threads = len(self.slices)
-        self._pool = None
-
-    def run(self, fn) -> None:
-        """``fn(chunk)`` for every chunk (a slice of the worlds), on the pool's threads; the first error
-        is raised once every chunk has finished."""
-        if self.threads == 1:
-            fn(self.slices[0])
-            return
-        if self._pool is None:
-            from concurrent.futures import ThreadPoolExecutor
-
-            self._pool = ThreadPoolExecutor(self.threads - 1, thread_name_prefix="catmip-worlds")
-        futures = [self._pool.submit(fn, w) for w in self.slices[1:]]
-        try:
-            fn(self.slices[0])  # the caller's thread takes the first chunk
-        finally:
-            for future in futures:
-                future.result()
 
 
 class BatchedWorld:
@@ -285,7 +255,7 @@ class BatchedWorld:
 
     def observe(self, worlds: np.ndarray) -> None:
         """Rebuild the macro-observations of the worlds in the bool mask ``worlds`` (B,)."""
-        self.chunks.run(lambda w: self.observe_chunk(worlds, w))
+        self.chunks.run(lambda w: self.observe_chunk(worlds, w), worlds)
 
     def observe_chunk(self, worlds: np.ndarray, chunk: slice) -> None:
         """:meth:`observe` of the worlds of ``chunk`` (one thread's share)."""

@@ -259,6 +259,21 @@ def test_invalid_actions_raise_or_become_stay():
     assert not lenient.invalid.any()
 
 
+def test_invalid_cell_actions_raise_with_nothing_changed_or_become_stay():
+    eng = engine(goal_mode="cell")
+    w = eng.shape[1]
+    before = eng.state.copy()
+    with pytest.raises(ValueError, match="robot_1 .* masked: its goal cell \\(0, 0\\)"):
+        step(eng, 1 * w + 5, 0)  # robot_0's goal is fine, robot_1's is a wall
+    assert np.array_equal(eng.state.goal, before.goal) and eng.state.ticks[0] == before.ticks[0]
+    lenient = EventEngine(eng.cfg, 1, seed=0, goal_mode="cell", invalid_action="stay")
+    lenient.reset()
+    start = lenient.state.pos[0, 1].tolist()
+    lenient.step(np.array([[1 * w + 5, w * eng.shape[0]]]))  # robot_1: out of range
+    assert lenient.invalid.tolist() == [[False, True]]
+    assert lenient.state.goal[0, 0].tolist() == [1, 5] and lenient.state.goal[0, 1].tolist() == start
+
+
 def test_layout_walls_are_walls():
     eng = engine()
     assert (eng.state.grid[0, 0] == WALL).all()

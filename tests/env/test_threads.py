@@ -3,10 +3,13 @@ seed, episode and actions), in both goal modes, with SLAM noise, drawn communica
 
 from __future__ import annotations
 
+import threading
+
 import numpy as np
 import pytest
 
 from catmip_env import BatchedWorld, EventEngine, make_config
+from catmip_env.chunks import WorldChunks
 from catmip_env.events import random_valid_actions
 from catmip_env.kernels.state import WorldState
 
@@ -69,3 +72,19 @@ def test_threads_are_checked_and_capped_at_the_worlds():
     with pytest.raises(ValueError, match="threads must be an int >= 1"):
         BatchedWorld(make_config("task1"), num_worlds=2, threads=0)
     assert BatchedWorld(make_config("task1"), num_worlds=2, threads=8).chunks.threads == 2
+
+
+def test_chunks_run_only_those_that_hold_a_named_world():
+    chunks = WorldChunks(9, threads=3)
+    assert chunks.slices == [slice(0, 3), slice(3, 6), slice(6, 9)]
+    ran, caller = [], threading.get_ident()
+    named = np.zeros(9, np.bool_)
+    named[[4, 7]] = True
+    chunks.run(lambda w: ran.append(w), named)
+    assert sorted(w.start for w in ran) == [3, 6]
+    ran.clear()
+    named[7] = False  # one chunk left: it runs on the caller's thread
+    chunks.run(lambda w: ran.append((w, threading.get_ident())), named)
+    assert ran == [(slice(3, 6), caller)]
+    with pytest.raises(RuntimeError, match="boom"):  # a chunk's error reaches the caller
+        chunks.run(lambda w: (_ for _ in ()).throw(RuntimeError("boom")) if w.start == 6 else None)
