@@ -23,7 +23,7 @@ ENV_GROUPS = {
         "machine",
         "__init__",
     ),
-    "env: world": ("world",),
+    "env: world": ("world", "chunks"),
     "env: events": ("events", "episode_stats"),
     "env: planners": ("planners", "window_planner"),
     "env: play": ("play", "map_sets", "render", "warmup", "demo"),
