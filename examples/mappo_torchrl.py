@@ -16,7 +16,15 @@ policy that ``catmip eval`` plays on the paper's protocol. The recipe of TorchRL
 
 ``--out`` gets ``metrics.csv`` (per iteration), ``config.json``, ``policy.pt`` (weights only, saved every
 ``--save-every`` iterations and at the end), ``policy.json`` and ``policy.py``, a factory for
-``catmip eval --task TASK --method mappo=py:OUT/policy.py:make_policy``. At the end the policy is
+``catmip eval --task TASK --method mappo=py:OUT/policy.py:make_policy``; and ``state.pt``, what
+``--resume`` needs (weights, optimiser, iteration, minutes spent, the sampling RNG): keep it out of
+a repository.
+
+    python examples/mappo_torchrl.py --resume --out runs/ippo-task2-s1   # after an interruption
+
+A resumed run goes on from its last save with the options in ``OUT/config.json``; its worlds start
+new episodes (drawn from the seed and the iteration, so not the maps played before), which costs
+the episodes that were in progress. At the end the policy is
 evaluated on the task's protocol maps (``--eval-episodes``, seed ``--eval-seed``) beside Nearest and
 ``random-uniform``, through that factory.
 """
@@ -29,6 +37,7 @@ import json
 import time
 from pathlib import Path
 
+import numpy as np
 import torch
 from torch import nn
 from torchrl.collectors import Collector
@@ -48,8 +57,11 @@ from catmip_rl.adapters.torchrl_marl import (
     make_critic,
     save_policy,
 )
+from catmip_rl.checkpoint import atomic_torch_save
+from catmip_rl.files import atomic_write_csv
 
 EPISODE_REWARD = (K.ROBOTS, "episode_reward")
+STATE = "state.pt"  # what --resume needs; policy.pt holds the actor's weights alone
 
 
 def make_env(task: str, num_worlds: int, seed: int) -> TransformedEnv:
@@ -94,9 +106,30 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         "--eval-episodes", type=int, default=100, help="protocol maps evaluated at the end (0: none)"
     )
     ap.add_argument("--eval-seed", type=int, default=0, help="the map set of that evaluation")
+    ap.add_argument(
+        "--resume", action="store_true", help="continue the run in --out from its last save, with its options"
+    )
     args = ap.parse_args(argv)
+    if args.resume:
+        return _saved_args(ap, args.out)
     if args.minutes is None and args.iterations is None:
         args.minutes = 5.0
+    return args
+
+
+def _saved_args(ap: argparse.ArgumentParser, out: str | None) -> argparse.Namespace:
+    """The options of the run in ``out`` (its config.json), marked to resume; one line when there is none."""
+    if out is None:
+        ap.error("--resume needs --out: the run folder to continue")
+    folder = Path(out)
+    if not (folder / STATE).is_file() or not (folder / "config.json").is_file():
+        ap.error(f"--resume: {folder} holds no {STATE} and config.json (nothing saved to continue from)")
+    saved = json.loads((folder / "config.json").read_text())
+    args = ap.parse_args([])
+    unknown = set(saved) - set(vars(args))
+    if unknown:
+        ap.error(f"--resume: {folder}/config.json has options this script does not know: {sorted(unknown)}")
+    vars(args).update(saved, resume=True)
     return args
 
 
@@ -113,11 +146,10 @@ def main(argv: list[str] | None = None) -> list[dict[str, float]]:
     torch.set_num_threads(args.threads)
     torch.manual_seed(args.seed)
     out = Path(args.out) if args.out else None
-    if out is not None and out.exists() and any(out.iterdir()):
-        raise SystemExit(f"--out {out} is not empty: pick a new folder")
+    if out is not None and not args.resume and out.exists() and any(out.iterdir()):
+        raise SystemExit(f"--out {out} is not empty: pick a new folder, or continue it with --resume")
     cfg = make_config(args.task)
 
-    env = make_env(args.task, args.worlds, args.seed)
     actor = make_actor(cfg, pool=args.pool)
     critic = make_critic(cfg, args.algo, pool=args.pool)
     loss_module = ClipPPOLoss(
@@ -126,17 +158,24 @@ def main(argv: list[str] | None = None) -> list[dict[str, float]]:
     loss_module.set_keys(action=K.ACTION, sample_log_prob=K.LOG_PROB, value=K.VALUE, advantage=ADVANTAGE,
                          value_target=VALUE_TARGET)  # fmt: skip
     optim = torch.optim.Adam(loss_module.parameters(), args.lr)
+    first, spent_minutes, history = 0, 0.0, []
+    if args.resume:
+        first, spent_minutes, history = _restore(out, actor, critic, optim)
+        if _spent(args, spent_minutes, first) >= 1:
+            raise SystemExit(f"--resume: {out} has spent its budget (iteration {first}): nothing to continue")
+    env = make_env(args.task, args.worlds, _world_seed(args.seed, first))
     frames_per_batch = args.worlds * args.events
     collector = Collector(env, actor, frames_per_batch=frames_per_batch, total_frames=-1,
                           auto_register_policy_transforms=False)  # fmt: skip
     # at most every robot decides at every event of the batch
     buffer = ReplayBuffer(storage=LazyTensorStorage(frames_per_batch * cfg.num_robots),
                           sampler=SamplerWithoutReplacement(), batch_size=args.minibatch)  # fmt: skip
-    if out is not None:
+    if out is not None and not args.resume:
         out.mkdir(parents=True, exist_ok=True)
-        (out / "config.json").write_text(json.dumps(vars(args), indent=2))
-    history, start = [], time.perf_counter()
-    for iteration, data in enumerate(collector):
+        (out / "config.json").write_text(json.dumps({k: v for k, v in vars(args).items() if k != "resume"},
+                                                    indent=2))  # fmt: skip
+    start = time.perf_counter() - 60 * spent_minutes
+    for iteration, data in enumerate(collector, start=first):
         minutes = (time.perf_counter() - start) / 60
         for group in optim.param_groups:  # linear decay over whichever budget ends first
             group["lr"] = args.lr * max(0.0, 1 - _spent(args, minutes, iteration))
@@ -175,10 +214,7 @@ def main(argv: list[str] | None = None) -> list[dict[str, float]]:
         )
         finished = _spent(args, row["minutes"], iteration + 1) >= 1
         if out is not None and (finished or (iteration + 1) % args.save_every == 0):
-            _write_metrics(out / "metrics.csv", history)
-            info = {"algo": args.algo, "task": args.task, "iteration": iteration, "minutes": row["minutes"],
-                    "seed": args.seed}  # fmt: skip
-            save_policy(actor, cfg, out, info, args.pool)
+            _save(out, args, history, actor, critic, optim)
         if finished:
             break
     collector.shutdown()
@@ -187,13 +223,38 @@ def main(argv: list[str] | None = None) -> list[dict[str, float]]:
     return history
 
 
-def _write_metrics(path: Path, rows: list[dict]) -> None:
-    tmp = path.with_suffix(".csv.tmp")
-    with tmp.open("w", newline="") as f:
-        writer = csv.DictWriter(f, fieldnames=list(rows[0]))
-        writer.writeheader()
-        writer.writerows(rows)
-    tmp.replace(path)
+def _world_seed(seed: int, first: int) -> int:
+    """The worlds' seed: the run's own, or for a run resumed at iteration ``first`` one drawn from both
+    (new episodes, not the maps played before the interruption)."""
+    return seed if first == 0 else int(np.random.SeedSequence([seed, first]).generate_state(1)[0])
+
+
+def _save(out: Path, args: argparse.Namespace, history: list[dict], actor, critic, optim) -> None:
+    """The metrics, the policy files (weights only) and the resumable state, each written atomically."""
+    last = history[-1]
+    atomic_write_csv(out / "metrics.csv", history)
+    info = {"algo": args.algo, "task": args.task, "iteration": last["iteration"], "minutes": last["minutes"],
+            "seed": args.seed}  # fmt: skip
+    save_policy(actor, make_config(args.task), out, info, args.pool)
+    state = {"actor": actor.state_dict(), "critic": critic.state_dict(), "optim": optim.state_dict(),
+             "iteration": last["iteration"] + 1, "minutes": last["minutes"],
+             "torch_rng": torch.get_rng_state()}  # fmt: skip
+    atomic_torch_save(state, out / STATE)
+
+
+def _restore(out: Path, actor, critic, optim) -> tuple[int, float, list[dict[str, float]]]:
+    """Load the run's last save into the modules; its first iteration, minutes spent and metrics rows."""
+    state = torch.load(out / STATE, weights_only=True)
+    actor.load_state_dict(state["actor"])
+    critic.load_state_dict(state["critic"])
+    optim.load_state_dict(state["optim"])
+    torch.set_rng_state(state["torch_rng"])
+    with (out / "metrics.csv").open(newline="") as f:
+        history = [{k: int(v) if k in ("iteration", "frames", "episodes", "decisions") else float(v)
+                    for k, v in row.items()} for row in csv.DictReader(f)]  # fmt: skip
+    history = history[: state["iteration"]]  # rows written after the state (none: both are saved together)
+    print(f"resuming {out} at iteration {state['iteration']} ({state['minutes']:.1f} min spent)", flush=True)
+    return state["iteration"], state["minutes"], history
 
 
 def evaluate_saved(out: Path, task: str, algo: str, episodes: int, seed: int) -> dict[str, float]:

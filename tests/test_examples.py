@@ -7,6 +7,7 @@ import math
 from pathlib import Path
 
 import pytest
+import torch
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -114,3 +115,34 @@ def test_evaluate_my_policy_plays_the_planners_maps_and_compares(tmp_path, capsy
     ref = json.loads((tmp_path / "eval" / "greedy" / "episodes.json").read_text())
     assert [e["map_hash"] for e in mine] == [e["map_hash"] for e in ref]
     assert [e["rescue_tick"] for e in mine] == [e["rescue_tick"] for e in ref]  # seeded: the same run
+
+
+def test_mappo_torchrl_resumes_from_its_last_save(tmp_path, capsys):
+    mod = _load(ROOT / "examples" / "mappo_torchrl.py")
+    out = tmp_path / "run"
+    small = ["--worlds", "4", "--events", "16", "--epochs", "1", "--minibatch", "64", "--eval-episodes", "0"]
+    with pytest.raises(SystemExit):  # nothing saved yet: one line, no traceback
+        mod.main(["--resume", "--out", str(out)])
+    assert "holds no state.pt and config.json" in capsys.readouterr().err
+    mod.main(["--algo", "ippo", "--iterations", "2", "--save-every", "1", "--out", str(out), *small])
+    state = torch.load(out / "state.pt", weights_only=True)
+    assert state["iteration"] == 2
+    steps = {int(s["step"]) for s in state["optim"]["state"].values()}
+    with pytest.raises(SystemExit, match="has spent its budget"):
+        mod.main(["--resume", "--out", str(out)])
+    with pytest.raises(SystemExit, match="not empty"):  # a finished run is never overwritten
+        mod.main(["--iterations", "2", "--out", str(out), *small])
+    config = json.loads((out / "config.json").read_text())
+    (out / "config.json").write_text(json.dumps({**config, "iterations": 3}))  # a longer budget
+    capsys.readouterr()
+    history = mod.main(["--resume", "--out", str(out)])
+    assert f"resuming {out} at iteration 2" in capsys.readouterr().out
+    assert [row["iteration"] for row in history] == [0, 1, 2]  # the saved rows, then the new one
+    assert len((out / "metrics.csv").read_text().splitlines()) == 4
+    resumed = torch.load(out / "state.pt", weights_only=True)
+    assert resumed["iteration"] == 3 and resumed["minutes"] >= state["minutes"]
+    # the optimiser went on from its saved moments (Adam's step counts), not from scratch
+    assert {int(s["step"]) for s in resumed["optim"]["state"].values()} == {
+        s + max(1, history[2]["decisions"] // 64) for s in steps
+    }
+    assert json.loads((out / "policy.json").read_text())["iteration"] == 2
