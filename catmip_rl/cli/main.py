@@ -177,7 +177,8 @@ def _bench(args: argparse.Namespace) -> int:
         for fig, folder in zip(figures, folders):
             try:
                 out = run_figure(fig, methods, args.episodes, args.seed, args.out, args.jobs,
-                                 allow_other_maps=args.allow_other_maps, threads=args.threads)  # fmt: skip
+                                 progress=not args.no_progress, allow_other_maps=args.allow_other_maps,
+                                 threads=args.threads)  # fmt: skip
             except BaseException:  # a figure's folder holds a whole figure or none: its runs go
                 remove_results(folder)
                 raise

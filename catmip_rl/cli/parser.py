@@ -170,8 +170,9 @@ def add_setting_flags(p: argparse.ArgumentParser) -> None:
     )  # fmt: skip
     p.add_argument("--task", default="task1", choices=TASKS, help="evaluation task")
     p.add_argument(
-        "--comm", default="full", type=checked(check_comm), help="full | 4 | 2 (link range sigma in cells)"
-    )
+        "--comm", default="full", type=checked(check_comm),
+        help="full, or the link range sigma in cells (the paper's: 4, 2; any sigma >= 0.01)",
+    )  # fmt: skip
     p.add_argument(
         "--noise", type=PROBABILITY, default=0.0, help="SLAM noise: per-tick cell flip probability"
     )
@@ -306,6 +307,7 @@ def add_bench(sub) -> None:
     add_parallel_flags(pa)
     pa.add_argument("--out", default="out/paper", help="figures go to OUT/fig{N}/ (new or empty)")
     pa.add_argument("--force", action="store_true", help="write into non-empty OUT/fig{N}/ folders")
+    pa.add_argument("--no-progress", action="store_true", help="no progress bar")
     add_allow_other_maps(pa)
     pa.set_defaults(name="bench")
     pe = suites.add_parser(

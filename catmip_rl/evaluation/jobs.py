@@ -19,6 +19,7 @@ from typing import Any
 
 import numpy as np
 
+from catmip_env.events import EventEngine
 from catmip_env.play import WorldNotSupported
 from catmip_rl.evaluation.evaluate import EvalSetting, evaluate, progress_bar
 from catmip_rl.evaluation.methods import Method, make_policy, method_source
@@ -143,11 +144,12 @@ def die_with_parent(parent: int) -> None:
 def check_methods(
     groups: list[list[Method]], panels: list, seed: int
 ) -> tuple[dict[tuple[str, str], list[Method]], dict[tuple[str, str], str]]:
-    """Load every AMAT checkpoint and build every ``py:`` policy for every panel before any run starts
-    (an unreadable file or a broken policy raises here). Returns, per (panel, method), the method's runs
-    that can play the panel, and the pairs none of its runs can play with the reason
-    (:class:`~catmip_env.play.WorldNotSupported`, e.g. a CNN built for another map size): a method of
-    runs trained on different tasks plays each panel with the runs trained for its world."""
+    """Load every AMAT checkpoint and build every ``py:`` policy for every panel, letting it decide once,
+    before any run starts (an unreadable file or a broken policy raises here). Returns, per (panel,
+    method), the method's runs that can play the panel, and the pairs none of its runs can play
+    with the reason (:class:`~catmip_env.play.WorldNotSupported`, e.g. a CNN built for another map
+    size): a method of runs trained on different tasks plays each panel with the runs trained for its
+    world."""
     plays: dict[tuple[str, str], list[Method]] = {}
     not_played: dict[tuple[str, str], str] = {}
     for runs in groups:
@@ -161,7 +163,7 @@ def check_methods(
             for m in runs:
                 try:
                     if m.kind == "py":
-                        make_policy(m, setting.env_config(None, m.synchronous), seed)
+                        _first_decision(m, setting.env_config(None, m.synchronous), seed)
                     able.append(m)
                 except WorldNotSupported as exc:
                     why = str(exc)
@@ -170,6 +172,16 @@ def check_methods(
             else:
                 not_played[(panel, runs[0].name)] = why
     return plays, not_played
+
+
+def _first_decision(method: Method, env_config, seed: int) -> None:
+    """Build a ``py:`` policy and let it decide once in a fresh world of the setting: a factory or an
+    ``act`` that fails (a :class:`~catmip_rl.evaluation.user_policy.PolicyError`) fails here, before
+    any run is played, not after the baselines."""
+    policy, goal_mode, _needs = make_policy(method, env_config, seed)
+    engine = EventEngine(env_config, num_worlds=1, seed=seed, goal_mode=goal_mode)
+    engine.reset()
+    policy.act(engine)
 
 
 def default_threads(jobs: int, threads: int | None) -> int:

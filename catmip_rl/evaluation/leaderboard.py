@@ -133,7 +133,9 @@ def load_entries(folder: str | Path, episodes: int = EPISODES) -> list[dict[str,
     """Every ``*.json`` entry in ``folder``, checked (:func:`check_entry`), with the leaderboard's numbers
     under ``"checked"``; :class:`EntryError` naming the first bad file, or an empty or missing folder."""
     folder = Path(folder)
-    paths = sorted(folder.glob("*.json")) if folder.is_dir() else []
+    if not folder.is_dir():
+        raise EntryError(f"no such folder of entries: {folder}")
+    paths = sorted(folder.glob("*.json"))
     if not paths:
         raise EntryError(f"no entries (*.json) in {folder}")
     entries = []

@@ -182,9 +182,9 @@ def run_suite(
 ) -> list[Path]:
     """Play every method (``NAME=SPEC`` or ``NAME=SPEC,SPEC,...`` for several training runs) on every
     setting of the suite and write one entry per method, with its ``code`` link and ``notes`` (by
-    method name) where given; returns the entries' paths. Resumes an
-    interrupted suite in the same ``out``. A method that cannot play a setting (``WorldNotSupported``),
-    an unreadable model or a broken policy raises before anything is played."""
+    method name) where given, else those of the entry already in ``out``; returns the entries' paths.
+    Resumes an interrupted suite in the same ``out``. A method that cannot play a setting
+    (``WorldNotSupported``), an unreadable model or a broken policy raises before anything is played."""
     groups = [parse_runs(m) for m in methods]
     names = [runs[0].name for runs in groups]
     if not groups or len(set(names)) != len(names):
@@ -216,10 +216,10 @@ def run_suite(
             for st in SETTINGS:
                 per_setting[st.label].append(next(results))
         name = runs[0].name
-        entry = make_entry(
-            name, runs, per_setting, episodes, (code or {}).get(name, ""), (notes or {}).get(name, "")
-        )
         path = out / "entries" / f"{_file_name(name)}.json"
+        kept = _recorded(path)  # a resumed suite keeps the link and notes it was given before
+        entry = make_entry(name, runs, per_setting, episodes, (code or {}).get(name, kept["code"]),
+                           (notes or {}).get(name, kept["notes"]))  # fmt: skip
         atomic_write_text(path, entry_json(entry))
         paths.append(path)
     return paths
@@ -233,6 +233,15 @@ def entry_json(entry: dict[str, Any]) -> str:
         lambda m: "[" + re.sub(r"\s+", "", m.group(1)) + "]",
         text,
     )
+
+
+def _recorded(path: Path) -> dict[str, str]:
+    """The ``code`` and ``notes`` of the entry already at ``path`` (empty when there is none)."""
+    try:
+        entry = json.loads(path.read_text())
+    except (OSError, ValueError):
+        return {"code": "", "notes": ""}
+    return {k: entry.get(k, "") if isinstance(entry.get(k), str) else "" for k in ("code", "notes")}
 
 
 def _file_name(name: str) -> str:

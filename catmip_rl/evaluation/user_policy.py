@@ -37,6 +37,7 @@ import importlib.util
 import inspect
 import re
 import sys
+import traceback
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -63,10 +64,14 @@ class PolicyError(ValueError):
 
 
 def _describe(exc: BaseException) -> str:
+    """The exception on one line, with where it was raised (the innermost frame: file, line, function)."""
+    frames = traceback.extract_tb(exc.__traceback__)
+    last = frames[-1] if frames else None
+    where = f" (at {Path(last.filename).name}:{last.lineno} in {last.name})" if last else ""
     if isinstance(exc, SystemExit):
-        return f"SystemExit({exc.code!r}): the policy called sys.exit() or exit()"
+        return f"SystemExit({exc.code!r}): the policy called sys.exit() or exit(){where}"
     text = " ".join(str(exc).split())
-    return f"{type(exc).__name__}: {text}" if text else type(exc).__name__
+    return (f"{type(exc).__name__}: {text}" if text else type(exc).__name__) + where
 
 
 # -- where the factory is -------------------------------------------------------------------------------

@@ -72,6 +72,10 @@ def test_an_interrupted_suite_resumes_without_playing_again(suite, monkeypatch):
     monkeypatch.setattr(jobs, "evaluate", no_play)
     again = run_suite(["nearest"], out / "s", episodes=2, progress=False)
     assert json.loads(again[0].read_text())["settings"] == before["settings"]
+    # resumed without --code / --notes, an entry keeps the link and notes it was given
+    mine = run_suite([f"mine=py:{out / 'mine.py'}:make_policy"], out / "s", episodes=2, progress=False)
+    kept = json.loads(mine[0].read_text())
+    assert (kept["code"], kept["notes"]) == ("https://example.org/mine", "first allowed goal")
     with pytest.raises(ValueError, match="holds other results"):  # the same folder, another method
         run_suite(["nearest=rrt"], out / "s", episodes=2, progress=False)
 
@@ -121,3 +125,10 @@ def test_the_committed_leaderboard_checks_and_is_up_to_date(tmp_path):
     assert {"nearest", "random-rescue", "random-uniform"} <= {e["method"] for e in entries}
     md, _png = render_leaderboard(root / "entries", tmp_path)
     assert md.read_text() == (root / "leaderboard.md").read_text()  # redrawn after the last entry
+
+
+def test_a_missing_or_empty_folder_of_entries_is_named(tmp_path):
+    with pytest.raises(EntryError, match="no such folder of entries: "):
+        load_entries(tmp_path / "nope")
+    with pytest.raises(EntryError, match=r"no entries \(\*\.json\) in "):
+        load_entries(tmp_path)

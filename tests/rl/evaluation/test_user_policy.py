@@ -196,7 +196,8 @@ def test_cli_eval_render_and_bench_take_a_policy_file(policy_file, tmp_path, cap
     assert gif.stat().st_size > 1000
     fig = tmp_path / "paper"
     assert main(["bench", "paper", "--figure", "11", "--methods", f"mine=py:{policy_file}:make_engine",
-                 "--episodes", "2", "--jobs", "1", "--out", str(fig)]) == 0  # fmt: skip
+                 "--episodes", "2", "--jobs", "1", "--out", str(fig), "--no-progress"]) == 0  # fmt: skip
+    assert "figure 11" not in capsys.readouterr().err  # no bar with --no-progress
     assert {"mine"} == {r.split(",")[2] for r in (fig / "fig11" / "summary.csv").read_text().splitlines()[1:]}
 
 
@@ -204,7 +205,7 @@ def test_cli_eval_render_and_bench_take_a_policy_file(policy_file, tmp_path, cap
     ("factory", "message"),
     [
         ("make_none", "the factory returned NoneType, not a policy"),
-        ("make_crash", "the factory raised RuntimeError: no weights here"),
+        ("make_crash", "the factory raised RuntimeError: no weights here (at "),
         ("make_masked", "is forbidden by its action mask"),
         ("make_divides", "act(observations, infos) raised ZeroDivisionError"),
         ("make_wrong_shape", "returned shape (3,), expected (1, 2)"),
@@ -338,3 +339,13 @@ def test_sync_plays_a_policy_file_in_the_synchronous_world(tmp_path):
     assert not plain.summary["synchronous"]
     assert [r["map_hash"] for r in res.episodes] == [r["map_hash"] for r in plain.episodes]
     assert seen.read_text().split() == ["True", "False"]
+
+
+def test_a_policy_whose_act_fails_stops_a_bench_before_anything_is_played(policy_file, tmp_path, capsys):
+    fig = tmp_path / "paper"
+    code = main(["bench", "paper", "--figure", "11", "--methods", "nearest", "--method",
+                 f"b=py:{policy_file}:make_divides", "--episodes", "1", "--jobs", "1",
+                 "--out", str(fig)])  # fmt: skip
+    err = capsys.readouterr().err
+    assert code == 2 and "policy b: act(observations, infos) raised ZeroDivisionError" in err, err
+    assert not list(fig.rglob("summary.json"))  # Nearest was not played first
