@@ -20,8 +20,9 @@ $(DSTAMP): $(STAMP)
 	touch $(DSTAMP)
 
 # train AMAT for a few minutes on Task 1, evaluate it (and the shipped model) against the planners
+# DEMO_ARGS: e.g. "--threads 1" on a machine that is already busy (see the README)
 demo: $(STAMP)
-	$(PY) -m catmip_rl.cli.demo --out out/demo
+	$(PY) -m catmip_rl.cli.demo --out out/demo $(DEMO_ARGS)
 
 # the planners only (no torch needed): the catmip_env demo
 demo-env: $(STAMP)

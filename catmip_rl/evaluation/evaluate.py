@@ -215,7 +215,8 @@ def evaluate(
     map_set = check_maps(setting.task, seed, maps, allow_other_maps)
     sampled_variant = getattr(policy, "sampled", None) if sampled_too else None  # the Policy protocol's hook
     passes = 2 if sampled_variant is not None else 1
-    bar = progress_bar(episodes * passes, f"{method.name} {setting.label}", progress)
+    both = " (argmax + sampled)" if passes > 1 else ""  # the bar counts the episodes of both passes
+    bar = progress_bar(episodes * passes, f"{method.name} {setting.label}{both}", progress)
     t0 = time.perf_counter()
     records = _play_maps(policy, engine, bar, engine_hook)
     seconds = time.perf_counter() - t0
