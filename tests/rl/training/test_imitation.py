@@ -268,9 +268,8 @@ def test_labels_the_model_rules_out_are_left_unscored():
     unexplored = (~explored).flatten(2).float().argmax(-1)  # an unexplored cell of each robot's map
     outside = dict(batch, label=unexplored)
     loss, stats = imitation_loss(model, outside)
-    assert (
-        float(loss) == 0.0 and stats["imitation/accuracy"] == 0.0 and stats["imitation/outside_mask"] == 1.0
-    )
+    assert loss.item() == 0.0
+    assert stats["imitation/accuracy"] == 0.0 and stats["imitation/outside_mask"] == 1.0
 
 
 def test_a_warm_start_with_the_value_head_learns_the_returns_beside_the_labels():
