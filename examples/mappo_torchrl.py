@@ -111,6 +111,11 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     )
     args = ap.parse_args(argv)
     if args.resume:
+        defaults = vars(ap.parse_args([]))
+        given = sorted(k for k, v in vars(args).items() if k not in ("resume", "out") and v != defaults[k])
+        if given:  # never ignored in silence: the run's options are its config.json's
+            ap.error(f"--resume continues with the run's own options (OUT/config.json), not {given}: "
+                     "edit config.json to change them")  # fmt: skip
         return _saved_args(ap, args.out)
     if args.minutes is None and args.iterations is None:
         args.minutes = 5.0

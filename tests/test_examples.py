@@ -130,6 +130,9 @@ def test_mappo_torchrl_resumes_from_its_last_save(tmp_path, capsys):
     steps = {int(s["step"]) for s in state["optim"]["state"].values()}
     with pytest.raises(SystemExit, match="has spent its budget"):
         mod.main(["--resume", "--out", str(out)])
+    with pytest.raises(SystemExit):  # an option beside --resume is refused, not ignored
+        mod.main(["--resume", "--out", str(out), "--iterations", "5"])
+    assert "not ['iterations']: edit config.json" in capsys.readouterr().err
     with pytest.raises(SystemExit, match="not empty"):  # a finished run is never overwritten
         mod.main(["--iterations", "2", "--out", str(out), *small])
     config = json.loads((out / "config.json").read_text())
