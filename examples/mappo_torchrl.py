@@ -58,7 +58,7 @@ from catmip_rl.adapters.torchrl_marl import (
     save_policy,
 )
 from catmip_rl.checkpoint import atomic_torch_save
-from catmip_rl.files import atomic_write_csv
+from catmip_rl.files import atomic_write_csv, atomic_write_text
 
 EPISODE_REWARD = (K.ROBOTS, "episode_reward")
 STATE = "state.pt"  # what --resume needs; policy.pt holds the actor's weights alone
@@ -111,26 +111,28 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     )
     args = ap.parse_args(argv)
     if args.resume:
-        defaults = vars(ap.parse_args([]))
-        given = sorted(k for k, v in vars(args).items() if k not in ("resume", "out") and v != defaults[k])
+        defaults = ap.parse_args([])
+        given = sorted(
+            k for k, v in vars(args).items() if k not in ("resume", "out") and v != getattr(defaults, k)
+        )
         if given:  # never ignored in silence: the run's options are its config.json's
             ap.error(f"--resume continues with the run's own options (OUT/config.json), not {given}: "
                      "edit config.json to change them")  # fmt: skip
-        return _saved_args(ap, args.out)
+        return _saved_args(ap, defaults, args.out)
     if args.minutes is None and args.iterations is None:
         args.minutes = 5.0
     return args
 
 
-def _saved_args(ap: argparse.ArgumentParser, out: str | None) -> argparse.Namespace:
-    """The options of the run in ``out`` (its config.json), marked to resume; one line when there is none."""
+def _saved_args(ap: argparse.ArgumentParser, args: argparse.Namespace, out: str | None) -> argparse.Namespace:
+    """``args`` (the defaults) updated with the options of the run in ``out`` (its config.json), marked
+    to resume; one line when there is none."""
     if out is None:
         ap.error("--resume needs --out: the run folder to continue")
     folder = Path(out)
     if not (folder / STATE).is_file() or not (folder / "config.json").is_file():
         ap.error(f"--resume: {folder} holds no {STATE} and config.json (nothing saved to continue from)")
     saved = json.loads((folder / "config.json").read_text())
-    args = ap.parse_args([])
     unknown = set(saved) - set(vars(args))
     if unknown:
         ap.error(f"--resume: {folder}/config.json has options this script does not know: {sorted(unknown)}")
@@ -177,8 +179,8 @@ def main(argv: list[str] | None = None) -> list[dict[str, float]]:
                           sampler=SamplerWithoutReplacement(), batch_size=args.minibatch)  # fmt: skip
     if out is not None and not args.resume:
         out.mkdir(parents=True, exist_ok=True)
-        (out / "config.json").write_text(json.dumps({k: v for k, v in vars(args).items() if k != "resume"},
-                                                    indent=2))  # fmt: skip
+        options = {k: v for k, v in vars(args).items() if k != "resume"}
+        atomic_write_text(out / "config.json", json.dumps(options, indent=2))
     start = time.perf_counter() - 60 * spent_minutes
     for iteration, data in enumerate(collector, start=first):
         minutes = (time.perf_counter() - start) / 60
@@ -219,7 +221,7 @@ def main(argv: list[str] | None = None) -> list[dict[str, float]]:
         )
         finished = _spent(args, row["minutes"], iteration + 1) >= 1
         if out is not None and (finished or (iteration + 1) % args.save_every == 0):
-            _save(out, args, history, actor, critic, optim)
+            _save(out, args, cfg, history, actor, critic, optim)
         if finished:
             break
     collector.shutdown()
@@ -234,17 +236,22 @@ def _world_seed(seed: int, first: int) -> int:
     return seed if first == 0 else int(np.random.SeedSequence([seed, first]).generate_state(1)[0])
 
 
-def _save(out: Path, args: argparse.Namespace, history: list[dict], actor, critic, optim) -> None:
+def _save(out: Path, args: argparse.Namespace, cfg, history: list[dict], actor, critic, optim) -> None:
     """The metrics, the policy files (weights only) and the resumable state, each written atomically."""
     last = history[-1]
     atomic_write_csv(out / "metrics.csv", history)
     info = {"algo": args.algo, "task": args.task, "iteration": last["iteration"], "minutes": last["minutes"],
             "seed": args.seed}  # fmt: skip
-    save_policy(actor, make_config(args.task), out, info, args.pool)
+    save_policy(actor, cfg, out, info, args.pool)
     state = {"actor": actor.state_dict(), "critic": critic.state_dict(), "optim": optim.state_dict(),
              "iteration": last["iteration"] + 1, "minutes": last["minutes"],
              "torch_rng": torch.get_rng_state()}  # fmt: skip
     atomic_torch_save(state, out / STATE)
+
+
+def _number(text: str) -> int | float:
+    """A metrics.csv value as it was logged: counts as int, the rest as float."""
+    return int(text) if text.lstrip("-").isdigit() else float(text)
 
 
 def _restore(out: Path, actor, critic, optim) -> tuple[int, float, list[dict[str, float]]]:
@@ -255,9 +262,9 @@ def _restore(out: Path, actor, critic, optim) -> tuple[int, float, list[dict[str
     optim.load_state_dict(state["optim"])
     torch.set_rng_state(state["torch_rng"])
     with (out / "metrics.csv").open(newline="") as f:
-        history = [{k: int(v) if k in ("iteration", "frames", "episodes", "decisions") else float(v)
-                    for k, v in row.items()} for row in csv.DictReader(f)]  # fmt: skip
-    history = history[: state["iteration"]]  # rows written after the state (none: both are saved together)
+        history = [{k: _number(v) for k, v in row.items()} for row in csv.DictReader(f)]
+    # metrics.csv is written just before state.pt: a crash between the two leaves rows the state lacks
+    history = history[: state["iteration"]]
     print(f"resuming {out} at iteration {state['iteration']} ({state['minutes']:.1f} min spent)", flush=True)
     return state["iteration"], state["minutes"], history
 
