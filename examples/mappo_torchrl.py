@@ -16,15 +16,18 @@ policy that ``catmip eval`` plays on the paper's protocol. The recipe of TorchRL
 
 ``--out`` gets ``metrics.csv`` (per iteration), ``config.json``, ``policy.pt`` (weights only, saved every
 ``--save-every`` iterations and at the end), ``policy.json`` and ``policy.py``, a factory for
-``catmip eval --task TASK --method mappo=py:OUT/policy.py:make_policy``; and ``state.pt``, what
+``catmip eval --task TASK --method mappo=py:OUT/policy.py:make_policy``; ``state.pt``, what
 ``--resume`` needs (weights, optimiser, iteration, minutes spent, the sampling RNG): keep it out of
-a repository.
+a repository; and ``weights.pt``, the actor's and critic's weights in half precision with the
+iteration (a snapshot small enough to commit while a run spans several sittings).
 
     python examples/mappo_torchrl.py --resume --out runs/ippo-task2-s1   # after an interruption
+    python examples/mappo_torchrl.py --resume --from-weights --out runs/ippo-task2-s1   # state.pt lost
 
 A resumed run goes on from its last save with the options in ``OUT/config.json``; its worlds start
 new episodes (drawn from the seed and the iteration, so not the maps played before), which costs
-the episodes that were in progress. At the end the policy is
+the episodes that were in progress. ``--from-weights`` continues from ``weights.pt`` alone, with a
+new optimiser (its moments start again from zero). At the end the policy is
 evaluated on the task's protocol maps (``--eval-episodes``, seed ``--eval-seed``) beside Nearest and
 ``random-uniform``, through that factory.
 """
@@ -62,6 +65,7 @@ from catmip_rl.files import atomic_write_csv, atomic_write_text
 
 EPISODE_REWARD = (K.ROBOTS, "episode_reward")
 STATE = "state.pt"  # what --resume needs; policy.pt holds the actor's weights alone
+WEIGHTS = "weights.pt"  # actor and critic in half precision: what --resume --from-weights needs
 
 
 def make_env(task: str, num_worlds: int, seed: int) -> TransformedEnv:
@@ -109,34 +113,43 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     ap.add_argument(
         "--resume", action="store_true", help="continue the run in --out from its last save, with its options"
     )
+    ap.add_argument("--from-weights", action="store_true", help=f"with --resume: from OUT/{WEIGHTS} "
+                    f"(weights only, a new optimiser) when OUT/{STATE} is lost")  # fmt: skip
     args = ap.parse_args(argv)
+    if args.from_weights and not args.resume:
+        ap.error("--from-weights goes with --resume: it continues a run from its weights-only snapshot")
     if args.resume:
         defaults = ap.parse_args([])
-        given = sorted(
-            k for k, v in vars(args).items() if k not in ("resume", "out") and v != getattr(defaults, k)
-        )
+        fixed = ("resume", "from_weights", "out")
+        given = sorted(k for k, v in vars(args).items() if k not in fixed and v != getattr(defaults, k))
         if given:  # never ignored in silence: the run's options are its config.json's
             ap.error(f"--resume continues with the run's own options (OUT/config.json), not {given}: "
                      "edit config.json to change them")  # fmt: skip
-        return _saved_args(ap, defaults, args.out)
+        return _saved_args(ap, defaults, args.out, args.from_weights)
     if args.minutes is None and args.iterations is None:
         args.minutes = 5.0
     return args
 
 
-def _saved_args(ap: argparse.ArgumentParser, args: argparse.Namespace, out: str | None) -> argparse.Namespace:
+def _saved_args(
+    ap: argparse.ArgumentParser, args: argparse.Namespace, out: str | None, from_weights: bool
+) -> argparse.Namespace:
     """``args`` (the defaults) updated with the options of the run in ``out`` (its config.json), marked
-    to resume; one line when there is none."""
+    to resume; one line when there is nothing to resume from."""
     if out is None:
         ap.error("--resume needs --out: the run folder to continue")
     folder = Path(out)
-    if not (folder / STATE).is_file() or not (folder / "config.json").is_file():
-        ap.error(f"--resume: {folder} holds no {STATE} and config.json (nothing saved to continue from)")
+    source = WEIGHTS if from_weights else STATE
+    if not (folder / source).is_file() or not (folder / "config.json").is_file():
+        hint = (f"; it has {WEIGHTS}: add --from-weights to continue from the weights with a new optimiser"
+                if not from_weights and (folder / WEIGHTS).is_file() else "")  # fmt: skip
+        ap.error(f"--resume: {folder} holds no {source} and config.json (nothing saved to continue "
+                 f"from){hint}")  # fmt: skip
     saved = json.loads((folder / "config.json").read_text())
     unknown = set(saved) - set(vars(args))
     if unknown:
         ap.error(f"--resume: {folder}/config.json has options this script does not know: {sorted(unknown)}")
-    vars(args).update(saved, resume=True)
+    vars(args).update(saved, resume=True, from_weights=from_weights)
     return args
 
 
@@ -167,7 +180,9 @@ def main(argv: list[str] | None = None) -> list[dict[str, float]]:
     optim = torch.optim.Adam(loss_module.parameters(), args.lr)
     first, spent_minutes, history = 0, 0.0, []
     if args.resume:
-        first, spent_minutes, history = _restore(out, actor, critic, optim)
+        first, spent_minutes, history = _restore(out, actor, critic, None if args.from_weights else optim)
+        if args.from_weights:  # the sampling RNG was not saved with the weights: drawn like the worlds'
+            torch.manual_seed(_world_seed(args.seed, first))
         if _spent(args, spent_minutes, first) >= 1:
             raise SystemExit(f"--resume: {out} has spent its budget (iteration {first}): nothing to continue")
     env = make_env(args.task, args.worlds, _world_seed(args.seed, first))
@@ -179,7 +194,7 @@ def main(argv: list[str] | None = None) -> list[dict[str, float]]:
                           sampler=SamplerWithoutReplacement(), batch_size=args.minibatch)  # fmt: skip
     if out is not None and not args.resume:
         out.mkdir(parents=True, exist_ok=True)
-        options = {k: v for k, v in vars(args).items() if k != "resume"}
+        options = {k: v for k, v in vars(args).items() if k not in ("resume", "from_weights")}
         atomic_write_text(out / "config.json", json.dumps(options, indent=2))
     start = time.perf_counter() - 60 * spent_minutes
     for iteration, data in enumerate(collector, start=first):
@@ -247,6 +262,9 @@ def _save(out: Path, args: argparse.Namespace, cfg, history: list[dict], actor, 
              "iteration": last["iteration"] + 1, "minutes": last["minutes"],
              "torch_rng": torch.get_rng_state()}  # fmt: skip
     atomic_torch_save(state, out / STATE)
+    half = {name: {k: v.half() if v.is_floating_point() else v for k, v in module.state_dict().items()}
+            for name, module in (("actor", actor), ("critic", critic))}  # fmt: skip
+    atomic_torch_save({**half, "iteration": state["iteration"], "minutes": state["minutes"]}, out / WEIGHTS)
 
 
 def _number(text: str) -> int | float:
@@ -255,17 +273,26 @@ def _number(text: str) -> int | float:
 
 
 def _restore(out: Path, actor, critic, optim) -> tuple[int, float, list[dict[str, float]]]:
-    """Load the run's last save into the modules; its first iteration, minutes spent and metrics rows."""
-    state = torch.load(out / STATE, weights_only=True)
-    actor.load_state_dict(state["actor"])
-    critic.load_state_dict(state["critic"])
-    optim.load_state_dict(state["optim"])
-    torch.set_rng_state(state["torch_rng"])
+    """Load the run's last save into the modules (``optim`` None: from the weights-only snapshot, the
+    optimiser left new); its first iteration, minutes spent and metrics rows."""
+    path = out / (WEIGHTS if optim is None else STATE)
+    try:
+        state = torch.load(path, weights_only=True)
+    except Exception as err:  # truncated or foreign: whatever torch.load raises, as one line
+        raise SystemExit(f"--resume: {path} is not readable ({type(err).__name__}: {err})") from None
+    for module, name in ((actor, "actor"), (critic, "critic")):
+        ours = module.state_dict()  # the snapshot's half-precision tensors back in the module's dtypes
+        module.load_state_dict({k: v.to(ours[k].dtype) for k, v in state[name].items()})
+    if optim is not None:
+        optim.load_state_dict(state["optim"])
+        torch.set_rng_state(state["torch_rng"])
     with (out / "metrics.csv").open(newline="") as f:
         history = [{k: _number(v) for k, v in row.items()} for row in csv.DictReader(f)]
     # metrics.csv is written just before state.pt: a crash between the two leaves rows the state lacks
     history = history[: state["iteration"]]
-    print(f"resuming {out} at iteration {state['iteration']} ({state['minutes']:.1f} min spent)", flush=True)
+    source = "" if optim is not None else f" from {WEIGHTS} with a new optimiser"
+    print(f"resuming {out} at iteration {state['iteration']} ({state['minutes']:.1f} min spent){source}",
+          flush=True)  # fmt: skip
     return state["iteration"], state["minutes"], history
 
 

@@ -149,3 +149,36 @@ def test_mappo_torchrl_resumes_from_its_last_save(tmp_path, capsys):
         s + max(1, history[2]["decisions"] // 64) for s in steps
     }
     assert json.loads((out / "policy.json").read_text())["iteration"] == 2
+
+
+def test_mappo_torchrl_resumes_from_its_weights_only_snapshot(tmp_path, capsys):
+    mod = _load(ROOT / "examples" / "mappo_torchrl.py")
+    out = tmp_path / "run"
+    small = ["--worlds", "4", "--events", "16", "--epochs", "1", "--minibatch", "64", "--eval-episodes", "0"]
+    mod.main(["--algo", "mappo", "--iterations", "2", "--save-every", "1", "--out", str(out), *small])
+    snapshot = torch.load(out / "weights.pt", weights_only=True)
+    assert snapshot["iteration"] == 2
+    assert {v.dtype for part in ("actor", "critic") for v in snapshot[part].values()} == {torch.float16}
+    (out / "state.pt").unlink()  # the machine lost: the committed snapshot is what is left
+    config = json.loads((out / "config.json").read_text())
+    (out / "config.json").write_text(json.dumps({**config, "iterations": 3}))
+    capsys.readouterr()
+    with pytest.raises(SystemExit):  # never a silent switch to the weights: one line that says how
+        mod.main(["--resume", "--out", str(out)])
+    assert "it has weights.pt: add --from-weights" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        mod.main(["--from-weights", "--out", str(out)])
+    assert "--from-weights goes with --resume" in capsys.readouterr().err
+    history = mod.main(["--resume", "--from-weights", "--out", str(out)])
+    said = capsys.readouterr().out
+    assert "at iteration 2 (" in said and "from weights.pt with a new optimiser" in said
+    assert [row["iteration"] for row in history] == [0, 1, 2]
+    state = torch.load(out / "state.pt", weights_only=True)  # a full state again from here on
+    assert state["iteration"] == 3
+    # a new optimiser: Adam's step counts are those of the one iteration since the snapshot
+    steps = {int(s["step"]) for s in state["optim"]["state"].values()}
+    assert steps == {max(1, history[2]["decisions"] // 64)}
+    (out / "weights.pt").write_bytes(b"truncated")
+    (out / "config.json").write_text(json.dumps({**config, "iterations": 4}))
+    with pytest.raises(SystemExit, match="weights.pt is not readable"):
+        mod.main(["--resume", "--from-weights", "--out", str(out)])
