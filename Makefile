@@ -46,7 +46,10 @@ LOWER_PINS ?= torchrl==0.14.0 tensordict==0.14.2
 TORCHRL_TESTS := tests/rl/adapters/test_torchrl_env.py tests/rl/training/test_collect.py tests/rl/adapters/test_actor_checkpoint.py tests/rl/training/test_ppo.py \
 	tests/rl/training/test_gae.py tests/env/test_pettingzoo_macro.py::test_torchrl_check_env_specs \
 	tests/test_examples.py::test_mappo_torchrl_trains_saves_and_evaluates_through_its_factory \
-	tests/test_examples.py::test_mappo_torchrl_resumes_from_its_last_save tests/test_examples.py::test_mappo_torchrl_resumes_from_its_weights_only_snapshot tests/rl/adapters/test_torchrl_marl.py tests/rl/evaluation/test_user_policy.py
+	tests/test_examples.py::test_mappo_torchrl_resumes_from_its_last_save \
+	tests/test_examples.py::test_mappo_torchrl_resumes_from_its_weights_only_snapshot \
+	tests/test_examples.py::test_mappo_torchrl_starts_from_a_saved_policy_with_a_critic_warmup \
+	tests/rl/adapters/test_torchrl_marl.py tests/rl/evaluation/test_user_policy.py
 
 test-compat-lower:
 	test -x $(LOWER_PY) || $(PYTHON) -m venv $(LOWER_VENV)

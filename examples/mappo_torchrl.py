@@ -56,6 +56,7 @@ from catmip_rl.adapters.torchrl_marl import (
     ALGOS,
     VALUE_TARGET,
     decision_samples,
+    load_policy,
     make_actor,
     make_critic,
     save_policy,
@@ -103,6 +104,10 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     ap.add_argument("--seed", type=int, default=0, help="training seed (worlds, sampling, initial weights)")
     ap.add_argument("--pool", type=int, default=4, help="the CNN's output pooled to POOL x POOL: any map "
                     "size; 0: flattened, the task's map size only (the recorded Task 1/2 runs)")  # fmt: skip
+    ap.add_argument("--init-from", default=None, metavar="POLICY.pt", help="start the actor from a saved "
+                    "policy (e.g. a Task-2 run's, to train on Task 3); the critic starts new")  # fmt: skip
+    ap.add_argument("--critic-warmup", type=int, default=0, help="first iterations that train the critic "
+                    "alone (with --init-from: advantages from a critic that knows the policy)")  # fmt: skip
     ap.add_argument("--threads", type=int, default=1, help="torch threads")
     ap.add_argument("--out", default=None, help="run folder (new or empty): metrics, config, policy files")
     ap.add_argument("--save-every", type=int, default=20, help="iterations between policy saves")
@@ -178,13 +183,7 @@ def main(argv: list[str] | None = None) -> list[dict[str, float]]:
     loss_module.set_keys(action=K.ACTION, sample_log_prob=K.LOG_PROB, value=K.VALUE, advantage=ADVANTAGE,
                          value_target=VALUE_TARGET)  # fmt: skip
     optim = torch.optim.Adam(loss_module.parameters(), args.lr)
-    first, spent_minutes, history = 0, 0.0, []
-    if args.resume:
-        first, spent_minutes, history = _restore(out, actor, critic, None if args.from_weights else optim)
-        if args.from_weights:  # the sampling RNG was not saved with the weights: drawn like the worlds'
-            torch.manual_seed(_world_seed(args.seed, first))
-        if _spent(args, spent_minutes, first) >= 1:
-            raise SystemExit(f"--resume: {out} has spent its budget (iteration {first}): nothing to continue")
+    first, spent_minutes, history = _start(args, cfg, out, actor, critic, optim)
     env = make_env(args.task, args.worlds, _world_seed(args.seed, first))
     frames_per_batch = args.worlds * args.events
     collector = Collector(env, actor, frames_per_batch=frames_per_batch, total_frames=-1,
@@ -209,7 +208,9 @@ def main(argv: list[str] | None = None) -> list[dict[str, float]]:
         buffer.extend(samples)
         for _ in range(args.epochs * max(1, len(samples) // args.minibatch)):
             losses = loss_module(buffer.sample())
-            loss = losses["loss_objective"] + losses["loss_critic"] + losses["loss_entropy"]
+            loss = losses["loss_critic"]
+            if iteration >= args.critic_warmup:
+                loss = loss + losses["loss_objective"] + losses["loss_entropy"]
             optim.zero_grad()
             loss.backward()
             nn.utils.clip_grad_norm_(loss_module.parameters(), 1.0)
@@ -243,6 +244,25 @@ def main(argv: list[str] | None = None) -> list[dict[str, float]]:
     if out is not None and args.eval_episodes:
         evaluate_saved(out, args.task, args.algo, args.eval_episodes, args.eval_seed)
     return history
+
+
+def _start(args: argparse.Namespace, cfg, out: Path | None, actor, critic, optim):
+    """The weights (new, ``--init-from``'s actor, or the resumed run's) and the run's first iteration,
+    minutes spent and metrics rows."""
+    if args.resume:
+        first, spent_minutes, history = _restore(out, actor, critic, None if args.from_weights else optim)
+        if args.from_weights:  # the sampling RNG was not saved with the weights: drawn like the worlds'
+            torch.manual_seed(_world_seed(args.seed, first))
+        if _spent(args, spent_minutes, first) >= 1:
+            raise SystemExit(f"--resume: {out} has spent its budget (iteration {first}): nothing to continue")
+        return first, spent_minutes, history
+    if args.init_from:
+        try:  # the saved policy's shape check and one-line errors
+            start_from = load_policy(args.init_from, cfg).module
+        except (ValueError, OSError) as err:
+            raise SystemExit(f"--init-from: {err}") from None
+        actor.load_state_dict(start_from.state_dict())
+    return 0, 0.0, []
 
 
 def _world_seed(seed: int, first: int) -> int:

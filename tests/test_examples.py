@@ -182,3 +182,18 @@ def test_mappo_torchrl_resumes_from_its_weights_only_snapshot(tmp_path, capsys):
     (out / "config.json").write_text(json.dumps({**config, "iterations": 4}))
     with pytest.raises(SystemExit, match="weights.pt is not readable"):
         mod.main(["--resume", "--from-weights", "--out", str(out)])
+
+
+def test_mappo_torchrl_starts_from_a_saved_policy_with_a_critic_warmup(tmp_path):
+    mod = _load(ROOT / "examples" / "mappo_torchrl.py")
+    small = ["--worlds", "4", "--events", "16", "--epochs", "1", "--minibatch", "64", "--eval-episodes", "0"]
+    mod.main(["--algo", "ippo", "--iterations", "1", "--out", str(tmp_path / "first"), *small])
+    policy = tmp_path / "first" / "policy.pt"
+    mod.main(["--algo", "ippo", "--task", "task2", "--seed", "3", "--iterations", "1", "--critic-warmup", "1",
+              "--init-from", str(policy), "--out", str(tmp_path / "next"), *small])  # fmt: skip
+    before, after = (torch.load(p, weights_only=True) for p in (policy, tmp_path / "next" / "policy.pt"))
+    assert before.keys() == after.keys()
+    assert all(torch.equal(before[k], after[k]) for k in before)  # warm-up: the critic alone learned
+    assert json.loads((tmp_path / "next" / "config.json").read_text())["init_from"] == str(policy)
+    with pytest.raises(SystemExit, match="--init-from: .* is not a readable saved policy"):
+        mod.main(["--init-from", str(tmp_path / "none.pt"), "--out", str(tmp_path / "bad"), *small])
