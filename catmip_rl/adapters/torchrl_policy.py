@@ -13,12 +13,15 @@ Each call builds the observation ``CatmipEnv`` would give for the engine's curre
 :func:`~catmip_rl.adapters.torchrl_env.float_observation_transform` does (float32, ``value ×
 OBS_SCALE``), for a policy trained behind that transform; AMAT's own actor reads the uint8 maps.
 Actions are the distribution's mode (``deterministic=True``, the protocol's argmax) or samples.
+``per_robot=True`` is for a module that maps each robot's observation on its own (no attention across
+robots or worlds, as the MAPPO / IPPO CNN): it is then fed the deciding robots alone, a ``(M,)`` batch —
+on Task 3 about a quarter of the rows, the same argmax actions.
 """
 
 from __future__ import annotations
 
 import torch
-from tensordict import TensorDictBase
+from tensordict import TensorDict, TensorDictBase
 from tensordict.nn import TensorDictModuleBase
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
@@ -37,19 +40,24 @@ class TorchRLPolicy:
     goal_mode = "window"
 
     def __init__(
-        self, module: TensorDictModuleBase, float_maps: bool = False, deterministic: bool = True
+        self,
+        module: TensorDictModuleBase,
+        float_maps: bool = False,
+        deterministic: bool = True,
+        per_robot: bool = False,
     ) -> None:
         if not isinstance(module, TensorDictModuleBase):
             raise TypeError(f"TorchRLPolicy wraps a TensorDictModule, got {type(module).__name__}")
         self.module = module
         self.float_maps = float_maps
         self.deterministic = deterministic
+        self.per_robot = per_robot
 
     def sampled(self, seed: int) -> TorchRLPolicy:
         """The same module with sampled actions (``ExplorationType.RANDOM``), torch's global generator
         seeded with ``seed``: the evaluator plays the maps again with it (the ``sampled_*`` numbers)."""
         torch.manual_seed(seed)
-        return TorchRLPolicy(self.module, self.float_maps, deterministic=False)
+        return TorchRLPolicy(self.module, self.float_maps, deterministic=False, per_robot=self.per_robot)
 
     @staticmethod
     def wraps(obj) -> bool:
@@ -60,7 +68,9 @@ class TorchRLPolicy:
         """What the module reads: ``CatmipEnv``'s observation of the current event (maps as float32 if
         ``float_maps``), on the module's device."""
         params = list(self.module.parameters())
-        td = engine_observation(engine, params[0].device if params else "cpu")
+        return self._scaled(engine_observation(engine, params[0].device if params else "cpu"))
+
+    def _scaled(self, td: TensorDictBase) -> TensorDictBase:
         if self.float_maps:
             for key in (K.GLOBAL_MAP, K.LOCAL_MAP):
                 td.set(key, td.get(key).to(torch.float32) * OBS_SCALE)
@@ -70,5 +80,14 @@ class TorchRLPolicy:
     def act(self, engine: EventEngine):
         kind = ExplorationType.DETERMINISTIC if self.deterministic else ExplorationType.RANDOM
         with set_exploration_type(kind):
-            td = self.module(self.observation(engine))
-        return td.get(K.ACTION).cpu().numpy()
+            if not self.per_robot:
+                return self.module(self.observation(engine)).get(K.ACTION).cpu().numpy()
+            params = list(self.module.parameters())
+            robots = engine_observation(engine, params[0].device if params else "cpu").get(K.ROBOTS)
+            active = robots.get("active")
+            actions = torch.zeros(active.shape, dtype=torch.long)  # busy robots' entries are ignored
+            if active.any():
+                deciding = robots[active]
+                rows = self._scaled(TensorDict({K.ROBOTS: deciding}, batch_size=deciding.batch_size))
+                actions[active.cpu()] = self.module(rows).get(K.ACTION).cpu()
+        return actions.numpy()

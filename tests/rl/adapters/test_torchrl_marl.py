@@ -129,3 +129,30 @@ def test_a_pooled_policy_plays_every_map_size(tmp_path):
         policy = load_policy(tmp_path / "policy.pt", make_config(task))
         result = evaluate("pooled", EvalSetting(task), episodes=1, seed=0, policy=policy, sampled_too=False)
         assert result.summary["episodes"] == 1 and result.summary["actions"] == "argmax"
+
+
+@pytest.mark.parametrize("deterministic", [True, False])
+def test_a_loaded_policy_feeds_only_the_deciding_robots_to_its_network(tmp_path, deterministic):
+    from catmip_env.events import EventEngine
+    from catmip_rl.adapters.torchrl_policy import TorchRLPolicy
+
+    cfg = make_config("task3")  # six robots: most of them busy at any event
+    save_policy(make_actor(cfg, pool=4), cfg, tmp_path, {"algo": "ippo"}, pool=4)
+    fast = load_policy(tmp_path / "policy.pt", cfg, deterministic=deterministic)
+    assert fast.per_robot and fast.sampled(0).per_robot
+    full = TorchRLPolicy(fast.module, float_maps=True, deterministic=deterministic)
+    engine = EventEngine(cfg, num_worlds=4, seed=2)
+    engine.reset()
+    fed = []
+    fast.module.register_forward_hook(lambda m, args, out: fed.append(out.batch_size.numel()))
+    deciding = 0
+    for _ in range(30):
+        a = fast.act(engine)
+        active = engine.active
+        assert (a[~active] == 0).all() and fed[-1] == active.sum()
+        deciding += active.sum()
+        if deterministic:  # the argmax of each robot's row is the full batch's: the same game
+            assert (a[active] == full.act(engine)[active]).all()
+        assert engine.masks[active, a[active]].all()  # sampled: allowed goals all the same
+        engine.step(a)
+    assert deciding < 0.5 * 30 * engine.active.size  # the point of it: a fraction of the rows
