@@ -284,8 +284,8 @@ def _save(out: Path, args: argparse.Namespace, cfg, history: list[dict], actor, 
              "iteration": last["iteration"] + 1, "minutes": last["minutes"],
              "torch_rng": torch.get_rng_state()}  # fmt: skip
     atomic_torch_save(state, out / STATE)
-    half = {name: {k: v.half() if v.is_floating_point() else v for k, v in module.state_dict().items()}
-            for name, module in (("actor", actor), ("critic", critic))}  # fmt: skip
+    half = {name: {k: v.half() if v.is_floating_point() else v for k, v in state[name].items()}
+            for name in ("actor", "critic")}  # fmt: skip
     atomic_torch_save({**half, "iteration": state["iteration"], "minutes": state["minutes"]}, out / WEIGHTS)
 
 

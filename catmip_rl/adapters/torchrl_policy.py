@@ -67,8 +67,11 @@ class TorchRLPolicy:
     def observation(self, engine: EventEngine) -> TensorDictBase:
         """What the module reads: ``CatmipEnv``'s observation of the current event (maps as float32 if
         ``float_maps``), on the module's device."""
+        return self._scaled(engine_observation(engine, self._device()))
+
+    def _device(self) -> torch.device | str:
         params = list(self.module.parameters())
-        return self._scaled(engine_observation(engine, params[0].device if params else "cpu"))
+        return params[0].device if params else "cpu"
 
     def _scaled(self, td: TensorDictBase) -> TensorDictBase:
         if self.float_maps:
@@ -78,16 +81,18 @@ class TorchRLPolicy:
 
     @torch.no_grad()
     def act(self, engine: EventEngine):
+        td = engine_observation(engine, self._device())
+        active = td.get(K.ACTIVE) if self.per_robot else None
+        if active is not None:  # the deciding robots alone, as a (M,) batch; busy robots' entries are ignored
+            if not active.any():
+                return torch.zeros(active.shape, dtype=torch.long).numpy()
+            deciding = td.get(K.ROBOTS)[active]
+            td = TensorDict({K.ROBOTS: deciding}, batch_size=deciding.batch_size)
         kind = ExplorationType.DETERMINISTIC if self.deterministic else ExplorationType.RANDOM
         with set_exploration_type(kind):
-            if not self.per_robot:
-                return self.module(self.observation(engine)).get(K.ACTION).cpu().numpy()
-            params = list(self.module.parameters())
-            robots = engine_observation(engine, params[0].device if params else "cpu").get(K.ROBOTS)
-            active = robots.get("active")
-            actions = torch.zeros(active.shape, dtype=torch.long)  # busy robots' entries are ignored
-            if active.any():
-                deciding = robots[active]
-                rows = self._scaled(TensorDict({K.ROBOTS: deciding}, batch_size=deciding.batch_size))
-                actions[active.cpu()] = self.module(rows).get(K.ACTION).cpu()
+            action = self.module(self._scaled(td)).get(K.ACTION).cpu()
+        if active is None:
+            return action.numpy()
+        actions = torch.zeros(active.shape, dtype=torch.long)
+        actions[active.cpu()] = action
         return actions.numpy()
