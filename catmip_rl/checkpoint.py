@@ -229,7 +229,8 @@ def initial_weights(spec: str, config: AmatConfig) -> dict[str, Any]:
     where a model whose pooled grid divides ``config.pool`` (and is otherwise ``config``) was spread over
     the finer grid (:func:`~catmip_rl.amat.weights.finer_pool`), ``cell_mask`` [theirs, ours] where a
     cell-goal model is to choose among other cells, and ``teammate_memory`` [theirs, ours] where it is to
-    see remembered teammates (neither holds weights). Raises ``ValueError``
+    see remembered teammates (neither holds weights), and ``critic`` [theirs, ours] where PPO's values are to
+    come from elsewhere (a new state critic starts from its own initialisation). Raises ``ValueError``
     (the message starts with "init_from") if the file is missing, unreadable or not an AMAT of ``config``."""
     try:
         path = model_file(resolve_model(spec))
@@ -243,8 +244,11 @@ def initial_weights(spec: str, config: AmatConfig) -> dict[str, Any]:
             weights = finer_pool(weights, model.config.pool, config.pool)
         except ValueError as err:
             raise ValueError(f"init_from {spec!r}: {err}") from None
-    elif model.config != replace(  # neither the mask nor the memory holds weights
-        config, cell_mask=model.config.cell_mask, teammate_memory=model.config.teammate_memory
+    elif model.config != replace(  # neither the mask nor the memory holds weights; the critic is new
+        config,
+        cell_mask=model.config.cell_mask,
+        teammate_memory=model.config.teammate_memory,
+        critic=model.config.critic,
     ):
         theirs, ours = asdict(model.config), asdict(config)
         diff = ", ".join(f"{k} {theirs[k]!r} there vs {ours[k]!r} here" for k in ours if theirs[k] != ours[k])
@@ -265,7 +269,7 @@ def initial_weights(spec: str, config: AmatConfig) -> dict[str, Any]:
         "iteration": state.get("iteration"),
         "elapsed_min": None if own is None else _minutes_behind(own, state.get("init_from")),
     }
-    for name in ("pool", "cell_mask", "teammate_memory"):  # what the new run changed
+    for name in ("pool", "cell_mask", "teammate_memory", "critic"):  # what the new run changed
         if getattr(model.config, name) != getattr(config, name):
             source[name] = [getattr(model.config, name), getattr(config, name)]
     return {"model": weights, "value_norm": state.get("value_norm"), "source": source}
@@ -275,7 +279,11 @@ def load_initial_weights(spec: str, model: AMAT, value_norm: torch.nn.Module) ->
     """Load :func:`initial_weights` ``spec`` into a new run's ``model`` (and ``value_norm`` where the
     file has one); returns where they came from (its ``source``)."""
     init = initial_weights(spec, model.config)
-    model.load_state_dict(init["model"])
+    own, critic = model.state_dict(), "state_critic."
+    weights = {k: v for k, v in init["model"].items() if k in own or not k.startswith(critic)}
+    # a state critic the file lacks keeps the model's own initial weights; one it has and the run
+    # does not use is left out
+    model.load_state_dict({k: v for k, v in own.items() if k.startswith(critic)} | weights)
     if init["value_norm"] is not None:
         value_norm.load_state_dict(init["value_norm"])
     return init["source"]

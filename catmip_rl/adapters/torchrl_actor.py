@@ -82,6 +82,12 @@ class AmatCritic(TensorDictModuleBase):
 
     def __init__(self, model: AMAT) -> None:
         super().__init__()
+        if model.state_critic is not None:  # its value head was never trained
+            raise ValueError(
+                "this AMAT's critic is its state critic (AmatConfig.critic 'state', trained by catmip "
+                "train's collector), not the encoder's value head: AmatCritic needs a model with critic "
+                "'encoder'"
+            )
         self.model = model
         self.in_keys = list(K.OBS_KEYS)
         self.out_keys = [K.VALUE]

@@ -9,10 +9,11 @@ from typing import Any
 
 from catmip_env.fields import BOOL, INT, check
 
-__all__ = ["AmatConfig", "GOAL_KINDS", "CELL_MASKS"]
+__all__ = ["AmatConfig", "GOAL_KINDS", "CELL_MASKS", "CRITICS"]
 
 GOAL_KINDS = ("window", "cell")
 CELL_MASKS = ("known", "reachable")
+CRITICS = ("encoder", "state")
 LIMITS = {"window": 99, "local_size": 99, "pool": 64, "embed_dim": 8192, "n_heads": 128, "n_blocks": 64,
           "n_classes": 64, "cell_channels": 4096, "cell_layers": 64}  # fmt: skip
 """The largest value of each size field (far above any trained model's)."""
@@ -51,6 +52,10 @@ class AmatConfig:
     """Observes teammates outside its neighbourhood where it last had news of them (the env's
     ``EnvConfig.teammate_memory``; not the paper's observation): training worlds and evaluation turn
     the option on for such a model, and an engine without it is refused."""
+    critic: str = "encoder"
+    """Where PPO's values come from: "encoder" (the paper's value head on the encoder's tokens) or
+    "state" (``amat.critic.StateCritic``: a centralised critic that reads the world's true state beside
+    the robot's own map, as MAPPO's does; training only, play never reads it)."""
 
     def __post_init__(self) -> None:
         for name, most in LIMITS.items():  # bounded: a file cannot declare a model too large to count
@@ -65,6 +70,8 @@ class AmatConfig:
                 f"AmatConfig.cell_mask must be one of {list(CELL_MASKS)}, got {self.cell_mask!r}"
             )
         check("AmatConfig", "teammate_memory", self.teammate_memory, BOOL)
+        if self.critic not in CRITICS:
+            raise ValueError(f"AmatConfig.critic must be one of {list(CRITICS)}, got {self.critic!r}")
         if self.goals not in GOAL_KINDS:
             raise ValueError(f"AmatConfig.goals must be one of {list(GOAL_KINDS)}, got {self.goals!r}")
 

@@ -28,6 +28,7 @@ from torch import nn
 
 from catmip_env.constants import OBS_SCALE  # uint8 macro-observations: float = value * OBS_SCALE
 from catmip_rl.amat.config import AmatConfig
+from catmip_rl.amat.critic import StateCritic
 from catmip_rl.amat.kernels.sparse_conv import global_conv_pool
 from catmip_rl.amat.layers import BlockCache, DecoderBlock, EncoderBlock, layer_norm, linear
 
@@ -75,9 +76,14 @@ class AMAT(nn.Module):
         self.enc_ln = nn.LayerNorm(d)
         self.enc_blocks = nn.ModuleList(EncoderBlock(d, cfg.n_heads) for _ in range(cfg.n_blocks))
         self.value_head = nn.Sequential(nn.Linear(d, d), nn.GELU(), nn.LayerNorm(d), nn.Linear(d, 1))
+        # critic "state": PPO's values from the world's true state instead (amat.critic); built after
+        # _init_weights' loop has run over the rest, so the paper's model draws the same weights
+        self.state_critic: StateCritic | None = None
         # -- macro-action embedder and decoder -----------------------------------------------------
         self._build_decoder()
         self._init_weights()
+        if cfg.critic == "state":
+            self.state_critic = StateCritic(c)
 
     def _build_decoder(self) -> None:
         """The decoder and its policy head over the D*D window goals."""

@@ -23,6 +23,7 @@ from catmip_env.constants import global_channels, local_channels
 from catmip_env.episode_stats import DecisionTracker, EpisodeRecords, episode_records, training_stats
 from catmip_env.events import EventEngine
 from catmip_env.play import Policy
+from catmip_rl.amat.critic import critic_state, state_channels
 from catmip_rl.amat.inputs import macro_observation
 from catmip_rl.amat.model import AMAT, decision_order
 
@@ -47,6 +48,7 @@ class Rollout:
     ma_ticks: np.ndarray  # (T, B, N) int64 its duration
     valid: np.ndarray  # (T, B) bool
     label: np.ndarray | None  # (T, B, N) int64 the teacher's actions (collect(labeler=...))
+    state: np.ndarray | None  # (T, B, 5+C, H, W) uint8 the true state, for a model with critic "state"
     final_return: np.ndarray  # (B, N) float64 each robot's last macro-action's return
     terminated: np.ndarray  # (B,) bool the episode ended in a rescue (its last macro-actions are trained)
     records: EpisodeRecords  # the B episodes' records (catmip_env.play), decisions and stalls included
@@ -64,7 +66,8 @@ class Rollout:
 
 # the (T, B, ...) arrays of a Rollout, one row per decision event: the collector's storage
 _PER_EPISODE = ("label", "final_return", "terminated", "records", "returns", "stats")
-STEP_FIELDS = tuple(f.name for f in fields(Rollout) if f.name not in _PER_EPISODE)
+_OPTIONAL = ("state",)  # stored only for a model that reads it
+STEP_FIELDS = tuple(f.name for f in fields(Rollout) if f.name not in _PER_EPISODE + _OPTIONAL)
 
 
 def cpu_mirror(model: AMAT, mirror: AMAT | None = None) -> AMAT:
@@ -107,6 +110,7 @@ class Collector:
         self._final = np.zeros((b, n), np.float64)
         self._terminated = np.zeros(b, np.bool_)
         self._label = np.zeros((t, b, n), np.int64)
+        self._state = np.zeros((0, b, state_channels(c), h, w), np.uint8)  # grown for a state critic
         self.tracker = DecisionTracker(b, n)
 
     @property
@@ -138,6 +142,9 @@ class Collector:
         b_all = eng.num_worlds
         c = eng.cfg.num_classes
         eng.reset(episode_indices=np.arange(first_episode, first_episode + b_all))
+        critic = model.state_critic
+        if critic is not None and not len(self._state):
+            self._state = np.zeros((len(s["valid"]), *self._state.shape[1:]), np.uint8)
         self.tracker.reset(eng)
         s["valid"][:] = False
         returns = np.zeros((b_all, eng.num_robots))
@@ -162,6 +169,10 @@ class Collector:
             active = torch.from_numpy(s["active"][t, idx])
             mask = torch.from_numpy(s["action_mask"][t, idx])
             rep, values = model.encode(model.embed(obs))
+            if critic is not None:  # the values from the true state (amat.critic) instead
+                critic_state(eng.world, self._state[t])
+                state = torch.from_numpy(self._state[t, idx])
+                values = critic(state, obs["global_map"], obs["agent_class"])
             order = decision_order(active)
             actions, logp = model.decode_autoregressive(
                 rep, mask, order, active, obs["agent_class"], deterministic=deterministic, generator=generator
@@ -193,6 +204,7 @@ class Collector:
             **{k: v[:t] for k, v in s.items()},
             final_return=self._final.copy(),
             label=self._label[:t].copy() if labeler is not None else None,
+            state=self._state[:t] if critic is not None else None,
             terminated=self._terminated.copy(),
             records=records,
             returns=returns,

@@ -43,7 +43,7 @@ _RANGES: dict[str, tuple[str, Callable[[Any], bool]]] = {
     "warm_start_worlds": (">= 0", lambda v: v >= 0),
     **dict.fromkeys(("micro_batch", "eval_every", "checkpoint_every", "value_warmup_iterations",
                      "budget_minutes", "target_kl", "entropy_coef", "value_coef", "rescue_coef",
-                     "anchor_coef"),
+                     "anchor_coef", "critic_lr"),
                     (">= 0", lambda v: v >= 0)),
     **dict.fromkeys(("lr", "adam_eps", "clip", "value_clip", "huber_delta", "max_grad_norm", "warm_start_lr"),
                     ("> 0", lambda v: v > 0)),
@@ -132,6 +132,10 @@ class TrainConfig:
     micro-batches (the same gradient, in bounded memory and faster on CPU caches); 0 = one pass."""
     lr: float = 1e-4
     """Adam learning rate (decays linearly to 0 over the run)."""
+    critic_lr: float = 0.0
+    """The critic's own parameters' learning rate (the value head's, or the state critic's), decaying
+    alike; 0: ``lr``. A new critic beside a trained policy learns at the policy's fine-tuning rate only
+    slowly."""
     adam_eps: float = 1e-5
     """Adam epsilon."""
     clip: float = 0.05
@@ -234,12 +238,6 @@ class TrainConfig:
     def __post_init__(self) -> None:
         for f in dataclasses.fields(self):
             check_field(f.name, getattr(self, f.name))
-        if self.warm_start and self.collector != "local":
-            raise ValueError(
-                "TrainConfig.warm_start needs collector 'local' (DAgger labels decisions with a planner "
-                "in this process); warm-start locally, then --resume with --collector ray "
-                "--set warm_start=''"
-            )
         if bool(self.anchor) != (self.anchor_coef > 0):
             raise ValueError("TrainConfig.anchor and anchor_coef > 0 go together: set both, or neither")
         if self.anchor and (self.rescue_coef > 0 or self.amat_config().goals != "cell"):
@@ -247,30 +245,50 @@ class TrainConfig:
                 "TrainConfig.anchor labels a cell-goal model's decisions (amat goals 'cell') and takes the "
                 "rescue loss's place: set rescue_coef = 0"
             )
-        if (self.rescue_coef > 0 or self.anchor) and self.collector != "local":
-            raise ValueError(
-                "TrainConfig.rescue_coef > 0 and anchor need collector 'local' (the rule or planner labels "
-                "decisions in this process); set them off with --collector ray"
-            )
         if self.update_processes > 1 and self.device != "cpu":
             raise ValueError(
                 f"update_processes = {self.update_processes} computes gradients in CPU processes; with "
                 f"device {self.device!r} set update_processes = 1"
             )
-        if self.collector == "ray" and self.num_worlds % self.ray_workers:
-            raise ValueError(
-                f"num_worlds ({self.num_worlds}) must be divisible by ray_workers ({self.ray_workers}): "
-                "each Ray worker collects an equal share of the worlds"
-            )
-        if self.worlds and self.collector != "local":
-            raise ValueError("TrainConfig.worlds (a mixture of worlds) needs collector 'local'")
+        self._check_collection()
         amat = self.amat_config()  # validates it
+        if amat.critic == "state" and self.warm_start:
+            raise ValueError(
+                "amat critic 'state' is PPO's: set no warm_start (imitate with critic 'encoder' first, then "
+                "init_from that run)"
+            )
         for k, (env, _) in enumerate([(self.env_config(), 0), *self.world_configs()]):  # validates them
             where = "the env's" if k == 0 else f"worlds[{k - 1}]'s"
             if amat.window != env.window:
                 raise ValueError(f"AMAT window {amat.window} differs from {where} goal window {env.window}")
             if amat.local_size != env.local_size or amat.n_classes != env.num_classes:
                 raise ValueError(f"AMAT local_size / n_classes must match {where} local map and classes")
+
+    def _check_collection(self) -> None:
+        """What only the local collector does (labels from a planner in this process, a mixture of worlds,
+        the state critic's state) refused with Ray, and Ray's share of the worlds."""
+        if self.collector == "local":
+            return
+        if self.warm_start:
+            raise ValueError(
+                "TrainConfig.warm_start needs collector 'local' (DAgger labels decisions with a planner "
+                "in this process); warm-start locally, then --resume with --collector ray "
+                "--set warm_start=''"
+            )
+        if self.rescue_coef > 0 or self.anchor:
+            raise ValueError(
+                "TrainConfig.rescue_coef > 0 and anchor need collector 'local' (the rule or planner labels "
+                "decisions in this process); set them off with --collector ray"
+            )
+        if self.num_worlds % self.ray_workers:
+            raise ValueError(
+                f"num_worlds ({self.num_worlds}) must be divisible by ray_workers ({self.ray_workers}): "
+                "each Ray worker collects an equal share of the worlds"
+            )
+        if self.worlds:
+            raise ValueError("TrainConfig.worlds (a mixture of worlds) needs collector 'local'")
+        if self.amat.get("critic") == "state":
+            raise ValueError("amat critic 'state' needs collector 'local' (it collects the true state)")
 
     def env_config(self) -> EnvConfig:
         return self._for_model(make_config(self.env_preset, **self.env_overrides))

@@ -134,6 +134,7 @@ class SampleBatch:
     trainable: torch.Tensor  # (M, N) bool: active robots whose macro-action finished
     rescue_label: torch.Tensor | None = None  # (M, N) long: the rescue rule's window action, -1 = none
     neighbourhood: torch.Tensor | None = None  # (M, N) long communication component (the cell-goal model's)
+    state: torch.Tensor | None = None  # (M, 5+C, H, W) uint8 the true state (a model with critic "state")
 
     def __len__(self) -> int:
         return self.action.shape[0]
@@ -190,6 +191,7 @@ def build_batch(r: Rollout, value_norm: ValueNorm, gamma: float, lam: float, n_c
         target=value_norm.normalize(ret_t),
         trainable=train_t,
         rescue_label=None if r.label is None else torch.from_numpy(r.label[rows]),
+        state=None if r.state is None else torch.from_numpy(r.state[rows]),
     ).to(device)
     return batch, {"samples": float(train_t.sum()), "ppo/explained_variance": explained}
 

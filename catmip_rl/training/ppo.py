@@ -8,8 +8,8 @@
   (:class:`~catmip_rl.training.gae.SampleBatch`), one Adam step each (the gradients computed here or by
   ``parallel_update``'s helper processes), the epochs stopped at the first minibatch whose approx-KL
   exceeds ``cfg.target_kl``;
-* :func:`make_optimizer`, :func:`loss_kwargs`, :func:`lr_factor` — the optimiser, the loss's settings
-  and the learning-rate schedule from a :class:`~catmip_rl.training.config.TrainConfig`;
+* :func:`make_optimizer`, :func:`loss_kwargs`, :func:`lr_factor`, :func:`set_lr` — the optimiser, the
+  loss's settings and the learning-rate schedule from a :class:`~catmip_rl.training.config.TrainConfig`;
   :func:`choose_bf16` — the update's precision (below).
 
 Precision on CPU: float32, or bfloat16 autocast where the CPU has it natively. On CPUs with native bf16
@@ -37,7 +37,8 @@ from catmip_rl.training.config import PRECISIONS, TrainConfig
 from catmip_rl.training.gae import SampleBatch
 
 __all__ = [
-    "ppo_loss", "accumulate_gradients", "make_optimizer", "loss_kwargs", "ppo_update", "lr_factor",
+    "ppo_loss", "accumulate_gradients", "make_optimizer", "set_lr", "critic_prefix", "loss_kwargs",
+    "ppo_update", "lr_factor",
     "measure_bf16", "choose_bf16", "native_bf16", "use_bf16",
 ]  # fmt: skip
 
@@ -73,6 +74,8 @@ def ppo_loss(
     logits, values = model.score(
         model.embed(obs), batch.action, batch.order, batch.agent_class, sel, batch.action_mask
     )  # (K, A), (K, 1)
+    if model.state_critic is not None:  # PPO's values from the true state (amat.critic)
+        values = model.state_critic(batch.state, batch.global_map, batch.agent_class, sel)
     action, old_logp, adv = batch.action[sel], batch.log_prob[sel], batch.advantage[sel]
     logp_all = torch.log_softmax(logits.float(), -1)  # (K, A)
     logp = logp_all.gather(-1, action[:, None])[:, 0]
@@ -125,10 +128,29 @@ def accumulate_gradients(
     return sums
 
 
+def critic_prefix(model: AMAT) -> str:
+    """The names' prefix of PPO's critic's parameters: the state critic's, or else the value head's."""
+    return "state_critic." if model.state_critic is not None else "value_head."
+
+
 def make_optimizer(model: AMAT, cfg: TrainConfig) -> torch.optim.Adam:
     """Adam with the config's lr and eps, fused (one kernel for all parameters: ~6x faster a step on CPU
-    than the per-parameter loop, the same arithmetic)."""
-    return torch.optim.Adam(model.parameters(), lr=cfg.lr, eps=cfg.adam_eps, fused=True)
+    than the per-parameter loop, the same arithmetic); with ``cfg.critic_lr`` the critic's parameters are
+    a second group (``"critic": True``) at that rate."""
+    if not cfg.critic_lr:
+        return torch.optim.Adam(model.parameters(), lr=cfg.lr, eps=cfg.adam_eps, fused=True)
+    critic = critic_prefix(model)
+    own = [p for n, p in model.named_parameters() if n.startswith(critic)]
+    rest = [p for n, p in model.named_parameters() if not n.startswith(critic)]
+    groups = [{"params": rest, "critic": False}, {"params": own, "lr": cfg.critic_lr, "critic": True}]
+    return torch.optim.Adam(groups, lr=cfg.lr, eps=cfg.adam_eps, fused=True)
+
+
+def set_lr(opt: torch.optim.Optimizer, cfg: TrainConfig, factor: float) -> None:
+    """The learning rates ``factor`` of the config's: ``cfg.critic_lr`` for the critic's group (if any)."""
+    for group in opt.param_groups:
+        base = cfg.critic_lr if group.get("critic") else cfg.lr
+        group["lr"] = base * factor
 
 
 def loss_kwargs(cfg: TrainConfig, bf16: bool | None = None) -> dict[str, float]:
@@ -161,13 +183,14 @@ def ppo_update(
 
     Returns the last minibatch's loss parts and gradient norm, ``ppo/epochs`` (epochs run, fractional
     when stopped inside one) and ``ppo/early_stop``; ``epoch_log`` receives one dict per epoch (its
-    minibatches' mean loss parts, approx-KL and clip fraction). ``value_only`` steps the value head
-    alone (the value warm-up after an imitation warm start: the policy is left as it is). ``bf16``
-    overrides the precision the config resolves to (see :func:`loss_kwargs`)."""
+    minibatches' mean loss parts, approx-KL and clip fraction). ``value_only`` steps the critic (the
+    value head, or the state critic) alone (the value warm-up after an imitation warm start: the policy
+    is left as it is). ``bf16`` overrides the precision the config resolves to (see :func:`loss_kwargs`)."""
     model.train()
     kwargs = loss_kwargs(cfg, bf16)  # the loss settings, once for the whole update
     params = [p for p in model.parameters() if p.requires_grad]
-    frozen = [p for n, p in model.named_parameters() if not n.startswith("value_head.")] if value_only else []
+    critic = critic_prefix(model)
+    frozen = [p for n, p in model.named_parameters() if not n.startswith(critic)] if value_only else []
     stats: dict[str, float] = {}
     if parallel is not None:
         parallel.set_batch(batch)

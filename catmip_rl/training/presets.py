@@ -157,9 +157,22 @@ TRAIN_PRESETS["paper-warm-smallma"] = _PAPER_WARM_5604.replace(
     env_overrides={"window": 5}, amat={"window": 5}
 )
 
+# the memory model's anchored PPO (run-records/general-relay: cell goals, the teammate memory, anchored to
+# rrt-relay) with a centralised critic that reads the world's true state (amat.critic) in place of the
+# encoder's value head; from a general-relay model (init_from), the new critic trained alone for its first
+# 20 iterations (four turns of each world) at ten times the policy's rate
+TRAIN_PRESETS["general-critic"] = TRAIN_PRESETS["general"].replace(
+    amat={"goals": "cell", "cell_mask": "reachable", "teammate_memory": True, "critic": "state"},
+    warm_start="",
+    anchor="rrt-relay",
+    anchor_coef=0.2,
+    lr=5e-5,
+    critic_lr=5e-4,
+)
+
 #: presets that fine-tune a trained model: a new run of one needs ``init_from`` (``catmip train`` refuses it
 #: without; from fresh weights they would be a slow, unwarmed paper run)
-FINE_TUNING_PRESETS = ("paper-sharp",)
+FINE_TUNING_PRESETS = ("paper-sharp", "general-critic")
 
 
 def make_train_config(preset: str = "paper", **overrides: Any) -> TrainConfig:

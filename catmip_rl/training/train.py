@@ -37,7 +37,7 @@ from catmip_rl.training.config import TrainConfig
 from catmip_rl.training.gae import ValueNorm, build_batch
 from catmip_rl.training.imitation import PlannerLabeler, RescueLabeler, auxiliary_labeler, warm_start
 from catmip_rl.training.parallel_update import ParallelGradients
-from catmip_rl.training.ppo import choose_bf16, loss_kwargs, lr_factor, make_optimizer, ppo_update
+from catmip_rl.training.ppo import choose_bf16, loss_kwargs, lr_factor, make_optimizer, ppo_update, set_lr
 from catmip_rl.training.run_dir import (
     RunDirLock,
     check_run,
@@ -212,8 +212,7 @@ def ppo_iteration(run: Run, run_dir: Path) -> tuple[dict[str, float], list[dict[
         atomic_write_text(run_dir / "precision.json", json.dumps(decision, indent=2))
     if run.parallel is None and cfg.update_processes > 1:  # data-parallel gradients (parallel_update.py)
         run.parallel = ParallelGradients(run.model, cfg.update_processes, **loss_kwargs(cfg, run.bf16))
-    for group in run.opt.param_groups:
-        group["lr"] = cfg.lr * lr_factor(it, cfg, run.elapsed)
+    set_lr(run.opt, cfg, lr_factor(it, cfg, run.elapsed))
     epochs: list[dict[str, float]] = []
     value_only = it <= cfg.value_warmup_iterations
     stats = ppo_update(run.model, run.opt, batch, cfg, run.gen, run.parallel, epochs, value_only, run.bf16)
