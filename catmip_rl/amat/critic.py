@@ -24,7 +24,8 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from catmip_env.constants import OBS_SCALE, global_channels
+from catmip_env.constants import global_channels
+from catmip_rl.amat.layers import as_float
 
 __all__ = ["StateCritic", "state_channels", "critic_state"]
 
@@ -83,8 +84,7 @@ class StateCritic(nn.Module):
         world, robot = select.nonzero(as_tuple=True)
         w = self.conv1.weight
         shared = F.conv2d(state.float(), w[:, : self.state_in], self.conv1.bias, padding=1)  # once a world
-        own = global_map[world, robot]
-        own = own.float() * OBS_SCALE if own.dtype == torch.uint8 else own.float()
+        own = as_float(global_map[world, robot])
         x = F.relu(shared[world] + F.conv2d(own, w[:, self.state_in :], padding=1))
         x = F.relu(self.conv2(F.max_pool2d(x, 2, ceil_mode=True)))
         x = F.adaptive_max_pool2d(x, self.pool).flatten(1)

@@ -12,11 +12,12 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from catmip_env.constants import OBS_SCALE  # uint8 macro-observations: float = value * OBS_SCALE
 from catmip_rl.amat.kernels.small_attention import small_attention
 
 __all__ = [
     "Attention", "MLP", "EncoderBlock", "DecoderBlock", "BlockCache", "linear", "layer_norm",
-    "stacked_linear",
+    "stacked_linear", "as_float",
 ]  # fmt: skip
 
 
@@ -187,3 +188,10 @@ class BlockCache:
         x = layer_norm(self.rep_o[:, k : k + 1] + linear(y, blk.cross_attn.out), blk.ln2)
         m = blk.mlp
         return layer_norm(x + linear(F.gelu(linear(x, m[0])), m[2]), blk.ln3)
+
+
+def as_float(x: torch.Tensor) -> torch.Tensor:
+    """A macro-observation as float: uint8 scaled by OBS_SCALE, other dtypes cast."""
+    if x.dtype == torch.uint8:
+        return x.float() * OBS_SCALE
+    return x.float() if not x.is_floating_point() else x

@@ -26,11 +26,10 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from catmip_env.constants import OBS_SCALE  # uint8 macro-observations: float = value * OBS_SCALE
 from catmip_rl.amat.config import AmatConfig
 from catmip_rl.amat.critic import StateCritic
 from catmip_rl.amat.kernels.sparse_conv import global_conv_pool
-from catmip_rl.amat.layers import BlockCache, DecoderBlock, EncoderBlock, layer_norm, linear
+from catmip_rl.amat.layers import BlockCache, DecoderBlock, EncoderBlock, as_float, layer_norm, linear
 
 __all__ = ["AMAT", "decision_order", "gather_robots", "as_float", "INVALID_LOGIT"]
 
@@ -319,10 +318,3 @@ def gather_robots(x: torch.Tensor, index: torch.Tensor) -> torch.Tensor:
     """x (B, N, ...) reordered along dim 1 by index (B, K)."""
     idx = index.view(*index.shape, *([1] * (x.dim() - 2))).expand(*index.shape, *x.shape[2:])
     return torch.gather(x, 1, idx)
-
-
-def as_float(x: torch.Tensor) -> torch.Tensor:
-    """A macro-observation as float: uint8 scaled by OBS_SCALE, other dtypes cast."""
-    if x.dtype == torch.uint8:
-        return x.float() * OBS_SCALE
-    return x.float() if not x.is_floating_point() else x

@@ -140,9 +140,9 @@ def make_optimizer(model: AMAT, cfg: TrainConfig) -> torch.optim.Adam:
     if not cfg.critic_lr:
         return torch.optim.Adam(model.parameters(), lr=cfg.lr, eps=cfg.adam_eps, fused=True)
     critic = critic_prefix(model)
-    own = [p for n, p in model.named_parameters() if n.startswith(critic)]
-    rest = [p for n, p in model.named_parameters() if not n.startswith(critic)]
-    groups = [{"params": rest, "critic": False}, {"params": own, "lr": cfg.critic_lr, "critic": True}]
+    groups = [{"params": [], "critic": False}, {"params": [], "lr": cfg.critic_lr, "critic": True}]
+    for name, param in model.named_parameters():
+        groups[name.startswith(critic)]["params"].append(param)
     return torch.optim.Adam(groups, lr=cfg.lr, eps=cfg.adam_eps, fused=True)
 
 
