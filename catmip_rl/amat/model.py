@@ -31,7 +31,7 @@ from catmip_rl.amat.critic import StateCritic
 from catmip_rl.amat.kernels.sparse_conv import global_conv_pool
 from catmip_rl.amat.layers import BlockCache, DecoderBlock, EncoderBlock, as_float, layer_norm, linear
 
-__all__ = ["AMAT", "decision_order", "gather_robots", "as_float", "INVALID_LOGIT"]
+__all__ = ["AMAT", "decision_order", "gather_robots", "INVALID_LOGIT"]
 
 INVALID_LOGIT = -1e10
 

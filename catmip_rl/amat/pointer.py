@@ -39,8 +39,8 @@ from torch import nn
 from catmip_env.constants import OBS_ONE
 from catmip_rl.amat.config import AmatConfig
 from catmip_rl.amat.kernels.cell_fields import cell_fields
-from catmip_rl.amat.layers import DecoderBlock
-from catmip_rl.amat.model import AMAT, INVALID_LOGIT, as_float
+from catmip_rl.amat.layers import DecoderBlock, as_float
+from catmip_rl.amat.model import AMAT, INVALID_LOGIT
 
 __all__ = ["PointerAMAT", "Embedded", "CellContext", "make_model"]
 
