@@ -213,10 +213,11 @@ class RayRolloutCollector:
 
     def collect(
         self, model: AMAT, first_episode: int, generator: torch.Generator | None = None,
-        deterministic: bool = False,
+        deterministic: bool = False, labeler: None = None,
     ) -> Rollout:  # fmt: skip
         """One episode per world (indices ``first_episode + b``) with ``model``'s current weights
-        (``generator`` is unused: each worker seeds its own)."""
+        (``generator`` is unused: each worker seeds its own; no ``labeler``: TrainConfig refuses labels
+        with Ray, the workers would need the planner)."""
         if model is not self.model:
             raise ValueError("RayRolloutCollector.collect: pass the model it was built with")
         cpu_mirror(model, self._mirror)  # the weights the workers fetch

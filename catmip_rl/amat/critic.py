@@ -19,6 +19,8 @@ added to each robot's own part, and only the robots the loss trains are scored (
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 import torch
 import torch.nn.functional as F
@@ -26,6 +28,9 @@ from torch import nn
 
 from catmip_env.constants import global_channels
 from catmip_rl.amat.layers import as_float
+
+if TYPE_CHECKING:
+    from catmip_env.world import BatchedWorld
 
 __all__ = ["StateCritic", "state_channels", "critic_state"]
 
@@ -35,7 +40,7 @@ def state_channels(num_classes: int) -> int:
     return 5 + num_classes
 
 
-def critic_state(world, out: np.ndarray | None = None) -> np.ndarray:
+def critic_state(world: BatchedWorld, out: np.ndarray | None = None) -> np.ndarray:
     """(B, 5 + C, H, W) uint8 in {0, 1}: ``world.ground_truth`` of every world and a plane with the cells
     of the robots that know the target (``world.knows_target``); written into ``out`` if given."""
     truth = world.ground_truth(None)  # (B, 4 + C, H, W) float32 in {0, 1}
@@ -56,8 +61,8 @@ class StateCritic(nn.Module):
 
     def __init__(self, num_classes: int, width: int = 32, pool: int = 4, hidden: int = 128) -> None:
         super().__init__()
-        self.state_in = state_channels(num_classes)
-        self.conv1 = nn.Conv2d(self.state_in + global_channels(num_classes), width // 2, 3, padding=1)
+        self.state_planes = state_channels(num_classes)
+        self.conv1 = nn.Conv2d(self.state_planes + global_channels(num_classes), width // 2, 3, padding=1)
         self.conv2 = nn.Conv2d(width // 2, width, 3, padding=1)
         self.pool = pool
         self.fc1 = nn.Linear(width * pool * pool + num_classes, hidden)
@@ -83,11 +88,12 @@ class StateCritic(nn.Module):
         select = torch.ones(m, n, dtype=torch.bool, device=global_map.device) if rows is None else rows
         world, robot = select.nonzero(as_tuple=True)
         w = self.conv1.weight
-        shared = F.conv2d(state.float(), w[:, : self.state_in], self.conv1.bias, padding=1)  # once a world
-        own = as_float(global_map[world, robot])
-        x = F.relu(shared[world] + F.conv2d(own, w[:, self.state_in :], padding=1))
-        x = F.relu(self.conv2(F.max_pool2d(x, 2, ceil_mode=True)))
-        x = F.adaptive_max_pool2d(x, self.pool).flatten(1)
-        x = F.relu(self.fc1(torch.cat([x, agent_class[world, robot].to(x.dtype)], -1)))
-        values = self.fc2(x)
+        # the state's part of the first convolution, once a world: (M, w/2, H, W)
+        shared = F.conv2d(state.float(), w[:, : self.state_planes], self.conv1.bias, padding=1)
+        own = as_float(global_map[world, robot])  # (K, 5 + C, H, W)
+        x = F.relu(shared[world] + F.conv2d(own, w[:, self.state_planes :], padding=1))  # (K, w/2, H, W)
+        x = F.relu(self.conv2(F.max_pool2d(x, 2, ceil_mode=True)))  # (K, w, H/2, W/2)
+        x = F.adaptive_max_pool2d(x, self.pool).flatten(1)  # (K, w * pool * pool)
+        x = F.relu(self.fc1(torch.cat([x, agent_class[world, robot].to(x.dtype)], -1)))  # (K, hidden)
+        values = self.fc2(x)  # (K, 1)
         return values if rows is not None else values.view(m, n, 1)

@@ -51,7 +51,9 @@ class Rollout:
     state: np.ndarray | None  # (T, B, 5+C, H, W) uint8 the true state, for a model with critic "state"
     final_return: np.ndarray  # (B, N) float64 each robot's last macro-action's return
     terminated: np.ndarray  # (B,) bool the episode ended in a rescue (its last macro-actions are trained)
-    records: EpisodeRecords  # the B episodes' records (catmip_env.play), decisions and stalls included
+    records: (
+        EpisodeRecords  # the B episodes' records (catmip_env.episode_stats), decisions and stalls included
+    )
     returns: np.ndarray  # (B, N) float64 each robot's episode return
     stats: dict[str, float]  # training_stats of records and returns: what the training log shows
 
@@ -64,9 +66,9 @@ class Rollout:
         return int(self.valid.sum())
 
 
+_PER_EPISODE = ("final_return", "terminated", "records", "returns", "stats")
+_OPTIONAL = ("label", "state")  # per step, stored only when asked for: a labeler's actions, a critic's state
 # the (T, B, ...) arrays of a Rollout, one row per decision event: the collector's storage
-_PER_EPISODE = ("label", "final_return", "terminated", "records", "returns", "stats")
-_OPTIONAL = ("state",)  # stored only for a model that reads it
 STEP_FIELDS = tuple(f.name for f in fields(Rollout) if f.name not in _PER_EPISODE + _OPTIONAL)
 
 
@@ -138,18 +140,18 @@ class Collector:
         eng, s = self.engine, self._store
         policy = cpu_mirror(model, self._mirror)
         if policy is not model:  # a CPU copy of a model on another device, refreshed by the next call
-            model = self._mirror = policy
+            self._mirror = policy
         b_all = eng.num_worlds
         c = eng.cfg.num_classes
         eng.reset(episode_indices=np.arange(first_episode, first_episode + b_all))
-        critic = model.state_critic
+        critic = policy.state_critic
         if critic is not None and not len(self._state):
             self._state = np.zeros((len(s["valid"]), *self._state.shape[1:]), np.uint8)
         self.tracker.reset(eng)
         s["valid"][:] = False
         returns = np.zeros((b_all, eng.num_robots))
         t = 0
-        model.eval()
+        policy.eval()
         while True:
             live = ~eng.state.done
             if not live.any():
@@ -168,20 +170,20 @@ class Collector:
             )
             active = torch.from_numpy(s["active"][t, idx])
             mask = torch.from_numpy(s["action_mask"][t, idx])
-            rep, values = model.encode(model.embed(obs))
+            rep, values = policy.encode(policy.embed(obs))
             if critic is not None:  # the values from the true state (amat.critic) instead
                 critic_state(eng.world, self._state[t])
                 state = torch.from_numpy(self._state[t, idx])
                 values = critic(state, obs["global_map"], obs["agent_class"])
             order = decision_order(active)
-            actions, logp = model.decode_autoregressive(
+            actions, logp = policy.decode_autoregressive(
                 rep, mask, order, active, obs["agent_class"], deterministic=deterministic, generator=generator
             )
             s["order"][t, idx] = order.numpy()
             s["action"][t, idx] = actions.numpy()
             if labeler is not None:
                 self._label[t, idx] = labeler.act(eng)[idx]
-                if teacher_prob > 0:
+                if teacher_prob > 0:  # DAgger's mixture: some active robots execute the label
                     u = torch.rand(s["action"][t, idx].shape, generator=generator).numpy()
                     take = (u < teacher_prob) & s["active"][t, idx]
                     s["action"][t, idx] = np.where(take, self._label[t, idx], s["action"][t, idx])
@@ -192,10 +194,10 @@ class Collector:
             self.tracker.before_step(eng)
             ev = eng.step(full)
             returns[idx] += ev.rewards[idx]
-            ended = idx[(ev.terminated | ev.truncated)[idx]]
+            done = (ev.terminated | ev.truncated)[idx]
+            ended, going = idx[done], idx[~done]
             self._final[ended] = ev.ma_rewards[ended]
             self._terminated[ended] = ev.terminated[ended]
-            going = idx[~(ev.terminated | ev.truncated)[idx]]
             s["ma_return"][t + 1, going] = ev.ma_rewards[going]
             s["ma_ticks"][t + 1, going] = ev.ma_ticks[going]
             t += 1

@@ -211,7 +211,8 @@ class TrainConfig:
     (measured on Task 1: 64 episodes a round imitate to 0.72 by tick 100, 256 to 0.98;
     docs/notes/training-experiments.md)."""
     warm_start_rounds: int = 6
-    """DAgger rounds (each collects num_worlds episodes with the current policy, labelled)."""
+    """DAgger rounds (each collects warm_start_worlds episodes of every training world with the current
+    policy, labelled)."""
     warm_start_steps: int = 150
     """Cross-entropy gradient steps per DAgger round, on minibatches of warm_start_batch events."""
     warm_start_batch: int = 256
@@ -238,9 +239,10 @@ class TrainConfig:
     def __post_init__(self) -> None:
         for f in dataclasses.fields(self):
             check_field(f.name, getattr(self, f.name))
+        amat = self.amat_config()  # validates it
         if bool(self.anchor) != (self.anchor_coef > 0):
             raise ValueError("TrainConfig.anchor and anchor_coef > 0 go together: set both, or neither")
-        if self.anchor and (self.rescue_coef > 0 or self.amat_config().goals != "cell"):
+        if self.anchor and (self.rescue_coef > 0 or amat.goals != "cell"):
             raise ValueError(
                 "TrainConfig.anchor labels a cell-goal model's decisions (amat goals 'cell') and takes the "
                 "rescue loss's place: set rescue_coef = 0"
@@ -250,21 +252,22 @@ class TrainConfig:
                 f"update_processes = {self.update_processes} computes gradients in CPU processes; with "
                 f"device {self.device!r} set update_processes = 1"
             )
-        self._check_collection()
-        amat = self.amat_config()  # validates it
+        self._check_collection(amat)
         if amat.critic == "state" and self.warm_start:
             raise ValueError(
                 "amat critic 'state' is PPO's: set no warm_start (imitate with critic 'encoder' first, then "
                 "init_from that run)"
             )
-        for k, (env, _) in enumerate([(self.env_config(), 0), *self.world_configs()]):  # validates them
-            where = "the env's" if k == 0 else f"worlds[{k - 1}]'s"
+        envs = [("the env's", self.env_config())]  # validates them
+        if self.worlds:
+            envs += [(f"worlds[{k}]'s", env) for k, (env, _) in enumerate(self.world_configs())]
+        for where, env in envs:
             if amat.window != env.window:
                 raise ValueError(f"AMAT window {amat.window} differs from {where} goal window {env.window}")
             if amat.local_size != env.local_size or amat.n_classes != env.num_classes:
                 raise ValueError(f"AMAT local_size / n_classes must match {where} local map and classes")
 
-    def _check_collection(self) -> None:
+    def _check_collection(self, amat: AmatConfig) -> None:
         """What only the local collector does (labels from a planner in this process, a mixture of worlds,
         the state critic's state) refused with Ray, and Ray's share of the worlds."""
         if self.collector == "local":
@@ -287,7 +290,7 @@ class TrainConfig:
             )
         if self.worlds:
             raise ValueError("TrainConfig.worlds (a mixture of worlds) needs collector 'local'")
-        if self.amat.get("critic") == "state":
+        if amat.critic == "state":
             raise ValueError("amat critic 'state' needs collector 'local' (it collects the true state)")
 
     def env_config(self) -> EnvConfig:

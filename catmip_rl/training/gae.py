@@ -132,7 +132,7 @@ class SampleBatch:
     advantage: torch.Tensor  # (M, N) (normalised over trainable entries)
     target: torch.Tensor  # (M, N) normalised value targets
     trainable: torch.Tensor  # (M, N) bool: active robots whose macro-action finished
-    rescue_label: torch.Tensor | None = None  # (M, N) long: the rescue rule's window action, -1 = none
+    label: torch.Tensor | None = None  # (M, N) long: the rescue rule's or anchor's action, -1 = none
     neighbourhood: torch.Tensor | None = None  # (M, N) long communication component (the cell-goal model's)
     state: torch.Tensor | None = None  # (M, 5+C, H, W) uint8 the true state (a model with critic "state")
 
@@ -190,7 +190,7 @@ def build_batch(r: Rollout, value_norm: ValueNorm, gamma: float, lam: float, n_c
         advantage=adv_t,
         target=value_norm.normalize(ret_t),
         trainable=train_t,
-        rescue_label=None if r.label is None else torch.from_numpy(r.label[rows]),
+        label=None if r.label is None else torch.from_numpy(r.label[rows]),
         state=None if r.state is None else torch.from_numpy(r.state[rows]),
     ).to(device)
     return batch, {"samples": float(train_t.sum()), "ppo/explained_variance": explained}

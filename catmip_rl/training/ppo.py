@@ -55,14 +55,15 @@ def ppo_loss(
     huber_delta: float = 10.0,
     entropy_coef: float = 0.01,
     value_coef: float = 1.0,
-    rescue_coef: float = 0.0,
+    label_coef: float = 0.0,
     count: torch.Tensor | float | None = None,
 ) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
     """Total loss and its parts; every term averages over trainable (active, finished) robots only.
 
-    ``rescue_coef`` > 0 adds an auxiliary cross-entropy toward ``batch.rescue_label`` (the rescue rule's
-    window action, for rescuers that know the target; -1 elsewhere), summed over the labelled trainable
-    robots and divided by the same count (``TrainConfig.rescue_coef``; 0 is the paper's loss).
+    ``label_coef`` > 0 adds an auxiliary cross-entropy toward ``batch.label``: the rescue rule's window
+    action for rescuers that know the target (``TrainConfig.rescue_coef``), or the anchor planner's goal
+    (``TrainConfig.anchor_coef``); -1 where there is no label. It is summed over the labelled trainable
+    robots and divided by the same count (0 is the paper's loss; its part is logged as "loss/rescue").
 
     ``count`` replaces the number of trainable robots as the denominator: with the count of a whole
     minibatch, the losses (and parts) of its micro-batches add up to the minibatch's.
@@ -91,13 +92,13 @@ def ppo_loss(
     value_loss = value_loss.sum() / count
     loss = policy_loss + value_coef * value_loss - entropy_coef * entropy
     rescue_loss = torch.zeros((), device=loss.device)
-    if rescue_coef > 0 and batch.rescue_label is not None:
-        label = batch.rescue_label[sel]
+    if label_coef > 0 and batch.label is not None:
+        label = batch.label[sel]
         has = label >= 0
         column = label[has][:, None]
         allowed = logits[has].gather(-1, column)[:, 0] > INVALID_LOGIT / 2  # not scored outside the mask
         rescue_loss = -logp_all[has].gather(-1, column)[:, 0][allowed].sum() / count
-        loss = loss + rescue_coef * rescue_loss
+        loss = loss + label_coef * rescue_loss
     with torch.no_grad():
         stats = {
             "loss/policy": policy_loss.detach(),
@@ -153,13 +154,13 @@ def set_lr(opt: torch.optim.Optimizer, cfg: TrainConfig, factor: float) -> None:
         group["lr"] = base * factor
 
 
-def loss_kwargs(cfg: TrainConfig, bf16: bool | None = None) -> dict[str, float]:
+def loss_kwargs(cfg: TrainConfig, bf16: bool | None = None) -> dict[str, float | bool]:
     """The config's ``accumulate_gradients`` arguments: ``ppo_loss`` coefficients and bf16 autocast
     (``bf16``, or ``cfg.precision`` resolved by the CPU's flags; ``train`` measures "auto")."""
     return {
         "clip": cfg.clip, "value_clip": cfg.value_clip, "huber_delta": cfg.huber_delta,
         "entropy_coef": cfg.entropy_coef, "value_coef": cfg.value_coef,
-        "rescue_coef": cfg.rescue_coef or cfg.anchor_coef,  # the auxiliary label loss: rescue or anchor
+        "label_coef": cfg.rescue_coef or cfg.anchor_coef,  # the auxiliary label loss: rescue or anchor
         "bf16": use_bf16(cfg.precision, cfg.device) if bf16 is None else bf16,
     }  # fmt: skip
 
@@ -238,10 +239,12 @@ def lr_factor(iteration: int, cfg: TrainConfig, elapsed_s: float) -> float:
     return max(0.0, 1.0 - progress)
 
 
-def measure_bf16(model, batch, loss_kwargs: dict, events: int = 512, repeats: int = 2) -> dict[str, float]:
+def measure_bf16(
+    model: AMAT, batch: SampleBatch, settings: dict[str, Any], events: int = 512, repeats: int = 2
+) -> dict[str, float]:
     """Seconds of one forward + backward of the PPO loss on the first ``events`` events of ``batch``,
-    float32 and bf16 autocast (best of ``repeats`` after a warm-up each); the model's gradients are
-    left cleared."""
+    float32 and bf16 autocast (best of ``repeats`` after a warm-up each), the loss's ``settings``
+    (:func:`loss_kwargs`) otherwise; the model's gradients are left cleared."""
     part = torch.arange(min(events, len(batch)), device=batch.action.device)
     count = batch.trainable[part].sum().clamp_min(1).float()
     out = {}
@@ -250,7 +253,7 @@ def measure_bf16(model, batch, loss_kwargs: dict, events: int = 512, repeats: in
         for k in range(repeats + 1):
             model.zero_grad(set_to_none=True)
             t0 = time.perf_counter()
-            accumulate_gradients(model, batch, [part], count, **(loss_kwargs | {"bf16": bf16}))
+            accumulate_gradients(model, batch, [part], count, **(settings | {"bf16": bf16}))
             if k:  # the first run warms up (oneDNN primitives, allocator)
                 best = min(best, time.perf_counter() - t0)
         out[name] = best
@@ -258,14 +261,16 @@ def measure_bf16(model, batch, loss_kwargs: dict, events: int = 512, repeats: in
     return out
 
 
-def choose_bf16(setting: str, device: str, model, batch, loss_kwargs: dict, events: int = 512):
+def choose_bf16(
+    setting: str, device: str, model: AMAT, batch: SampleBatch, settings: dict[str, Any], events: int = 512
+) -> tuple[bool, dict[str, Any]]:
     """(bf16 or not, what decided it) for ``TrainConfig.precision`` ``setting``: "auto" on a CPU with
     native bf16 measures both on this batch and takes bf16 only if it is at least 10 % faster;
     everything else as :func:`use_bf16`."""
     native = native_bf16()
     if setting != "auto" or not device.startswith("cpu") or not native:
         return use_bf16(setting, device), {"precision": setting, "native_bf16": native}
-    timing = measure_bf16(model, batch, loss_kwargs, events)
+    timing = measure_bf16(model, batch, settings, events)
     bf16 = timing["bf16_s"] < 0.9 * timing["fp32_s"]
     return bf16, {"precision": setting, "native_bf16": True, **timing, "bf16": bf16}
 

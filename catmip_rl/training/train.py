@@ -100,7 +100,7 @@ class Run:
     bf16: bool | None = None  # the update's precision, chosen on the first batch (kept on resume)
     parallel: ParallelGradients | None = None  # the update's helper processes, started on the first batch
     init_source: dict | None = None  # where a new run's initial weights came from (init_from)
-    rescue_labeler: RescueLabeler | PlannerLabeler | None = None  # auxiliary loss labels (rescue, anchor)
+    labeler: RescueLabeler | PlannerLabeler | None = None  # the auxiliary loss's labels (rescue, anchor)
     # make_collectors: the training worlds, taking turns (Collectors, or one Ray collector); the warm
     # start's (none without one, or on resume); the evaluator (None without evaluation)
     collectors: list[Any] = field(default_factory=list)
@@ -157,7 +157,7 @@ def build_run(cfg: TrainConfig, saved: dict | None = None) -> Run:
     elif cfg.init_from:
         run.init_source = load_initial_weights(cfg.init_from, model, run.value_norm)
     run.collectors, run.dagger, run.evaluator = make_collectors(cfg, model, resume=saved is not None)
-    run.rescue_labeler = auxiliary_labeler(cfg)
+    run.labeler = auxiliary_labeler(cfg)
     return run
 
 
@@ -195,13 +195,10 @@ def ppo_iteration(run: Run, run_dir: Path) -> tuple[dict[str, float], list[dict[
     cfg, it = run.cfg, run.iteration + 1
     t0 = time.perf_counter()
     collector = run.collector_for(it)
-    rollout = collector.collect(
-        run.model, first_episode=run.episodes, generator=run.gen,
-        **({"labeler": run.rescue_labeler} if run.rescue_labeler is not None else {}),
-    )  # fmt: skip
+    rollout = collector.collect(run.model, first_episode=run.episodes, generator=run.gen, labeler=run.labeler)
     run.episodes += collector.num_worlds
     t1 = time.perf_counter()
-    n_classes = cfg.env_config().num_classes
+    n_classes = run.model.config.n_classes
     batch, info = build_batch(rollout, run.value_norm, cfg.gamma, cfg.lam, n_classes, run.device)
     t2 = time.perf_counter()
     if run.bf16 is None:
@@ -215,7 +212,10 @@ def ppo_iteration(run: Run, run_dir: Path) -> tuple[dict[str, float], list[dict[
     set_lr(run.opt, cfg, lr_factor(it, cfg, run.elapsed))
     epochs: list[dict[str, float]] = []
     value_only = it <= cfg.value_warmup_iterations
-    stats = ppo_update(run.model, run.opt, batch, cfg, run.gen, run.parallel, epochs, value_only, run.bf16)
+    stats = ppo_update(
+        run.model, run.opt, batch, cfg, run.gen,
+        parallel=run.parallel, epoch_log=epochs, value_only=value_only, bf16=run.bf16,
+    )  # fmt: skip
     stats["ppo/lr"] = run.opt.param_groups[0]["lr"]
     stats["ppo/bf16"] = float(run.bf16)
     t3 = time.perf_counter()

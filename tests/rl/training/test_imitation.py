@@ -216,7 +216,7 @@ def test_train_with_the_rescue_loss_logs_it_and_it_pulls_toward_the_rescue_rule(
 def test_the_rescue_losss_label_follows_the_heading_as_configured(follow_heading):
     cfg = make_train_config("tiny", rescue_coef=0.3, rescue_heading=follow_heading, eval_every=0)
     run = build_run(cfg)
-    assert run.rescue_labeler.teacher.follow_heading is follow_heading
+    assert run.labeler.teacher.follow_heading is follow_heading
     with pytest.raises(ValueError, match="rescue_heading must be true or false"):
         make_train_config("tiny", rescue_heading=0)
 

@@ -91,14 +91,14 @@ def test_value_norm_tracks_and_inverts():
 
 def test_the_rescue_term_is_the_cross_entropy_of_the_labelled_trainable_robots():
     m, _, batch = _setup()
-    base, parts0 = ppo_loss(m, batch, rescue_coef=1.0)  # no labels at all: the paper's loss
+    base, parts0 = ppo_loss(m, batch, label_coef=1.0)  # no labels at all: the paper's loss
     assert parts0["loss/rescue"] == 0
     label = torch.full_like(batch.action, -1)
     label[0, 0], label[1, 2], label[2, 1] = 7, 30, 12
-    batch.rescue_label = label
+    batch.label = label
     batch.trainable[2, 1] = False  # a busy robot's label is never a term
-    plain, parts = ppo_loss(m, batch, rescue_coef=0.0)
-    loss, parts = ppo_loss(m, batch, rescue_coef=0.5)
+    plain, parts = ppo_loss(m, batch, label_coef=0.0)
+    loss, parts = ppo_loss(m, batch, label_coef=0.5)
     obs = {"global_map": batch.global_map, "local_map": batch.local_map, "agent_class": batch.agent_class}
     logits, _ = m.score(m.embed(obs), batch.action, batch.order, batch.agent_class, batch.trainable,
                         batch.action_mask)  # fmt: skip
@@ -110,4 +110,4 @@ def test_the_rescue_term_is_the_cross_entropy_of_the_labelled_trainable_robots()
     assert torch.allclose(parts["loss/rescue"], expected.detach(), atol=1e-5)
     assert torch.allclose(loss, plain + 0.5 * expected, atol=1e-5)
     sub = batch.index(torch.tensor([0, 1]))  # indexing and moving keep the labels
-    assert torch.equal(sub.rescue_label, label[:2]) and sub.to("cpu").rescue_label is not None
+    assert torch.equal(sub.label, label[:2]) and sub.to("cpu").label is not None

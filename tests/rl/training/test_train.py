@@ -375,7 +375,7 @@ def _anchored(**overrides):
                             **overrides)  # fmt: skip
     run = build_run(cfg)
     rollout = run.collector_for(1).collect(run.model, first_episode=0, generator=run.gen,
-                                           labeler=run.rescue_labeler)  # fmt: skip
+                                           labeler=run.labeler)  # fmt: skip
     return cfg, run, rollout
 
 
@@ -407,9 +407,9 @@ def test_the_anchor_loss_skips_labels_the_models_mask_rules_out():
     cfg, run, rollout = _anchored()
     n_classes = cfg.env_config().num_classes
     batch, _ = build_batch(rollout, run.value_norm, cfg.gamma, cfg.lam, n_classes, run.device)
-    _, stats = ppo_loss(run.model, batch, rescue_coef=1.0)
+    _, stats = ppo_loss(run.model, batch, label_coef=1.0)
     assert 0 < float(stats["loss/rescue"]) < 50
-    walls = batch.rescue_label.clone()
+    walls = batch.label.clone()
     walls[batch.trainable.bool()] = 0  # cell (0, 0): the map's wall, which no mask allows
-    _, stats = ppo_loss(run.model, dataclasses.replace(batch, rescue_label=walls), rescue_coef=1.0)
+    _, stats = ppo_loss(run.model, dataclasses.replace(batch, label=walls), label_coef=1.0)
     assert float(stats["loss/rescue"]) == 0.0
