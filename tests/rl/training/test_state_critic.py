@@ -142,3 +142,14 @@ def test_the_critic_learns_at_its_own_rate_and_the_schedule_keeps_the_ratio(tmp_
     assert len(make_optimizer(plain, cfg.replace(amat={"embed_dim": 32}, critic_lr=0.0)).param_groups) == 1
     with pytest.raises(ValueError, match="critic_lr"):
         make_train_config("tiny", critic_lr=-1.0)
+
+
+def test_the_sigma2_preset_trains_the_state_critic_model_on_the_sigma2_worlds_only():
+    cfg = make_train_config("general-sigma2")
+    worlds = cfg.world_configs()
+    assert [(env.map_size, env.slam_noise, n) for env, n in worlds] == [
+        (20, 0.0, 128), (20, 0.05, 128), (32, 0.0, 64), (32, 0.05, 64)
+    ]  # fmt: skip
+    assert all(env.comm_ranges == (2.0,) and env.teammate_memory for env, _ in worlds)
+    assert cfg.eval_env_config().comm_sigma == 2.0 and cfg.eval_env_config().map_size == 32
+    assert cfg.amat_config().critic == "state" and cfg.anchor == "rrt-relay" and not cfg.warm_start
