@@ -51,9 +51,7 @@ class Rollout:
     state: np.ndarray | None  # (T, B, 5+C, H, W) uint8 the true state, for a model with critic "state"
     final_return: np.ndarray  # (B, N) float64 each robot's last macro-action's return
     terminated: np.ndarray  # (B,) bool the episode ended in a rescue (its last macro-actions are trained)
-    records: (
-        EpisodeRecords  # the B episodes' records (catmip_env.episode_stats), decisions and stalls included
-    )
+    records: EpisodeRecords  # the B episodes' records (catmip_env.episode_stats), stalls included
     returns: np.ndarray  # (B, N) float64 each robot's episode return
     stats: dict[str, float]  # training_stats of records and returns: what the training log shows
 

@@ -91,20 +91,20 @@ def ppo_loss(
     value_loss = torch.max(huber(v - target, huber_delta), huber(v_clipped - target, huber_delta))
     value_loss = value_loss.sum() / count
     loss = policy_loss + value_coef * value_loss - entropy_coef * entropy
-    rescue_loss = torch.zeros((), device=loss.device)
+    label_loss = torch.zeros((), device=loss.device)
     if label_coef > 0 and batch.label is not None:
         label = batch.label[sel]
         has = label >= 0
         column = label[has][:, None]
         allowed = logits[has].gather(-1, column)[:, 0] > INVALID_LOGIT / 2  # not scored outside the mask
-        rescue_loss = -logp_all[has].gather(-1, column)[:, 0][allowed].sum() / count
-        loss = loss + label_coef * rescue_loss
+        label_loss = -logp_all[has].gather(-1, column)[:, 0][allowed].sum() / count
+        loss = loss + label_coef * label_loss
     with torch.no_grad():
         stats = {
             "loss/policy": policy_loss.detach(),
             "loss/value": value_loss.detach(),
             "loss/entropy": entropy.detach(),
-            "loss/rescue": rescue_loss.detach(),
+            "loss/rescue": label_loss.detach(),  # the name the logs have always had
             "ppo/approx_kl": ((ratio - 1) - (logp - old_logp)).sum() / count,
             "ppo/clip_fraction": ((ratio - 1).abs() > clip).float().sum() / count,
         }
