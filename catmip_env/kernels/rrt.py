@@ -12,7 +12,7 @@ __all__ = ["grow_rrt"]
 
 
 @njit(cache=True)
-def grow_rrt(  # noqa: C901 - numba kernel: one RRT loop nest
+def grow_rrt(
     explored: np.ndarray,  # (H, W) bool
     occupied: np.ndarray,  # (H, W) bool
     r0: float,
@@ -29,31 +29,17 @@ def grow_rrt(  # noqa: C901 - numba kernel: one RRT loop nest
     nodes = np.empty((n_iter + 1, 2), np.float64)
     nodes[0, 0], nodes[0, 1] = r0, c0
     n_nodes, n_targets = 1, 0
-    # bucket grid for nearest-node queries: per cell, a linked list of nodes
+    # bucket grid for nearest-node queries: per cell, a linked list of nodes; box: the occupied buckets'
+    # bounding box (rows rmin..rmax, columns cmin..cmax), outside which the search skips the empty cells
     head = np.full(h * w, -1, np.int64)
     nxt = np.full(n_iter + 1, -1, np.int64)
-    head[int(r0 + 0.5) * w + int(c0 + 0.5)] = 0
+    box = np.empty(4, np.int64)
+    box[0] = box[1] = int(r0 + 0.5)
+    box[2] = box[3] = int(c0 + 0.5)
+    head[box[0] * w + box[2]] = 0
     for it in range(n_iter):
         sr, sc = u[it, 0] * h - 0.5, u[it, 1] * w - 0.5
-        cr, cc = min(max(int(sr + 0.5), 0), h - 1), min(max(int(sc + 0.5), 0), w - 1)
-        best, best_d2 = -1, 1e18
-        ring = 0
-        while ring < h + w:
-            for rr in range(cr - ring, cr + ring + 1):
-                if rr < 0 or rr >= h:
-                    continue
-                for c2 in range(cc - ring, cc + ring + 1):
-                    if c2 < 0 or c2 >= w or (abs(rr - cr) != ring and abs(c2 - cc) != ring):
-                        continue
-                    k = head[rr * w + c2]
-                    while k >= 0:
-                        d2 = (nodes[k, 0] - sr) ** 2 + (nodes[k, 1] - sc) ** 2
-                        if d2 < best_d2:
-                            best, best_d2 = k, d2
-                        k = nxt[k]
-            if best >= 0 and (ring - 1) ** 2 >= best_d2:
-                break  # no node in a further ring can be closer
-            ring += 1
+        best, best_d2 = _nearest_node(nodes, head, nxt, box, w, sr, sc)
         dist = math.sqrt(best_d2)
         if dist < 1e-9:
             continue
@@ -71,7 +57,41 @@ def grow_rrt(  # noqa: C901 - numba kernel: one RRT loop nest
             continue
         nodes[n_nodes, 0], nodes[n_nodes, 1] = nr, nc
         cell = gr * w + gc
+        box[0], box[1] = min(box[0], gr), max(box[1], gr)
+        box[2], box[3] = min(box[2], gc), max(box[3], gc)
         nxt[n_nodes] = head[cell]
         head[cell] = n_nodes
         n_nodes += 1
     return n_targets
+
+
+@njit(cache=True)
+def _nearest_node(nodes, head, nxt, box, w, sr, sc):
+    """The tree node for the sample (sr, sc), by rings of buckets around the sample's cell (cr, cc), and
+    its squared distance. A node of the sample's own cell within one cell is taken (the planner's rule:
+    a near node, not always the nearest). Further out the search is exact: the sample lies within half
+    a cell of (cr, cc) and a node within half a cell of its bucket's centre, so every node of the next
+    ring is more than ``ring`` away. Rings short of the bounding box ``box`` hold no node and are skipped."""
+    h = head.shape[0] // w
+    cr, cc = min(max(int(sr + 0.5), 0), h - 1), min(max(int(sc + 0.5), 0), w - 1)
+    rmin, rmax, cmin, cmax = box[0], box[1], box[2], box[3]
+    best, best_d2 = -1, 1e18
+    ring = max(0, rmin - cr, cr - rmax, cmin - cc, cc - cmax)
+    while ring < h + w:
+        for rr in range(max(cr - ring, rmin), min(cr + ring, rmax) + 1):
+            edge = abs(rr - cr) == ring  # the ring's top or bottom row: all its columns, else its two ends
+            c2 = max(cc - ring, cmin) if edge else cc - ring
+            last = min(cc + ring, cmax) if edge else cc + ring
+            while c2 <= last:
+                if cmin <= c2 <= cmax:
+                    k = head[rr * w + c2]
+                    while k >= 0:
+                        d2 = (nodes[k, 0] - sr) ** 2 + (nodes[k, 1] - sc) ** 2
+                        if d2 < best_d2:
+                            best, best_d2 = k, d2
+                        k = nxt[k]
+                c2 += 1 if edge else 2 * ring
+        if best >= 0 and (ring * ring >= best_d2 or (ring == 0 and best_d2 <= 1.0)):
+            break
+        ring += 1
+    return best, best_d2
