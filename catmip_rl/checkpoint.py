@@ -126,6 +126,7 @@ def save_training_checkpoint(
     episodes: int,
     elapsed_s: float,
     bf16: bool | None,
+    bf16_machine: dict[str, Any] | None = None,
     model: AMAT,
     optimizer: torch.optim.Optimizer,
     value_norm: torch.nn.Module,
@@ -134,15 +135,18 @@ def save_training_checkpoint(
 ) -> Path:
     """Write everything a run needs to continue exactly (atomically): the iteration, episodes and
     training seconds so far (a time budget's LR schedule reads them), the precision "auto" chose
-    (None: not chosen yet; a resumed run keeps it), model, optimiser, value normaliser, the sampling
-    generator and torch's global RNG, and the :class:`~catmip_rl.training.config.TrainConfig` as JSON.
-    ``load_model`` reads the model and its ``amat_config`` from the same file."""
+    (None: not chosen yet) and the machine it was chosen on (``bf16_machine``: a resumed run keeps the
+    choice on the same kind of machine, see :func:`restore_training`), model, optimiser, value
+    normaliser, the sampling generator and torch's global RNG, and the
+    :class:`~catmip_rl.training.config.TrainConfig` as JSON. ``load_model`` reads the model and its
+    ``amat_config`` from the same file."""
     return atomic_torch_save(
         {
             "iteration": iteration,
             "episodes": episodes,
             "elapsed_s": elapsed_s,
             "bf16": bf16,
+            "bf16_machine": bf16_machine,
             "model": model.state_dict(),
             "amat_config": config.amat_config().__dict__,
             "optimizer": optimizer.state_dict(),
@@ -162,18 +166,24 @@ def restore_training(
     value_norm: torch.nn.Module,
     generator: torch.Generator,
     precision: str,
+    machine: dict[str, Any],
 ) -> tuple[int, int, float, bool | None]:
     """Load a checkpoint of :func:`save_training_checkpoint` into freshly built parts (and torch's
     global RNG); returns (iteration, episodes, training seconds) to continue from, and the update's
-    precision the run chose (bf16 or not; None where the run's ``precision`` setting differs from
-    ``precision``: it is chosen again)."""
+    precision the run chose (bf16 or not), kept where the run's ``precision`` setting is ``precision``
+    and it was chosen on a ``machine`` like this one (the device's type, the CPU's native bf16);
+    otherwise None: it is chosen again (a run moved from a GPU to a CPU, or to a CPU without native
+    bf16, where bf16 autocast is emulated and many times slower)."""
     model.load_state_dict(saved["model"])
     optimizer.load_state_dict(saved["optimizer"])
     value_norm.load_state_dict(saved["value_norm"])
     generator.set_state(saved["generator"])
     torch.set_rng_state(saved["torch_rng"])
-    same_precision = json.loads(saved["config"]).get("precision", "fp32") == precision
-    bf16 = saved.get("bf16") if same_precision else None
+    config = json.loads(saved["config"])
+    # checkpoints from before bf16_machine was recorded: the device type their config names
+    chosen_on = saved.get("bf16_machine") or {"device": torch.device(config.get("device", "cpu")).type}
+    same_machine = all(machine.get(k) == v for k, v in chosen_on.items())
+    bf16 = saved.get("bf16") if config.get("precision", "fp32") == precision and same_machine else None
     return saved["iteration"], saved["episodes"], saved.get("elapsed_s", 0.0), bf16
 
 

@@ -83,8 +83,8 @@ def declared_config(fields: Any, path: Path) -> AmatConfig:
 
 _TYPES: dict[str, tuple[type, ...]] = {
     "iteration": (int,), "episodes": (int,), "elapsed_s": (int, float), "bf16": (bool, type(None)),
-    "model": (dict,), "amat_config": (dict,), "optimizer": (dict,), "value_norm": (dict,),
-    "generator": (torch.Tensor,), "torch_rng": (torch.Tensor,), "config": (str,),
+    "bf16_machine": (dict, type(None)), "model": (dict,), "amat_config": (dict,), "optimizer": (dict,),
+    "value_norm": (dict,), "generator": (torch.Tensor,), "torch_rng": (torch.Tensor,), "config": (str,),
 }  # fmt: skip
 _EXTRA_TYPES: dict[str, tuple[type, ...]] = {
     "iteration": (int,), "episodes": (int,), "training_minutes": (int, float),
@@ -95,7 +95,8 @@ _EXTRA_TYPES: dict[str, tuple[type, ...]] = {
 
 def check_training_entries(blob: dict, path: Path) -> None:
     """A training checkpoint's entries of the types :func:`~catmip_rl.checkpoint.save_training_checkpoint`
-    writes (``config``: the training config's JSON object); ``elapsed_s`` and ``bf16`` may be absent."""
+    writes (``config``: the training config's JSON object); ``elapsed_s``, ``bf16`` and ``bf16_machine``
+    may be absent."""
     _check_types(blob, _TYPES, path, "")
     if blob.get("iteration", 0) < 0 or blob.get("episodes", 0) < 0:
         raise CheckpointError(f"{path}: iteration and episodes must be >= 0")

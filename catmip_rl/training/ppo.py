@@ -39,7 +39,7 @@ from catmip_rl.training.gae import SampleBatch
 __all__ = [
     "ppo_loss", "accumulate_gradients", "make_optimizer", "set_lr", "critic_prefix", "loss_kwargs",
     "ppo_update", "lr_factor",
-    "measure_bf16", "choose_bf16", "native_bf16", "use_bf16",
+    "measure_bf16", "choose_bf16", "native_bf16", "precision_machine", "use_bf16",
 ]  # fmt: skip
 
 
@@ -290,6 +290,13 @@ def native_bf16() -> bool:
     except OSError:
         return False
     return any(flag in flags.split() for flag in _NATIVE_FLAGS)
+
+
+def precision_machine(device: str) -> dict[str, Any]:
+    """What a precision choice depends on: the device's type and, on a CPU, whether it has native bf16
+    (a checkpoint records it; a run resumed on another kind of machine chooses again)."""
+    kind = torch.device(device).type
+    return {"device": kind, "native_bf16": native_bf16() if kind == "cpu" else None}
 
 
 def use_bf16(precision: str, device: str) -> bool:

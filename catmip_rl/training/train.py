@@ -37,7 +37,15 @@ from catmip_rl.training.config import TrainConfig
 from catmip_rl.training.gae import ValueNorm, build_batch
 from catmip_rl.training.imitation import PlannerLabeler, RescueLabeler, auxiliary_labeler, warm_start
 from catmip_rl.training.parallel_update import ParallelGradients
-from catmip_rl.training.ppo import choose_bf16, loss_kwargs, lr_factor, make_optimizer, ppo_update, set_lr
+from catmip_rl.training.ppo import (
+    choose_bf16,
+    loss_kwargs,
+    lr_factor,
+    make_optimizer,
+    ppo_update,
+    precision_machine,
+    set_lr,
+)
 from catmip_rl.training.run_dir import (
     RunDirLock,
     check_run,
@@ -97,7 +105,7 @@ class Run:
     iteration: int = 0
     episodes: int = 0
     elapsed: float = 0.0  # seconds of training so far (evaluation excluded): the time budget's clock
-    bf16: bool | None = None  # the update's precision, chosen on the first batch (kept on resume)
+    bf16: bool | None = None  # the update's precision, chosen on the first batch (kept on a like machine)
     parallel: ParallelGradients | None = None  # the update's helper processes, started on the first batch
     init_source: dict | None = None  # where a new run's initial weights came from (init_from)
     labeler: RescueLabeler | PlannerLabeler | None = None  # the auxiliary loss's labels (rescue, anchor)
@@ -121,10 +129,11 @@ class Run:
         self.save(ckpt_dir / f"iter_{self.iteration:06d}.pt")
 
     def save(self, path: Path) -> None:
+        machine = None if self.bf16 is None else precision_machine(self.cfg.device)  # where bf16 was chosen
         save_training_checkpoint(
             path, iteration=self.iteration, episodes=self.episodes, elapsed_s=self.elapsed, bf16=self.bf16,
-            model=self.model, optimizer=self.opt, value_norm=self.value_norm, generator=self.gen,
-            config=self.cfg,
+            bf16_machine=machine, model=self.model, optimizer=self.opt, value_norm=self.value_norm,
+            generator=self.gen, config=self.cfg,
         )  # fmt: skip
 
     def out_of_time(self) -> bool:
@@ -152,7 +161,7 @@ def build_run(cfg: TrainConfig, saved: dict | None = None) -> Run:
     run = Run(cfg, device, model, make_optimizer(model, cfg), ValueNorm(), gen)
     if saved is not None:
         run.iteration, run.episodes, run.elapsed, run.bf16 = restore_training(
-            saved, model, run.opt, run.value_norm, gen, cfg.precision
+            saved, model, run.opt, run.value_norm, gen, cfg.precision, precision_machine(cfg.device)
         )
     elif cfg.init_from:
         run.init_source = load_initial_weights(cfg.init_from, model, run.value_norm)

@@ -157,3 +157,33 @@ def test_a_resumed_run_keeps_the_precision_auto_chose(monkeypatch, tmp_path):
     train(cfg.replace(iterations=2), tmp_path / "r", resume=True, progress=False)
     assert torch.load(tmp_path / "r" / "checkpoints" / "latest.pt", weights_only=False)["bf16"] is True
     assert json.loads((tmp_path / "r" / "precision.json").read_text())["bf16"] is True
+
+
+def test_a_run_resumed_on_another_kind_of_machine_chooses_its_precision_again(monkeypatch, tmp_path):
+    import json
+
+    from catmip_rl.checkpoint import atomic_torch_save
+    from catmip_rl.training import ppo
+    from catmip_rl.training.train import train
+
+    monkeypatch.setattr(ppo, "native_bf16", lambda: True)
+    monkeypatch.setattr(ppo, "measure_bf16", lambda *a, **k: {"fp32_s": 1.0, "bf16_s": 0.5})
+    cfg = make_train_config("tiny", precision="auto", iterations=1, eval_every=0)
+    latest = tmp_path / "r" / "checkpoints" / "latest.pt"
+    train(cfg, tmp_path / "r", progress=False)
+    saved = torch.load(latest, weights_only=False)
+    assert saved["bf16"] is True and saved["bf16_machine"] == {"device": "cpu", "native_bf16": True}
+    # a CPU without native bf16 (emulated: many times slower): "auto" resolves to fp32 there
+    monkeypatch.setattr(ppo, "native_bf16", lambda: False)
+    train(cfg.replace(iterations=2), tmp_path / "r", resume=True, progress=False)
+    saved = torch.load(latest, weights_only=False)
+    assert saved["bf16"] is False and saved["bf16_machine"] == {"device": "cpu", "native_bf16": False}
+    assert json.loads((tmp_path / "r" / "precision.json").read_text())["native_bf16"] is False
+    # a checkpoint from before bf16_machine, its choice made on a GPU: a CPU chooses again (measures)
+    monkeypatch.setattr(ppo, "native_bf16", lambda: True)
+    del saved["bf16_machine"]
+    saved["config"] = json.dumps(json.loads(saved["config"]) | {"device": "cuda"})
+    atomic_torch_save(saved, latest)
+    train(cfg.replace(iterations=3), tmp_path / "r", resume=True, progress=False)
+    assert torch.load(latest, weights_only=False)["bf16"] is True
+    assert json.loads((tmp_path / "r" / "precision.json").read_text())["bf16_s"] == 0.5
