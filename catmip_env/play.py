@@ -43,7 +43,10 @@ class Policy(Protocol):
     * ``one_world_at_a_time = True``: play the maps one after another on a one-world engine, calling
       ``reset()`` before each (a PettingZoo-level policy with memory);
     * ``deterministic: bool``: whether ``act`` plays argmax (True) or samples (False), written on the
-      results' summary (``actions``).
+      results' summary (``actions``);
+    * ``files``: paths of the files its answers depend on (its weights), each written on the results'
+      summary with its SHA-256 (``policy_files``): a resumed evaluation refuses results played before one
+      of them changed.
     """
 
     def act(self, engine: EventEngine) -> np.ndarray:  # (B, N) int goal actions

@@ -272,4 +272,6 @@ def load_policy(path: str | Path, env_config: EnvConfig, deterministic: bool = T
         )
     actor = make_actor(env_config, hidden=meta.get("hidden", 128), pool=pool)
     actor.module[0].module.load_state_dict(state)
-    return TorchRLPolicy(actor, float_maps=True, deterministic=deterministic, per_robot=True)
+    return TorchRLPolicy(
+        actor, float_maps=True, deterministic=deterministic, per_robot=True, files=(str(path),)
+    )

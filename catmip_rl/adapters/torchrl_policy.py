@@ -45,6 +45,7 @@ class TorchRLPolicy:
         float_maps: bool = False,
         deterministic: bool = True,
         per_robot: bool = False,
+        files: tuple[str, ...] = (),
     ) -> None:
         if not isinstance(module, TensorDictModuleBase):
             raise TypeError(f"TorchRLPolicy wraps a TensorDictModule, got {type(module).__name__}")
@@ -52,12 +53,15 @@ class TorchRLPolicy:
         self.float_maps = float_maps
         self.deterministic = deterministic
         self.per_robot = per_robot
+        self.files = tuple(files)  # the weights it was loaded from: their hashes go on the results
 
     def sampled(self, seed: int) -> TorchRLPolicy:
         """The same module with sampled actions (``ExplorationType.RANDOM``), torch's global generator
         seeded with ``seed``: the evaluator plays the maps again with it (the ``sampled_*`` numbers)."""
         torch.manual_seed(seed)
-        return TorchRLPolicy(self.module, self.float_maps, deterministic=False, per_robot=self.per_robot)
+        return TorchRLPolicy(
+            self.module, self.float_maps, deterministic=False, per_robot=self.per_robot, files=self.files
+        )
 
     @staticmethod
     def wraps(obj) -> bool:

@@ -34,7 +34,7 @@ from catmip_env.episode_stats import EpisodeRecords, decision_metrics, episode_m
 from catmip_env.events import EventEngine
 from catmip_env.map_sets import check_maps, map_hash
 from catmip_env.play import episode_columns, play, plays_one_world_at_a_time
-from catmip_rl.evaluation.methods import Method, make_policy, method_source, parse_method
+from catmip_rl.evaluation.methods import Method, make_policy, method_source, parse_method, policy_files
 from catmip_rl.files import atomic_write_csv, atomic_write_text
 
 if TYPE_CHECKING:  # the planners need no torch: an env-only install evaluates them
@@ -254,6 +254,7 @@ def evaluate(
         checkpoint=method.target if method.kind == "amat" else None,
         policy=method.target if method.kind in ("py", "policy") else None,
         source=method_source(method),
+        policy_files=policy_files(policy),
         setting=asdict(setting),
         label=setting.label,
         seed=seed,

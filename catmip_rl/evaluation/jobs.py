@@ -22,7 +22,7 @@ import numpy as np
 from catmip_env.events import EventEngine
 from catmip_env.play import WorldNotSupported
 from catmip_rl.evaluation.evaluate import EvalSetting, evaluate, progress_bar
-from catmip_rl.evaluation.methods import Method, make_policy, method_source
+from catmip_rl.evaluation.methods import Method, changed_files, make_policy, method_source
 from catmip_rl.evaluation.warmup import torch_threads
 from catmip_rl.outputs import check_record
 
@@ -61,6 +61,12 @@ def _done(job: Job) -> dict[str, Any] | None:
         raise ValueError(
             f"{job.out} holds other results ({', '.join(f'{k} {summary.get(k)!r}' for k in differs)}, "
             f"not {', '.join(repr(want[k]) for k in differs)}): give a new output folder"
+        )
+    changed = changed_files(summary.get("policy_files"))
+    if changed:
+        raise ValueError(
+            f"{job.out} holds results played before {changed[0]} changed (its SHA-256 differs): "
+            "give a new output folder"
         )
     check_record(job.out)  # its files one run's (a folder of an older catmip has no record)
     return summary

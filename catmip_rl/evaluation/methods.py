@@ -35,6 +35,8 @@ __all__ = [
     "make_policy",
     "amat_label",
     "method_source",
+    "policy_files",
+    "changed_files",
     "METHOD_HELP",
 ]
 
@@ -145,6 +147,21 @@ def method_source(method: Method) -> dict[str, str] | None:
     else:
         return None
     return {"file": str(path), "sha256": file_sha256(path)}
+
+
+def policy_files(policy: Any) -> list[dict[str, str]] | None:
+    """The files a played policy's answers depend on (its ``files``, :class:`catmip_env.play.Policy`:
+    e.g. a ``py:`` policy's weights), each ``{"file", "sha256"}``; None if it names none."""
+    files = getattr(policy, "files", None)
+    return [{"file": str(f), "sha256": file_sha256(f)} for f in files] if files else None
+
+
+def changed_files(recorded: list[dict[str, str]] | None) -> list[str]:
+    """The files of ``recorded`` (:func:`policy_files`) that are missing or hold other contents now."""
+    return [
+        r["file"] for r in recorded or []
+        if not Path(r["file"]).is_file() or file_sha256(r["file"]) != r["sha256"]
+    ]  # fmt: skip
 
 
 def parse_runs(spec: str) -> list[Method]:

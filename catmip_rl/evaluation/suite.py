@@ -132,6 +132,13 @@ def _training(method: Method) -> dict[str, Any] | None:
     return model_record(method.target)
 
 
+def _files(results: dict[str, list[dict[str, Any]]], k: int) -> list[dict[str, str]] | None:
+    """The files training run ``k`` played from over the settings (its policy's ``files`` with their
+    SHA-256, e.g. a ``py:`` policy's weights for each task), None if its policy names none."""
+    found = {f["file"]: f for res in results.values() for f in res[k]["summary"].get("policy_files") or []}
+    return [found[name] for name in sorted(found)] or None
+
+
 def make_entry(name: str, runs: list[Method], results: dict[str, list[dict[str, Any]]], episodes: int,
                code: str = "", notes: str = "") -> dict[str, Any]:  # fmt: skip
     """The suite entry of method ``name`` (its training ``runs``) from its :func:`~catmip_rl.evaluation.
@@ -155,8 +162,14 @@ def make_entry(name: str, runs: list[Method], results: dict[str, list[dict[str, 
         "method": name,
         "actions": first.get("actions"),
         "runs": [
-            {"kind": m.kind, "target": m.target, "source": method_source(m), "training": _training(m)}
-            for m in runs
+            {
+                "kind": m.kind,
+                "target": m.target,
+                "source": method_source(m),
+                "files": _files(results, k),
+                "training": _training(m),
+            }
+            for k, m in enumerate(runs)
         ],  # fmt: skip
         "seed": SEED,
         "episodes": episodes,

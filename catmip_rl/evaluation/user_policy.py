@@ -259,6 +259,9 @@ class WrappedUserPolicy:
         """Expose the optional members ``policy`` has (and only those: the evaluator asks by name)."""
         if isinstance(getattr(policy, "deterministic", None), bool):  # argmax or sampled, on the summary
             self.deterministic = policy.deterministic
+        files = getattr(policy, "files", None)
+        if files is not None:  # the files its answers depend on: hashed on the summary
+            self.files = self._files(files)
         if callable(getattr(policy, "start_episodes", None)):
             what = "start_episodes(num_worlds, num_robots)"
             self.start_episodes = lambda b, n: self._call(policy.start_episodes, what, b, n)
@@ -268,6 +271,15 @@ class WrappedUserPolicy:
             self.sampled = lambda seed: wrap_user_policy(
                 self._call(policy.sampled, "sampled(seed)", seed), self.name
             )
+
+    def _files(self, files: Any) -> tuple[str, ...]:
+        """The policy's ``files`` as paths of existing files; PolicyError naming what is not one."""
+        if isinstance(files, (str, Path)) or not isinstance(files, (list, tuple)):
+            raise PolicyError(f"policy {self.name}: files must be a list of paths, got {files!r}")
+        for f in files:
+            if not isinstance(f, (str, Path)) or not Path(f).expanduser().is_file():
+                raise PolicyError(f"policy {self.name}: files names {f!r}, which is not a file")
+        return tuple(str(Path(f).expanduser()) for f in files)
 
 
 class CheckedEnginePolicy(WrappedUserPolicy):

@@ -113,6 +113,7 @@ def test_a_saved_policy_loads_as_the_same_actor(tmp_path):
     for a, b in zip(actor.parameters(), policy.module.parameters()):
         assert torch.equal(a, b)
     assert "make_policy" in (tmp_path / "policy.py").read_text()
+    assert policy.files == policy.sampled(0).files == (str(tmp_path / "policy.pt"),)  # hashed on results
     with pytest.raises(WorldNotSupported, match="was trained for"):  # bench paper leaves that panel out
         load_policy(tmp_path / "policy.pt", make_config("task2"))
     (tmp_path / "policy.pt").write_bytes(b"junk")

@@ -4,6 +4,7 @@ policy reports what AMAT reports. And an env-only install plays the planners."""
 
 from __future__ import annotations
 
+import hashlib
 import subprocess
 import sys
 
@@ -136,6 +137,34 @@ def test_a_crashing_hook_is_a_policy_error():
 
     with pytest.raises(PolicyError, match=r"policy crash: sampled\(seed\) raised RuntimeError: no sampler"):
         evaluate("crash", SETTING, episodes=2, seed=0, policy=Crash())
+
+
+def test_the_files_a_policy_reads_are_hashed_on_the_summary(tmp_path):
+    weights = tmp_path / "weights.bin"
+    weights.write_bytes(b"first weights")
+
+    class Loaded(Counting):
+        files = [weights]
+
+    res = evaluate("loaded", SETTING, episodes=2, seed=0, policy=Loaded(), sampled_too=False)
+    assert res.summary["policy_files"] == [
+        {"file": str(weights), "sha256": hashlib.sha256(b"first weights").hexdigest()}
+    ]
+    assert evaluate("plain", SETTING, episodes=2, seed=0, policy=Counting()).summary["policy_files"] is None
+
+
+@pytest.mark.parametrize(
+    ("files", "message"),
+    [("weights.bin", "files must be a list of paths"), (["missing.bin"], "files names 'missing.bin'")],
+)
+def test_bad_files_are_one_line_naming_them(files, message):
+    class Bad(Counting):
+        pass
+
+    Bad.files = files
+    with pytest.raises(PolicyError, match="policy bad: ") as err:
+        evaluate("bad", SETTING, episodes=2, seed=0, policy=Bad())
+    assert message in str(err.value)
 
 
 ENV_ONLY = """

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import textwrap
+from hashlib import sha256
 
 import pytest
 
@@ -16,8 +17,11 @@ from catmip_rl.evaluation.suite import SETTINGS, run_suite
 
 POLICY = textwrap.dedent(
     """
+    from pathlib import Path
+
     class FirstAllowed:
         deterministic = True
+        files = [Path(__file__).with_name("weights.bin")]  # what a learned policy would load
 
         def act(self, engine):
             return engine.masks.argmax(-1)
@@ -32,6 +36,7 @@ POLICY = textwrap.dedent(
 def suite(tmp_path_factory):
     out = tmp_path_factory.mktemp("suite")
     (out / "mine.py").write_text(POLICY)
+    (out / "weights.bin").write_bytes(b"trained")
     mine = f"mine=py:{out / 'mine.py'}:make_policy"
     about = {"code": {"mine": "https://example.org/mine"}, "notes": {"mine": "first allowed goal"}}
     paths = run_suite(["nearest", mine], out / "s", episodes=2, progress=False, **about)
@@ -44,6 +49,9 @@ def test_a_users_policy_file_gives_an_entry_the_leaderboard_accepts(suite, capsy
     entry = json.loads(paths[1].read_text())
     assert set(entry["settings"]) == {st.label for st in SETTINGS} and entry["episodes"] == 2
     assert entry["runs"][0]["source"]["sha256"] and entry["actions"] == "argmax"
+    assert entry["runs"][0]["files"] == [
+        {"file": str(out / "weights.bin"), "sha256": sha256(b"trained").hexdigest()}
+    ]
     assert all(
         len(s["rescue_tick"]) == 1 and len(s["rescue_tick"][0]) == 2 for s in entry["settings"].values()
     )
@@ -78,6 +86,12 @@ def test_an_interrupted_suite_resumes_without_playing_again(suite, monkeypatch):
     assert (kept["code"], kept["notes"]) == ("https://example.org/mine", "first allowed goal")
     with pytest.raises(ValueError, match="holds other results"):  # the same folder, another method
         run_suite(["nearest=rrt"], out / "s", episodes=2, progress=False)
+    (out / "weights.bin").write_bytes(b"trained again")  # the same policy file, new weights
+    try:
+        with pytest.raises(ValueError, match=r"played before .*weights\.bin changed"):
+            run_suite([f"mine=py:{out / 'mine.py'}:make_policy"], out / "s", episodes=2, progress=False)
+    finally:
+        (out / "weights.bin").write_bytes(b"trained")
 
 
 @pytest.mark.parametrize(
