@@ -37,6 +37,7 @@ from catmip_rl.evaluation.evaluate import EvalSetting
 from catmip_rl.evaluation.jobs import Job, check_methods, default_threads, map_jobs, run_dir
 from catmip_rl.evaluation.methods import Method, method_source, parse_runs
 from catmip_rl.evaluation.stats import CONFIDENCE, success_interval
+from catmip_rl.evaluation.user_policy import parse_policy_source
 from catmip_rl.files import atomic_write_text
 
 __all__ = [
@@ -136,7 +137,26 @@ def _files(results: dict[str, list[dict[str, Any]]], k: int) -> list[dict[str, s
     """The files training run ``k`` played from over the settings (its policy's ``files`` with their
     SHA-256, e.g. a ``py:`` policy's weights for each task), None if its policy names none."""
     found = {f["file"]: f for res in results.values() for f in res[k]["summary"].get("policy_files") or []}
-    return [found[name] for name in sorted(found)] or None
+    return [_shown_file(found[name]) for name in sorted(found)] or None
+
+
+def _shown(path: str) -> str:
+    """``path`` relative to the working directory where it lies below it (``run-records/x/policy.pt``,
+    as a clone of the entry's repository names it), else as given: an entry names no home folders."""
+    try:
+        return str(Path(path).relative_to(Path.cwd()))
+    except ValueError:
+        return path
+
+
+def _shown_file(record: dict[str, str] | None) -> dict[str, str] | None:
+    return record and {**record, "file": _shown(record["file"])}
+
+
+def _shown_target(method: Method) -> str:
+    if method.kind != "py" or not (src := parse_policy_source(method.target)).is_file:
+        return method.target
+    return f"py:{_shown(src.source)}:{src.factory}"
 
 
 def make_entry(name: str, runs: list[Method], results: dict[str, list[dict[str, Any]]], episodes: int,
@@ -164,8 +184,8 @@ def make_entry(name: str, runs: list[Method], results: dict[str, list[dict[str, 
         "runs": [
             {
                 "kind": m.kind,
-                "target": m.target,
-                "source": method_source(m),
+                "target": _shown_target(m),
+                "source": _shown_file(method_source(m)),
                 "files": _files(results, k),
                 "training": _training(m),
             }

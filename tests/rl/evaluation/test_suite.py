@@ -94,6 +94,18 @@ def test_an_interrupted_suite_resumes_without_playing_again(suite, monkeypatch):
         (out / "weights.bin").write_bytes(b"trained")
 
 
+def test_an_entry_names_the_files_below_the_working_folder_relative_to_it(suite, monkeypatch):
+    out, _paths = suite
+    monkeypatch.chdir(out)  # as a clone's root: the entry holds no home folders
+    monkeypatch.setattr(jobs, "evaluate", None)  # complete runs: read back, not played
+    entry = json.loads(
+        run_suite(["mine=py:mine.py:make_policy"], "s", episodes=2, progress=False)[0].read_text()
+    )
+    run = entry["runs"][0]
+    assert run["target"] == "py:mine.py:make_policy" and run["source"]["file"] == "mine.py"
+    assert run["files"] == [{"file": "weights.bin", "sha256": sha256(b"trained").hexdigest()}]
+
+
 @pytest.mark.parametrize(
     ("tamper", "problem"),
     [
