@@ -32,7 +32,8 @@ __all__ = ["Job", "run_one", "map_jobs", "check_methods", "run_dir", "default_th
 @dataclass(frozen=True)
 class Job:
     """One evaluation of a grid: ``method`` on ``episodes`` maps of ``seed`` in ``setting``, its files
-    written to ``out`` with ``threads`` torch threads. ``resume``: a folder that already holds this job's
+    written to ``out`` with ``threads`` torch threads. ``sampled``: a learned policy plays the maps
+    again with sampled actions (its ``sampled_*`` numbers; ``evaluate``'s ``sampled_too``). ``resume``: a folder that already holds this job's
     complete results (their ``summary.json``: the same method, file, setting, seed and maps) is read back
     instead of played again; other results there are an error."""
 
@@ -44,6 +45,7 @@ class Job:
     threads: int = 1
     allow_other_maps: bool = False
     resume: bool = False
+    sampled: bool = True
 
 
 def _done(job: Job) -> dict[str, Any] | None:
@@ -88,8 +90,9 @@ def run_one(job: Job) -> dict[str, Any]:
     else:
         torch_threads(job.threads)
         result = evaluate(
-            job.method, job.setting, job.episodes, job.seed, allow_other_maps=job.allow_other_maps
-        )
+            job.method, job.setting, job.episodes, job.seed, sampled_too=job.sampled,
+            allow_other_maps=job.allow_other_maps,
+        )  # fmt: skip
         result.write(job.out)
         summary, episodes, curve = result.summary, result.episodes, result.curve.tolist()
         sampled = None if result.sampled_curve is None else result.sampled_curve.tolist()

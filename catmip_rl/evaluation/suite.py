@@ -238,7 +238,7 @@ def run_suite(
     out = Path(out)
     tasks = [
         Job(m, st, episodes, SEED, str(run_dir(out / "runs" / st.label / m.name, k, len(runs))), threads,
-            resume=True)
+            resume=True, sampled=False)  # an entry is the argmax (or the policy's own) actions: one pass
         for runs in groups for k, m in enumerate(runs) for st in SETTINGS
     ]  # fmt: skip
     results = iter(map_jobs(tasks, jobs, progress, f"suite {SUITE}"))

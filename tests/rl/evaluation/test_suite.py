@@ -26,6 +26,9 @@ POLICY = textwrap.dedent(
         def act(self, engine):
             return engine.masks.argmax(-1)
 
+        def sampled(self, seed):  # a learned policy's sampled variant: the suite plays no such pass
+            raise AssertionError("the suite played a sampled pass")
+
     def make_policy(env_config, seed):
         return FirstAllowed()
     """
@@ -56,6 +59,8 @@ def test_a_users_policy_file_gives_an_entry_the_leaderboard_accepts(suite, capsy
         len(s["rescue_tick"]) == 1 and len(s["rescue_tick"][0]) == 2 for s in entry["settings"].values()
     )
     assert entry["machine"]["cpu_capability"] in ("AVX512", "AVX2", "DEFAULT")
+    summary = json.loads((out / "s" / "runs" / SETTINGS[0].label / "mine" / "summary.json").read_text())
+    assert summary["sampled_pass"] is False and "sampled_success_by_100" not in summary
     code = main(
         ["leaderboard", "--entries", str(out / "s" / "entries"), "--episodes", "2", "--out", str(out / "lb")]
     )
