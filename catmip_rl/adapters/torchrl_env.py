@@ -20,7 +20,7 @@ from catmip_env.events import EventEngine
 from catmip_rl.adapters import keys as K
 from catmip_rl.amat.inputs import one_hot_class
 
-__all__ = ["CatmipEnv", "engine_observation", "float_observation_transform"]
+__all__ = ["CatmipEnv", "engine_observation", "deciding_observation", "float_observation_transform"]
 
 _DONE_NAMES = ("done", "terminated", "truncated")
 
@@ -239,6 +239,26 @@ def engine_observation(engine: EventEngine, device: str | torch.device = "cpu") 
     )
     state = torch.from_numpy(engine.world.ground_truth(None))
     return TensorDict({K.ROBOTS: robots, K.STATE: state}, batch_size=(engine.num_worlds,)).to(device)
+
+
+def deciding_observation(engine: EventEngine, device: str | torch.device = "cpu") -> TensorDict:
+    """The deciding robots' rows of :func:`engine_observation`, batch ``(M,)`` in ``engine.active``'s
+    order, without the ground-truth ``"state"``: what a network that maps each robot on its own reads
+    (:class:`~catmip_rl.adapters.torchrl_policy.TorchRLPolicy` with ``per_robot=True``), without
+    copying the busy robots' maps."""
+    active = engine.active
+    m = int(active.sum())
+    robots = TensorDict(
+        {
+            "global_map": torch.from_numpy(engine.obs_global[active]),
+            "local_map": torch.from_numpy(engine.obs_local[active]),
+            "agent_class": one_hot_class(engine.state.cls[active], engine.cfg.num_classes),
+            "action_mask": torch.from_numpy(engine.masks[active].astype(np.bool_)),
+            "active": torch.ones(m, dtype=torch.bool),
+        },
+        batch_size=(m,),
+    )
+    return TensorDict({K.ROBOTS: robots}, batch_size=(m,)).to(device)
 
 
 def float_observation_transform(

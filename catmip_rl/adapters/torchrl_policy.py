@@ -14,21 +14,23 @@ Each call builds the observation ``CatmipEnv`` would give for the engine's curre
 OBS_SCALE``), for a policy trained behind that transform; AMAT's own actor reads the uint8 maps.
 Actions are the distribution's mode (``deterministic=True``, the protocol's argmax) or samples.
 ``per_robot=True`` is for a module that maps each robot's observation on its own (no attention across
-robots or worlds, as the MAPPO / IPPO CNN): it is then fed the deciding robots alone, a ``(M,)`` batch —
-on Task 3 about a quarter of the rows, the same argmax actions.
+robots or worlds, as the MAPPO / IPPO CNN): it is then fed the deciding robots alone, a ``(M,)`` batch
+(:func:`~catmip_rl.adapters.torchrl_env.deciding_observation`) — on Task 3 about a quarter of the rows,
+the same argmax actions.
 """
 
 from __future__ import annotations
 
+import numpy as np
 import torch
-from tensordict import TensorDict, TensorDictBase
+from tensordict import TensorDictBase
 from tensordict.nn import TensorDictModuleBase
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
 from catmip_env.constants import OBS_SCALE
 from catmip_env.events import EventEngine
 from catmip_rl.adapters import keys as K
-from catmip_rl.adapters.torchrl_env import engine_observation
+from catmip_rl.adapters.torchrl_env import deciding_observation, engine_observation
 
 __all__ = ["TorchRLPolicy"]
 
@@ -85,18 +87,15 @@ class TorchRLPolicy:
 
     @torch.no_grad()
     def act(self, engine: EventEngine):
-        td = engine_observation(engine, self._device())
-        active = td.get(K.ACTIVE) if self.per_robot else None
-        if active is not None:  # the deciding robots alone, as a (M,) batch; busy robots' entries are ignored
-            if not active.any():
-                return torch.zeros(active.shape, dtype=torch.long).numpy()
-            deciding = td.get(K.ROBOTS)[active]
-            td = TensorDict({K.ROBOTS: deciding}, batch_size=deciding.batch_size)
+        if self.per_robot:  # the deciding robots alone, as a (M,) batch; busy robots' entries are ignored
+            active = engine.active
+            actions = np.zeros(active.shape, dtype=np.int64)
+            if active.any():
+                actions[active] = self._actions(deciding_observation(engine, self._device()))
+            return actions
+        return self._actions(engine_observation(engine, self._device()))
+
+    def _actions(self, td: TensorDictBase) -> np.ndarray:
         kind = ExplorationType.DETERMINISTIC if self.deterministic else ExplorationType.RANDOM
         with set_exploration_type(kind):
-            action = self.module(self._scaled(td)).get(K.ACTION).cpu()
-        if active is None:
-            return action.numpy()
-        actions = torch.zeros(active.shape, dtype=torch.long)
-        actions[active.cpu()] = action
-        return actions.numpy()
+            return self.module(self._scaled(td)).get(K.ACTION).cpu().numpy()

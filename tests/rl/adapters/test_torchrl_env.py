@@ -127,3 +127,27 @@ def test_pettingzoo_wrapper_keys_are_double_nested():
     assert env.group_map == {"robot": ["robot_0", "robot_1"]}
     assert td["robot", "observation", "observation", "global_map"].dtype == torch.float32
     assert td["robot", "action_mask"].shape == (3, 2, 49) and ("robot", "info", "active") in td.keys(True)
+
+
+def test_the_deciding_observation_is_the_active_rows_of_the_event_observation():
+    import numpy as np
+
+    from catmip_env import make_config
+    from catmip_env.events import EventEngine
+    from catmip_rl.adapters.torchrl_env import deciding_observation, engine_observation
+
+    engine = EventEngine(make_config("task3"), num_worlds=3, seed=5)  # six robots: some busy at an event
+    engine.reset()
+    rng = np.random.default_rng(0)
+    partial = 0
+    for _ in range(12):
+        active = torch.from_numpy(engine.active)
+        full = engine_observation(engine).get(K.ROBOTS)[active]
+        rows = deciding_observation(engine).get(K.ROBOTS)
+        assert rows.batch_size == (int(active.sum()),) and set(rows.keys()) == set(full.keys())
+        for key in full.keys():
+            assert torch.equal(rows.get(key), full.get(key)), key
+        partial += 0 < active.sum() < active.numel()
+        masks = engine.masks
+        engine.step(np.array([[rng.choice(np.flatnonzero(m)) for m in world] for world in masks]))
+    assert partial  # the point of it: events where only some robots decide
