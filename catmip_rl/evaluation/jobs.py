@@ -33,9 +33,10 @@ __all__ = ["Job", "run_one", "map_jobs", "check_methods", "run_dir", "default_th
 class Job:
     """One evaluation of a grid: ``method`` on ``episodes`` maps of ``seed`` in ``setting``, its files
     written to ``out`` with ``threads`` torch threads. ``sampled``: a learned policy plays the maps
-    again with sampled actions (its ``sampled_*`` numbers; ``evaluate``'s ``sampled_too``). ``resume``: a folder that already holds this job's
-    complete results (their ``summary.json``: the same method, file, setting, seed and maps) is read back
-    instead of played again; other results there are an error."""
+    again with sampled actions (its ``sampled_*`` numbers; ``evaluate``'s ``sampled_too``).
+    ``resume``: a folder that already holds this job's complete results (their ``summary.json``: the
+    same method, file, setting, seed and maps) is read back instead of played again; other results
+    there are an error."""
 
     method: Method
     setting: EvalSetting
