@@ -226,18 +226,8 @@ def engine_observation(engine: EventEngine, device: str | torch.device = "cpu") 
     """The observation :class:`CatmipEnv` gives for ``engine``'s current event, batch ``(B,)``: the
     ``"robots"`` group (maps, class one-hot, action mask, active) and the ground-truth ``"state"``; also
     what :class:`~catmip_rl.adapters.torchrl_policy.TorchRLPolicy` feeds a TorchRL policy."""
-    st = engine.state
-    robots = TensorDict(
-        {
-            "global_map": torch.from_numpy(engine.obs_global.copy()),
-            "local_map": torch.from_numpy(engine.obs_local.copy()),
-            "agent_class": one_hot_class(st.cls, engine.cfg.num_classes),
-            "action_mask": torch.from_numpy(engine.masks.astype(np.bool_)),
-            "active": torch.from_numpy(engine.active.copy()),
-        },
-        batch_size=(engine.num_worlds, engine.num_robots),
-    )
     state = torch.from_numpy(engine.world.ground_truth(None))
+    robots = _robot_rows(engine, None)
     return TensorDict({K.ROBOTS: robots, K.STATE: state}, batch_size=(engine.num_worlds,)).to(device)
 
 
@@ -246,19 +236,25 @@ def deciding_observation(engine: EventEngine, device: str | torch.device = "cpu"
     order, without the ground-truth ``"state"``: what a network that maps each robot on its own reads
     (:class:`~catmip_rl.adapters.torchrl_policy.TorchRLPolicy` with ``per_robot=True``), without
     copying the busy robots' maps."""
-    active = engine.active
-    m = int(active.sum())
-    robots = TensorDict(
+    robots = _robot_rows(engine, engine.active)
+    return TensorDict({K.ROBOTS: robots}, batch_size=robots.batch_size).to(device)
+
+
+def _robot_rows(engine: EventEngine, rows: np.ndarray | None) -> TensorDict:
+    """The ``"robots"`` group, copied from the engine's arrays: of every robot, batch ``(B, N)``
+    (``rows`` None), or of the robots of the ``(B, N)`` bool mask ``rows``, batch ``(M,)``."""
+    pick = (lambda a: a.copy()) if rows is None else (lambda a: a[rows])  # a mask's index copies
+    batch = (engine.num_worlds, engine.num_robots) if rows is None else (int(rows.sum()),)
+    return TensorDict(
         {
-            "global_map": torch.from_numpy(engine.obs_global[active]),
-            "local_map": torch.from_numpy(engine.obs_local[active]),
-            "agent_class": one_hot_class(engine.state.cls[active], engine.cfg.num_classes),
-            "action_mask": torch.from_numpy(engine.masks[active].astype(np.bool_)),
-            "active": torch.ones(m, dtype=torch.bool),
+            "global_map": torch.from_numpy(pick(engine.obs_global)),
+            "local_map": torch.from_numpy(pick(engine.obs_local)),
+            "agent_class": one_hot_class(pick(engine.state.cls), engine.cfg.num_classes),
+            "action_mask": torch.from_numpy(pick(engine.masks).astype(np.bool_)),
+            "active": torch.from_numpy(pick(engine.active)),
         },
-        batch_size=(m,),
+        batch_size=batch,
     )
-    return TensorDict({K.ROBOTS: robots}, batch_size=(m,)).to(device)
 
 
 def float_observation_transform(
