@@ -218,16 +218,19 @@ def _suite(args: argparse.Namespace) -> int:
 
 
 def _leaderboard(args: argparse.Namespace) -> int:
-    from catmip_rl.evaluation.leaderboard import render_leaderboard
+    from catmip_rl.evaluation.leaderboard import paired_names, render_leaderboard
     from catmip_rl.files import check_new_file
     from catmip_rl.outputs import output_folder
 
+    names = ["leaderboard.md", "leaderboard.png", *(paired_names(args.vs) if args.vs else ())]
     with output_folder(args.out, "--out", keep=True):  # the README and entries beside stay
-        for name in ("leaderboard.md", "leaderboard.png"):  # checked once held: no writer since
+        for name in names:  # checked once held: no writer since
             check_new_file(Path(args.out) / name, "--out", force=args.force)
-        md, png = render_leaderboard(args.entries, args.out, args.episodes)
-    print(md.read_text().split("\n\n", 2)[2].rstrip())  # the table
-    print(f"wrote {md}, {png}")
+        paths = render_leaderboard(args.entries, args.out, args.episodes, args.vs)
+    for path in paths:
+        if path.suffix == ".md":
+            print(path.read_text().split("\n\n", 2)[2].rstrip())  # the table
+    print("wrote " + ", ".join(str(p) for p in paths))
     return 0
 
 

@@ -271,13 +271,16 @@ def add_leaderboard(sub) -> None:
         "leaderboard", help="check suite entries and rank them (Markdown + PNG)", formatter_class=Formatter,
         description="Check every entry (*.json) in --entries against the suite (format, every setting, the "
         "frozen maps, numbers recomputed from its rescue ticks) and write OUT/leaderboard.md and "
-        "OUT/leaderboard.png; a refused entry is one line naming its file.",
+        "OUT/leaderboard.png; a refused entry is one line naming its file. --vs METHOD also writes "
+        "OUT/vs_METHOD.md / .csv: every other entry against METHOD, setting by setting, paired on the "
+        "same maps with 95 % CIs.",
     )  # fmt: skip
     lb.add_argument("--entries", default="leaderboard/entries", help="folder of entry files")
     lb.add_argument("--episodes", type=POSITIVE_INT, default=EPISODES,
                     help="maps per setting of every entry (the suite's; fewer: previews)")  # fmt: skip
     lb.add_argument("--out", default="out/leaderboard", help="folder for leaderboard.md and leaderboard.png")
-    lb.add_argument("--force", action="store_true", help="replace an existing leaderboard.md / .png in --out")
+    lb.add_argument("--force", action="store_true", help="replace the files it would write in --out")
+    lb.add_argument("--vs", metavar="METHOD", help="an entry's method: pair every other entry with it")
     lb.set_defaults(name="leaderboard")
 
 

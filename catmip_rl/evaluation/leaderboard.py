@@ -6,12 +6,16 @@ and no other, its maps' digest equal to the frozen maps' (``catmip_env/frozen_ma
 rescue ticks per training run and map, and every number it states equal to the number recomputed from
 those ticks. The table's numbers and intervals are the leaderboard's own recomputation, not the
 entry's. A refused entry is one line naming its file and the first problem (:class:`EntryError`).
+
+Every entry played the same maps, so any two compare map by map: :func:`paired_rows` (``catmip
+leaderboard --vs METHOD``) gives each entry's difference from one reference in every setting.
 """
 
 from __future__ import annotations
 
 import json
 import math
+import re
 from pathlib import Path
 from typing import Any
 
@@ -19,6 +23,7 @@ import numpy as np
 
 from catmip_env.files import atomic_path
 from catmip_rl.evaluation.evaluate import EvalSetting
+from catmip_rl.evaluation.stats import shared_maps_cis
 from catmip_rl.evaluation.suite import (
     BY_TICK,
     ENTRY_FORMAT,
@@ -33,7 +38,10 @@ from catmip_rl.evaluation.suite import (
 )
 from catmip_rl.files import atomic_write_text
 
-__all__ = ["EntryError", "check_entry", "load_entries", "leaderboard_rows", "render_leaderboard"]
+__all__ = [
+    "EntryError", "check_entry", "load_entries", "leaderboard_rows", "paired_rows", "paired_names",
+    "render_leaderboard",
+]  # fmt: skip
 
 SHORT = {"full": "full", "4": "σ4", "2": "σ2"}  # column headings: T2 σ2 +n
 
@@ -68,10 +76,11 @@ def _same(stated: Any, recomputed: float | None) -> bool:
 
 
 def check_entry(entry: Any, episodes: int = EPISODES) -> dict[str, Any]:
-    """The leaderboard's numbers of ``entry`` (aggregate and per setting, recomputed from its ticks);
-    ValueError naming the first thing that makes it no entry of this suite."""
+    """The leaderboard's numbers of ``entry`` (aggregate and per setting, recomputed from its ticks, and
+    ``success``: per setting whether each run rescued each map by tick 100, (runs, maps)); ValueError
+    naming the first thing that makes it no entry of this suite."""
     _check_header(entry, episodes)
-    numbers, success = {}, []
+    numbers, success = {}, {}
     for st in SETTINGS:
         ticks, horizon = _setting_ticks(entry, st, episodes)
         numbers[st.label] = setting_numbers(ticks, horizon, intervals=False)  # the table shows the means
@@ -82,11 +91,11 @@ def check_entry(entry: Any, episodes: int = EPISODES) -> dict[str, Any]:
                     f"{st.label}: {key} {stated.get(key)!r} is not what its rescue ticks give "
                     f"({numbers[st.label][key]!r})"
                 )
-        success.append(rescued_by_100(ticks, horizon))
-    iqm, low, high = iqm_interval(success)
+        success[st.label] = rescued_by_100(ticks, horizon)
+    iqm, low, high = iqm_interval(list(success.values()))
     if not _same((entry.get("aggregate") or {}).get("iqm_success_by_100"), iqm):
         raise ValueError(f"aggregate iqm_success_by_100 is not what its rescue ticks give ({iqm!r})")
-    return {"iqm": iqm, "iqm_ci": [low, high], "settings": numbers}
+    return {"iqm": iqm, "iqm_ci": [low, high], "settings": numbers, "success": success}
 
 
 def _check_header(entry: Any, episodes: int) -> None:
@@ -169,6 +178,66 @@ def leaderboard_rows(entries: list[dict[str, Any]]) -> list[dict[str, Any]]:
     return sorted(rows, key=lambda r: -r["iqm"])
 
 
+def paired_rows(entries: list[dict[str, Any]], vs: str) -> list[dict[str, Any]]:
+    """Every entry but ``vs`` against the entry of method ``vs`` on the same maps, in the leaderboard's
+    order: per setting the difference in success by tick 100 (its runs' success on a map less the
+    reference's mean over its runs on that map) with a 95 % CI over the maps and the entry's training
+    runs (:func:`~catmip_rl.evaluation.stats.shared_maps_cis`), and how many settings' intervals lie
+    above and below 0. :class:`EntryError` if no entry is ``vs``."""
+    by_name = {e["method"]: e for e in entries}
+    if vs not in by_name:
+        raise EntryError(f"--vs {vs!r} is no entry's method; the entries are {sorted(by_name)}")
+    reference = {label: s.mean(axis=0) for label, s in by_name[vs]["checked"]["success"].items()}
+    others = leaderboard_rows([e for e in entries if e["method"] != vs])
+    diffs = [
+        by_name[row["method"]]["checked"]["success"][st.label] - reference[st.label]
+        for row in others for st in SETTINGS
+    ]  # fmt: skip
+    intervals = iter(zip(diffs, shared_maps_cis(diffs)))  # every entry played the same maps
+    rows = []
+    for row in others:
+        out = {"method": row["method"], "runs": row["runs"], "ahead": 0, "behind": 0}
+        for st in SETTINGS:
+            diff, (low, high) = next(intervals)
+            out[st.label] = (float(diff.mean()), low, high)
+            out["ahead"] += low > 0
+            out["behind"] += high < 0
+        rows.append(out)
+    return rows
+
+
+def _paired_markdown(rows: list[dict[str, Any]], vs: str, episodes: int) -> str:
+    head = ["method", "runs", "ahead / behind", *(_short(s.label) for s in SETTINGS)]
+    lines = [
+        f"# CATMiP suite {SUITE}: each method against {vs}",
+        "",
+        f"Success by tick 100 less {vs}'s on the same {episodes} held-out maps (seed {SEED}) per setting, "
+        "with a 95 % CI over the maps and the method's training runs (the reference's runs averaged per "
+        "map); bold where the interval excludes 0. Ahead / behind: the settings whose interval lies above "
+        "/ below 0. Recomputed from the entries' rescue ticks (`catmip leaderboard --vs`).",
+        "",
+        "| " + " | ".join(head) + " |",
+        "|" + "---|" * len(head),
+    ]
+    for r in rows:
+        cells = [r["method"], str(r["runs"]), f"{r['ahead']} / {r['behind']}"]
+        for st in SETTINGS:
+            diff, low, high = r[st.label]
+            cell = f"{diff:+.3f} [{low:+.3f}, {high:+.3f}]"
+            cells.append(f"**{cell}**" if low > 0 or high < 0 else cell)
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def _paired_csv(rows: list[dict[str, Any]], vs: str) -> str:
+    lines = ["method,vs,runs,setting,diff_success_by_100,ci_low,ci_high"]
+    for r in rows:
+        for st in SETTINGS:
+            diff, low, high = r[st.label]
+            lines.append(f"{r['method']},{vs},{r['runs']},{st.label},{diff:.6f},{low:.6f},{high:.6f}")
+    return "\n".join(lines) + "\n"
+
+
 def _markdown(rows: list[dict[str, Any]], episodes: int) -> str:
     head = ["rank", "method", "runs", "actions", "IQM by tick 100 [95 % CI]"]
     head += [_short(s.label) for s in SETTINGS]
@@ -226,11 +295,29 @@ def _figure(rows: list[dict[str, Any]], path: Path, episodes: int) -> Path:
     return path
 
 
-def render_leaderboard(folder: str | Path, out: str | Path, episodes: int = EPISODES) -> tuple[Path, Path]:
-    """Check every entry in ``folder`` and write ``out/leaderboard.md`` and ``out/leaderboard.png``."""
-    rows = leaderboard_rows(load_entries(folder, episodes))
+def paired_names(vs: str) -> tuple[str, str]:
+    """The file names of the comparison with ``vs`` (``vs_NAME.md`` and ``.csv``)."""
+    stem = "vs_" + re.sub(r"[^A-Za-z0-9_.-]+", "_", vs)
+    return f"{stem}.md", f"{stem}.csv"
+
+
+def render_leaderboard(
+    folder: str | Path, out: str | Path, episodes: int = EPISODES, vs: str | None = None
+) -> list[Path]:
+    """Check every entry in ``folder`` and write ``out/leaderboard.md`` and ``out/leaderboard.png`` and,
+    given ``vs``, every other entry against it (:func:`paired_rows`) to ``out/vs_NAME.md`` / ``.csv``;
+    returns the files' paths. Nothing is written unless every entry is accepted and ``vs`` is one."""
+    entries = load_entries(folder, episodes)
+    rows = leaderboard_rows(entries)
+    paired = paired_rows(entries, vs) if vs is not None else None
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     md = out / "leaderboard.md"
     atomic_write_text(md, _markdown(rows, episodes))
-    return md, _figure(rows, out / "leaderboard.png", episodes)
+    paths = [md, _figure(rows, out / "leaderboard.png", episodes)]
+    if paired is not None:
+        md_name, csv_name = paired_names(vs)
+        atomic_write_text(out / md_name, _paired_markdown(paired, vs, episodes))
+        atomic_write_text(out / csv_name, _paired_csv(paired, vs))
+        paths += [out / md_name, out / csv_name]
+    return paths

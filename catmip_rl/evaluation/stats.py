@@ -7,7 +7,8 @@ from __future__ import annotations
 import numpy as np
 
 __all__ = [
-    "CONFIDENCE", "paired_difference", "mcnemar_p", "runs_and_maps_ci", "success_interval", "curve_band",
+    "CONFIDENCE", "paired_difference", "mcnemar_p", "runs_and_maps_ci", "shared_maps_cis", "success_interval",
+    "curve_band",
 ]  # fmt: skip
 
 CONFIDENCE = 0.95
@@ -60,6 +61,26 @@ def runs_and_maps_ci(success: np.ndarray, seed: int = 0) -> tuple[float, float]:
         means[k : k + n] = success[runs[:, :, None], maps[:, None, :]].mean(axis=(1, 2))
     low, high = np.quantile(means, [(1 - CONFIDENCE) / 2, (1 + CONFIDENCE) / 2])
     return float(low), float(high)
+
+
+def shared_maps_cis(arrays: list[np.ndarray], seed: int = 0) -> list[tuple[float, float]]:
+    """:func:`runs_and_maps_ci` of every (runs, maps) array of ``arrays``, all over the same maps, from one
+    set of map resamples shared by all: each resample is a row of counts per map, so every run's
+    resampled mean is one matrix product instead of a gather (a leaderboard's 150 intervals in about a
+    second rather than 20)."""
+    rng = np.random.default_rng(seed)
+    e = arrays[0].shape[1]
+    drawn = rng.integers(e, size=(RESAMPLES, e)) + e * np.arange(RESAMPLES)[:, None]
+    counts = np.bincount(drawn.ravel(), minlength=RESAMPLES * e).reshape(RESAMPLES, e).astype(np.float32)
+    intervals = []
+    for a in arrays:
+        a = np.asarray(a, np.float32)
+        per_run = counts @ a.T / e  # (resamples, runs): each run's mean over the resampled maps
+        runs = rng.integers(a.shape[0], size=(RESAMPLES, a.shape[0]))
+        means = np.take_along_axis(per_run, runs, axis=1).mean(axis=1)
+        low, high = np.quantile(means, [(1 - CONFIDENCE) / 2, (1 + CONFIDENCE) / 2])
+        intervals.append((float(low), float(high)))
+    return intervals
 
 
 def success_interval(success: np.ndarray, seed: int = 0) -> tuple[float, float, str]:

@@ -83,6 +83,16 @@ def test_runs_and_maps_ci_covers_both_sources():
     assert high2 - low2 > 2 * (high - low)
 
 
+def test_shared_resamples_give_the_intervals_of_one_at_a_time():
+    from catmip_rl.evaluation.stats import runs_and_maps_ci, shared_maps_cis
+
+    rng = np.random.default_rng(1)
+    arrays = [rng.random((1, 1000)) < 0.6, np.array([rng.random(1000) < p for p in (0.3, 0.5, 0.6)])]
+    arrays.append(arrays[0].astype(float) - arrays[1].mean(axis=0))  # a paired difference
+    for shared, alone in zip(shared_maps_cis(arrays), (runs_and_maps_ci(a.astype(float)) for a in arrays)):
+        assert shared == pytest.approx(alone, abs=0.01)  # the same scheme, other random draws
+
+
 def test_cli_compare_writes_tables_and_plots(tmp_path, capsys):
     _write(tmp_path / "r" / "a", "a", [50] * 70 + [None] * 30)
     _write(tmp_path / "r" / "b", "b", [60] * 50 + [None] * 50)

@@ -1,6 +1,6 @@
 """catmip bench suite and catmip leaderboard: a user's policy file gives an entry the leaderboard
 accepts; an interrupted suite resumes; an entry with other maps, a missing setting or a number its
-ticks do not give is refused with one line naming the file."""
+ticks do not give is refused with one line naming the file; ``--vs`` pairs every entry with one."""
 
 from __future__ import annotations
 
@@ -8,11 +8,12 @@ import json
 import textwrap
 from hashlib import sha256
 
+import numpy as np
 import pytest
 
 from catmip_rl.cli.main import main
 from catmip_rl.evaluation import jobs
-from catmip_rl.evaluation.leaderboard import EntryError, load_entries
+from catmip_rl.evaluation.leaderboard import EntryError, load_entries, paired_rows
 from catmip_rl.evaluation.suite import SETTINGS, run_suite
 
 POLICY = textwrap.dedent(
@@ -154,8 +155,51 @@ def test_the_committed_leaderboard_checks_and_is_up_to_date(tmp_path):
     root = Path(__file__).resolve().parents[3] / "leaderboard"
     entries = load_entries(root / "entries")  # every committed entry: the full suite, checked
     assert {"nearest", "random-rescue", "random-uniform"} <= {e["method"] for e in entries}
-    md, _png = render_leaderboard(root / "entries", tmp_path)
+    md, _png, vs, _csv = render_leaderboard(root / "entries", tmp_path, vs="rrt")
     assert md.read_text() == (root / "leaderboard.md").read_text()  # redrawn after the last entry
+    assert vs.read_text() == (root / "vs_rrt.md").read_text()
+
+
+def test_vs_pairs_every_entry_with_the_reference_on_the_same_maps(suite, tmp_path, capsys):
+    out, paths = suite
+    entries = out / "s" / "entries"
+    args = ["leaderboard", "--entries", str(entries), "--episodes", "2", "--out", str(tmp_path)]
+    assert main([*args, "--vs", "nearest"]) == 0
+    rows = (tmp_path / "vs_nearest.csv").read_text().splitlines()[1:]
+    mine, nearest = (json.loads(p.read_text())["settings"] for p in reversed(paths))
+    assert len(rows) == len(SETTINGS)  # one method besides the reference, every setting
+    for row, st in zip(rows, SETTINGS):
+        method, vs, runs, label, diff = row.split(",")[:5]
+        by_100 = [[0 <= t <= 100 for t in s[st.label]["rescue_tick"][0]] for s in (mine, nearest)]
+        assert (method, vs, runs, label) == ("mine", "nearest", "1", st.label)
+        assert float(diff) == pytest.approx(np.mean(by_100[0]) - np.mean(by_100[1]))
+    md = (tmp_path / "vs_nearest.md").read_text()
+    assert "| mine | 1 |" in md and "| nearest |" not in md and "against nearest" in md
+    assert "| method | runs | ahead / behind |" in capsys.readouterr().out
+    before = (tmp_path / "leaderboard.md").stat().st_mtime_ns
+    assert main([*args, "--vs", "rrt", "--force"]) == 2  # no entry of that name: one line, nothing written
+    err = capsys.readouterr().err
+    assert "--vs 'rrt' is no entry's method; the entries are ['mine', 'nearest']" in err
+    assert err.count("\n") == 1
+    assert not (tmp_path / "vs_rrt.md").exists()
+    assert (tmp_path / "leaderboard.md").stat().st_mtime_ns == before
+
+
+def test_a_paired_interval_spans_the_training_runs(suite):
+    def entry(name, success):  # what load_entries gives: every setting the same (runs, maps) success
+        settings = {st.label: {"success_by_100": float(np.mean(success))} for st in SETTINGS}
+        checked = {"iqm": float(np.mean(success)), "iqm_ci": [0.0, 1.0], "settings": settings,
+                   "success": {st.label: np.array(success, bool) for st in SETTINGS}}  # fmt: skip
+        return {"method": name, "runs": [{}] * len(success), "checked": checked}
+
+    every, none = [True] * 100, [False] * 100
+    entries = [entry("ref", [every, none]), entry("ahead", [every]), entry("split", [every, none])]
+    ahead, split = paired_rows(entries, "ref")  # the reference's runs averaged: 0.5 on every map
+    label = SETTINGS[0].label
+    assert ahead[label] == (0.5, 0.5, 0.5) and (ahead["ahead"], ahead["behind"]) == (12, 0)
+    diff, low, high = split[label]  # one run rescues every map, the other none: the mean hides it
+    assert diff == 0.0 and low == pytest.approx(-0.5) and high == pytest.approx(0.5)
+    assert (split["ahead"], split["behind"]) == (0, 0)
 
 
 def test_a_missing_or_empty_folder_of_entries_is_named(tmp_path):
