@@ -206,19 +206,21 @@ def paired_rows(entries: list[dict[str, Any]], vs: str) -> list[dict[str, Any]]:
     return rows
 
 
+def _page_head(title: str, text: str, head: list[str]) -> list[str]:
+    """A Markdown page's title, its paragraph and its table's heading rows."""
+    return [f"# {title}", "", text, "", "| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+
+
 def _paired_markdown(rows: list[dict[str, Any]], vs: str, episodes: int) -> str:
     head = ["method", "runs", "ahead / behind", *(_short(s.label) for s in SETTINGS)]
-    lines = [
-        f"# CATMiP suite {SUITE}: each method against {vs}",
-        "",
+    lines = _page_head(
+        f"CATMiP suite {SUITE}: each method against {vs}",
         f"Success by tick 100 less {vs}'s on the same {episodes} held-out maps (seed {SEED}) per setting, "
         "with a 95 % CI over the maps and the method's training runs (the reference's runs averaged per "
         "map); bold where the interval excludes 0. Ahead / behind: the settings whose interval lies above "
         "/ below 0. Recomputed from the entries' rescue ticks (`catmip leaderboard --vs`).",
-        "",
-        "| " + " | ".join(head) + " |",
-        "|" + "---|" * len(head),
-    ]
+        head,
+    )
     for r in rows:
         cells = [r["method"], str(r["runs"]), f"{r['ahead']} / {r['behind']}"]
         for st in SETTINGS:
@@ -241,17 +243,14 @@ def _paired_csv(rows: list[dict[str, Any]], vs: str) -> str:
 def _markdown(rows: list[dict[str, Any]], episodes: int) -> str:
     head = ["rank", "method", "runs", "actions", "IQM by tick 100 [95 % CI]"]
     head += [_short(s.label) for s in SETTINGS]
-    lines = [
-        f"# CATMiP leaderboard, suite {SUITE}",
-        "",
+    lines = _page_head(
+        f"CATMiP leaderboard, suite {SUITE}",
         f"Success by tick 100 on {episodes} held-out maps (seed {SEED}) per setting; the aggregate is the "
         "IQM over (training runs × settings) with a 95 % CI over runs and maps. T2/T3: Task 2 (20×20, 3 "
         "robots) / Task 3 (32×32, 6 robots); full / σ4 / σ2: communication; +n: 5 % SLAM noise. Every "
         "number is recomputed from the entry's rescue ticks (`catmip leaderboard`).",
-        "",
-        "| " + " | ".join(head) + " |",
-        "|" + "---|" * len(head),
-    ]
+        head,
+    )
     for k, r in enumerate(rows, 1):
         method = f"[{r['method']}]({r['code']})" if r["code"] else r["method"]
         cells = [str(k), method, str(r["runs"]), r["actions"],
