@@ -172,16 +172,20 @@ def _bench(args: argparse.Namespace) -> int:
     _check_parallel(args)
     methods = [m for m in args.methods.split(",") if m.strip()] + list(args.method)
     folders = [Path(args.out) / f"fig{fig}" for fig in figures]
+    advice = "pick a new folder, pass --force to replace it, or --resume to continue it"
     with ExitStack() as held:
         for folder in folders:  # every figure's folder held and checked before the first run starts
-            held.enter_context(output_folder(folder, "--out", force=args.force))
+            held.enter_context(
+                output_folder(folder, "--out", force=args.force, keep=args.resume, advice=advice)
+            )
         for fig, folder in zip(figures, folders):
             try:
                 out = run_figure(fig, methods, args.episodes, args.seed, args.out, args.jobs,
                                  progress=not args.no_progress, allow_other_maps=args.allow_other_maps,
-                                 threads=args.threads)  # fmt: skip
-            except BaseException:  # a figure's folder holds a whole figure or none: its runs go
-                remove_results(folder)
+                                 threads=args.threads, resume=args.resume)  # fmt: skip
+            except BaseException:  # a figure's folder holds a whole figure or none, unless --resume
+                if not args.resume:  # keeps its complete runs for the next --resume
+                    remove_results(folder)
                 raise
             print(f"figure {fig}: {out}/fig{fig}.png, curves.csv, summary.csv, marl_eval.json")
     return 0

@@ -309,7 +309,13 @@ def add_bench(sub) -> None:
     pa.add_argument("--seed", type=NON_NEGATIVE_INT, default=0, help="map set")
     add_parallel_flags(pa)
     pa.add_argument("--out", default="out/paper", help="figures go to OUT/fig{N}/ (new or empty)")
-    pa.add_argument("--force", action="store_true", help="write into non-empty OUT/fig{N}/ folders")
+    again = pa.add_mutually_exclusive_group()
+    again.add_argument("--force", action="store_true", help="write into non-empty OUT/fig{N}/ folders")
+    again.add_argument(
+        "--resume", action="store_true",
+        help="continue OUT/fig{N}/: its complete runs (same method, files, panel, seed and maps) are read "
+        "back, not played again, and an interrupted figure keeps its complete runs",
+    )  # fmt: skip
     pa.add_argument("--no-progress", action="store_true", help="no progress bar")
     add_allow_other_maps(pa)
     pa.set_defaults(name="bench")

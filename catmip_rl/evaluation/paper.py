@@ -83,6 +83,7 @@ def run_figure(
     progress: bool = True,
     allow_other_maps: bool = False,
     threads: int | None = None,
+    resume: bool = False,
 ) -> Path:
     """Run every (panel, method) of ``figure``; returns the figure's folder. A method given as
     ``NAME=SPEC,SPEC,...`` has several training runs (:func:`parse_runs`): each plays the same maps (in
@@ -91,7 +92,8 @@ def run_figure(
     plays each panel with those of its runs that can, and one none of whose runs can is listed as not
     played in ``summary.md``. Bad arguments (figure, methods, an unreadable AMAT checkpoint, a broken
     policy, episodes, seed, jobs, threads) raise before any run starts. ``threads``: torch threads of each
-    job (default 2 for one job, else 1)."""
+    job (default 2 for one job, else 1). ``resume``: a run whose folder already holds its complete results
+    is read back, not played again (:attr:`~catmip_rl.evaluation.jobs.Job.resume`)."""
     check_matplotlib()  # fail now rather than after the evaluations
     panels = figure_settings(figure)
     groups: list[list[Method]] = [parse_runs(m) for m in (methods or DEFAULT_METHODS)]
@@ -111,7 +113,7 @@ def run_figure(
     fig_dir = Path(out) / f"fig{figure}"
     tasks = [
         Job(m, st, episodes, seed, str(run_dir(fig_dir / st.label / m.name, k, len(runs))), threads,
-            allow_other_maps)
+            allow_other_maps, resume)
         for panel, st in panels for name in names for runs in [plays.get((panel, name), [])]
         for k, m in enumerate(runs)
     ]  # fmt: skip

@@ -4,6 +4,7 @@ killed writer removed, workers that die with their parent, ``sys.exit`` in a pol
 
 from __future__ import annotations
 
+import csv
 import json
 import os
 import signal
@@ -134,6 +135,30 @@ def test_bench_force_with_fewer_methods_drops_the_old_method_folders(tmp_path, c
     methods = {json.loads(p.read_text())["method"] for p in (tmp_path / "fig6").rglob("summary.json")}
     assert methods == {"nearest"}
     assert not (tmp_path / ".lock").exists()
+
+
+def test_bench_resume_reads_complete_runs_back_and_plays_the_rest(tmp_path, capsys, monkeypatch):
+    argv = ["bench", "paper", "--figure", "6", "--episodes", "2", "--jobs", "1", "--out", str(tmp_path)]
+    assert main([*argv, "--methods", "nearest"]) == 0
+    first = {p: p.read_bytes() for p in (tmp_path / "fig6").rglob("episodes.json")}
+    assert main([*argv, "--methods", "nearest,random-uniform"]) == 2  # not empty: --force or --resume
+    assert "--resume to continue it" in capsys.readouterr().err
+
+    from catmip_rl.evaluation import jobs
+
+    played, evaluate = [], jobs.evaluate
+
+    def counted(method, *args, **kwargs):
+        played.append(method.name)
+        return evaluate(method, *args, **kwargs)
+
+    monkeypatch.setattr(jobs, "evaluate", counted)
+    assert main([*argv, "--methods", "nearest,random-uniform", "--resume"]) == 0
+    assert played == ["random-uniform"] * 3  # one run a panel; nearest's three were read back
+    assert all(p.read_bytes() == b for p, b in first.items())
+    rows = list(csv.DictReader((tmp_path / "fig6" / "summary.csv").open()))
+    assert sorted({r["method"] for r in rows}) == ["nearest", "random-uniform"] and len(rows) == 6
+    assert main([*argv, "--methods", "nearest", "--resume", "--force"]) == 2  # one or the other
 
 
 _POOL_PARENT = """
