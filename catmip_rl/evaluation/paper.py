@@ -113,7 +113,7 @@ def run_figure(
     fig_dir = Path(out) / f"fig{figure}"
     tasks = [
         Job(m, st, episodes, seed, str(run_dir(fig_dir / st.label / m.name, k, len(runs))), threads,
-            allow_other_maps, resume)
+            allow_other_maps, resume=resume)
         for panel, st in panels for name in names for runs in [plays.get((panel, name), [])]
         for k, m in enumerate(runs)
     ]  # fmt: skip
