@@ -188,9 +188,41 @@ TRAIN_PRESETS["general-sigma2"] = TRAIN_PRESETS["general-critic"].replace(
     eval_every=20,
 )
 
+# the chain that trained the memory model (amat_general.pt; run-records/general-dagger-rrt, general-relay,
+# general-relay-noise): each stage starts from the previous stage's weights (init_from)
+# 1. DAgger of RRT in its own action space over the mixture, from a Nearest-imitating `general` student
+TRAIN_PRESETS["general-rrt"] = TRAIN_PRESETS["general"].replace(
+    amat={"goals": "cell", "cell_mask": "reachable"},
+    warm_start="rrt",
+    warm_start_rounds=8,
+    warm_start_lr=3e-4,
+)
+# 2. the teammate memory in the observation: DAgger of rrt-relay, then PPO anchored to it
+TRAIN_PRESETS["general-relay"] = TRAIN_PRESETS["general-rrt"].replace(
+    amat={"goals": "cell", "cell_mask": "reachable", "teammate_memory": True},
+    warm_start="rrt-relay",
+    anchor="rrt-relay",
+    anchor_coef=0.2,
+    lr=5e-5,
+)
+# 3. the same anchored PPO with a Task-2 world under 5 % SLAM noise added to the mixture
+_NOISY_TASK2 = {"preset": "task2", "activation": [2, 5], "comm_sigma_choices": _COMMS, "slam_noise": 0.05}
+TRAIN_PRESETS["general-relay-noise"] = TRAIN_PRESETS["general-relay"].replace(
+    warm_start="", worlds=[*_MIXTURE, _NOISY_TASK2], value_warmup_iterations=6
+)
+# 4. and a Task-3 world under 5 % SLAM noise (where the model trailed its teacher most on the suite)
+_NOISY_TASK3 = {"preset": "task3", "activation": [2, 5], "comm_sigma_choices": _COMMS, "num_worlds": 16,
+                "slam_noise": 0.05}  # fmt: skip
+TRAIN_PRESETS["general-noise3"] = TRAIN_PRESETS["general-relay-noise"].replace(
+    worlds=[*_MIXTURE, _NOISY_TASK2, _NOISY_TASK3], value_warmup_iterations=7
+)
+
 #: presets that fine-tune a trained model: a new run of one needs ``init_from`` (``catmip train`` refuses it
 #: without; from fresh weights they would be a slow, unwarmed paper run)
-FINE_TUNING_PRESETS = ("paper-sharp", "general-critic", "general-sigma2")
+FINE_TUNING_PRESETS = (
+    "paper-sharp", "general-critic", "general-sigma2", "general-rrt", "general-relay",
+    "general-relay-noise", "general-noise3",
+)
 
 
 def make_train_config(preset: str = "paper", **overrides: Any) -> TrainConfig:

@@ -2,6 +2,7 @@
 
 import csv
 import json
+from pathlib import Path
 
 import pytest
 import torch
@@ -11,6 +12,8 @@ from catmip_rl.cli.main import main as cli
 from catmip_rl.training.config import TrainConfig
 from catmip_rl.training.presets import make_train_config
 from catmip_rl.training.train import METRICS, train
+
+RECORDS = Path(__file__).parents[3] / "run-records"
 
 
 def _params(model):
@@ -413,3 +416,29 @@ def test_the_anchor_loss_skips_labels_the_models_mask_rules_out():
     walls[batch.trainable.bool()] = 0  # cell (0, 0): the map's wall, which no mask allows
     _, stats = ppo_loss(run.model, dataclasses.replace(batch, label=walls), label_coef=1.0)
     assert float(stats["loss/rescue"]) == 0.0
+
+
+@pytest.mark.parametrize(
+    ("preset", "record"),
+    [("general-rrt", "general-dagger-rrt"), ("general-relay", "general-relay"),
+     ("general-relay-noise", "general-relay-noise")],
+)  # fmt: skip
+def test_the_memory_model_chain_presets_are_the_recorded_runs(preset, record):
+    """amat_general.pt's stages as named presets: each is its recorded run's config in every field that
+    acts (the start's file and the threads are the command's; warm-start fields act only with a warm start;
+    the anchor and the critic's LR were added after the first record, off there)."""
+    cfg = json.loads(make_train_config(preset).to_json())
+    ran = json.loads((RECORDS / record / "config.json").read_text())
+    ignored = {"init_from", "threads", "critic_lr", "anchor", "anchor_coef"} if "anchor" not in ran else {
+        "init_from", "threads", "critic_lr"}  # fmt: skip
+    if not ran["warm_start"]:
+        ignored |= {k for k in cfg if k.startswith("warm_start_")}
+    assert {k: v for k, v in cfg.items() if k not in ignored} == {k: v for k, v in ran.items() if k not in ignored}
+    assert make_train_config(preset).world_configs()[-1][0].teammate_memory == (preset != "general-rrt")
+
+
+def test_the_noisy_task3_preset_adds_one_world_to_the_relay_noise_mixture():
+    base, noisy = make_train_config("general-relay-noise"), make_train_config("general-noise3")
+    assert noisy.worlds[:-1] == base.worlds
+    env, n = noisy.world_configs()[-1]
+    assert (env.map_size, env.slam_noise, n, env.comm_ranges) == (32, 0.05, 16, (None, 4.0, 2.0))
