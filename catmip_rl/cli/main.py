@@ -95,7 +95,7 @@ def _eval(args: argparse.Namespace) -> int:
         torch_threads(args.threads)
         result = evaluate(
             args.method, _setting(args), args.episodes, args.seed, progress=not args.no_progress,
-            allow_other_maps=args.allow_other_maps, threads=args.threads,
+            allow_other_maps=args.allow_other_maps, threads=args.threads, sampled_too=not args.argmax_only,
         )  # fmt: skip
         result.write(out, curve_title=f"{args.episodes} maps (seed {args.seed})")
     s = result.summary

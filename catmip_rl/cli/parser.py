@@ -211,6 +211,11 @@ def add_eval_render(sub) -> None:
         "--force", action="store_true", help="write into a non-empty --out (overwriting its files)"
     )
     ev.add_argument("--no-progress", action="store_true", help="no progress bar")
+    ev.add_argument(
+        "--argmax-only", action="store_true",
+        help="play a learned policy's argmax actions only, not the maps again with sampled actions (half the "
+        "time; the summary then has no sampled_* numbers)",
+    )  # fmt: skip
     add_allow_other_maps(ev)
     ev.set_defaults(name="eval")
     rd = sub.add_parser(

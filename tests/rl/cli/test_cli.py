@@ -600,3 +600,15 @@ def test_eval_prints_where_the_time_to_the_rescue_goes(tmp_path, capsys):
         f"{s['mean_informed_to_rescue_ticks']:.1f} ticks after that"
     )
     assert line in capsys.readouterr().out
+
+
+def test_eval_argmax_only_plays_a_learned_policy_once_with_the_same_argmax_numbers(tmp_path, capsys):
+    cmd = ["eval", "--method", "amat:task1", "--episodes", "4", "--threads", "1", "--no-progress"]
+    assert main([*cmd, "--out", str(tmp_path / "both")]) == 0
+    assert main([*cmd, "--argmax-only", "--out", str(tmp_path / "argmax")]) == 0
+    both, argmax = (json.loads((tmp_path / d / "summary.json").read_text()) for d in ("both", "argmax"))
+    assert both["sampled_pass"] and "sampled_success_rate" in both
+    assert not argmax["sampled_pass"] and not {k for k in argmax if k.startswith("sampled_")} - {"sampled_pass"}
+    same = {k: v for k, v in both.items() if not k.startswith("sampled_") and k != "seconds"}
+    assert same == {k: v for k, v in argmax.items() if not k.startswith("sampled_") and k != "seconds"}
+    assert "with sampled actions" not in capsys.readouterr().out.split("amat_task1 (argmax")[-1]
