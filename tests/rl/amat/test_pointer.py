@@ -184,3 +184,24 @@ def test_a_cell_goal_rollout_trains_with_the_ppo_loss():
     assert abs(float(stats["ppo/approx_kl"])) < 1e-5 and float(stats["ppo/clip_fraction"]) == 0.0
     loss.backward()
     assert model.query[0].weight.grad.abs().sum() > 0 and model.cell_in.weight.grad.abs().sum() > 0
+
+
+def test_the_loop_guard_never_leaves_a_cell_goal_robot_without_a_cell_its_model_allows(monkeypatch):
+    """The guard masks a stalled robot's last goal in the engine's mask; where that was the one cell the
+    model's own mask left, the robot decides again on its unguarded mask. Here the guard leaves each robot
+    only the last cell the engine allows, an unknown corner that the model's mask (known cells) rules out."""
+    eng = EventEngine(make_config("task3"), 2, seed=1, goal_mode="cell")
+    eng.reset(episode_indices=np.arange(2))
+    model = shaken(5)
+    guarded = CellGoalExecutor(model, loop_guard=True)
+    last = eng.masks.shape[-1] - 1 - np.argmax(eng.masks[..., ::-1], -1)
+    robbed = np.zeros_like(eng.masks)
+    np.put_along_axis(robbed, last[..., None], 1, -1)
+    monkeypatch.setattr(guarded, "_guarded_masks", lambda engine, active: robbed)
+    passes = []
+    decode = model.decode_autoregressive
+    monkeypatch.setattr(model, "decode_autoregressive", lambda *a, **k: passes.append(1) or decode(*a, **k))
+    a = guarded.act(eng)
+    assert len(passes) == 2  # the corner was lost: a second pass on the unguarded masks
+    assert np.take_along_axis(eng.masks, a[..., None], -1).all()  # every robot: a cell the engine allows
+    eng.step(a)
