@@ -34,7 +34,7 @@ from catmip_rl.shipped import SHIPPED_DIR, model_file, resolve_model, shipped_mo
 __all__ = [
     "save_model", "load_model", "atomic_torch_save", "resolve_model", "shipped_models", "SHIPPED_DIR",
     "resume_checkpoint", "initial_weights", "load_initial_weights", "export_model", "model_record",
-    "trained_synchronous",
+    "trained_synchronous", "plays_with_loop_guard",
 ]  # fmt: skip
 
 
@@ -82,18 +82,27 @@ def load_model(path: str | Path, map_location: str | torch.device = "cpu") -> AM
     return model_from(read_checkpoint(path, map_location), path).to(map_location)
 
 
+def _extra(blob: Any) -> dict[str, Any]:
+    """A model file's ``extra`` ({} for a training checkpoint or a file without one)."""
+    if is_training_checkpoint(blob) or not isinstance(blob, dict):
+        return {}
+    return blob.get("extra") or {}
+
+
 def trained_synchronous(spec: str | Path) -> bool:
     """Whether the model ``spec`` names (anything :func:`load_model` reads) was trained in the synchronous
     world (Synch-CATMiP: every robot decides together every ``max_ma_ticks`` ticks), as the training
     config in its checkpoint or exported file says; a file without one (a bare :func:`save_model`) was not."""
-    path = model_file(resolve_model(spec))
-    blob = read_checkpoint(path)
-    if is_training_checkpoint(blob):
-        train_config = json.loads(blob["config"])
-    else:
-        extra = (blob.get("extra") if isinstance(blob, dict) else None) or {}
-        train_config = extra.get("train_config") or {}
-    return bool((train_config.get("env_overrides") or {}).get("synchronous", False))
+    blob = read_checkpoint(model_file(resolve_model(spec)))
+    train_config = json.loads(blob["config"]) if is_training_checkpoint(blob) else _extra(blob).get("train_config")
+    return bool(((train_config or {}).get("env_overrides") or {}).get("synchronous", False))
+
+
+def plays_with_loop_guard(spec: str | Path) -> bool:
+    """Whether the model file ``spec`` names says it plays with the loop guard (``extra["play"]["loop_guard"]``:
+    a robot whose last macro-action stalled may not choose that goal again), so that ``amat:`` plays it so;
+    training checkpoints and files without the entry play without it (``amat-guard:`` turns it on)."""
+    return bool((_extra(read_checkpoint(model_file(resolve_model(spec)))).get("play") or {}).get("loop_guard"))
 
 
 def model_record(spec: str | Path) -> dict[str, Any]:

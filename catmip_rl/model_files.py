@@ -89,7 +89,7 @@ _TYPES: dict[str, tuple[type, ...]] = {
 _EXTRA_TYPES: dict[str, tuple[type, ...]] = {
     "iteration": (int,), "episodes": (int,), "training_minutes": (int, float),
     "total_training_minutes": (int, float), "train_config": (dict,), "init_from": (dict,),
-    "value_norm": (dict,), "half": (bool,),
+    "value_norm": (dict,), "half": (bool,), "play": (dict,),
 }  # fmt: skip
 
 

@@ -250,6 +250,7 @@ def evaluate(
         target=method.target,
         actions=action_choice(policy),
         sampled_pass=sampled is not None,
+        loop_guard=method.loop_guard,
         synchronous=method.synchronous,
         checkpoint=method.target if method.kind == "amat" else None,
         policy=method.target if method.kind in ("py", "policy") else None,

@@ -224,3 +224,21 @@ def test_a_model_loads_from_a_run_dir_or_its_checkpoints_folder(tmp_path):
         FileNotFoundError, match="give a training run dir .* its checkpoints/ folder, or a .pt"
     ):
         load_model(tmp_path)
+
+
+def test_a_model_file_that_says_so_plays_with_the_loop_guard(tmp_path):
+    """``extra["play"]["loop_guard"]``: ``amat:`` plays that file with the loop guard, and says so in its
+    summary; other files play without it unless ``amat-guard:`` asks."""
+    from catmip_rl.evaluation.evaluate import EvalSetting, evaluate
+
+    model = AMAT(AmatConfig(embed_dim=32))
+    plain = save_model(model, tmp_path / "plain.pt")
+    guarded = save_model(model, tmp_path / "guarded.pt", extra={"play": {"loop_guard": True}})
+    assert not parse_method(f"amat:{plain}").loop_guard and parse_method(f"amat-guard:{plain}").loop_guard
+    assert parse_method(f"amat:{guarded}").loop_guard and parse_method(f"amat:{guarded}").name == "guarded"
+    setting = EvalSetting("task1", "full", 0.0, 10)
+    runs = {p.stem: evaluate(f"amat:{p}", setting, 2, 0, sampled_too=False) for p in (plain, guarded)}
+    assert [runs[k].summary["loop_guard"] for k in ("plain", "guarded")] == [False, True]
+    torch.save({**read_checkpoint(guarded), "extra": {"play": [1]}}, tmp_path / "bad.pt")
+    with pytest.raises(CheckpointError, match="extra play is a list"):
+        parse_method(f"amat:{tmp_path / 'bad.pt'}")
