@@ -159,6 +159,13 @@ def _shown_target(method: Method) -> str:
     return f"py:{_shown(src.source)}:{src.factory}"
 
 
+def entry_actions(summary: dict[str, Any]) -> str | None:
+    """How an entry's policy chose its actions, from a run's summary: its ``actions`` ("argmax",
+    "sampled", "its own"), with " + loop guard" where an AMAT played with it."""
+    actions = summary.get("actions")
+    return f"{actions} + loop guard" if actions and summary.get("loop_guard") else actions
+
+
 def make_entry(name: str, runs: list[Method], results: dict[str, list[dict[str, Any]]], episodes: int,
                code: str = "", notes: str = "") -> dict[str, Any]:  # fmt: skip
     """The suite entry of method ``name`` (its training ``runs``) from its :func:`~catmip_rl.evaluation.
@@ -180,7 +187,7 @@ def make_entry(name: str, runs: list[Method], results: dict[str, list[dict[str, 
         "format": ENTRY_FORMAT,
         "suite": SUITE,
         "method": name,
-        "actions": first.get("actions"),
+        "actions": entry_actions(first),
         "runs": [
             {
                 "kind": m.kind,

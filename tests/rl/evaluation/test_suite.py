@@ -14,7 +14,7 @@ import pytest
 from catmip_rl.cli.main import main
 from catmip_rl.evaluation import jobs
 from catmip_rl.evaluation.leaderboard import EntryError, load_entries, paired_rows
-from catmip_rl.evaluation.suite import SETTINGS, run_suite
+from catmip_rl.evaluation.suite import SETTINGS, entry_actions, run_suite
 
 POLICY = textwrap.dedent(
     """
@@ -207,3 +207,10 @@ def test_a_missing_or_empty_folder_of_entries_is_named(tmp_path):
         load_entries(tmp_path / "nope")
     with pytest.raises(EntryError, match=r"no entries \(\*\.json\) in "):
         load_entries(tmp_path)
+
+
+def test_an_entry_says_when_its_model_played_with_the_loop_guard():
+    assert entry_actions({"actions": "argmax", "loop_guard": True}) == "argmax + loop guard"
+    assert entry_actions({"actions": "argmax", "loop_guard": False}) == "argmax"
+    assert entry_actions({"actions": "its own"}) == "its own"  # planners, and results from before the key
+    assert entry_actions({}) is None
