@@ -94,15 +94,20 @@ def trained_synchronous(spec: str | Path) -> bool:
     world (Synch-CATMiP: every robot decides together every ``max_ma_ticks`` ticks), as the training
     config in its checkpoint or exported file says; a file without one (a bare :func:`save_model`) was not."""
     blob = read_checkpoint(model_file(resolve_model(spec)))
-    train_config = json.loads(blob["config"]) if is_training_checkpoint(blob) else _extra(blob).get("train_config")
-    return bool(((train_config or {}).get("env_overrides") or {}).get("synchronous", False))
+    if is_training_checkpoint(blob):
+        train_config = json.loads(blob["config"])
+    else:
+        train_config = _extra(blob).get("train_config") or {}
+    return bool((train_config.get("env_overrides") or {}).get("synchronous", False))
 
 
 def plays_with_loop_guard(spec: str | Path) -> bool:
-    """Whether the model file ``spec`` names says it plays with the loop guard (``extra["play"]["loop_guard"]``:
-    a robot whose last macro-action stalled may not choose that goal again), so that ``amat:`` plays it so;
-    training checkpoints and files without the entry play without it (``amat-guard:`` turns it on)."""
-    return bool((_extra(read_checkpoint(model_file(resolve_model(spec)))).get("play") or {}).get("loop_guard"))
+    """Whether the model file ``spec`` names says it plays with the loop guard (``extra["play"]
+    ["loop_guard"]``: a robot whose last macro-action stalled may not choose that goal again), so that
+    ``amat:`` plays it so; training checkpoints and files without the entry play without it
+    (``amat-guard:`` turns it on)."""
+    play = _extra(read_checkpoint(model_file(resolve_model(spec)))).get("play") or {}
+    return bool(play.get("loop_guard"))
 
 
 def model_record(spec: str | Path) -> dict[str, Any]:

@@ -220,8 +220,13 @@ TRAIN_PRESETS["general-noise3"] = TRAIN_PRESETS["general-relay-noise"].replace(
 #: presets that fine-tune a trained model: a new run of one needs ``init_from`` (``catmip train`` refuses it
 #: without; from fresh weights they would be a slow, unwarmed paper run)
 FINE_TUNING_PRESETS = (
-    "paper-sharp", "general-critic", "general-sigma2", "general-rrt", "general-relay",
-    "general-relay-noise", "general-noise3",
+    "paper-sharp",
+    "general-critic",
+    "general-sigma2",
+    "general-rrt",
+    "general-relay",
+    "general-relay-noise",
+    "general-noise3",
 )
 
 
