@@ -613,3 +613,9 @@ def test_eval_argmax_only_plays_a_learned_policy_once_with_the_same_argmax_numbe
     same = {k: v for k, v in both.items() if not k.startswith("sampled_") and k != "seconds"}
     assert same == {k: v for k, v in argmax.items() if not k.startswith("sampled_") and k != "seconds"}
     assert "with sampled actions" not in capsys.readouterr().out.split("amat_task1 (argmax")[-1]
+
+
+def test_eval_says_when_a_model_plays_with_the_loop_guard(tmp_path, capsys):
+    cmd = ["eval", "--method", "amat-guard:task1", "--episodes", "2", "--threads", "1", "--no-progress"]
+    assert main([*cmd, "--argmax-only", "--out", str(tmp_path / "guard")]) == 0
+    assert "amat_task1-guard (argmax actions, loop guard) on task1" in capsys.readouterr().out
