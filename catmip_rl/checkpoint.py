@@ -13,7 +13,7 @@ import json
 import os
 from dataclasses import asdict, replace
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import torch
 
@@ -34,7 +34,7 @@ from catmip_rl.shipped import SHIPPED_DIR, model_file, resolve_model, shipped_mo
 __all__ = [
     "save_model", "load_model", "atomic_torch_save", "resolve_model", "shipped_models", "SHIPPED_DIR",
     "resume_checkpoint", "initial_weights", "load_initial_weights", "export_model", "model_record",
-    "trained_synchronous", "plays_with_loop_guard",
+    "ModelPlay", "model_play",
 ]  # fmt: skip
 
 
@@ -82,32 +82,28 @@ def load_model(path: str | Path, map_location: str | torch.device = "cpu") -> AM
     return model_from(read_checkpoint(path, map_location), path).to(map_location)
 
 
-def _extra(blob: Any) -> dict[str, Any]:
-    """A model file's ``extra`` ({} for a training checkpoint or a file without one)."""
-    if is_training_checkpoint(blob) or not isinstance(blob, dict):
-        return {}
-    return blob.get("extra") or {}
+class ModelPlay(NamedTuple):
+    """How a model file says it plays: ``synchronous``, trained in the synchronous world (Synch-CATMiP:
+    every robot decides together every ``max_ma_ticks`` ticks), as its training config says; ``loop_guard``,
+    argmax with the loop guard (``extra["play"]["loop_guard"]``: a robot whose last macro-action stalled
+    may not choose that goal again)."""
+
+    synchronous: bool
+    loop_guard: bool
 
 
-def trained_synchronous(spec: str | Path) -> bool:
-    """Whether the model ``spec`` names (anything :func:`load_model` reads) was trained in the synchronous
-    world (Synch-CATMiP: every robot decides together every ``max_ma_ticks`` ticks), as the training
-    config in its checkpoint or exported file says; a file without one (a bare :func:`save_model`) was not."""
+def model_play(spec: str | Path) -> ModelPlay:
+    """How the model ``spec`` names (anything :func:`load_model` reads) plays, from one read of its file. A
+    training checkpoint says only its world; a file without a training config or ``play`` entry (a bare
+    :func:`save_model`) plays asynchronously without the guard (``amat-guard:`` turns the guard on)."""
     blob = read_checkpoint(model_file(resolve_model(spec)))
     if is_training_checkpoint(blob):
-        train_config = json.loads(blob["config"])
+        train_config, play = json.loads(blob["config"]), {}
     else:
-        train_config = _extra(blob).get("train_config") or {}
-    return bool((train_config.get("env_overrides") or {}).get("synchronous", False))
-
-
-def plays_with_loop_guard(spec: str | Path) -> bool:
-    """Whether the model file ``spec`` names says it plays with the loop guard (``extra["play"]
-    ["loop_guard"]``: a robot whose last macro-action stalled may not choose that goal again), so that
-    ``amat:`` plays it so; training checkpoints and files without the entry play without it
-    (``amat-guard:`` turns it on)."""
-    play = _extra(read_checkpoint(model_file(resolve_model(spec)))).get("play") or {}
-    return bool(play.get("loop_guard"))
+        extra = (blob.get("extra") if isinstance(blob, dict) else None) or {}
+        train_config, play = extra.get("train_config") or {}, extra.get("play") or {}
+    synchronous = (train_config.get("env_overrides") or {}).get("synchronous", False)
+    return ModelPlay(bool(synchronous), bool(play.get("loop_guard")))
 
 
 def model_record(spec: str | Path) -> dict[str, Any]:

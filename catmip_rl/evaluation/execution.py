@@ -345,19 +345,22 @@ class CellGoalExecutor(AmatExecutor):
         )
         act = torch.from_numpy(active[w])
         rep, _ = self.model.encode(self.model.embed(obs))
-        masks_w = masks[w]
-        for second_pass in (False, True):
+
+        def decide(masks_w: np.ndarray) -> np.ndarray:
             chosen, _ = self.model.decode_autoregressive(
                 rep, torch.from_numpy(masks_w), decision_order(act), act, obs["agent_class"],
                 deterministic=self.deterministic, generator=self.generator,
             )  # fmt: skip
-            chosen = chosen.numpy()
-            # the loop guard can take away the one cell the model's own mask (cell_mask) left a robot:
-            # such a robot gets its unguarded mask back and its neighbourhood decides again
+            return chosen.numpy()
+
+        masks_w = masks[w]
+        chosen = decide(masks_w)
+        if self.loop_guard:
+            # the guard can take away the one cell the model's own mask (cell_mask) left a robot: such a
+            # robot gets its unguarded mask back and its neighbourhood decides again
             lost = active[w] & ~np.take_along_axis(masks_w, chosen[..., None], -1)[..., 0].astype(bool)
-            if second_pass or not (self.loop_guard and lost.any()):
-                break
-            masks_w = np.where(lost[..., None], engine.masks[w], masks_w)
+            if lost.any():
+                chosen = decide(np.where(lost[..., None], engine.masks[w], masks_w))
         actions[w] = chosen
         self._last_action[active] = actions[active]
         self._count(engine, *active_neighbourhoods(active, st.comp), active)

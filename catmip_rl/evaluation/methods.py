@@ -101,12 +101,12 @@ def parse_method(spec: str) -> Method:
             path = spec[len(prefix) :]
             if not path:
                 raise ValueError(f"amat method needs a checkpoint: {prefix}PATH")
-            from catmip_rl.checkpoint import plays_with_loop_guard, trained_synchronous
+            from catmip_rl.checkpoint import model_play
 
             target = resolve_model(path)
             label = amat_label(target) + ("-guard" if guard else "")
-            guard = guard or plays_with_loop_guard(target)  # the file's own way to play
-            return Method(name or label, "amat", str(target), guard, trained_synchronous(target))
+            play = model_play(target)  # the file's own way to play
+            return Method(name or label, "amat", str(target), guard or play.loop_guard, play.synchronous)
     for kind in WINDOW_KINDS:
         if spec.startswith(kind + ":"):
             planner = spec[len(kind) + 1 :]

@@ -206,13 +206,12 @@ TRAIN_PRESETS["general-relay"] = TRAIN_PRESETS["general-rrt"].replace(
     lr=5e-5,
 )
 # 3. the same anchored PPO with a Task-2 world under 5 % SLAM noise added to the mixture
-_NOISY_TASK2 = {"preset": "task2", "activation": [2, 5], "comm_sigma_choices": _COMMS, "slam_noise": 0.05}
+_NOISY_TASK2 = {**_MIXTURE[2], "slam_noise": 0.05}  # the mixture's Task-2 world, under noise
 TRAIN_PRESETS["general-relay-noise"] = TRAIN_PRESETS["general-relay"].replace(
     warm_start="", worlds=[*_MIXTURE, _NOISY_TASK2], value_warmup_iterations=6
 )
 # 4. and a Task-3 world under 5 % SLAM noise (where the model trailed its teacher most on the suite)
-_NOISY_TASK3 = {"preset": "task3", "activation": [2, 5], "comm_sigma_choices": _COMMS, "num_worlds": 16,
-                "slam_noise": 0.05}  # fmt: skip
+_NOISY_TASK3 = {**_MIXTURE[4], "slam_noise": 0.05}  # the mixture's Task-3 world, under noise
 TRAIN_PRESETS["general-noise3"] = TRAIN_PRESETS["general-relay-noise"].replace(
     worlds=[*_MIXTURE, _NOISY_TASK2, _NOISY_TASK3], value_warmup_iterations=7
 )
