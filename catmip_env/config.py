@@ -112,6 +112,10 @@ class EnvConfig:
     """Observation option: the global map also shows each teammate outside the robot's neighbourhood where
     the robot last had news of it (0.5; 0.25 if it did not know the target the robot knows). The paper's
     observation is without it; the memory itself is always kept in the state (``heard_*``)."""
+    teammate_heading: bool = False
+    """With ``teammate_memory``: show each remembered teammate where it should be by now rather than where it
+    was, moved from there toward the goal it was heading for at its speed (``comms.estimated_cells``; the
+    goal travels with the news, ``heard_goal``)."""
     local_size: int = 7
     """Side L of the robot-centred local map (odd)."""
     window: int = 7
@@ -231,6 +235,7 @@ _RULES: dict[str, Rule] = {
                                "communication)", _list_of(_is_comm_range)),
     "slam_noise": NUMBER("in [0, 1]", _probability),
     "teammate_memory": BOOL,
+    "teammate_heading": BOOL,
     "local_size": INT("that is odd and >= 1", _odd),
     "window": INT("that is odd and >= 1", _odd),
     "step_reward": NUMBER,
@@ -292,6 +297,8 @@ def _validate_world(cfg: EnvConfig) -> None:
             f"give comm_sigma ({cfg.comm_sigma!r}) or comm_sigma_choices ({cfg.comm_sigma_choices!r}), not "
             "both: with choices every episode draws its range from them"
         )
+    if cfg.teammate_heading and not cfg.teammate_memory:
+        _fail("teammate_heading moves the remembered teammates of teammate_memory: set teammate_memory too")
     if cfg.layout is None and cfg.obstacles > (cfg.map_size - 2) ** 2 // 4:
         _fail(f"num_obstacles={cfg.obstacles} is too many for a {cfg.map_size}x{cfg.map_size} map")
     if cfg.layout is not None:

@@ -169,7 +169,10 @@ class EventEngine:
         limit = 0 if max_ticks is None else int(max_ticks)
 
         def step_chunk(w: slice) -> None:  # the worlds of one thread (threads=): goals, ticks, observations
-            assign_goals(live[w], self._goal_cells[w], st.goal[w], self.mstate[w], self._ma_rewards[w])
+            assign_goals(
+                live[w], self._goal_cells[w], st.goal[w], self.mstate[w], self._ma_rewards[w], st.comp[w],
+                st.heard_goal[w],
+            )  # fmt: skip
             advance(
                 live[w], st.kernel_chunk(w), self.rules, limit, self.mstate[w], self._prim[w],
                 self._tick_rewards[w], self._event_rewards[w], self._ma_rewards[w], self._event_ticks[w],

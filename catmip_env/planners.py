@@ -14,6 +14,8 @@ which goal an active robot picks from its own clean belief (docs/design.md#plann
                        it to the nearest rescuer it last had news of without it (toward the cell it
                        was last heard of, from the robot's own memory, ``WorldState.heard_*``); one
                        that finds that cell empty explores on. Not among the paper's baselines;
+* ``rrt-relay-heading`` the same, toward where that rescuer should be by now: moved from that cell
+                       toward the goal it was heading for (``heard_goal``, ``comms.estimated_cells``);
 * ``apf``              an artificial potential field: attraction to every frontier cluster (weight =
                        cluster size / (1 + path distance)), repulsion from teammates within radius 5,
                        greedy descent from the robot; stops at a frontier or a local minimum;
@@ -37,130 +39,18 @@ from __future__ import annotations
 
 import numpy as np
 
-from catmip_env.constants import EXPLORED, OCCUPIED, STEPS, TARGET_BIT
+from catmip_env.constants import STEPS
 from catmip_env.events import EventEngine
-from catmip_env.kernels.bfs import bfs_from
+from catmip_env.kernels.comms import estimated_cells
 from catmip_env.kernels.rrt import grow_rrt
+from catmip_env.planner_core import SQUARE, DecisionContext, Planner, distance_field
 
-__all__ = ["PLANNERS", "Planner", "make_planner"]
+__all__ = ["PLANNERS", "Relay", "make_planner"]
 
-SQUARE = 15  # side of the square whose unexplored cells measure a goal's utility
 REPULSION_RADIUS = 5.0
 RRT_STEP = 0.5
 RRT_ITERATIONS = 10_000
 RRT_TARGETS = 500
-
-
-class Planner:
-    """Base class: ``act(engine)`` returns (B, N) cell-mode actions (only active robots' matter)."""
-
-    name = "planner"
-    rescue_rule = True  # a rescuer that knows the target heads for it
-
-    def __init__(self, seed: int = 0) -> None:
-        self.rng = np.random.default_rng(seed)
-
-    def act(self, engine: EventEngine) -> np.ndarray:
-        if engine.goal_mode != "cell":
-            raise ValueError(f"planner {self.name!r} needs an EventEngine with goal_mode='cell'")
-        st = engine.state
-        h, w = engine.shape
-        out = (st.pos[..., 0] * w + st.pos[..., 1]).astype(np.int64)  # default: stay
-        live = ~st.done
-        for b, i in zip(*np.nonzero(engine.active & live[:, None])):
-            ctx = _Context(engine, int(b), int(i))
-            goal = ctx.rescue_goal() if self.rescue_rule else None
-            if goal is None:
-                goal = self.choose(ctx)
-            if goal is None or not ctx.valid[goal]:
-                goal = ctx.own
-            out[b, i] = goal[0] * w + goal[1]
-        return out
-
-    def choose(self, ctx: _Context) -> tuple[int, int] | None:  # pragma: no cover - abstract
-        raise NotImplementedError
-
-    # shared choices ---------------------------------------------------------------------------
-    def _pick(self, cells: np.ndarray) -> tuple[int, int] | None:
-        if len(cells) == 0:
-            return None
-        r, c = cells[self.rng.integers(len(cells))]
-        return int(r), int(c)
-
-
-class _Context:
-    """What one active robot knows at its decision: belief layers, distances, valid goals."""
-
-    def __init__(self, engine: EventEngine, b: int, i: int) -> None:
-        st = engine.state
-        h, w = engine.shape
-        self.engine, self.b, self.i = engine, b, i
-        bel = st.belief[b, i]
-        self.explored = (bel & EXPLORED) != 0
-        self.occupied = (bel & OCCUPIED) != 0
-        self.pos = st.pos[b]
-        self.own = (int(st.pos[b, i, 0]), int(st.pos[b, i, 1]))
-        blocked = self.occupied.copy()
-        blocked[0, :] = blocked[-1, :] = blocked[:, 0] = blocked[:, -1] = True
-        others = np.arange(len(self.pos)) != i
-        blocked[self.pos[others, 0], self.pos[others, 1]] = True
-        blocked[self.own] = False
-        self.blocked = blocked
-        self.dist = _distance_field(blocked, *self.own)
-        self.valid = engine.masks[b, i].reshape(h, w) != 0
-        self.knows_target = bool(bel[st.target[b, 0], st.target[b, 1]] & TARGET_BIT)
-        self.can_rescue = bool(st.can_rescue[b, i])
-        self.target = (int(st.target[b, 0]), int(st.target[b, 1]))
-        self._frontier = None
-
-    @property
-    def frontier(self) -> np.ndarray:
-        """(K, 2) reachable, valid frontier cells other than the robot's own (a goal at distance 0
-        would leave a robot that faces a wall staring at it forever)."""
-        if self._frontier is None:
-            e = self.explored
-            unexplored_nb = np.zeros_like(e)
-            unexplored_nb[1:, :] |= ~e[:-1, :]
-            unexplored_nb[:-1, :] |= ~e[1:, :]
-            unexplored_nb[:, 1:] |= ~e[:, :-1]
-            unexplored_nb[:, :-1] |= ~e[:, 1:]
-            f = e & ~self.occupied & unexplored_nb & (self.dist > 0) & self.valid
-            self._frontier = np.argwhere(f)
-        return self._frontier
-
-    def rescue_goal(self) -> tuple[int, int] | None:
-        """A rescuer that knows the target heads for the nearest reachable cell next to it."""
-        if not (self.can_rescue and self.knows_target):
-            return None
-        tr, tc = self.target
-        best, best_d = None, None
-        for r, c in ((tr, tc + 1), (tr + 1, tc), (tr, tc - 1), (tr - 1, tc)):
-            d = self.dist[r, c]
-            if d >= 0 and self.valid[r, c] | ((r, c) == self.own) and (best_d is None or d < best_d):
-                best, best_d = (r, c), d
-        return best
-
-    def unexplored_counts(self) -> np.ndarray:
-        """(H, W) number of unexplored cells in the SQUARE x SQUARE box around every cell."""
-        return _box_sums(~self.explored, SQUARE // 2)
-
-
-def _box_sums(mask: np.ndarray, half: int) -> np.ndarray:
-    h, w = mask.shape
-    ii = np.zeros((h + 1, w + 1), np.int64)
-    ii[1:, 1:] = np.cumsum(np.cumsum(mask, axis=0), axis=1)
-    r0 = np.clip(np.arange(h) - half, 0, h)
-    r1 = np.clip(np.arange(h) + half + 1, 0, h)
-    c0 = np.clip(np.arange(w) - half, 0, w)
-    c1 = np.clip(np.arange(w) + half + 1, 0, w)
-    return ii[r1][:, c1] - ii[r0][:, c1] - ii[r1][:, c0] + ii[r0][:, c0]
-
-
-def _distance_field(blocked: np.ndarray, r: int, c: int) -> np.ndarray:
-    h, w = blocked.shape
-    dist = np.empty(h * w, np.int64)
-    bfs_from(blocked, r, c, dist, np.empty(h * w, np.int64), -1)
-    return dist.reshape(h, w)
 
 
 class Nearest(Planner):
@@ -250,16 +140,25 @@ class Relay:
     the target carries it to the nearest rescuer it last had news of without it (the valid goal nearest
     to where that rescuer was then, ties by path distance); at that cell with the rescuer gone, it gives
     that news up until newer news of the rescuer. Otherwise the planner chooses. It reads the robot's own
-    memory of its teammates (``WorldState.heard_*``)."""
+    memory of its teammates (``WorldState.heard_*``). With ``heading`` the rescuer is looked for where it
+    should be by now, moved from where it was toward the goal it was heading for (``estimated_cells``)."""
+
+    heading = False
 
     def __init__(self, seed: int = 0) -> None:
         super().__init__(seed)
         self._given_up: dict[int, tuple[int, set]] = {}  # world -> (episode, {(robot, rescuer, news tick)})
+        self.relayed = np.zeros((0, 0), bool)  # (B, N): the robots whose goal the relay rule chose last act
+
+    def act(self, engine: EventEngine) -> np.ndarray:
+        self.relayed = np.zeros((engine.num_worlds, engine.num_robots), bool)
+        return super().act(engine)
 
     def choose(self, ctx):
         cell = self._rescuer_to_tell(ctx)
         if cell is None:
             return super().choose(ctx)
+        self.relayed[ctx.b, ctx.i] = True
         cells = np.argwhere(ctx.valid & (ctx.dist > 0))
         if len(cells) == 0:
             return None
@@ -267,7 +166,7 @@ class Relay:
         r, c = cells[np.argmin(key)]
         return int(r), int(c)
 
-    def _rescuer_to_tell(self, ctx: _Context) -> np.ndarray | None:
+    def _rescuer_to_tell(self, ctx: DecisionContext) -> np.ndarray | None:
         """Where the nearest rescuer this explorer last had news of, without the target, was then."""
         if ctx.can_rescue or not ctx.knows_target:
             return None
@@ -277,12 +176,17 @@ class Relay:
             given_up = set()
             self._given_up[b] = (int(st.episode[b]), given_up)
         best, best_d = None, np.inf
+        cells = st.heard_pos[b, i]
+        if self.heading:
+            cells = estimated_cells(
+                st.heard_tick[b], st.heard_pos[b], st.heard_goal[b], st.ticks[b], st.speed[b]
+            )[i]
         for j in np.flatnonzero(st.can_rescue[b]):
             tick = int(st.heard_tick[b, i, j])
             key = (i, int(j), tick)
             if tick < 0 or st.heard_knows[b, i, j] or key in given_up:
                 continue
-            cell = st.heard_pos[b, i, j]
+            cell = cells[j]
             d = float(np.hypot(*(cell - ctx.own)))
             if d <= 1.5:  # there, and the rescuer is not: explore on until newer news of it
                 given_up.add(key)
@@ -297,6 +201,11 @@ class RRTRelay(Relay, RRT):
 
 class NearestRelay(Relay, Nearest):
     name = "nearest-relay"
+
+
+class RRTRelayHeading(Relay, RRT):
+    name = "rrt-relay-heading"
+    heading = True
 
 
 def _label8(mask: np.ndarray) -> tuple[np.ndarray, int]:
@@ -349,7 +258,7 @@ class APF(Planner):
             members = np.argwhere(labels == k)
             centre = members.mean(axis=0)
             m = members[np.argmin(((members - centre) ** 2).sum(axis=1))]
-            d = _distance_field(ctx.blocked, int(m[0]), int(m[1]))
+            d = distance_field(ctx.blocked, int(m[0]), int(m[1]))
             potential -= np.where(d >= 0, len(members) / (1.0 + np.maximum(d, 0)), 0.0)
         rr, cc = np.mgrid[0:h, 0:w]
         for j in range(len(ctx.pos)):
@@ -381,13 +290,24 @@ class APF(Planner):
 
 PLANNERS = {
     p.name: p
-    for p in (Nearest, NearestRelay, Utility, RRT, RRTRelay, APF, RandomFrontier, RandomWindow, UniformWindow)
+    for p in (
+        Nearest,
+        NearestRelay,
+        Utility,
+        RRT,
+        RRTRelay,
+        RRTRelayHeading,
+        APF,
+        RandomFrontier,
+        RandomWindow,
+        UniformWindow,
+    )
 }
 
 
 def make_planner(name: str, seed: int = 0) -> Planner:
-    """A planner by name: nearest, nearest-relay, utility, rrt, rrt-relay, apf, random-frontier,
-    random-rescue, random-uniform."""
+    """A planner by name: nearest, nearest-relay, utility, rrt, rrt-relay, rrt-relay-heading, apf,
+    random-frontier, random-rescue, random-uniform."""
     try:
         return PLANNERS[name](seed=seed)
     except KeyError:

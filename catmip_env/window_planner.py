@@ -39,7 +39,8 @@ from catmip_env.constants import OCCUPIED, STEP_COL, STEP_ROW
 from catmip_env.events import EventEngine
 from catmip_env.kernels.bfs import UNREACHED, bfs_from, downhill
 from catmip_env.kernels.macro import action_masks
-from catmip_env.planners import Planner, make_planner
+from catmip_env.planner_core import Planner
+from catmip_env.planners import make_planner
 
 __all__ = ["WINDOW_KINDS", "WindowPlanner", "make_window_planner", "project_goal", "window_method_name"]
 

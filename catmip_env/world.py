@@ -35,6 +35,7 @@ from catmip_env.constants import (
     global_channels,
     local_channels,
 )
+from catmip_env.kernels.comms import estimated_cells
 from catmip_env.kernels.dynamics import Rules, perceive_at_reset, tick
 from catmip_env.kernels.mapgen import Episode, generate
 from catmip_env.kernels.observe import observe as build_observations
@@ -93,7 +94,7 @@ class BatchedWorld:
         self.num_robots = cfg.num_robots
         self.shape = cfg.map_shape
         self.noisy = cfg.slam_noise > 0.0
-        self.memory = cfg.teammate_memory
+        self.memory, self.heading = cfg.teammate_memory, cfg.teammate_heading
         self._layout = parse_layout(cfg.layout) if cfg.layout is not None else None
         self.state = WorldState.allocate(self.num_worlds, self.num_robots, self.shape, self.noisy)
         b, n, (h, w), c = self.num_worlds, self.num_robots, self.shape, cfg.num_classes
@@ -260,9 +261,12 @@ class BatchedWorld:
     def observe_chunk(self, worlds: np.ndarray, chunk: slice) -> None:
         """:meth:`observe` of the worlds of ``chunk`` (one thread's share)."""
         k, w = self.state.kernel_chunk(chunk), chunk
+        shown = k.heard_pos  # where each remembered teammate is drawn
+        if self.heading:
+            shown = estimated_cells(k.heard_tick, k.heard_pos, k.heard_goal, k.ticks, k.speed)
         build_observations(
             worlds[w], k.belief, k.used_occ, self.noisy, k.pos, k.cls, k.comp, k.goal, k.target,
-            self.obs_global[w], self.obs_local[w], self.memory, k.heard_tick, k.heard_pos, k.heard_knows,
+            self.obs_global[w], self.obs_local[w], self.memory, k.heard_tick, shown, k.heard_knows,
         )  # fmt: skip
 
     # -- read-outs -----------------------------------------------------------------------------

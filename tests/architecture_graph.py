@@ -25,7 +25,7 @@ ENV_GROUPS = {
     ),
     "env: world": ("world", "chunks"),
     "env: events": ("events", "episode_stats"),
-    "env: planners": ("planners", "window_planner"),
+    "env: planners": ("planners", "planner_core", "window_planner"),
     "env: play": ("play", "map_sets", "render", "warmup", "demo"),
     "env: PettingZoo": ("search_rescue_v0", "spaces"),
 }

@@ -2,10 +2,11 @@
 
 Every tick (docs/design.md#communication-and-slam-noise): :func:`draw_neighbourhoods` links robots,
 :func:`merge_beliefs` OR-merges the maps inside each neighbourhood, and :func:`remember` updates each
-robot's memory of its teammates — where and when it last had news of each, and whether that teammate
-knew the target then. News travels as maps do: a neighbourhood shares its members' memories, the
-freshest news of each teammate winning. The memory draws no random numbers; it is shown in the
-observation only with ``EnvConfig.teammate_memory`` (planners may read it from the state).
+robot's memory of its teammates — where and when it last had news of each, whether that teammate
+knew the target then and the goal it was heading for (:func:`estimated_cells`: where it should be now).
+News travels as maps do: a neighbourhood shares its members' memories, the freshest news of each
+teammate winning. The memory draws no random numbers; it is shown in the observation only with
+``EnvConfig.teammate_memory`` (planners may read it from the state).
 """
 
 from __future__ import annotations
@@ -18,7 +19,7 @@ from numba import njit
 from catmip_env.constants import TARGET_BIT
 from catmip_env.kernels.rng import uniform
 
-__all__ = ["draw_neighbourhoods", "merge_beliefs", "remember"]
+__all__ = ["draw_neighbourhoods", "merge_beliefs", "remember", "estimated_cells"]
 
 
 @njit(cache=True)
@@ -97,6 +98,8 @@ def remember(
     heard_tick: np.ndarray,  # (B, N, N) int64 out: tick of i's latest news of j, -1 = none
     heard_pos: np.ndarray,  # (B, N, N, 2) int64 out: where j was then
     heard_knows: np.ndarray,  # (B, N, N) bool out: whether j knew the target then
+    goal: np.ndarray,  # (B, N, 2) the robots' current goals, -1 = none
+    heard_goal: np.ndarray,  # (B, N, N, 2) int64 out: the goal j was heading for then
 ) -> None:
     """Robot i's news of teammate j after this tick's merge: first-hand for the members of i's
     neighbourhood, otherwise the freshest news any member of it holds."""
@@ -110,6 +113,8 @@ def remember(
                 heard_pos[b, i, j, 0] = pos[b, j, 0]
                 heard_pos[b, i, j, 1] = pos[b, j, 1]
                 heard_knows[b, i, j] = knows
+                heard_goal[b, i, j, 0] = goal[b, j, 0]
+                heard_goal[b, i, j, 1] = goal[b, j, 1]
     for root in range(n):
         if comp[b, root] != root:
             continue
@@ -126,3 +131,25 @@ def remember(
                     heard_pos[b, k, j, 0] = heard_pos[b, best, j, 0]
                     heard_pos[b, k, j, 1] = heard_pos[b, best, j, 1]
                     heard_knows[b, k, j] = heard_knows[b, best, j]
+                    heard_goal[b, k, j, 0] = heard_goal[b, best, j, 0]
+                    heard_goal[b, k, j, 1] = heard_goal[b, best, j, 1]
+
+
+def estimated_cells(
+    heard_tick: np.ndarray,  # (..., N, N) int64, -1 = no news
+    heard_pos: np.ndarray,  # (..., N, N, 2)
+    heard_goal: np.ndarray,  # (..., N, N, 2), -1 = no goal
+    ticks: np.ndarray,  # (...) int64: each world's tick now
+    speed: np.ndarray,  # (..., N) int64: each teammate's ticks per cell
+) -> np.ndarray:
+    """(..., N, N, 2) int64: where robot i estimates teammate j to be now, from its latest news of j: the
+    cell j was at, moved toward the goal j was heading for, in a straight line at j's speed for the ticks
+    since, stopping at the goal (the cell itself without a goal or without news)."""
+    pos = heard_pos.astype(np.float64)
+    ahead = heard_goal.astype(np.float64) - pos
+    span = np.hypot(ahead[..., 0], ahead[..., 1])
+    elapsed = np.maximum(np.asarray(ticks)[..., None, None] - heard_tick, 0)
+    travelled = elapsed / speed[..., None, :]
+    frac = np.where(span > 0, np.minimum(1.0, travelled / np.maximum(span, 1e-9)), 0.0)
+    frac = np.where((heard_tick >= 0) & (heard_goal[..., 0] >= 0), frac, 0.0)
+    return np.rint(pos + ahead * frac[..., None]).astype(np.int64)

@@ -273,7 +273,7 @@ def perceive_at_reset(worlds: np.ndarray, s: KernelState, rules: Rules) -> None:
     comm_sigma, horizon, noise = s.comm_sigma, rules.horizon_ticks, rules.slam_noise
     find_reward, rescue_reward = rules.find_reward, rules.rescue_reward
     view_offsets, view_blockers, ray_nblock = rules.view_offsets, rules.view_blockers, rules.ray_nblock
-    heard_tick, heard_pos, heard_knows = s.heard_tick, s.heard_pos, s.heard_knows
+    heard_tick, heard_pos, heard_knows, heard_goal = s.heard_tick, s.heard_pos, s.heard_knows, s.heard_goal
     for b in range(worlds.shape[0]):
         if worlds[b]:
             perceive(
@@ -281,7 +281,7 @@ def perceive_at_reset(worlds: np.ndarray, s: KernelState, rules: Rules) -> None:
                 informed_tick, rescue_tick, pending, horizon, comm_sigma[b], noise, find_reward,
                 rescue_reward, view_offsets, view_blockers, ray_nblock,
             )  # fmt: skip
-            remember(b, 0, pos, comp, belief, target, heard_tick, heard_pos, heard_knows)
+            remember(b, 0, pos, comp, belief, target, heard_tick, heard_pos, heard_knows, s.goal, heard_goal)
 
 
 @njit(cache=True, nogil=True)  # threads=: chunks of worlds run at once
@@ -305,6 +305,7 @@ def tick(
     ticks, moves, collisions, pending, done = s.ticks, s.moves, s.collisions, s.pending_reward, s.done
     found_tick, informed_tick, rescue_tick = s.found_tick, s.informed_tick, s.rescue_tick
     comm_sigma, heard_tick, heard_pos, heard_knows = s.comm_sigma, s.heard_tick, s.heard_pos, s.heard_knows
+    goal, heard_goal = s.goal, s.heard_goal
     horizon, noise = rules.horizon_ticks, rules.slam_noise
     step_reward, collision_penalty = rules.step_reward, rules.collision_penalty
     find_reward, rescue_reward = rules.find_reward, rules.rescue_reward
@@ -330,7 +331,7 @@ def tick(
             informed_tick, rescue_tick, rewards, horizon, comm_sigma[b], noise, find_reward, rescue_reward,
             view_offsets, view_blockers, ray_nblock,
         )  # fmt: skip
-        remember(b, t0 + 1, pos, comp, belief, target, heard_tick, heard_pos, heard_knows)
+        remember(b, t0 + 1, pos, comp, belief, target, heard_tick, heard_pos, heard_knows, goal, heard_goal)
         ticks[b] = t0 + 1
         terminated[b] = success
         truncated[b] = (not success) and t0 + 1 >= horizon

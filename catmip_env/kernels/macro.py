@@ -219,7 +219,7 @@ def advance(
     can_rescue, belief, comp, rng, used_occ = s.can_rescue, s.belief, s.comp, s.rng, s.used_occ
     ticks, moves, collisions, pending, done = s.ticks, s.moves, s.collisions, s.pending_reward, s.done
     found_tick, informed_tick, rescue_tick = s.found_tick, s.informed_tick, s.rescue_tick
-    heard_tick, heard_pos, heard_knows = s.heard_tick, s.heard_pos, s.heard_knows
+    heard_tick, heard_pos, heard_knows, heard_goal = s.heard_tick, s.heard_pos, s.heard_knows, s.heard_goal
     horizon, max_ma, t_min, t_max = rules.horizon_ticks, rules.max_ma_ticks, rules.t_min, rules.t_max
     comm_sigma, noise, gamma, sync = s.comm_sigma, rules.slam_noise, rules.gamma, rules.synchronous
     step_r, coll_r = rules.step_reward, rules.collision_penalty
@@ -257,7 +257,9 @@ def advance(
                 found_tick, informed_tick, rescue_tick, tick_rewards, horizon, comm_sigma[b], noise, find_r,
                 rescue_r, view_offsets, view_blockers, ray_nblock,
             )  # fmt: skip
-            remember(b, t0 + 1, pos, comp, belief, target, heard_tick, heard_pos, heard_knows)
+            remember(
+                b, t0 + 1, pos, comp, belief, target, heard_tick, heard_pos, heard_knows, goal, heard_goal
+            )
             ticks[b] = t0 + 1
             event_ticks[b] += 1
             _credit_tick(b, tick_rewards, gamma, mstate, event_rewards, ma_rewards)
@@ -298,15 +300,23 @@ def assign_goals(
     goal: np.ndarray,
     mstate: np.ndarray,
     ma_rewards: np.ndarray,
+    comp: np.ndarray,  # (B, N) the neighbourhoods the robots decided in
+    heard_goal: np.ndarray,  # (B, N, N, 2) out: a neighbour's news of a robot holds its new goal
 ) -> None:
-    """Start the macro-actions of the active robots of the given worlds."""
+    """Start the macro-actions of the active robots of the given worlds. A neighbourhood decides together,
+    so its members' news of a robot that decides (``heard_goal``) holds the goal it chose."""
+    n = goal.shape[1]
     for b in range(worlds.shape[0]):
         if not worlds[b]:
             continue
-        for i in range(goal.shape[1]):
+        for i in range(n):
             if mstate[b, i, M_ACTIVE]:
                 goal[b, i, 0] = goal_cells[b, i, 0]
                 goal[b, i, 1] = goal_cells[b, i, 1]
+                for k in range(n):
+                    if comp[b, k] == comp[b, i]:
+                        heard_goal[b, k, i, 0] = goal_cells[b, i, 0]
+                        heard_goal[b, k, i, 1] = goal_cells[b, i, 1]
                 mstate[b, i, M_ACTIVE] = 0
                 mstate[b, i, M_STANDBY] = 0
                 mstate[b, i, M_MA_TICKS] = 0

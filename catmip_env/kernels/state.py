@@ -49,6 +49,7 @@ class WorldState:
     heard_tick: np.ndarray  # (B, N, N) int64 tick of i's latest news of j, -1 = none (comms)
     heard_pos: np.ndarray  # (B, N, N, 2) int64 where robot j was then
     heard_knows: np.ndarray  # (B, N, N) bool whether robot j knew the target then
+    heard_goal: np.ndarray  # (B, N, N, 2) int64 the goal robot j was heading for then, -1 = none
 
     @classmethod
     def allocate(cls, num_worlds: int, num_robots: int, shape: tuple[int, int], noisy: bool) -> WorldState:
@@ -81,6 +82,7 @@ class WorldState:
             heard_tick=np.full((b, n, n), -1, np.int64),
             heard_pos=np.zeros((b, n, n, 2), np.int64),
             heard_knows=np.zeros((b, n, n), np.bool_),
+            heard_goal=np.full((b, n, n, 2), -1, np.int64),
         )
 
     def copy(self) -> WorldState:

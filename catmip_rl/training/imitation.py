@@ -27,7 +27,8 @@ import torch
 
 from catmip_env.constants import TARGET_BIT
 from catmip_env.events import EventEngine
-from catmip_env.planners import Planner, make_planner
+from catmip_env.planner_core import Planner
+from catmip_env.planners import make_planner
 from catmip_env.play import Policy
 from catmip_env.window_planner import WindowPlanner, make_window_planner
 from catmip_rl.amat.inputs import one_hot_class
@@ -131,13 +132,18 @@ class RescueLabeler:
 @dataclass
 class PlannerLabeler:
     """``act(engine)`` -> (B, N) labels for PPO's anchor loss (``TrainConfig.anchor``): the planner's
-    (``teacher``'s) own cell goal for every active robot of a live world, -1 for every other robot."""
+    (``teacher``'s) own cell goal for every active robot of a live world, -1 for every other robot; with
+    ``relay_only`` (``anchor_on="relay"``) only where the teacher's relay rule chose (``planners.Relay``)."""
 
     teacher: Planner
+    relay_only: bool = False
 
     def act(self, engine: EventEngine) -> np.ndarray:
         out = np.asarray(self.teacher.act(engine), np.int64).copy()
-        out[~(engine.active & ~engine.state.done[:, None])] = -1
+        labelled = engine.active & ~engine.state.done[:, None]
+        if self.relay_only:
+            labelled &= self.teacher.relayed
+        out[~labelled] = -1
         return out
 
 
@@ -148,7 +154,7 @@ def auxiliary_labeler(cfg: TrainConfig) -> RescueLabeler | PlannerLabeler | None
     if cfg.rescue_coef > 0:
         return RescueLabeler(make_window_planner("nearest", follow_heading=cfg.rescue_heading))
     if cfg.anchor:
-        return PlannerLabeler(make_planner(cfg.anchor, seed=cfg.seed))
+        return PlannerLabeler(make_planner(cfg.anchor, seed=cfg.seed), relay_only=cfg.anchor_on == "relay")
     return None
 
 

@@ -138,3 +138,88 @@ def test_relay_explorer_that_finds_the_cell_empty_explores_on():
     st.heard_tick[0, 1, 0] = 1  # newer news of it
     goal = np.array(_explorer_goal(eng, relay))
     assert ((goal - st.pos[0, 0]) ** 2).sum() == _nearest_goal_to(eng, st.pos[0, 0])
+
+
+def test_news_carries_the_goal_a_teammate_was_heading_for():
+    """``heard_goal``: first hand, the goal the teammate has this tick; passed on with the news."""
+    from catmip_env.events import random_valid_actions
+
+    eng = EventEngine(EnvConfig(map_size=20, team=("rescuer", "explorer", "explorer"), comm_sigma=2.0), 6,
+                      seed=3, goal_mode="cell")  # fmt: skip
+    eng.reset()
+    st, rng = eng.state, np.random.default_rng(3)
+    carried = False
+    for _ in range(60):
+        eng.step(random_valid_actions(eng.masks, rng))
+        for b in np.flatnonzero(~st.done):
+            same = st.comp[b][:, None] == st.comp[b][None, :]
+            i, j = np.nonzero(same)
+            assert (st.heard_goal[b, i, j] == st.goal[b, j]).all()
+            heard = st.heard_tick[b] >= 0
+            carried |= bool((heard & ~same & (st.heard_goal[b, ..., 0] >= 0)).any())
+        if st.done.any():
+            eng.reset(worlds=st.done.copy())
+    assert carried, "news of a teammate out of range should still say where it was going"
+
+
+def test_estimated_cells_move_from_the_news_toward_its_goal_at_the_teammates_speed():
+    from catmip_env.kernels.comms import estimated_cells
+
+    tick = np.array([[-1, 10], [10, 10]])  # robot 0 has no news of itself here; of robot 1 from tick 10
+    pos = np.array([[[0, 0], [5, 2]], [[0, 0], [5, 2]]])
+    goal = np.array([[[-1, -1], [5, 12]], [[-1, -1], [-1, -1]]])
+    speed = np.array([1, 2])  # robot 1 takes two ticks a cell
+    for now, expected in ((10, [5, 2]), (14, [5, 4]), (19, [5, 6]), (40, [5, 12])):
+        est = estimated_cells(tick, pos, goal, np.int64(now), speed)
+        assert est[0, 1].tolist() == expected
+        assert est[1, 1].tolist() == [5, 2]  # without a goal: where it was
+        assert est[0, 0].tolist() == [0, 0]  # without news: the cell as it is
+    batched = estimated_cells(tick[None], pos[None], goal[None], np.array([14]), speed[None])
+    assert batched[0, 0, 1].tolist() == [5, 4]
+
+
+def test_heading_relay_looks_for_the_rescuer_along_its_way_and_the_option_shows_it_there():
+    eng, cfg = _corridor()
+    st = eng.state
+    rescuer = st.pos[0, 0].copy()
+    st.heard_tick[0, 1, 0], st.heard_pos[0, 1, 0], st.heard_knows[0, 1, 0] = 0, rescuer, False
+    st.heard_goal[0, 1, 0] = [1, 9]  # heading east along the top row, two ticks a cell
+    st.ticks[0] = 12  # six cells along by now
+    ahead = np.array([1, 7])
+    goal = np.array(_explorer_goal(eng, make_planner("rrt-relay-heading", seed=0)))
+    assert ((goal - ahead) ** 2).sum() == _nearest_goal_to(eng, ahead)
+    plain = np.array(_explorer_goal(eng, make_planner("rrt-relay", seed=0)))
+    assert ((plain - rescuer) ** 2).sum() == _nearest_goal_to(eng, rescuer)  # rrt-relay: where it was
+    # the observation option draws the remembered rescuer at the same estimate (its class channel)
+    shown = EventEngine(cfg.replace(teammate_memory=True, teammate_heading=True), 1, seed=0, goal_mode="cell")
+    shown.reset()
+    for name in ("heard_tick", "heard_pos", "heard_knows", "heard_goal", "ticks"):
+        getattr(shown.state, name)[:] = getattr(st, name)
+    shown.world.observe(np.ones(1, bool))
+    rescuer_channel = shown.obs_global[0, 1, CH_CLASS0 + shown.state.cls[0, 0]]
+    assert rescuer_channel[tuple(ahead)] == OBS_CLUE and rescuer_channel[tuple(rescuer)] == 0
+
+
+def test_heading_needs_the_memory():
+    import pytest
+
+    with pytest.raises(ValueError, match="teammate_heading .* set teammate_memory too"):
+        EnvConfig(teammate_heading=True)
+
+
+def test_a_neighbourhood_that_decides_together_hears_its_members_new_goals():
+    from catmip_env.kernels.macro import M_ACTIVE, M_FIELDS, assign_goals
+
+    n = 3
+    goal_cells = np.array([[[2, 3], [4, 5], [6, 7]]])
+    goal = np.full((1, n, 2), -1)
+    mstate = np.zeros((1, n, M_FIELDS), np.int64)
+    mstate[0, :2, M_ACTIVE] = 1  # robots 0 and 1 decide; robot 2 is busy
+    comp = np.array([[0, 2, 2]])  # robot 0 alone; robots 1 and 2 together
+    heard_goal = np.full((1, n, n, 2), -1)
+    assign_goals(np.ones(1, bool), goal_cells, goal, mstate, np.zeros((1, n)), comp, heard_goal)
+    assert goal[0, :2].tolist() == [[2, 3], [4, 5]] and goal[0, 2].tolist() == [-1, -1]
+    assert heard_goal[0, 0, 0].tolist() == [2, 3]  # its own
+    assert heard_goal[0, 1, 1].tolist() == heard_goal[0, 2, 1].tolist() == [4, 5]  # its neighbourhood's
+    assert heard_goal[0, 0, 1].tolist() == heard_goal[0, 1, 0].tolist() == [-1, -1]  # not the others'
+    assert (heard_goal[0, :, 2] == -1).all()  # a busy robot chose nothing new

@@ -9,7 +9,7 @@ import torch
 from catmip_env.config import make_config
 from catmip_env.constants import EXPLORED, OCCUPIED
 from catmip_env.events import EventEngine, random_valid_actions
-from catmip_env.planners import _distance_field
+from catmip_env.planner_core import distance_field
 from catmip_rl.amat.config import AmatConfig
 from catmip_rl.amat.inputs import macro_observation
 from catmip_rl.amat.kernels.cell_fields import cell_fields
@@ -55,7 +55,7 @@ def test_cell_fields_are_the_robots_position_and_path_distance_on_its_own_map():
             blocked = (st.belief[b, i] & OCCUPIED) != 0
             blocked[0, :] = blocked[-1, :] = blocked[:, 0] = blocked[:, -1] = True
             blocked[tuple(st.pos[b, i])] = False
-            np.testing.assert_array_equal(dist[b, i], _distance_field(blocked, *st.pos[b, i]))
+            np.testing.assert_array_equal(dist[b, i], distance_field(blocked, *st.pos[b, i]))
 
 
 def test_window_amat_refuses_a_cell_config_and_make_model_builds_each_kind():
