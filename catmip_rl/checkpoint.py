@@ -248,9 +248,10 @@ def initial_weights(spec: str, config: AmatConfig) -> dict[str, Any]:
     weights (counting the runs they came from in turn; None where unknown), and ``pool`` [theirs, ours]
     where a model whose pooled grid divides ``config.pool`` (and is otherwise ``config``) was spread over
     the finer grid (:func:`~catmip_rl.amat.weights.finer_pool`), ``cell_mask`` [theirs, ours] where a
-    cell-goal model is to choose among other cells, and ``teammate_memory`` [theirs, ours] where it is to
-    see remembered teammates (neither holds weights), and ``critic`` [theirs, ours] where PPO's values are to
-    come from elsewhere (a new state critic starts from its own initialisation). Raises ``ValueError``
+    cell-goal model is to choose among other cells, ``teammate_memory`` / ``teammate_heading`` [theirs, ours]
+    where it is to see remembered teammates (or see them moved along their headings; none holds weights),
+    and ``critic`` [theirs, ours] where PPO's values are to come from elsewhere (a new state critic starts
+    from its own initialisation). Raises ``ValueError``
     (the message starts with "init_from") if the file is missing, unreadable or not an AMAT of ``config``."""
     try:
         path = model_file(resolve_model(spec))
@@ -268,6 +269,7 @@ def initial_weights(spec: str, config: AmatConfig) -> dict[str, Any]:
         config,
         cell_mask=model.config.cell_mask,
         teammate_memory=model.config.teammate_memory,
+        teammate_heading=model.config.teammate_heading,
         critic=model.config.critic,
     ):
         theirs, ours = asdict(model.config), asdict(config)
@@ -289,7 +291,13 @@ def initial_weights(spec: str, config: AmatConfig) -> dict[str, Any]:
         "iteration": state.get("iteration"),
         "elapsed_min": None if own is None else _minutes_behind(own, state.get("init_from")),
     }
-    for name in ("pool", "cell_mask", "teammate_memory", "critic"):  # what the new run changed
+    for name in (
+        "pool",
+        "cell_mask",
+        "teammate_memory",
+        "teammate_heading",
+        "critic",
+    ):  # what the run changed
         if getattr(model.config, name) != getattr(config, name):
             source[name] = [getattr(model.config, name), getattr(config, name)]
     return {"model": weights, "value_norm": state.get("value_norm"), "source": source}

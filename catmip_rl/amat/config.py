@@ -52,6 +52,9 @@ class AmatConfig:
     """Observes teammates outside its neighbourhood where it last had news of them (the env's
     ``EnvConfig.teammate_memory``; not the paper's observation): training worlds and evaluation turn
     the option on for such a model, and an engine without it is refused."""
+    teammate_heading: bool = False
+    """With ``teammate_memory``: sees each remembered teammate where it should be by now, moved toward the
+    goal it was heading for (``EnvConfig.teammate_heading``)."""
     critic: str = "encoder"
     """Where PPO's values come from: "encoder" (the paper's value head on the encoder's tokens) or
     "state" (``amat.critic.StateCritic``: a centralised critic that reads the world's true state beside
@@ -70,6 +73,11 @@ class AmatConfig:
                 f"AmatConfig.cell_mask must be one of {list(CELL_MASKS)}, got {self.cell_mask!r}"
             )
         check("AmatConfig", "teammate_memory", self.teammate_memory, BOOL)
+        check("AmatConfig", "teammate_heading", self.teammate_heading, BOOL)
+        if self.teammate_heading and not self.teammate_memory:
+            raise ValueError(
+                "AmatConfig.teammate_heading moves remembered teammates: set teammate_memory too"
+            )
         if self.critic not in CRITICS:
             raise ValueError(f"AmatConfig.critic must be one of {list(CRITICS)}, got {self.critic!r}")
         if self.goals not in GOAL_KINDS:
@@ -89,9 +97,13 @@ class AmatConfig:
 
     def env_overrides(self) -> dict[str, Any]:
         """What an env must set to give this model its observations and actions: the goal window (window
-        goals), and the teammate memory when the model reads it."""
+        goals), and the teammate memory (moved along their headings) when the model reads it."""
         needs = {"window": self.window} if self.goals == "window" else {}
-        return needs | ({"teammate_memory": True} if self.teammate_memory else {})
+        if self.teammate_memory:
+            needs["teammate_memory"] = True
+        if self.teammate_heading:
+            needs["teammate_heading"] = True
+        return needs
 
     def to_json(self) -> str:
         return json.dumps(asdict(self), indent=2, sort_keys=True)

@@ -264,12 +264,12 @@ class AmatExecutor:
 
     def check_memory(self, engine: EventEngine) -> None:
         """ValueError unless the engine shows remembered teammates exactly when the model reads them."""
-        if engine.cfg.teammate_memory != self.model.config.teammate_memory:
-            raise ValueError(
-                f"this AMAT was trained {'with' if self.model.config.teammate_memory else 'without'} the "
-                f"teammate memory in its observation; the engine has teammate_memory="
-                f"{engine.cfg.teammate_memory}"
-            )
+        for name in ("teammate_memory", "teammate_heading"):
+            if getattr(engine.cfg, name) != getattr(self.model.config, name):
+                raise ValueError(
+                    f"this AMAT was trained {'with' if getattr(self.model.config, name) else 'without'} "
+                    f"{name} in its observation; the engine has {name}={getattr(engine.cfg, name)}"
+                )
 
     @torch.no_grad()
     def act(self, engine: EventEngine) -> np.ndarray:

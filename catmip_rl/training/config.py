@@ -15,7 +15,7 @@ from typing import Any
 
 from catmip_env import EnvConfig, make_config
 from catmip_env.fields import BOOL, INT, NUMBER, STR, Rule, check, is_str
-from catmip_env.planners import PLANNERS
+from catmip_env.planners import PLANNERS, Relay
 from catmip_rl.amat.config import AmatConfig
 
 __all__ = ["TrainConfig", "check_field", "field_docs"]
@@ -58,6 +58,7 @@ _VALUES: dict[str, Rule] = {
     "collector": Rule("local or ray", lambda v: v in ("local", "ray")),
     "warm_start": Rule(f"'' or a planner name {sorted(PLANNERS)}", lambda v: v == "" or v in PLANNERS),
     "anchor": Rule(f"'' or a planner name {sorted(PLANNERS)}", lambda v: v == "" or v in PLANNERS),
+    "anchor_on": Rule("every or relay", lambda v: v in ("every", "relay")),
     "ray_address": Rule(
         "None, 'auto', 'host:port' or 'ray://host:port'", lambda v: v is None or (is_str(v) and v != "")
     ),
@@ -163,6 +164,10 @@ class TrainConfig:
     it near the planner it imitated, so that argmax play does not drift into loops. "" = none."""
     anchor_coef: float = 0.0
     """Weight of the ``anchor`` loss (> 0 exactly when ``anchor`` is set)."""
+    anchor_on: str = "every"
+    """Which decisions the ``anchor`` labels: "every" one, or only those where a relay planner's relay
+    rule chooses ("relay": an explorer carrying the news of the target to a rescuer; ``planners.Relay``),
+    so that the anchor teaches the relay and leaves the rest of the policy to PPO."""
     max_grad_norm: float = 10.0
     """Gradient-norm clip of each step."""
     gamma: float = 1.0
@@ -242,6 +247,11 @@ class TrainConfig:
         amat = self.amat_config()  # validates it
         if bool(self.anchor) != (self.anchor_coef > 0):
             raise ValueError("TrainConfig.anchor and anchor_coef > 0 go together: set both, or neither")
+        if self.anchor_on == "relay" and not issubclass(PLANNERS.get(self.anchor, object), Relay):
+            relays = sorted(k for k, p in PLANNERS.items() if issubclass(p, Relay))
+            raise ValueError(
+                f"TrainConfig.anchor_on 'relay' needs a relay planner as the anchor: one of {relays}"
+            )
         if self.anchor and (self.rescue_coef > 0 or amat.goals != "cell"):
             raise ValueError(
                 "TrainConfig.anchor labels a cell-goal model's decisions (amat goals 'cell') and takes the "
@@ -297,8 +307,10 @@ class TrainConfig:
         return self._for_model(make_config(self.env_preset, **self.env_overrides))
 
     def _for_model(self, env: EnvConfig) -> EnvConfig:
-        """``env`` with the teammate memory on when the model reads it (``AmatConfig.teammate_memory``)."""
-        return env.replace(teammate_memory=True) if self.amat.get("teammate_memory") else env
+        """``env`` with the teammate memory on when the model reads it (``AmatConfig.teammate_memory``, and
+        ``teammate_heading``)."""
+        shown = {k: True for k in ("teammate_memory", "teammate_heading") if self.amat.get(k)}
+        return env.replace(**shown) if shown else env
 
     def world_configs(self) -> list[tuple[EnvConfig, int]]:
         """(EnvConfig, episodes per iteration) of each training world (see ``worlds``); ValueError

@@ -216,6 +216,17 @@ TRAIN_PRESETS["general-noise3"] = TRAIN_PRESETS["general-relay-noise"].replace(
     worlds=[*_MIXTURE, _NOISY_TASK2, _NOISY_TASK3], value_warmup_iterations=7
 )
 
+# a relay that knows where a rescuer was heading: the model sees each remembered teammate where it should be
+# by now (moved toward the goal it was heading for, EnvConfig.teammate_heading), and the anchor labels only
+# the decisions where rrt-relay-heading's relay rule carries the news (anchor_on "relay", at five times the
+# per-decision weight of the earlier anchor), leaving exploration to PPO; from amat_general's weights
+TRAIN_PRESETS["general-heading"] = TRAIN_PRESETS["general-relay-noise"].replace(
+    amat={"goals": "cell", "cell_mask": "reachable", "teammate_memory": True, "teammate_heading": True},
+    anchor="rrt-relay-heading",
+    anchor_on="relay",
+    anchor_coef=1.0,
+)
+
 #: presets that fine-tune a trained model: a new run of one needs ``init_from`` (``catmip train`` refuses it
 #: without; from fresh weights they would be a slow, unwarmed paper run)
 FINE_TUNING_PRESETS = (
@@ -226,6 +237,7 @@ FINE_TUNING_PRESETS = (
     "general-relay",
     "general-relay-noise",
     "general-noise3",
+    "general-heading",
 )
 
 

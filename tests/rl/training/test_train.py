@@ -401,6 +401,28 @@ def test_the_anchor_labels_every_decision_with_the_planners_cell_and_trains(tmp_
     assert len(rows) == 2 and all(float(r["loss/rescue"]) > 0 for r in rows)
 
 
+def test_an_anchor_on_the_relay_labels_only_the_decisions_its_relay_rule_made():
+    """``anchor_on="relay"``: only an explorer that carries the news to a rescuer is labelled; the config
+    refuses it with a planner that has no relay rule."""
+    from catmip_rl.training.imitation import auxiliary_labeler
+    from tests.env.test_teammate_memory import _corridor
+
+    amat = {"embed_dim": 16, "goals": "cell", "cell_channels": 8, "cell_layers": 2, "teammate_memory": True}
+    with pytest.raises(ValueError, match="anchor_on 'relay' needs a relay planner"):
+        make_train_config("tiny", amat=amat, anchor="rrt", anchor_coef=1.0, anchor_on="relay")
+    cfg = make_train_config("tiny", amat=amat, anchor="rrt-relay", anchor_coef=1.0, anchor_on="relay")
+    eng, _ = _corridor()  # the explorer (robot 1) knows the target, the rescuer (robot 0) does not
+    st = eng.state
+    st.heard_tick[0, 1, 0], st.heard_pos[0, 1, 0], st.heard_knows[0, 1, 0] = 0, st.pos[0, 0], False
+    assert eng.active[0].all()  # both decide: the rescuer's goal is RRT's, the explorer's the relay's
+    labels = auxiliary_labeler(cfg).act(eng)
+    everywhere = auxiliary_labeler(cfg.replace(anchor_on="every")).act(eng)
+    assert labels[0, 0] == -1 and everywhere[0, 0] >= 0
+    assert labels[0, 1] == everywhere[0, 1] >= 0
+    st.heard_knows[0, 1, 0] = True  # nobody left to tell: nothing labelled
+    assert (auxiliary_labeler(cfg).act(eng) == -1).all()
+
+
 def test_the_anchor_loss_skips_labels_the_models_mask_rules_out():
     import dataclasses
 
@@ -426,11 +448,13 @@ def test_the_anchor_loss_skips_labels_the_models_mask_rules_out():
 def test_the_memory_model_chain_presets_are_the_recorded_runs(preset, record):
     """amat_general.pt's stages as named presets: each is its recorded run's config in every field that
     acts (the start's file and the threads are the command's; warm-start fields act only with a warm start;
-    the anchor and the critic's LR were added after the first record, off there)."""
+    the anchor and the critic's LR were added after the first record, off there; a field added after a
+    record is at its default)."""
     cfg = json.loads(make_train_config(preset).to_json())
     ran = json.loads((RECORDS / record / "config.json").read_text())
     ignored = {"init_from", "threads", "critic_lr", "anchor", "anchor_coef"} if "anchor" not in ran else {
         "init_from", "threads", "critic_lr"}  # fmt: skip
+    ran = {k: v for k, v in json.loads(TrainConfig().to_json()).items() if k not in ran} | ran
     if not ran["warm_start"]:
         ignored |= {k for k in cfg if k.startswith("warm_start_")}
     acting = {k: v for k, v in cfg.items() if k not in ignored}
