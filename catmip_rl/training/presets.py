@@ -217,14 +217,12 @@ TRAIN_PRESETS["general-noise3"] = TRAIN_PRESETS["general-relay-noise"].replace(
 )
 
 # a relay that knows where a rescuer was heading: the model sees each remembered teammate where it should be
-# by now (moved toward the goal it was heading for, EnvConfig.teammate_heading), and the anchor labels only
-# the decisions where rrt-relay-heading's relay rule carries the news (anchor_on "relay", at five times the
-# per-decision weight of the earlier anchor), leaving exploration to PPO; from amat_general's weights
+# by now (moved toward the goal it was heading for, EnvConfig.teammate_heading), and the anchor is
+# rrt-relay-heading, whose relay looks for a rescuer there; from amat_general's weights (an arm with the
+# anchor on the relay decisions only, anchor_on "relay", lost Task 2: run-records/general-heading-relay)
 TRAIN_PRESETS["general-heading"] = TRAIN_PRESETS["general-relay-noise"].replace(
     amat={"goals": "cell", "cell_mask": "reachable", "teammate_memory": True, "teammate_heading": True},
     anchor="rrt-relay-heading",
-    anchor_on="relay",
-    anchor_coef=1.0,
 )
 
 #: presets that fine-tune a trained model: a new run of one needs ``init_from`` (``catmip train`` refuses it
