@@ -177,10 +177,10 @@ class Relay:
             self._given_up[b] = (int(st.episode[b]), given_up)
         best, best_d = None, np.inf
         cells = st.heard_pos[b, i]
-        if self.heading:
-            cells = estimated_cells(
-                st.heard_tick[b], st.heard_pos[b], st.heard_goal[b], st.ticks[b], st.speed[b]
-            )[i]
+        if self.heading:  # this robot's row of the estimates only
+            row = slice(i, i + 1)
+            news = (st.heard_tick[b, row], st.heard_pos[b, row], st.heard_goal[b, row])
+            cells = estimated_cells(*news, st.ticks[b], st.speed[b])[0]
         for j in np.flatnonzero(st.can_rescue[b]):
             tick = int(st.heard_tick[b, i, j])
             key = (i, int(j), tick)

@@ -291,13 +291,8 @@ def initial_weights(spec: str, config: AmatConfig) -> dict[str, Any]:
         "iteration": state.get("iteration"),
         "elapsed_min": None if own is None else _minutes_behind(own, state.get("init_from")),
     }
-    for name in (
-        "pool",
-        "cell_mask",
-        "teammate_memory",
-        "teammate_heading",
-        "critic",
-    ):  # what the run changed
+    # what the new run changed
+    for name in ("pool", "cell_mask", "teammate_memory", "teammate_heading", "critic"):
         if getattr(model.config, name) != getattr(config, name):
             source[name] = [getattr(model.config, name), getattr(config, name)]
     return {"model": weights, "value_norm": state.get("value_norm"), "source": source}

@@ -150,6 +150,6 @@ def estimated_cells(
     span = np.hypot(ahead[..., 0], ahead[..., 1])
     elapsed = np.maximum(np.asarray(ticks)[..., None, None] - heard_tick, 0)
     travelled = elapsed / speed[..., None, :]
-    frac = np.where(span > 0, np.minimum(1.0, travelled / np.maximum(span, 1e-9)), 0.0)
-    frac = np.where((heard_tick >= 0) & (heard_goal[..., 0] >= 0), frac, 0.0)
+    moving = (heard_tick >= 0) & (heard_goal[..., 0] >= 0) & (span > 0)
+    frac = np.where(moving, np.minimum(1.0, travelled / np.maximum(span, 1e-9)), 0.0)
     return np.rint(pos + ahead * frac[..., None]).astype(np.int64)
