@@ -564,6 +564,7 @@ def test_fuzz_random_arguments_exit_0_or_2_without_a_traceback(
         argv.append("--help")
     argv = [a.format(**where) for a in argv]
     with monkeypatch.context() as m:  # the first real work of each command raises _WorkStarted
+        m.chdir(tmp_path_factory.mktemp("cwd"))  # a value such as "amat:/tmp/x" is a relative path to make
         m.setattr(catmip_rl.evaluation.evaluate, "EventEngine", _work_started)
         m.setattr(catmip_rl.evaluation.paper, "map_jobs", _work_started)
         m.setattr(catmip_rl.evaluation.suite, "map_jobs", _work_started)
