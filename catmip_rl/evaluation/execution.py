@@ -16,6 +16,7 @@ import numpy as np
 import torch
 
 from catmip_env.events import EventEngine
+from catmip_env.kernels.state import WorldState
 from catmip_env.play import MESSAGE_COLUMNS
 from catmip_rl.amat.batch1.fast_amat import FastAmat
 from catmip_rl.amat.config import AmatConfig
@@ -279,12 +280,7 @@ class AmatExecutor:
                 f"AMAT with window {self.model.config.window} needs an EventEngine in window mode with "
                 f"window {self.model.config.window}, got {engine.goal_mode!r} / {engine.cfg.window}"
             )
-        self.check_memory(engine)
-        if self.messages is None or self._last_action.shape != (engine.num_worlds, engine.num_robots):
-            self.start_episodes(engine.num_worlds, engine.num_robots)
-        st = engine.state
-        active = engine.active & ~st.done[:, None]
-        masks = self._guarded_masks(engine, active) if self.loop_guard else engine.masks
+        st, active, masks = self._begin_decision(engine)
         if self.fast is not None:
             actions, b_of_row, member = decide_neighbourhoods_fast(
                 self.fast, engine.obs_global, engine.obs_local, st.cls, masks, active, st.comp
@@ -299,6 +295,16 @@ class AmatExecutor:
         self._last_action[active] = actions[active]
         self._count(engine, b_of_row, member, active)
         return actions
+
+    def _begin_decision(self, engine: EventEngine) -> tuple[WorldState, np.ndarray, np.ndarray]:
+        """(state, active (B, N): the active robots of live worlds, the masks they choose from: the
+        engine's, or the loop guard's), after checking the memory option and sizing the counters."""
+        self.check_memory(engine)
+        if self.messages is None or self._last_action.shape != (engine.num_worlds, engine.num_robots):
+            self.start_episodes(engine.num_worlds, engine.num_robots)
+        st = engine.state
+        active = engine.active & ~st.done[:, None]
+        return st, active, self._guarded_masks(engine, active) if self.loop_guard else engine.masks
 
     def _count(self, engine: EventEngine, b_of_row: np.ndarray, member: np.ndarray, active: np.ndarray):
         sizes = message_bytes(self.model.config, engine.shape)
@@ -330,12 +336,7 @@ class CellGoalExecutor(AmatExecutor):
             raise ValueError(
                 f"a cell-goal AMAT needs an EventEngine with goal_mode='cell', got {engine.goal_mode!r}"
             )
-        self.check_memory(engine)
-        if self.messages is None or self._last_action.shape != (engine.num_worlds, engine.num_robots):
-            self.start_episodes(engine.num_worlds, engine.num_robots)
-        st = engine.state
-        active = engine.active & ~st.done[:, None]
-        masks = self._guarded_masks(engine, active) if self.loop_guard else engine.masks
+        st, active, masks = self._begin_decision(engine)
         actions = masks.argmax(-1).astype(np.int64)
         if not active.any():
             return actions
