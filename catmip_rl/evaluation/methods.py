@@ -40,15 +40,17 @@ __all__ = [
     "METHOD_HELP",
 ]
 
-METHOD_HELP = (
-    "nearest | utility | rrt | apf | random-frontier | random-rescue (random window goals with the planners' "
-    "rescue rule) | random-uniform (uniformly random valid window goals, no rescue rule: a learner's floor) "
-    "| window:PLANNER (its goals projected into the 7x7 window) | window-noheading:PLANNER (projected along "
-    "a heading-free path) | amat:PATH (a model file, checkpoint or run dir; one trained in the synchronous "
-    "world plays in it) | amat:NAME (a shipped model) | amat-guard:PATH (argmax with the loop guard) | "
-    "sync:METHOD (the method in the synchronous world: every robot decides together) | py:FILE.py:FACTORY "
-    "or py:package.module:FACTORY (your policy: docs/benchmark-your-algorithm.md); NAME=METHOD names it on "
-    "tables and plots"
+_PLANNER_NOTES = {
+    "random-rescue": "random window goals with the planners' rescue rule",
+    "random-uniform": "uniformly random valid window goals, no rescue rule: a learner's floor",
+}
+METHOD_HELP = " | ".join(f"{p} ({_PLANNER_NOTES[p]})" if p in _PLANNER_NOTES else p for p in PLANNERS) + (
+    " | window:PLANNER (its goals projected into the 7x7 window) | window-noheading:PLANNER (projected "
+    "along a heading-free path) | amat:PATH (a model file, checkpoint or run dir; one trained in the "
+    "synchronous world plays in it) | amat:NAME (a shipped model) | amat-guard:PATH (argmax with the loop "
+    "guard) | sync:METHOD (the method in the synchronous world: every robot decides together) | "
+    "py:FILE.py:FACTORY or py:package.module:FACTORY (your policy: docs/benchmark-your-algorithm.md); "
+    "NAME=METHOD names it on tables and plots"
 )
 
 

@@ -620,3 +620,12 @@ def test_eval_says_when_a_model_plays_with_the_loop_guard(tmp_path, capsys):
     cmd = ["eval", "--method", "amat-guard:task1", "--episodes", "2", "--threads", "1", "--no-progress"]
     assert main([*cmd, "--argmax-only", "--out", str(tmp_path / "guard")]) == 0
     assert "amat_task1-guard (argmax actions, loop guard) on task1" in capsys.readouterr().out
+
+
+def test_method_help_names_every_planner(capsys, monkeypatch):
+    from catmip_env.planners import PLANNERS
+
+    monkeypatch.setenv("COLUMNS", "100000")  # argparse wraps the help at a hyphen otherwise
+    assert main(["eval", "--help"]) == 0
+    method = next(line for line in capsys.readouterr().out.splitlines() if "  --method METHOD" in line)
+    assert all(f" {name} " in method for name in PLANNERS), method
