@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import re
 from pathlib import Path
 from typing import Any
@@ -300,6 +301,14 @@ def paired_names(vs: str) -> tuple[str, str]:
     return f"{stem}.md", f"{stem}.csv"
 
 
+def _link(code: str, folder: Path, out: Path) -> str:
+    """An entry's ``code`` as the page in ``out`` links it: a URL as it is; a path (relative to the
+    entries ``folder``, e.g. ``../../examples/mappo_torchrl.py``) made relative to ``out``."""
+    if not code or "://" in code or Path(code).is_absolute():
+        return code
+    return Path(os.path.relpath((folder / code).resolve(), out.resolve())).as_posix()
+
+
 def render_leaderboard(
     folder: str | Path, out: str | Path, episodes: int = EPISODES, vs: str | None = None
 ) -> list[Path]:
@@ -307,9 +316,9 @@ def render_leaderboard(
     given ``vs``, every other entry against it (:func:`paired_rows`) to ``out/vs_NAME.md`` / ``.csv``;
     returns the files' paths. Nothing is written unless every entry is accepted and ``vs`` is one."""
     entries = load_entries(folder, episodes)
-    rows = leaderboard_rows(entries)
-    paired = paired_rows(entries, vs) if vs is not None else None
     out = Path(out)
+    rows = [r | {"code": _link(r["code"], Path(folder), out)} for r in leaderboard_rows(entries)]
+    paired = paired_rows(entries, vs) if vs is not None else None
     out.mkdir(parents=True, exist_ok=True)
     md = out / "leaderboard.md"
     atomic_write_text(md, _markdown(rows, episodes))

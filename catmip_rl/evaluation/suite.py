@@ -154,6 +154,8 @@ def _shown_file(record: dict[str, str] | None) -> dict[str, str] | None:
 
 
 def _shown_target(method: Method) -> str:
+    if method.kind == "amat":  # a model file (a shipped model's name resolves to one)
+        return _shown(method.target)
     if method.kind != "py" or not (src := parse_policy_source(method.target)).is_file:
         return method.target
     return f"py:{_shown(src.source)}:{src.factory}"

@@ -5,6 +5,7 @@ ticks do not give is refused with one line naming the file; ``--vs`` pairs every
 from __future__ import annotations
 
 import json
+import re
 import textwrap
 from hashlib import sha256
 
@@ -155,8 +156,18 @@ def test_the_committed_leaderboard_checks_and_is_up_to_date(tmp_path):
     root = Path(__file__).resolve().parents[3] / "leaderboard"
     entries = load_entries(root / "entries")  # every committed entry: the full suite, checked
     assert {"nearest", "random-rescue", "random-uniform"} <= {e["method"] for e in entries}
-    md, _png, vs, _csv = render_leaderboard(root / "entries", tmp_path, vs="rrt")
-    assert md.read_text() == (root / "leaderboard.md").read_text()  # redrawn after the last entry
+    out = tmp_path / "out" / "board"  # a page elsewhere links an entry's code where it lies
+    md, _png, vs, _csv = render_leaderboard(root / "entries", out, vs="rrt")
+
+    def files_linked(page: str, where: Path) -> str:
+        return re.sub(r"\]\((?![a-z]+://)([^)]+)\)", lambda m: f"]({(where / m[1]).resolve()})", page)
+
+    text = files_linked(md.read_text(), out)
+    assert "examples/mappo_torchrl.py" in text and text.count(str(Path(__file__).parents[3])) >= 2
+    for link in re.findall(r"\]\((/[^)]+)\)", text):
+        assert Path(link).is_file(), link
+    # redrawn after the last entry
+    assert text == files_linked((root / "leaderboard.md").read_text(), root)
     assert vs.read_text() == (root / "vs_rrt.md").read_text()
 
 
@@ -214,3 +225,15 @@ def test_an_entry_says_when_its_model_played_with_the_loop_guard():
     assert entry_actions({"actions": "argmax", "loop_guard": False}) == "argmax"
     assert entry_actions({"actions": "its own"}) == "its own"  # planners, and results from before the key
     assert entry_actions({}) is None
+
+
+def test_an_entry_names_a_shipped_model_by_its_path_in_the_clone(monkeypatch):
+    from pathlib import Path
+
+    import catmip_rl
+    from catmip_rl.evaluation.methods import parse_method
+    from catmip_rl.evaluation.suite import _shown_target
+
+    monkeypatch.chdir(Path(catmip_rl.__file__).resolve().parents[1])  # the clone's root
+    assert _shown_target(parse_method("amat:paper")) == "catmip_rl/models/amat_paper.pt"
+    assert _shown_target(parse_method("amat-guard:general")) == "catmip_rl/models/amat_general.pt"
