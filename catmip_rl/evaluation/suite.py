@@ -37,7 +37,7 @@ from catmip_rl.evaluation.evaluate import EvalSetting
 from catmip_rl.evaluation.jobs import Job, check_methods, default_threads, map_jobs, run_dir
 from catmip_rl.evaluation.methods import Method, method_source, parse_runs
 from catmip_rl.evaluation.stats import CONFIDENCE, success_interval
-from catmip_rl.evaluation.user_policy import parse_policy_source
+from catmip_rl.evaluation.user_policy import PolicyError, parse_policy_source
 from catmip_rl.files import atomic_write_text
 
 __all__ = [
@@ -250,7 +250,14 @@ def run_suite(
             resume=True, sampled=False)  # an entry is the argmax (or the policy's own) actions: one pass
         for runs in groups for k, m in enumerate(runs) for st in SETTINGS
     ]  # fmt: skip
-    results = iter(map_jobs(tasks, jobs, progress, f"suite {SUITE}"))
+    try:
+        results = iter(map_jobs(tasks, jobs, progress, f"suite {SUITE}"))
+    except PolicyError as err:  # a policy that broke mid-suite: what was played is kept
+        finished = sum(1 for _ in (out / "runs").rglob("run.json"))
+        raise PolicyError(
+            f"{err}; the {finished} finished run(s) are kept in {out / 'runs'}: fix the policy and run the "
+            "same command with --resume to play only the rest"
+        ) from None
     paths = []
     for runs in groups:
         per_setting: dict[str, list[dict[str, Any]]] = {st.label: [] for st in SETTINGS}

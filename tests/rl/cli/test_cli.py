@@ -132,6 +132,18 @@ def test_resume_without_a_preset_continues_with_the_runs_own_config(tmp_path, mo
     assert seen["cfg"] == make_train_config(DEFAULT_PRESET) and DEFAULT_PRESET != "paper"
 
 
+def test_resuming_a_complete_run_says_so_and_trains_nothing(tmp_path, monkeypatch, capsys):
+    (tmp_path / "run" / "checkpoints").mkdir(parents=True)
+    torch.save(_training_checkpoint(7, iterations=7), tmp_path / "run" / "checkpoints" / "latest.pt")
+    seen = {}
+    monkeypatch.setattr(catmip_rl.training.train, "train", lambda cfg, run_dir, **kw: seen.update(cfg=cfg))
+    assert main(["train", "--run-dir", str(tmp_path / "run"), "--resume"]) == 0
+    out = capsys.readouterr().out
+    assert "is complete (iteration 7 of 7): nothing trained" in out and "--iterations" in out and not seen
+    assert main(["train", "--run-dir", str(tmp_path / "run"), "--resume", "--iterations", "9"]) == 0
+    assert seen["cfg"].iterations == 9
+
+
 # -- flags, outputs, refusals (table) ---------------------------------------------------------------------
 EVAL = ["eval", "--method", "nearest", "--episodes", "1"]
 RENDER = ["render", "--method", "nearest"]

@@ -237,3 +237,26 @@ def test_an_entry_names_a_shipped_model_by_its_path_in_the_clone(monkeypatch):
     monkeypatch.chdir(Path(catmip_rl.__file__).resolve().parents[1])  # the clone's root
     assert _shown_target(parse_method("amat:paper")) == "catmip_rl/models/amat_paper.pt"
     assert _shown_target(parse_method("amat-guard:general")) == "catmip_rl/models/amat_general.pt"
+
+
+def test_a_policy_that_breaks_mid_suite_says_what_is_kept_and_how_to_go_on(tmp_path):
+    (tmp_path / "late.py").write_text(
+        textwrap.dedent(
+            """
+            class BreaksOnTask3:
+                def act(self, engine):
+                    if engine.shape[0] >= 32 and engine.state.ticks.max() > 20:  # past the suite's checks
+                        raise RuntimeError("no memory left")
+                    return engine.masks.argmax(-1)
+
+            def make_policy(env_config, seed):
+                return BreaksOnTask3()
+            """
+        )
+    )
+    with pytest.raises(ValueError) as err:
+        run_suite([f"late=py:{tmp_path / 'late.py'}:make_policy"], tmp_path / "s", episodes=1, progress=False)
+    message = str(err.value)
+    assert "no memory left" in message and "the 6 finished run(s) are kept" in message
+    assert "--resume" in message
+    assert len(list((tmp_path / "s" / "runs").rglob("run.json"))) == 6  # Task 2's six settings
