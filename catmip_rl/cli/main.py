@@ -76,11 +76,12 @@ def _train(args: argparse.Namespace) -> int:
             raise ValueError(
                 f"{name} = {getattr(cfg, name)} is more than this machine's {CPUS} CPUs; use at most {CPUS}"
             )
-    if args.resume and (done := resume_checkpoint(args.run_dir)["iteration"]) >= cfg.iterations:
+    done = resume_checkpoint(args.run_dir)["iteration"] if args.resume else 0
+    train(cfg, args.run_dir, resume=args.resume, progress=not args.no_progress)  # checks the run first
+    if args.resume and done >= cfg.iterations:
         print(f"{args.run_dir} is complete (iteration {done} of {cfg.iterations}): nothing trained; "
               "give --iterations N (more than it has) to go on")  # fmt: skip
         return 0
-    train(cfg, args.run_dir, resume=args.resume, progress=not args.no_progress)
     print(f"run written to {args.run_dir} (config.json, metrics.csv, tensorboard/, checkpoints/)")
     return 0
 

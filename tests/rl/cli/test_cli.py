@@ -139,9 +139,10 @@ def test_resuming_a_complete_run_says_so_and_trains_nothing(tmp_path, monkeypatc
     monkeypatch.setattr(catmip_rl.training.train, "train", lambda cfg, run_dir, **kw: seen.update(cfg=cfg))
     assert main(["train", "--run-dir", str(tmp_path / "run"), "--resume"]) == 0
     out = capsys.readouterr().out
-    assert "is complete (iteration 7 of 7): nothing trained" in out and "--iterations" in out and not seen
+    assert "is complete (iteration 7 of 7): nothing trained" in out and "--iterations" in out
+    assert "run written" not in out and seen["cfg"].iterations == 7  # train checked the run, as ever
     assert main(["train", "--run-dir", str(tmp_path / "run"), "--resume", "--iterations", "9"]) == 0
-    assert seen["cfg"].iterations == 9
+    assert seen["cfg"].iterations == 9 and "run written" in capsys.readouterr().out
 
 
 # -- flags, outputs, refusals (table) ---------------------------------------------------------------------
