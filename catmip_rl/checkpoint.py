@@ -239,6 +239,10 @@ def _minutes_behind(own_minutes: float, origin: dict | None) -> float:
     return own_minutes + float((origin or {}).get("elapsed_min") or 0.0)
 
 
+#: AmatConfig fields a run may change from the weights it starts from (none holds weights of its own)
+_WEIGHTLESS = ("cell_mask", "teammate_memory", "teammate_heading", "critic")
+
+
 def initial_weights(spec: str, config: AmatConfig) -> dict[str, Any]:
     """The weights a new run starts from (``TrainConfig.init_from``), read once: ``{"model": state dict,
     "value_norm": state dict or None, "source": {...}}`` from a training checkpoint or run dir (its latest
@@ -266,11 +270,7 @@ def initial_weights(spec: str, config: AmatConfig) -> dict[str, Any]:
         except ValueError as err:
             raise ValueError(f"init_from {spec!r}: {err}") from None
     elif model.config != replace(  # neither the mask nor the memory holds weights; the critic is new
-        config,
-        cell_mask=model.config.cell_mask,
-        teammate_memory=model.config.teammate_memory,
-        teammate_heading=model.config.teammate_heading,
-        critic=model.config.critic,
+        config, **{name: getattr(model.config, name) for name in _WEIGHTLESS}
     ):
         theirs, ours = asdict(model.config), asdict(config)
         diff = ", ".join(f"{k} {theirs[k]!r} there vs {ours[k]!r} here" for k in ours if theirs[k] != ours[k])
@@ -292,7 +292,7 @@ def initial_weights(spec: str, config: AmatConfig) -> dict[str, Any]:
         "elapsed_min": None if own is None else _minutes_behind(own, state.get("init_from")),
     }
     # what the new run changed
-    for name in ("pool", "cell_mask", "teammate_memory", "teammate_heading", "critic"):
+    for name in ("pool", *_WEIGHTLESS):
         if getattr(model.config, name) != getattr(config, name):
             source[name] = [getattr(model.config, name), getattr(config, name)]
     return {"model": weights, "value_norm": state.get("value_norm"), "source": source}

@@ -60,8 +60,9 @@ def _train(args: argparse.Namespace) -> int:
     RunDirLock(args.run_dir).check_free()  # a live run's dir: say so before reading its checkpoint
     overrides = dict(args.set)
     overrides |= {name: getattr(args, name) for name in TRAIN_FLAGS if getattr(args, name) is not None}
-    if args.preset is None and args.resume:  # continue the run with its own config
-        base = TrainConfig.from_json(resume_checkpoint(args.run_dir)["config"])
+    resumed = resume_checkpoint(args.run_dir) if args.resume else None
+    if args.preset is None and resumed is not None:  # continue the run with its own config
+        base = TrainConfig.from_json(resumed["config"])
     else:
         base = TRAIN_PRESETS[args.preset or DEFAULT_PRESET]
     cfg = _config(base, overrides)
@@ -76,7 +77,7 @@ def _train(args: argparse.Namespace) -> int:
             raise ValueError(
                 f"{name} = {getattr(cfg, name)} is more than this machine's {CPUS} CPUs; use at most {CPUS}"
             )
-    done = resume_checkpoint(args.run_dir)["iteration"] if args.resume else 0
+    done = resumed["iteration"] if resumed is not None else 0
     train(cfg, args.run_dir, resume=args.resume, progress=not args.no_progress)  # checks the run first
     if args.resume and done >= cfg.iterations:
         print(f"{args.run_dir} is complete (iteration {done} of {cfg.iterations}): nothing trained; "
