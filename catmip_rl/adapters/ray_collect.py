@@ -234,6 +234,7 @@ class RayRolloutCollector:
         return Rollout(
             **arrays,
             label=None,
+            label_relay=None,
             state=None,  # a state critic collects locally (TrainConfig refuses it with Ray)
             final_return=td["final_return"].numpy().copy(),
             terminated=td["terminated"].numpy().copy(),

@@ -22,6 +22,7 @@ from catmip_env import EnvConfig
 from catmip_env.constants import global_channels, local_channels
 from catmip_env.episode_stats import DecisionTracker, EpisodeRecords, episode_records, training_stats
 from catmip_env.events import EventEngine
+from catmip_env.planners import Relay
 from catmip_env.play import Policy
 from catmip_rl.amat.critic import critic_state, state_channels
 from catmip_rl.amat.inputs import macro_observation
@@ -48,6 +49,7 @@ class Rollout:
     ma_ticks: np.ndarray  # (T, B, N) int64 its duration
     valid: np.ndarray  # (T, B) bool
     label: np.ndarray | None  # (T, B, N) int64 the teacher's actions (collect(labeler=...))
+    label_relay: np.ndarray | None  # (T, B, N) bool the labels a relay teacher's relay rule chose
     state: np.ndarray | None  # (T, B, 5+C, H, W) uint8 the true state, for a model with critic "state"
     final_return: np.ndarray  # (B, N) float64 each robot's last macro-action's return
     terminated: np.ndarray  # (B,) bool the episode ended in a rescue (its last macro-actions are trained)
@@ -65,7 +67,8 @@ class Rollout:
 
 
 _PER_EPISODE = ("final_return", "terminated", "records", "returns", "stats")
-_OPTIONAL = ("label", "state")  # per step, stored only when asked for: a labeler's actions, a critic's state
+# per step, stored only when asked for: a labeler's actions (and which its relay rule chose), a critic's state
+_OPTIONAL = ("label", "label_relay", "state")
 # the (T, B, ...) arrays of a Rollout, one row per decision event: the collector's storage
 STEP_FIELDS = tuple(f.name for f in fields(Rollout) if f.name not in _PER_EPISODE + _OPTIONAL)
 
@@ -110,6 +113,7 @@ class Collector:
         self._final = np.zeros((b, n), np.float64)
         self._terminated = np.zeros(b, np.bool_)
         self._label = np.zeros((t, b, n), np.int64)
+        self._relay = np.zeros((t, b, n), np.bool_)
         self._state = np.zeros((0, b, state_channels(c), h, w), np.uint8)  # grown for a state critic
         self.tracker = DecisionTracker(b, n)
 
@@ -132,7 +136,8 @@ class Collector:
 
         ``labeler.act(engine)`` (e.g. a :class:`~catmip_env.window_planner.WindowPlanner`, or a planner
         for cell goals), if given, labels every event's active robots with its actions
-        (``Rollout.label``); each active robot then executes the label instead of the policy's action
+        (``Rollout.label``; a relay planner's also says which labels its relay rule chose,
+        ``Rollout.label_relay``); each active robot then executes the label instead of the policy's action
         with probability ``teacher_prob`` (DAgger's mixture; drawn from ``generator``). Log-probs stay
         the policy's: a rollout with ``teacher_prob > 0`` is for imitation, not for PPO."""
         eng, s = self.engine, self._store
@@ -181,6 +186,8 @@ class Collector:
             s["action"][t, idx] = actions.numpy()
             if labeler is not None:
                 self._label[t, idx] = labeler.act(eng)[idx]
+                if isinstance(labeler, Relay):
+                    self._relay[t, idx] = labeler.relayed[idx] & s["active"][t, idx]
                 if teacher_prob > 0:  # DAgger's mixture: some active robots execute the label
                     u = torch.rand(s["action"][t, idx].shape, generator=generator).numpy()
                     take = (u < teacher_prob) & s["active"][t, idx]
@@ -204,6 +211,7 @@ class Collector:
             **{k: v[:t] for k, v in s.items()},
             final_return=self._final.copy(),
             label=self._label[:t].copy() if labeler is not None else None,
+            label_relay=self._relay[:t].copy() if isinstance(labeler, Relay) else None,
             state=self._state[:t] if critic is not None else None,
             terminated=self._terminated.copy(),
             records=records,

@@ -43,7 +43,7 @@ _RANGES: dict[str, tuple[str, Callable[[Any], bool]]] = {
     "warm_start_worlds": (">= 0", lambda v: v >= 0),
     **dict.fromkeys(("micro_batch", "eval_every", "checkpoint_every", "value_warmup_iterations",
                      "budget_minutes", "target_kl", "entropy_coef", "value_coef", "rescue_coef",
-                     "anchor_coef", "critic_lr"),
+                     "anchor_coef", "critic_lr", "warm_start_relay"),
                     (">= 0", lambda v: v >= 0)),
     **dict.fromkeys(("lr", "adam_eps", "clip", "value_clip", "huber_delta", "max_grad_norm", "warm_start_lr"),
                     ("> 0", lambda v: v > 0)),
@@ -210,6 +210,12 @@ class TrainConfig:
     normaliser by them), so that PPO starts with a critic. Measured on the cell-goal model: imitation
     alone left its encoder's output the same for every robot (the pointer needs only the per-cell
     features), and a value head on it cannot learn (docs/notes/general-model.md)."""
+    warm_start_relay: float = 0.0
+    """Weight of a second cross-entropy in every DAgger step, over the labels a relay teacher's relay rule
+    chose (``rrt-relay``, ``rrt-relay-heading``, ...: which teammate to carry the news to, and where),
+    on a quarter batch of the events that hold one; 0 = none. These labels are a rule's, and a few in a
+    hundred: the uniform batches left a student agreeing with under half of them
+    (docs/notes/general-model.md, "Relay-focused DAgger")."""
     warm_start_worlds: int = 0
     """Episodes each DAgger round collects (0 = ``num_worlds``). Collection is cheap beside the round's
     cross-entropy steps, and with few episodes a round's steps fit the buffer rather than the teacher
@@ -251,6 +257,14 @@ class TrainConfig:
             relays = sorted(k for k, p in PLANNERS.items() if issubclass(p, Relay))
             raise ValueError(
                 f"TrainConfig.anchor_on 'relay' needs a relay planner as the anchor: one of {relays}"
+            )
+        if self.warm_start_relay > 0 and not (
+            issubclass(PLANNERS.get(self.warm_start, object), Relay) and amat.goals == "cell"
+        ):
+            relays = sorted(k for k, p in PLANNERS.items() if issubclass(p, Relay))
+            raise ValueError(
+                "TrainConfig.warm_start_relay > 0 weighs a relay teacher's relay labels for a cell-goal "
+                f"model (amat goals 'cell'): warm_start one of {relays}"
             )
         if self.anchor and (self.rescue_coef > 0 or amat.goals != "cell"):
             raise ValueError(

@@ -28,7 +28,7 @@ import torch
 from catmip_env.constants import TARGET_BIT
 from catmip_env.events import EventEngine
 from catmip_env.planner_core import Planner
-from catmip_env.planners import make_planner
+from catmip_env.planners import Relay, make_planner
 from catmip_env.play import Policy
 from catmip_env.window_planner import WindowPlanner, make_window_planner
 from catmip_rl.amat.inputs import one_hot_class
@@ -53,6 +53,7 @@ __all__ = [
 WARM_START_METRICS = [
     "round", "episodes", "beta", "buffer_events", "rollout/success_rate", "rollout/success_by_100",
     "imitation/loss", "imitation/accuracy", "imitation/outside_mask", "imitation/value_loss",
+    "imitation/relay_loss", "imitation/relay_accuracy",
     "eval/success_rate", "eval/success_by_100", "eval/sampled_success_rate", "eval/sampled_success_by_100",
     "time/collect_s", "time/update_s", "time/elapsed_min",
 ]  # fmt: skip
@@ -78,6 +79,8 @@ class DemoBuffer:
         # busy robots keep the stored action as their (unused) label: they are never scored
         label = np.where(r.active, r.label, r.action)
         new = {k: np.ascontiguousarray((label if k == "label" else getattr(r, k))[rows]) for k in _KEYS}
+        # the labels a relay teacher's relay rule chose (none for another teacher)
+        new["relay"] = r.label_relay[rows] if r.label_relay is not None else np.zeros_like(new["active"])
         zeros = np.zeros(r.active.shape)
         _, ret, trainable = async_gae(
             r.active, r.valid, zeros, r.ma_return, r.ma_ticks.astype(np.int64), r.final_return, r.terminated,
@@ -88,6 +91,10 @@ class DemoBuffer:
             new = {k: np.concatenate([self.arrays[k], v]) for k, v in new.items()}
         self.arrays = {k: v[-self.max_events :] for k, v in new.items()}
         return ret[rows][trainable[rows]]
+
+    def relay_events(self) -> np.ndarray:
+        """Indices of the events with a label the teacher's relay rule chose."""
+        return np.zeros(0, np.int64) if self.arrays is None else np.flatnonzero(self.arrays["relay"].any(1))
 
     def batch(self, idx: np.ndarray, n_classes: int, device: torch.device) -> dict[str, torch.Tensor]:
         a = self.arrays
@@ -222,6 +229,7 @@ def dagger(
     imitate_stay: bool = True,
     value_norm: ValueNorm | None = None,
     gamma: float = 1.0,
+    relay_weight: float = 0.0,
 ) -> tuple[int, list[dict[str, float]]]:
     """Train ``model`` by DAgger against ``teacher``: a planner's name (the teacher for the model's goals,
     :func:`make_teacher`, seeded by ``seed``) or the teacher itself; returns (episodes used, one log row
@@ -233,17 +241,20 @@ def dagger(
     heading-free path (:class:`~catmip_env.window_planner.WindowPlanner`). ``imitate_stay=False`` leaves
     the teacher's "stay" labels unscored (``TrainConfig.warm_start_stay``). With ``value_norm`` the value
     head learns the rollouts' returns (discounted by ``gamma``) beside the labels, and ``value_norm``
-    follows them (:func:`imitation_loss`; ``TrainConfig.warm_start_value``)."""
+    follows them (:func:`imitation_loss`; ``TrainConfig.warm_start_value``). With ``relay_weight`` > 0
+    (a relay teacher, ``planners.Relay``) every step adds that weight times the cross-entropy of the
+    labels its relay rule chose, on a quarter batch of the events that hold one
+    (``TrainConfig.warm_start_relay``)."""
     if rounds < 1 or steps_per_round < 1 or batch_events < 1:
         raise ValueError("dagger: rounds, steps_per_round and batch_events must be >= 1")
     gen = generator if generator is not None else torch.Generator().manual_seed(seed)
     rng = np.random.default_rng(seed)
     if isinstance(teacher, str):
         teacher = make_teacher(teacher, model.config.goals, seed=seed, follow_heading=follow_heading)
+    if relay_weight > 0 and not isinstance(teacher, Relay):
+        raise ValueError(f"dagger: relay_weight needs a relay planner as the teacher, not {teacher.name!r}")
     collectors = collector if isinstance(collector, list) else [collector]
     buffers = [DemoBuffer(buffer_events // len(collectors)) for _ in collectors]
-    device = next(model.parameters()).device
-    n_classes = model.config.n_classes
     if not imitate_stay and model.config.goals != "window":
         raise ValueError("imitate_stay=False is for window goals (a cell model's 'stay' is the robot's cell)")
     skip = None if imitate_stay else model.config.num_actions // 2  # the window's centre: "stay"
@@ -265,19 +276,16 @@ def dagger(
             stats.append(rollout.stats)
         t1 = time.perf_counter()
         model.train()
-        sums = {"imitation/loss": 0.0, "imitation/accuracy": 0.0, "imitation/outside_mask": 0.0}
-        if value_norm is not None:
-            sums["imitation/value_loss"] = 0.0
-        for step in range(steps_per_round):
-            buffer = buffers[step % len(buffers)]
-            idx = rng.integers(0, len(buffer), size=min(batch_events, len(buffer)))
-            loss, step_stats = imitation_loss(model, buffer.batch(idx, n_classes, device), skip, value_norm)
-            opt.zero_grad(set_to_none=True)
-            loss.backward()
-            torch.nn.utils.clip_grad_norm_(model.parameters(), max_grad_norm)
-            opt.step()
-            for k in sums:
-                sums[k] += step_stats.get(k, 0.0) / steps_per_round
+        steps = [
+            _imitation_step(model, opt, buffers[k % len(buffers)], rng, batch_events, skip, value_norm,
+                            relay_weight, max_grad_norm)
+            for k in range(steps_per_round)
+        ]  # fmt: skip
+        keys = ["imitation/loss", "imitation/accuracy", "imitation/outside_mask"]
+        keys += ["imitation/value_loss"] if value_norm is not None else []
+        means = {k: sum(st.get(k, 0.0) for st in steps) / steps_per_round for k in keys}
+        relayed = [st for st in steps if "imitation/relay_loss" in st]  # steps whose buffer had a relay label
+        means |= {k: float(np.mean([st[k] for st in relayed])) for k in _RELAY_STATS} if relayed else {}
         row = {
             "round": r + 1,
             "episodes": episodes - first_episode,
@@ -285,7 +293,7 @@ def dagger(
             "buffer_events": sum(len(buf) for buf in buffers),
             "rollout/success_rate": float(np.mean([st["success_rate"] for st in stats])),
             "rollout/success_by_100": float(np.mean([st["success_by_100"] for st in stats])),
-            **sums,
+            **means,
             "time/collect_s": t1 - t0,
             "time/update_s": time.perf_counter() - t1,
         }
@@ -293,6 +301,50 @@ def dagger(
         if on_round is not None:
             on_round(row)
     return episodes - first_episode, log
+
+
+_RELAY_STATS = ("imitation/relay_loss", "imitation/relay_accuracy")
+
+
+def _imitation_step(
+    model: AMAT,
+    opt: torch.optim.Optimizer,
+    buffer: DemoBuffer,
+    rng: np.random.Generator,
+    batch_events: int,
+    skip: int | None,
+    value_norm: ValueNorm | None,
+    relay_weight: float,
+    max_grad_norm: float,
+) -> dict[str, float]:
+    """One cross-entropy step of :func:`dagger` on a uniform batch of ``buffer``'s events, and with
+    ``relay_weight`` on a quarter batch of its relay labels (:func:`_relay_batch`); returns its stats."""
+    n_classes, device = model.config.n_classes, next(model.parameters()).device
+    idx = rng.integers(0, len(buffer), size=min(batch_events, len(buffer)))
+    loss, stats = imitation_loss(model, buffer.batch(idx, n_classes, device), skip, value_norm)
+    relay = _relay_batch(buffer, rng, max(1, batch_events // 4), n_classes, device) if relay_weight else None
+    if relay is not None:
+        relay_loss, relay_stats = imitation_loss(model, relay)
+        loss = loss + relay_weight * relay_loss
+        stats |= dict(zip(_RELAY_STATS, (relay_stats["imitation/loss"], relay_stats["imitation/accuracy"])))
+    opt.zero_grad(set_to_none=True)
+    loss.backward()
+    torch.nn.utils.clip_grad_norm_(model.parameters(), max_grad_norm)
+    opt.step()
+    return stats
+
+
+def _relay_batch(
+    buffer: DemoBuffer, rng: np.random.Generator, size: int, n_classes: int, device: torch.device
+) -> dict[str, torch.Tensor] | None:
+    """``size`` events drawn from those of ``buffer`` with a label the teacher's relay rule chose, only
+    those labels scored (the other robots' labels still feed the decoder); None when there is none."""
+    events = buffer.relay_events()
+    if not len(events):
+        return None
+    batch = buffer.batch(rng.choice(events, size), n_classes, device)
+    batch["active"] = batch["relay"]
+    return batch
 
 
 def warm_start(
@@ -335,6 +387,7 @@ def warm_start(
             batch_events=cfg.warm_start_batch, lr=cfg.warm_start_lr, generator=gen, seed=cfg.seed,
             max_grad_norm=cfg.max_grad_norm, on_round=on_round, imitate_stay=cfg.warm_start_stay,
             value_norm=value_norm if cfg.warm_start_value else None, gamma=cfg.gamma,
+            relay_weight=cfg.warm_start_relay,
         )  # fmt: skip
     finally:
         file.close()
