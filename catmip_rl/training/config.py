@@ -35,6 +35,8 @@ _TYPES: dict[str, Rule] = {
     ),
 }
 PRECISIONS = ("fp32", "bf16", "auto")  # TrainConfig.precision (training.ppo resolves it)
+# the planners with a relay rule (planners.Relay): anchor_on "relay" and warm_start_relay need one
+RELAY_PLANNERS = sorted(name for name, planner in PLANNERS.items() if issubclass(planner, Relay))
 # and each numeric field's range (seeds: torch's generators take 64-bit seeds)
 _RANGES: dict[str, tuple[str, Callable[[Any], bool]]] = {
     **dict.fromkeys(("num_worlds", "iterations", "epochs", "minibatches", "threads", "update_processes",
@@ -253,18 +255,14 @@ class TrainConfig:
         amat = self.amat_config()  # validates it
         if bool(self.anchor) != (self.anchor_coef > 0):
             raise ValueError("TrainConfig.anchor and anchor_coef > 0 go together: set both, or neither")
-        if self.anchor_on == "relay" and not issubclass(PLANNERS.get(self.anchor, object), Relay):
-            relays = sorted(k for k, p in PLANNERS.items() if issubclass(p, Relay))
+        if self.anchor_on == "relay" and self.anchor not in RELAY_PLANNERS:
             raise ValueError(
-                f"TrainConfig.anchor_on 'relay' needs a relay planner as the anchor: one of {relays}"
+                f"TrainConfig.anchor_on 'relay' needs a relay planner as the anchor: one of {RELAY_PLANNERS}"
             )
-        if self.warm_start_relay > 0 and not (
-            issubclass(PLANNERS.get(self.warm_start, object), Relay) and amat.goals == "cell"
-        ):
-            relays = sorted(k for k, p in PLANNERS.items() if issubclass(p, Relay))
+        if self.warm_start_relay > 0 and not (self.warm_start in RELAY_PLANNERS and amat.goals == "cell"):
             raise ValueError(
                 "TrainConfig.warm_start_relay > 0 weighs a relay teacher's relay labels for a cell-goal "
-                f"model (amat goals 'cell'): warm_start one of {relays}"
+                f"model (amat goals 'cell'): warm_start one of {RELAY_PLANNERS}"
             )
         if self.anchor and (self.rescue_coef > 0 or amat.goals != "cell"):
             raise ValueError(

@@ -20,7 +20,7 @@ order of PPO (active robots first, each fed the previous robot's label). Busy ro
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import torch
@@ -66,6 +66,8 @@ class DemoBuffer:
 
     max_events: int
     arrays: dict[str, np.ndarray] | None = None
+    #: indices of the events with a label the teacher's relay rule chose (set by :meth:`add`)
+    relay_events: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
 
     def __len__(self) -> int:
         return 0 if self.arrays is None else len(self.arrays["label"])
@@ -90,11 +92,8 @@ class DemoBuffer:
         if self.arrays is not None:
             new = {k: np.concatenate([self.arrays[k], v]) for k, v in new.items()}
         self.arrays = {k: v[-self.max_events :] for k, v in new.items()}
+        self.relay_events = np.flatnonzero(self.arrays["relay"].any(1))
         return ret[rows][trainable[rows]]
-
-    def relay_events(self) -> np.ndarray:
-        """Indices of the events with a label the teacher's relay rule chose."""
-        return np.zeros(0, np.int64) if self.arrays is None else np.flatnonzero(self.arrays["relay"].any(1))
 
     def batch(self, idx: np.ndarray, n_classes: int, device: torch.device) -> dict[str, torch.Tensor]:
         a = self.arrays
@@ -339,10 +338,9 @@ def _relay_batch(
 ) -> dict[str, torch.Tensor] | None:
     """``size`` events drawn from those of ``buffer`` with a label the teacher's relay rule chose, only
     those labels scored (the other robots' labels still feed the decoder); None when there is none."""
-    events = buffer.relay_events()
-    if not len(events):
+    if not len(buffer.relay_events):
         return None
-    batch = buffer.batch(rng.choice(events, size), n_classes, device)
+    batch = buffer.batch(rng.choice(buffer.relay_events, size), n_classes, device)
     batch["active"] = batch["relay"]
     return batch
 

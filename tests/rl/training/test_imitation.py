@@ -316,13 +316,13 @@ def test_a_relay_teachers_relay_labels_are_recorded_and_buffered():
     buf = DemoBuffer(10_000)
     buf.add(r)
     assert buf.arrays["relay"].sum() == r.label_relay[r.valid].sum()
-    events = buf.relay_events()
+    events = buf.relay_events
     assert len(events) == buf.arrays["relay"].any(1).sum() > 0
     batch = _relay_batch(buf, np.random.default_rng(0), 32, 2, torch.device("cpu"))
     assert torch.equal(batch["active"], batch["relay"]) and batch["active"].any(1).all()
     plain = DemoBuffer(10_000)
     plain.add(_relay_rollout(4, "nearest"))
-    assert not plain.arrays["relay"].any() and len(plain.relay_events()) == 0
+    assert not plain.arrays["relay"].any() and len(plain.relay_events) == 0
     assert _relay_batch(plain, np.random.default_rng(0), 32, 2, torch.device("cpu")) is None
 
 
