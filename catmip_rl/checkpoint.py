@@ -86,10 +86,13 @@ class ModelPlay(NamedTuple):
     """How a model file says it plays: ``synchronous``, trained in the synchronous world (Synch-CATMiP:
     every robot decides together every ``max_ma_ticks`` ticks), as its training config says; ``loop_guard``,
     argmax with the loop guard (``extra["play"]["loop_guard"]``: a robot whose last macro-action stalled
-    may not choose that goal again)."""
+    may not choose that goal again); ``clean_occupancy``, a cell-goal model reading which explored cells
+    are occupied from its action mask (``extra["play"]["clean_occupancy"]``,
+    :func:`~catmip_rl.amat.inputs.clean_occupancy`)."""
 
     synchronous: bool
     loop_guard: bool
+    clean_occupancy: bool = False
 
 
 def model_play(spec: str | Path) -> ModelPlay:
@@ -103,7 +106,7 @@ def model_play(spec: str | Path) -> ModelPlay:
         extra = (blob.get("extra") if isinstance(blob, dict) else None) or {}
         train_config, play = extra.get("train_config") or {}, extra.get("play") or {}
     synchronous = (train_config.get("env_overrides") or {}).get("synchronous", False)
-    return ModelPlay(bool(synchronous), bool(play.get("loop_guard")))
+    return ModelPlay(bool(synchronous), bool(play.get("loop_guard")), bool(play.get("clean_occupancy")))
 
 
 def model_record(spec: str | Path) -> dict[str, Any]:

@@ -95,6 +95,7 @@ def _setting(args: argparse.Namespace):
 
 def _eval(args: argparse.Namespace) -> int:
     from catmip_rl.evaluation.evaluate import evaluate
+    from catmip_rl.evaluation.methods import PLAY_OPTIONS
     from catmip_rl.outputs import output_folder
 
     with output_folder(args.out, "--out", force=args.force) as out:
@@ -107,8 +108,8 @@ def _eval(args: argparse.Namespace) -> int:
     s = result.summary
     rescue = "-" if s["mean_rescue_tick"] is None else f"{s['mean_rescue_tick']:.1f}"
     p, n = s["success_by_100"], s["episodes"]
-    guard = ", loop guard" if s.get("loop_guard") else ""  # a learned policy's choice, and how it played
-    how = "" if s["actions"] == "its own" else f" ({s['actions']} actions{guard})"
+    options = "".join(f", {name}" for key, name in PLAY_OPTIONS if s.get(key))  # how a learned policy played
+    how = "" if s["actions"] == "its own" else f" ({s['actions']} actions{options})"
     print(
         f"{s['method']}{how} on {s['label']}, {n} episodes (seed {args.seed}): success "
         f"{s['success_rate']:.2f}, by tick 100 {p:.2f} (standard error {(p * (1 - p) / n) ** 0.5:.3f}), "

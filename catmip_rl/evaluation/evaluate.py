@@ -251,6 +251,7 @@ def evaluate(
         actions=action_choice(policy),
         sampled_pass=sampled is not None,
         loop_guard=method.loop_guard,
+        clean_occupancy=method.clean_occupancy,
         synchronous=method.synchronous,
         checkpoint=method.target if method.kind == "amat" else None,
         policy=method.target if method.kind in ("py", "policy") else None,

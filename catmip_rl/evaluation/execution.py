@@ -20,7 +20,7 @@ from catmip_env.kernels.state import WorldState
 from catmip_env.play import MESSAGE_COLUMNS
 from catmip_rl.amat.batch1.fast_amat import FastAmat
 from catmip_rl.amat.config import AmatConfig
-from catmip_rl.amat.inputs import macro_observation
+from catmip_rl.amat.inputs import clean_occupancy, macro_observation
 from catmip_rl.amat.model import AMAT, decision_order
 
 __all__ = [
@@ -323,11 +323,19 @@ class CellGoalExecutor(AmatExecutor):
 
     One batched pass over the worlds with an active robot: the model attends and decodes inside each
     neighbourhood only (its ``neighbourhood`` input), which is each neighbourhood deciding on its own.
+    ``clean_occupancy``: the active robots read occupancy from their masks
+    (:func:`~catmip_rl.amat.inputs.clean_occupancy`): under SLAM noise, the map the planners choose on.
     """
 
     def __init__(self, model: AMAT, deterministic: bool = True, generator: torch.Generator | None = None,
-                 loop_guard: bool = False) -> None:  # fmt: skip
+                 loop_guard: bool = False, clean_occupancy: bool = False) -> None:  # fmt: skip
         super().__init__(model, deterministic, generator, loop_guard, fast=False)
+        self.clean_occupancy = clean_occupancy
+
+    def sampled(self, seed: int) -> CellGoalExecutor:
+        """The same model and play options with sampled actions, drawn from a generator seeded by ``seed``."""
+        return type(self)(self.model, False, torch.Generator().manual_seed(seed), self.loop_guard,
+                          self.clean_occupancy)  # fmt: skip
 
     @torch.no_grad()
     def act(self, engine: EventEngine) -> np.ndarray:
@@ -341,9 +349,12 @@ class CellGoalExecutor(AmatExecutor):
         if not active.any():
             return actions
         w = np.flatnonzero(active.any(1))
-        obs = macro_observation(
-            engine.obs_global[w], engine.obs_local[w], st.cls[w], self.model.config.n_classes, st.comp[w]
-        )
+        global_map, local_map = engine.obs_global[w], engine.obs_local[w]
+        if self.clean_occupancy:  # the engine's masks (not the guard's): the clean belief's free cells
+            global_map, local_map = clean_occupancy(
+                global_map, local_map, engine.masks[w], st.pos[w], st.comp[w], active[w]
+            )
+        obs = macro_observation(global_map, local_map, st.cls[w], self.model.config.n_classes, st.comp[w])
         act = torch.from_numpy(active[w])
         rep, _ = self.model.encode(self.model.embed(obs))
 

@@ -22,7 +22,7 @@ import numpy as np
 from catmip_env.events import EventEngine
 from catmip_env.play import WorldNotSupported
 from catmip_rl.evaluation.evaluate import EvalSetting, evaluate, progress_bar
-from catmip_rl.evaluation.methods import Method, changed_files, make_policy, method_source
+from catmip_rl.evaluation.methods import PLAY_OPTIONS, Method, changed_files, make_policy, method_source
 from catmip_rl.evaluation.warmup import torch_threads
 from catmip_rl.outputs import check_record
 
@@ -59,10 +59,12 @@ def _done(job: Job) -> dict[str, Any] | None:
     want = {"method": job.method.name, "method_kind": job.method.kind, "target": job.method.target,
             "synchronous": job.method.synchronous, "label": job.setting.label, "seed": job.seed,
             "episodes": job.episodes, "source": method_source(job.method)}  # fmt: skip
-    differs = [k for k, v in want.items() if summary.get(k) != v]
+    want |= {key: getattr(job.method, key) for key, _ in PLAY_OPTIONS}  # how an AMAT played
+    found = {key: False for key, _ in PLAY_OPTIONS} | summary  # an older summary lacks newer options
+    differs = [k for k, v in want.items() if found.get(k) != v]
     if differs:
         raise ValueError(
-            f"{job.out} holds other results ({', '.join(f'{k} {summary.get(k)!r}' for k in differs)}, "
+            f"{job.out} holds other results ({', '.join(f'{k} {found.get(k)!r}' for k in differs)}, "
             f"not {', '.join(repr(want[k]) for k in differs)}): give a new output folder"
         )
     changed = changed_files(summary.get("policy_files"))

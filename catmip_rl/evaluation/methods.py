@@ -38,7 +38,11 @@ __all__ = [
     "policy_files",
     "changed_files",
     "METHOD_HELP",
+    "PLAY_OPTIONS",
 ]
+
+PLAY_OPTIONS = (("loop_guard", "loop guard"), ("clean_occupancy", "clean occupancy"))
+"""An AMAT's play options (the :class:`Method` fields a result's summary records) and their words."""
 
 _PLANNER_NOTES = {
     "random-rescue": "random window goals with the planners' rescue rule",
@@ -48,7 +52,8 @@ METHOD_HELP = " | ".join(f"{p} ({_PLANNER_NOTES[p]})" if p in _PLANNER_NOTES els
     " | window:PLANNER (its goals projected into the 7x7 window) | window-noheading:PLANNER (projected "
     "along a heading-free path) | amat:PATH (a model file, checkpoint or run dir; one trained in the "
     "synchronous world plays in it) | amat:NAME (a shipped model) | amat-guard:PATH (argmax with the loop "
-    "guard) | sync:METHOD (the method in the synchronous world: every robot decides together) | "
+    "guard) | amat-clean:PATH (a cell-goal model reading occupancy from its action mask) | "
+    "sync:METHOD (the method in the synchronous world: every robot decides together) | "
     "py:FILE.py:FACTORY or py:package.module:FACTORY (your policy: docs/benchmark-your-algorithm.md); "
     "NAME=METHOD names it on tables and plots"
 )
@@ -61,13 +66,16 @@ class Method:
     in a file or module) or "policy" (an object given to ``evaluate(policy=...)``); ``target`` the
     planner's name, the AMAT checkpoint path or the ``py:`` spec; ``loop_guard`` (AMAT) executes argmax
     with the loop guard of :class:`AmatExecutor`; ``synchronous``: plays in the synchronous world (every
-    robot decides together every ``max_ma_ticks`` ticks), a ``sync:`` spec or a model trained in it."""
+    robot decides together every ``max_ma_ticks`` ticks), a ``sync:`` spec or a model trained in it;
+    ``clean_occupancy`` (cell-goal AMAT): its active robots read occupancy from their action masks
+    (:func:`~catmip_rl.amat.inputs.clean_occupancy`), an ``amat-clean:`` spec or a file that asks."""
 
     name: str
     kind: str
     target: str
     loop_guard: bool = False
     synchronous: bool = False
+    clean_occupancy: bool = False
 
 
 def amat_label(path: str | Path) -> str:
@@ -98,7 +106,8 @@ def parse_method(spec: str) -> Method:
         src = parse_policy_source(spec)
         default = Path(src.source).stem if src.is_file else src.source.rsplit(".", 1)[-1]
         return Method(name or default, "py", str(src))
-    for prefix, guard in (("amat:", False), ("amat-guard:", True)):
+    prefixes = (("amat:", False, False), ("amat-guard:", True, False), ("amat-clean:", False, True))
+    for prefix, guard, clean in prefixes:
         if spec.startswith(prefix):
             path = spec[len(prefix) :]
             if not path:
@@ -106,9 +115,10 @@ def parse_method(spec: str) -> Method:
             from catmip_rl.checkpoint import model_play
 
             target = resolve_model(path)
-            label = amat_label(target) + ("-guard" if guard else "")
-            play = model_play(target)  # the file's own way to play
-            return Method(name or label, "amat", str(target), guard or play.loop_guard, play.synchronous)
+            label = amat_label(target) + ("-guard" if guard else "") + ("-clean" if clean else "")
+            play = model_play(target)  # the file's own way to play, and what the spec adds
+            return Method(name or label, "amat", str(target), guard or play.loop_guard, play.synchronous,
+                          clean or play.clean_occupancy)  # fmt: skip
     for kind in WINDOW_KINDS:
         if spec.startswith(kind + ":"):
             planner = spec[len(kind) + 1 :]
@@ -122,7 +132,7 @@ def parse_method(spec: str) -> Method:
         looks_like_policy = ".py:" in spec or "." in spec.split(":")[0] and ":" in spec
         hint = f" (your policy? write py:{spec})" if looks_like_policy else _did_you_mean(spec)
         choices = (f"a planner {sorted(PLANNERS)}, window:PLANNER, window-noheading:PLANNER, amat:PATH, "
-                   "amat-guard:PATH, sync:METHOD or py:FILE.py:FACTORY")  # fmt: skip
+                   "amat-guard:PATH, amat-clean:PATH, sync:METHOD or py:FILE.py:FACTORY")  # fmt: skip
         raise ValueError(f"unknown method {spec!r}{hint}; choose {choices}")
     return Method(name or spec, "planner", spec)
 
@@ -131,7 +141,7 @@ def _did_you_mean(spec: str) -> str:
     """`` (did you mean X?)`` for a spec close to a planner or a method prefix, else ''."""
     prefix, colon, rest = spec.partition(":")
     if colon:  # a mistyped prefix or planner: window:nearset, amta:task1
-        prefixes = [*WINDOW_KINDS, "amat", "amat-guard", "sync", "py"]
+        prefixes = [*WINDOW_KINDS, "amat", "amat-guard", "amat-clean", "sync", "py"]
         fixed = [f"{p}:{rest}" for p in get_close_matches(prefix, prefixes, n=1)]
         if prefix in WINDOW_KINDS:
             fixed = [f"{prefix}:{p}" for p in get_close_matches(rest, list(PLANNERS), n=1)]
@@ -205,5 +215,11 @@ def make_policy(
     model = model if model is not None else load_model(method.target)
     needs = model.config.env_overrides()
     if model.config.goals == "cell":
-        return CellGoalExecutor(model, loop_guard=method.loop_guard), "cell", needs or None
+        play = {"loop_guard": method.loop_guard, "clean_occupancy": method.clean_occupancy}
+        return CellGoalExecutor(model, **play), "cell", needs or None
+    if method.clean_occupancy:
+        raise ValueError(
+            f"{method.name}: clean occupancy reads a cell-goal mask over the whole map; {method.target} is a "
+            "window model (its mask covers only its goal window)"
+        )
     return AmatExecutor(model, loop_guard=method.loop_guard), "window", needs

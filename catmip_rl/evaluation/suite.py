@@ -35,7 +35,7 @@ from catmip_env.machine import machine_info
 from catmip_env.map_sets import HELDOUT_SEED, MANIFEST_EPISODES, manifest
 from catmip_rl.evaluation.evaluate import EvalSetting
 from catmip_rl.evaluation.jobs import Job, check_methods, default_threads, map_jobs, run_dir
-from catmip_rl.evaluation.methods import Method, method_source, parse_runs
+from catmip_rl.evaluation.methods import PLAY_OPTIONS, Method, method_source, parse_runs
 from catmip_rl.evaluation.stats import CONFIDENCE, success_interval
 from catmip_rl.evaluation.user_policy import PolicyError, parse_policy_source
 from catmip_rl.files import atomic_write_text
@@ -163,9 +163,12 @@ def _shown_target(method: Method) -> str:
 
 def entry_actions(summary: dict[str, Any]) -> str | None:
     """How an entry's policy chose its actions, from a run's summary: its ``actions`` ("argmax",
-    "sampled", "its own"), with " + loop guard" where an AMAT played with it."""
+    "sampled", "its own"), with " + loop guard" and " + clean occupancy" where an AMAT played with them."""
     actions = summary.get("actions")
-    return f"{actions} + loop guard" if actions and summary.get("loop_guard") else actions
+    if not actions:
+        return actions
+    options = [name for key, name in PLAY_OPTIONS if summary.get(key)]
+    return " + ".join([actions, *options])
 
 
 def make_entry(name: str, runs: list[Method], results: dict[str, list[dict[str, Any]]], episodes: int,
