@@ -231,8 +231,12 @@ class AmatExecutor:
         self._last_action = self._last_pose = None
 
     def sampled(self, seed: int) -> AmatExecutor:
-        """The same model and loop guard with sampled actions, drawn from a generator seeded by ``seed``."""
-        return type(self)(self.model, False, torch.Generator().manual_seed(seed), self.loop_guard)
+        """The same model and play options with sampled actions, drawn from a generator seeded by ``seed``."""
+        return type(self)(self.model, False, torch.Generator().manual_seed(seed), **self._play_options())
+
+    def _play_options(self) -> dict[str, bool]:
+        """How this executor plays, as its constructor takes it (what :meth:`sampled` keeps)."""
+        return {"loop_guard": self.loop_guard}
 
     def episode_columns(self) -> dict[str, np.ndarray]:
         """The decision traffic of each episode since :meth:`start_episodes` (catmip_env.play.Policy)."""
@@ -332,10 +336,8 @@ class CellGoalExecutor(AmatExecutor):
         super().__init__(model, deterministic, generator, loop_guard, fast=False)
         self.clean_occupancy = clean_occupancy
 
-    def sampled(self, seed: int) -> CellGoalExecutor:
-        """The same model and play options with sampled actions, drawn from a generator seeded by ``seed``."""
-        return type(self)(self.model, False, torch.Generator().manual_seed(seed), self.loop_guard,
-                          self.clean_occupancy)  # fmt: skip
+    def _play_options(self) -> dict[str, bool]:
+        return super()._play_options() | {"clean_occupancy": self.clean_occupancy}
 
     @torch.no_grad()
     def act(self, engine: EventEngine) -> np.ndarray:

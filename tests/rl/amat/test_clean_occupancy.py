@@ -14,8 +14,7 @@ from catmip_rl.evaluation.evaluate import EvalSetting, evaluate
 from catmip_rl.evaluation.execution import CellGoalExecutor
 from catmip_rl.evaluation.methods import make_policy, parse_method
 from catmip_rl.evaluation.suite import entry_actions
-from tests.rl.amat.test_pointer import CFG, shaken
-from tests.rl.helpers import shaken_model
+from tests.rl.amat.test_pointer import shaken
 
 
 def decision_events(noise, events=25, worlds=4, seed=0):
@@ -102,7 +101,7 @@ def test_the_executor_gives_the_model_the_cleaned_maps(monkeypatch):
 
 
 def test_amat_clean_and_a_file_that_asks_play_with_clean_occupancy(tmp_path):
-    model = shaken_model(CFG, 0, scale=0.3)
+    model = shaken(0)
     plain = save_model(model, tmp_path / "plain.pt")
     asks = save_model(
         model, tmp_path / "asks.pt", extra={"play": {"loop_guard": True, "clean_occupancy": True}}
@@ -135,7 +134,7 @@ def test_a_resumed_run_does_not_read_back_results_played_without_clean_occupancy
 
     from catmip_rl.evaluation.jobs import Job, run_one
 
-    path = save_model(shaken_model(CFG, 0, scale=0.3), tmp_path / "m.pt")
+    path = save_model(shaken(0), tmp_path / "m.pt")
     setting = EvalSetting("task2", "2", 0.05, 10)
     plain = Job(
         parse_method(f"m=amat:{path}"), setting, 2, 0, str(tmp_path / "run"), resume=True, sampled=False
