@@ -20,7 +20,7 @@ import torch
 from catmip_env.files import atomic_path
 from catmip_rl.amat.config import AmatConfig
 from catmip_rl.amat.model import AMAT
-from catmip_rl.amat.weights import finer_pool
+from catmip_rl.amat.weights import finer_pool, with_hint
 from catmip_rl.files import atomic_write_text
 from catmip_rl.model_files import (
     FORMAT,
@@ -257,26 +257,30 @@ def initial_weights(spec: str, config: AmatConfig) -> dict[str, Any]:
     the finer grid (:func:`~catmip_rl.amat.weights.finer_pool`), ``cell_mask`` [theirs, ours] where a
     cell-goal model is to choose among other cells, ``teammate_memory`` / ``teammate_heading`` [theirs, ours]
     where it is to see remembered teammates (or see them moved along their headings; none holds weights),
-    and ``critic`` [theirs, ours] where PPO's values are to come from elsewhere (a new state critic starts
-    from its own initialisation). Raises ``ValueError``
-    (the message starts with "init_from") if the file is missing, unreadable or not an AMAT of ``config``."""
+    ``hint`` [theirs, ours] where a model without a hint is to read a planner's proposals
+    (:func:`~catmip_rl.amat.weights.with_hint`: the same function to start with), and ``critic``
+    [theirs, ours] where PPO's values are to come from elsewhere (a new state critic starts from its own
+    initialisation). Raises ``ValueError`` (the message starts with "init_from") if the file is missing,
+    unreadable or not an AMAT of ``config``."""
     try:
         path = model_file(resolve_model(spec))
         blob = read_checkpoint(path)
         model = model_from(blob, path)
     except (OSError, ValueError) as err:
         raise ValueError(f"init_from: {err}") from None
-    weights = model.state_dict()
-    if model.config.pool != config.pool and model.config == replace(config, pool=model.config.pool):
+    weights, theirs = model.state_dict(), model.config
+    if config.hint and not theirs.hint:  # a model that is to read a planner's proposals: same function
+        weights, theirs = with_hint(weights), replace(theirs, hint=config.hint)
+    if theirs.pool != config.pool and theirs == replace(config, pool=theirs.pool):
         try:  # only the pooled grid differs: a finer one starts from the coarse model's weights
-            weights = finer_pool(weights, model.config.pool, config.pool)
+            weights = finer_pool(weights, theirs.pool, config.pool)
         except ValueError as err:
             raise ValueError(f"init_from {spec!r}: {err}") from None
-    elif model.config != replace(  # neither the mask nor the memory holds weights; the critic is new
-        config, **{name: getattr(model.config, name) for name in _WEIGHTLESS}
+    elif theirs != replace(  # neither the mask nor the memory holds weights; the critic is new
+        config, **{name: getattr(theirs, name) for name in _WEIGHTLESS}
     ):
-        theirs, ours = asdict(model.config), asdict(config)
-        diff = ", ".join(f"{k} {theirs[k]!r} there vs {ours[k]!r} here" for k in ours if theirs[k] != ours[k])
+        there, here = asdict(model.config), asdict(config)
+        diff = ", ".join(f"{k} {there[k]!r} there vs {here[k]!r} here" for k in here if there[k] != here[k])
         raise ValueError(
             f"init_from {spec!r} is an AMAT of another configuration ({diff}): set the run's amat fields to "
             "match, or start from another model"
@@ -295,7 +299,7 @@ def initial_weights(spec: str, config: AmatConfig) -> dict[str, Any]:
         "elapsed_min": None if own is None else _minutes_behind(own, state.get("init_from")),
     }
     # what the new run changed
-    for name in ("pool", *_WEIGHTLESS):
+    for name in ("pool", "hint", *_WEIGHTLESS):
         if getattr(model.config, name) != getattr(config, name):
             source[name] = [getattr(model.config, name), getattr(config, name)]
     return {"model": weights, "value_norm": state.get("value_norm"), "source": source}

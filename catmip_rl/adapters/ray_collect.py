@@ -236,6 +236,7 @@ class RayRolloutCollector:
             label=None,
             label_relay=None,
             state=None,  # a state critic collects locally (TrainConfig refuses it with Ray)
+            hint=None,  # so does a model with a hint
             final_return=td["final_return"].numpy().copy(),
             terminated=td["terminated"].numpy().copy(),
             records=records,

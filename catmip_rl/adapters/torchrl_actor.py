@@ -36,11 +36,22 @@ def _padding(td: TensorDictBase) -> torch.Tensor | None:
     return td.get(K.PADDING, None)
 
 
+def _refuse_hint(model: AMAT) -> None:
+    """ValueError for a model that reads a planner's proposals (``AmatConfig.hint``): a TorchRL env
+    carries no planner; such a model plays through ``catmip eval`` and trains with ``catmip train``."""
+    if model.config.hint:
+        raise ValueError(
+            f"this AMAT reads the {model.config.hint!r} planner's proposals, which a TorchRL env does not "
+            "carry: play it with catmip eval, train it with catmip train"
+        )
+
+
 class AmatActor(TensorDictModuleBase):
     """Samples goals for the active robots; re-scores stored goals for the PPO loss."""
 
     def __init__(self, model: AMAT, deterministic: bool | None = None) -> None:
         super().__init__()
+        _refuse_hint(model)
         self.model = model
         self.deterministic = deterministic
         self.in_keys = [*K.OBS_KEYS, K.ACTION_MASK, K.ACTIVE]
@@ -88,6 +99,7 @@ class AmatCritic(TensorDictModuleBase):
                 "train's collector), not the encoder's value head: AmatCritic needs a model with critic "
                 "'encoder'"
             )
+        _refuse_hint(model)
         self.model = model
         self.in_keys = list(K.OBS_KEYS)
         self.out_keys = [K.VALUE]

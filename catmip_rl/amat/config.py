@@ -8,6 +8,7 @@ from dataclasses import asdict, dataclass
 from typing import Any
 
 from catmip_env.fields import BOOL, INT, check
+from catmip_env.planners import PLANNERS
 
 __all__ = ["AmatConfig", "GOAL_KINDS", "CELL_MASKS", "CRITICS"]
 
@@ -55,6 +56,11 @@ class AmatConfig:
     teammate_heading: bool = False
     """With ``teammate_memory``: sees each remembered teammate where it should be by now, moved toward the
     goal it was heading for (``EnvConfig.teammate_heading``)."""
+    hint: str = ""
+    """Goals "cell": a planner (``catmip_env.planners``, e.g. "rrt-relay-heading") whose goal for the deciding
+    robot the model sees as one more per-cell input and a learned bonus on that cell's logit; "" none.
+    Whoever plays the model runs that planner on the robot's own view at every decision (a proposal, not
+    an order: the model points wherever it likes)."""
     critic: str = "encoder"
     """Where PPO's values come from: "encoder" (the paper's value head on the encoder's tokens) or
     "state" (``amat.critic.StateCritic``: a centralised critic that reads the world's true state beside
@@ -80,6 +86,11 @@ class AmatConfig:
             )
         if self.critic not in CRITICS:
             raise ValueError(f"AmatConfig.critic must be one of {list(CRITICS)}, got {self.critic!r}")
+        if self.hint:
+            if self.hint not in PLANNERS:
+                raise ValueError(f"AmatConfig.hint must name a planner {sorted(PLANNERS)}, got {self.hint!r}")
+            if self.goals != "cell":
+                raise ValueError("AmatConfig.hint proposes a cell goal: set goals to 'cell' too")
         if self.goals not in GOAL_KINDS:
             raise ValueError(f"AmatConfig.goals must be one of {list(GOAL_KINDS)}, got {self.goals!r}")
 

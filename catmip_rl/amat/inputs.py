@@ -29,11 +29,13 @@ def macro_observation(
     num_classes: int,
     neighbourhood: np.ndarray | None = None,
     device: torch.device | str | None = None,
+    hint: np.ndarray | None = None,
 ) -> dict[str, torch.Tensor]:
     """The model's ``obs`` dict from numpy arrays of any common leading shape (the arrays are shared,
     not copied, on CPU): ``global_map`` (..., 5+C, S, S), ``local_map`` (..., 4+C, L, L), class indices
     (...) → ``agent_class`` (..., C), and the communication components (...) → ``neighbourhood`` if
-    given (read by the cell-goal model, ``amat.pointer``; the window model ignores it)."""
+    given (read by the cell-goal model, ``amat.pointer``; the window model ignores it), and a hint
+    planner's cells (...) → ``hint`` if given (``AmatConfig.hint``; -1: none)."""
     obs = {
         "global_map": torch.from_numpy(global_map),
         "local_map": torch.from_numpy(local_map),
@@ -41,6 +43,8 @@ def macro_observation(
     }
     if neighbourhood is not None:
         obs["neighbourhood"] = torch.from_numpy(np.asarray(neighbourhood, np.int64))
+    if hint is not None:
+        obs["hint"] = torch.from_numpy(np.asarray(hint, np.int64))
     return obs if device is None else {k: v.to(device) for k, v in obs.items()}
 
 

@@ -55,6 +55,7 @@ class CellContext(NamedTuple):
     pos: torch.Tensor  # (B, N, 2) long: the robot's cell, read from its own-position channel
     dist: torch.Tensor  # (B, N, H, W) int16: path distance on its map, -1 unreachable
     groups: torch.Tensor  # (B, N) long: neighbourhood labels
+    hint: torch.Tensor | None = None  # (B, N) long: the hint planner's cell for each robot, -1 none
 
 
 class Embedded(NamedTuple):
@@ -90,7 +91,7 @@ class PointerAMAT(AMAT):
         self.dec_ln = nn.LayerNorm(d)
         self.dec_blocks = nn.ModuleList(DecoderBlock(d, cfg.n_heads) for _ in range(cfg.n_blocks))
         # per-cell encoder: the global map's channels + distance + reachable, then dilated residual convs
-        self.cell_in = nn.Conv2d(cfg.global_channels + 2, c, 3, padding=1)
+        self.cell_in = nn.Conv2d(cfg.global_channels + 2 + bool(cfg.hint), c, 3, padding=1)
         self.cell_convs = nn.ModuleList(
             nn.Conv2d(c, c, 3, padding=2 ** max(k - 1, 0), dilation=2 ** max(k - 1, 0))
             for k in range(cfg.cell_layers - 1)
@@ -98,6 +99,8 @@ class PointerAMAT(AMAT):
         self.cell_out = nn.Conv2d(c, c + 1, 1)  # features and a per-cell bias
         self.query = nn.Sequential(nn.Linear(d, d), nn.GELU(), nn.LayerNorm(d), nn.Linear(d, c))
         self.claimed = nn.Parameter(torch.zeros(2))  # weights of "chosen by a teammate" and "near one"
+        if cfg.hint:  # the bonus of the cell the hint planner proposes (the input channel learns the rest)
+            self.hint_bias = nn.Parameter(torch.zeros(1))
 
     def _activated_layers(self) -> set[nn.Module]:
         return {
@@ -115,9 +118,17 @@ class PointerAMAT(AMAT):
         groups = obs.get("neighbourhood")
         if groups is None:
             groups = torch.zeros(gmap.shape[:2], dtype=torch.long, device=gmap.device)
+        hint = obs.get("hint")
+        if self.config.hint and hint is None:
+            raise ValueError(
+                f"this AMAT reads the {self.config.hint!r} planner's proposals: its obs needs 'hint' (B, N) "
+                "(the cell that planner chose for each robot, -1 none)"
+            )
+        device = gmap.device
         cells = CellContext(
-            gmap, torch.from_numpy(pos).to(gmap.device), torch.from_numpy(dist).to(gmap.device), groups.long()
-        )
+            gmap, torch.from_numpy(pos).to(device), torch.from_numpy(dist).to(device), groups.long(),
+            None if hint is None or not self.config.hint else hint.long(),
+        )  # fmt: skip
         return Embedded(super().embed(obs), cells)
 
     def encode(
@@ -143,12 +154,18 @@ class PointerAMAT(AMAT):
         x = as_float(gmap)
         dist_in = torch.where(reach, dist.to(x.dtype) / DIST_SCALE, torch.zeros((), dtype=x.dtype))
         x = torch.cat([x, dist_in[:, None], reach[:, None].to(x.dtype)], 1)  # (K, 7+C, H, W)
+        if cells.hint is not None:  # the proposed cell, one channel more
+            proposed = _one_hot_cells(cells.hint.flatten()[rows], gmap.shape[-2:]).to(x.dtype)  # (K, H, W)
+            x = torch.cat([x, proposed[:, None]], 1)
         # channels-last: oneDNN's convolutions ran 1.7x faster so (fp32, forward + backward, one thread)
         x = x.contiguous(memory_format=torch.channels_last)
         f = F.gelu(self.cell_in(x))
         for conv in self.cell_convs:
             f = f + F.gelu(conv(f))
         f = self.cell_out(f)  # (K, c + 1, H, W)
+        if cells.hint is not None:
+            c, bonus = f.shape[1] - 1, self.hint_bias.to(f.dtype) * proposed[:, None].to(f.dtype)
+            f = torch.cat([f[:, :c], f[:, c:] + bonus], 1)
         if self.config.cell_mask == "known":
             explored = gmap[:, 0] >= (OBS_ONE if gmap.dtype == torch.uint8 else 1.0)
             allowed = (explored & reach).flatten(1)  # (K, H * W); a reachable cell is free on the map
@@ -270,6 +287,15 @@ class PointerAMAT(AMAT):
 
 def _to_uint8(x: torch.Tensor) -> np.ndarray:
     return (x.detach().float().cpu() * OBS_ONE).round().clamp(0, 255).to(torch.uint8).numpy()
+
+
+def _one_hot_cells(flat: torch.Tensor, shape: tuple[int, int]) -> torch.Tensor:
+    """(K, H, W) float: 1 at each flat cell index of ``flat`` (K,), none where it is negative."""
+    h, w = shape
+    out = torch.zeros(len(flat), h * w, device=flat.device)
+    have = flat >= 0
+    out[have.nonzero()[:, 0], flat[have]] = 1.0
+    return out.view(len(flat), h, w)
 
 
 def _same_group(groups: torch.Tensor) -> torch.Tensor:

@@ -22,7 +22,7 @@ from catmip_env import EnvConfig
 from catmip_env.constants import global_channels, local_channels
 from catmip_env.episode_stats import DecisionTracker, EpisodeRecords, episode_records, training_stats
 from catmip_env.events import EventEngine
-from catmip_env.planners import Relay
+from catmip_env.planners import Planner, Relay, make_planner
 from catmip_env.play import Policy
 from catmip_rl.amat.critic import critic_state, state_channels
 from catmip_rl.amat.inputs import macro_observation
@@ -51,6 +51,7 @@ class Rollout:
     label: np.ndarray | None  # (T, B, N) int64 the teacher's actions (collect(labeler=...))
     label_relay: np.ndarray | None  # (T, B, N) bool the labels a relay teacher's relay rule chose
     state: np.ndarray | None  # (T, B, 5+C, H, W) uint8 the true state, for a model with critic "state"
+    hint: np.ndarray | None  # (T, B, N) int64 the hint planner's cells (AmatConfig.hint), -1 none
     final_return: np.ndarray  # (B, N) float64 each robot's last macro-action's return
     terminated: np.ndarray  # (B,) bool the episode ended in a rescue (its last macro-actions are trained)
     records: EpisodeRecords  # the B episodes' records (catmip_env.episode_stats), stalls included
@@ -68,7 +69,7 @@ class Rollout:
 
 _PER_EPISODE = ("final_return", "terminated", "records", "returns", "stats")
 # per step, stored only when asked for: a labeler's actions (and which its relay rule chose), a critic's state
-_OPTIONAL = ("label", "label_relay", "state")
+_OPTIONAL = ("label", "label_relay", "state", "hint")
 # the (T, B, ...) arrays of a Rollout, one row per decision event: the collector's storage
 STEP_FIELDS = tuple(f.name for f in fields(Rollout) if f.name not in _PER_EPISODE + _OPTIONAL)
 
@@ -95,6 +96,8 @@ class Collector:
         self, cfg: EnvConfig, num_worlds: int, seed: int, gamma: float = 1.0, goal_mode: str = "window"
     ) -> None:
         self.engine = EventEngine(cfg, num_worlds, seed, goal_mode=goal_mode, gamma=gamma)
+        self.seed = seed
+        self._hinter: Planner | None = None  # the planner whose proposals a model with a hint reads
         self._mirror: AMAT | None = None  # the CPU copy of a model that lives elsewhere
         eng = self.engine
         b, n, (h, w), c = eng.num_worlds, eng.num_robots, eng.shape, cfg.num_classes
@@ -114,6 +117,7 @@ class Collector:
         self._terminated = np.zeros(b, np.bool_)
         self._label = np.zeros((t, b, n), np.int64)
         self._relay = np.zeros((t, b, n), np.bool_)
+        self._hint = np.zeros((t, b, n), np.int64)
         self._state = np.zeros((0, b, state_channels(c), h, w), np.uint8)  # grown for a state critic
         self.tracker = DecisionTracker(b, n)
 
@@ -139,7 +143,11 @@ class Collector:
         (``Rollout.label``; a relay planner's also says which labels its relay rule chose,
         ``Rollout.label_relay``); each active robot then executes the label instead of the policy's action
         with probability ``teacher_prob`` (DAgger's mixture; drawn from ``generator``). Log-probs stay
-        the policy's: a rollout with ``teacher_prob > 0`` is for imitation, not for PPO."""
+        the policy's: a rollout with ``teacher_prob > 0`` is for imitation, not for PPO.
+
+        A model with a hint (``AmatConfig.hint``) reads that planner's cells for its active robots
+        (``Rollout.hint``): the labeler's own, where the labeler is that planner (so that the label and
+        the proposal are one draw of a sampling planner such as RRT), else the collector's copy of it."""
         eng, s = self.engine, self._store
         policy = cpu_mirror(model, self._mirror)
         if policy is not model:  # a CPU copy of a model on another device, refreshed by the next call
@@ -148,6 +156,7 @@ class Collector:
         c = eng.cfg.num_classes
         eng.reset(episode_indices=np.arange(first_episode, first_episode + b_all))
         critic = policy.state_critic
+        hinter, shared = self._hint_source(policy.config.hint, labeler)
         if critic is not None and not len(self._state):
             self._state = np.zeros((len(s["valid"]), *self._state.shape[1:]), np.uint8)
         self.tracker.reset(eng)
@@ -168,8 +177,20 @@ class Collector:
             s["action_mask"][t, idx] = eng.masks[idx]
             s["active"][t, idx] = eng.active[idx]
             s["valid"][t, idx] = True
+            if labeler is not None:
+                self._label[t, idx] = labeler.act(eng)[idx]
+                if isinstance(labeler, Relay):
+                    self._relay[t, idx] = labeler.relayed[idx] & s["active"][t, idx]
+            if hinter is not None:
+                cells = self._label[t, idx] if shared else np.asarray(hinter.act(eng))[idx]
+                self._hint[t, idx] = np.where(s["active"][t, idx], cells, -1)
             obs = macro_observation(
-                s["global_map"][t, idx], s["local_map"][t, idx], st.cls[idx], c, s["neighbourhood"][t, idx]
+                s["global_map"][t, idx],
+                s["local_map"][t, idx],
+                st.cls[idx],
+                c,
+                s["neighbourhood"][t, idx],
+                hint=self._hint[t, idx] if hinter is not None else None,
             )
             active = torch.from_numpy(s["active"][t, idx])
             mask = torch.from_numpy(s["action_mask"][t, idx])
@@ -184,14 +205,10 @@ class Collector:
             )
             s["order"][t, idx] = order.numpy()
             s["action"][t, idx] = actions.numpy()
-            if labeler is not None:
-                self._label[t, idx] = labeler.act(eng)[idx]
-                if isinstance(labeler, Relay):
-                    self._relay[t, idx] = labeler.relayed[idx] & s["active"][t, idx]
-                if teacher_prob > 0:  # DAgger's mixture: some active robots execute the label
-                    u = torch.rand(s["action"][t, idx].shape, generator=generator).numpy()
-                    take = (u < teacher_prob) & s["active"][t, idx]
-                    s["action"][t, idx] = np.where(take, self._label[t, idx], s["action"][t, idx])
+            if labeler is not None and teacher_prob > 0:  # DAgger's mixture: some execute the label
+                u = torch.rand(s["action"][t, idx].shape, generator=generator).numpy()
+                take = (u < teacher_prob) & s["active"][t, idx]
+                s["action"][t, idx] = np.where(take, self._label[t, idx], s["action"][t, idx])
             s["log_prob"][t, idx] = logp.numpy()
             s["value"][t, idx] = values[..., 0].numpy()
             full = np.zeros((b_all, eng.num_robots), np.int64)
@@ -213,8 +230,23 @@ class Collector:
             label=self._label[:t].copy() if labeler is not None else None,
             label_relay=self._relay[:t].copy() if isinstance(labeler, Relay) else None,
             state=self._state[:t] if critic is not None else None,
+            hint=self._hint[:t].copy() if hinter is not None else None,
             terminated=self._terminated.copy(),
             records=records,
             returns=returns,
             stats=training_stats(records, returns, eng.cfg),
         )
+
+    def _hint_source(self, hint: str, labeler: Policy | None) -> tuple[Planner | None, bool]:
+        """(the planner whose cells a model with ``hint`` reads, whether they are the labeler's labels):
+        the labeler where it is that planner labelling every active robot (the planner itself, or an
+        anchor's :class:`~catmip_rl.training.imitation.PlannerLabeler` of it not restricted to its relay
+        rule), else this collector's own copy, seeded by the collector's seed; (None, False) without."""
+        if not hint:
+            return None, False
+        planner = getattr(labeler, "teacher", labeler)
+        if getattr(planner, "name", None) == hint and not getattr(labeler, "relay_only", False):
+            return planner, True
+        if self._hinter is None or self._hinter.name != hint:
+            self._hinter = make_planner(hint, seed=self.seed)
+        return self._hinter, False

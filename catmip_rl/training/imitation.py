@@ -83,6 +83,8 @@ class DemoBuffer:
         new = {k: np.ascontiguousarray((label if k == "label" else getattr(r, k))[rows]) for k in _KEYS}
         # the labels a relay teacher's relay rule chose (none for another teacher)
         new["relay"] = r.label_relay[rows] if r.label_relay is not None else np.zeros_like(new["active"])
+        if r.hint is not None:  # the hint planner's cells (AmatConfig.hint)
+            new["hint"] = r.hint[rows]
         zeros = np.zeros(r.active.shape)
         _, ret, trainable = async_gae(
             r.active, r.valid, zeros, r.ma_return, r.ma_ticks.astype(np.int64), r.final_return, r.terminated,
@@ -179,7 +181,8 @@ def imitation_loss(
     the squared error of the value head against the finished decisions' returns (``value_target``,
     normalised) is added (``imitation/value_loss``): a critic for the PPO that follows, and a reason for
     the encoder to keep what the policy alone may not need."""
-    obs = {k: batch[k] for k in ("global_map", "local_map", "agent_class", "neighbourhood") if k in batch}
+    inputs = ("global_map", "local_map", "agent_class", "neighbourhood", "hint")
+    obs = {k: batch[k] for k in inputs if k in batch}
     sel = batch["active"].bool()
     if skip_label is not None:
         sel = sel & (batch["label"] != skip_label)

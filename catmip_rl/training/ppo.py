@@ -71,6 +71,8 @@ def ppo_loss(
     obs = {"global_map": batch.global_map, "local_map": batch.local_map, "agent_class": batch.agent_class}
     if batch.neighbourhood is not None:
         obs["neighbourhood"] = batch.neighbourhood
+    if batch.hint is not None:
+        obs["hint"] = batch.hint
     sel = batch.trainable.bool()  # the loss reads these robots only: logits and values of them alone
     logits, values = model.score(
         model.embed(obs), batch.action, batch.order, batch.agent_class, sel, batch.action_mask

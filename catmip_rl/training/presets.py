@@ -225,6 +225,22 @@ TRAIN_PRESETS["general-heading"] = TRAIN_PRESETS["general-relay-noise"].replace(
     anchor="rrt-relay-heading",
 )
 
+# the memory model reading its teacher's proposals (AmatConfig.hint): rrt-relay-heading's goal for each
+# deciding robot is one more per-cell input and a logit bonus, so that the model starts from what the teacher
+# would do and learns where to do otherwise. From amat_general's weights (init_from; the new weights start at
+# zero, the same function): a short DAgger of the teacher (32 episodes of each world a round) for the bonus
+# and the channel, then the anchored PPO of general-relay-noise with the anchor at a quarter of its weight
+TRAIN_PRESETS["general-hint"] = TRAIN_PRESETS["general-relay-noise"].replace(
+    amat={"goals": "cell", "cell_mask": "reachable", "teammate_memory": True, "hint": "rrt-relay-heading"},
+    warm_start="rrt-relay-heading",
+    warm_start_rounds=3,
+    warm_start_steps=150,
+    warm_start_worlds=32,
+    warm_start_lr=3e-4,
+    anchor="rrt-relay-heading",
+    anchor_coef=0.05,
+)
+
 #: presets that fine-tune a trained model: a new run of one needs ``init_from`` (``catmip train`` refuses it
 #: without; from fresh weights they would be a slow, unwarmed paper run)
 FINE_TUNING_PRESETS = (
@@ -236,6 +252,7 @@ FINE_TUNING_PRESETS = (
     "general-relay-noise",
     "general-noise3",
     "general-heading",
+    "general-hint",
 )
 
 
