@@ -13,7 +13,8 @@ Shapes legend as in ``model``, plus ``H, W`` the map, ``K`` selected robots, ``c
     --encode--> Embedded(rep, cells), values --decode_autoregressive--> cell actions (B, N)
 
 * **Inputs per cell** (``kernels.cell_fields``, from the observation alone): the robot's global map,
-  its path distance to every cell and whether the cell is reachable.
+  its path distance to every cell and whether the cell is reachable; with ``AmatConfig.hint`` also the
+  cell a planner proposes for the robot (``obs["hint"]``), which gets a learned logit bonus as well.
 * **The mask** is the environment's mask narrowed to the cells a planner may choose, or the robot's
   own cell ("stay"): ``AmatConfig.cell_mask`` "known" (explored, free on its map and reachable: the
   frontier planners' goals) or "reachable" (unknown cells too: RRT's goals).

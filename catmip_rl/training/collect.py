@@ -244,8 +244,9 @@ class Collector:
         rule), else this collector's own copy, seeded by the collector's seed; (None, False) without."""
         if not hint:
             return None, False
-        planner = getattr(labeler, "teacher", labeler)
-        if getattr(planner, "name", None) == hint and not getattr(labeler, "relay_only", False):
+        planner = getattr(labeler, "teacher", labeler)  # an anchor's PlannerLabeler holds its planner
+        every_robot = not getattr(labeler, "relay_only", False)
+        if isinstance(planner, Planner) and planner.name == hint and every_robot:
             return planner, True
         if self._hinter is None or self._hinter.name != hint:
             self._hinter = make_planner(hint, seed=self.seed)
