@@ -22,7 +22,8 @@ from catmip_env import EnvConfig
 from catmip_env.constants import global_channels, local_channels
 from catmip_env.episode_stats import DecisionTracker, EpisodeRecords, episode_records, training_stats
 from catmip_env.events import EventEngine
-from catmip_env.planners import Planner, Relay, make_planner
+from catmip_env.planner_core import Planner
+from catmip_env.planners import Relay, make_planner
 from catmip_env.play import Policy
 from catmip_rl.amat.critic import critic_state, state_channels
 from catmip_rl.amat.inputs import macro_observation
@@ -143,11 +144,8 @@ class Collector:
         (``Rollout.label``; a relay planner's also says which labels its relay rule chose,
         ``Rollout.label_relay``); each active robot then executes the label instead of the policy's action
         with probability ``teacher_prob`` (DAgger's mixture; drawn from ``generator``). Log-probs stay
-        the policy's: a rollout with ``teacher_prob > 0`` is for imitation, not for PPO.
-
-        A model with a hint (``AmatConfig.hint``) reads that planner's cells for its active robots
-        (``Rollout.hint``): the labeler's own, where the labeler is that planner (so that the label and
-        the proposal are one draw of a sampling planner such as RRT), else the collector's copy of it."""
+        the policy's: a rollout with ``teacher_prob > 0`` is for imitation, not for PPO. A model with a
+        hint reads that planner's cells (``Rollout.hint``, :meth:`_hint_source`)."""
         eng, s = self.engine, self._store
         policy = cpu_mirror(model, self._mirror)
         if policy is not model:  # a CPU copy of a model on another device, refreshed by the next call
@@ -177,13 +175,7 @@ class Collector:
             s["action_mask"][t, idx] = eng.masks[idx]
             s["active"][t, idx] = eng.active[idx]
             s["valid"][t, idx] = True
-            if labeler is not None:
-                self._label[t, idx] = labeler.act(eng)[idx]
-                if isinstance(labeler, Relay):
-                    self._relay[t, idx] = labeler.relayed[idx] & s["active"][t, idx]
-            if hinter is not None:
-                cells = self._label[t, idx] if shared else np.asarray(hinter.act(eng))[idx]
-                self._hint[t, idx] = np.where(s["active"][t, idx], cells, -1)
+            self._label_and_hint(t, idx, labeler, hinter, shared)
             obs = macro_observation(
                 s["global_map"][t, idx],
                 s["local_map"][t, idx],
@@ -237,8 +229,23 @@ class Collector:
             stats=training_stats(records, returns, eng.cfg),
         )
 
+    def _label_and_hint(
+        self, t: int, idx: np.ndarray, labeler: Policy | None, hinter: Planner | None, shared: bool
+    ) -> None:
+        """Row ``t`` of the labels (and which a relay teacher's relay rule chose) and of the hint
+        planner's cells for the live worlds ``idx``, from the engine as it stands at that event."""
+        eng, active = self.engine, self._store["active"][t, idx]
+        if labeler is not None:
+            self._label[t, idx] = labeler.act(eng)[idx]
+            if isinstance(labeler, Relay):
+                self._relay[t, idx] = labeler.relayed[idx] & active
+        if hinter is not None:
+            cells = self._label[t, idx] if shared else np.asarray(hinter.act(eng))[idx]
+            self._hint[t, idx] = np.where(active, cells, -1)
+
     def _hint_source(self, hint: str, labeler: Policy | None) -> tuple[Planner | None, bool]:
-        """(the planner whose cells a model with ``hint`` reads, whether they are the labeler's labels):
+        """(the planner whose cells a model with ``hint`` (``AmatConfig.hint``) reads for its active robots,
+        whether they are the labeler's labels, so that a sampling planner's label and proposal are one draw):
         the labeler where it is that planner labelling every active robot (the planner itself, or an
         anchor's :class:`~catmip_rl.training.imitation.PlannerLabeler` of it not restricted to its relay
         rule), else this collector's own copy, seeded by the collector's seed; (None, False) without."""
