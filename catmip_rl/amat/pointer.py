@@ -155,8 +155,10 @@ class PointerAMAT(AMAT):
         x = as_float(gmap)
         dist_in = torch.where(reach, dist.to(x.dtype) / DIST_SCALE, torch.zeros((), dtype=x.dtype))
         x = torch.cat([x, dist_in[:, None], reach[:, None].to(x.dtype)], 1)  # (K, 7+C, H, W)
-        if cells.hint is not None:  # the proposed cell, one channel more
-            proposed = _one_hot_cells(cells.hint.flatten()[rows], gmap.shape[-2:]).to(x.dtype)  # (K, H, W)
+        if cells.hint is not None:  # the proposed cell, one channel more (none where the hint is -1)
+            hint = cells.hint.flatten()[rows]  # (K,)
+            proposed = F.one_hot(hint.clamp(min=0), dist[0].numel()) * (hint >= 0)[:, None]  # (K, H * W)
+            proposed = proposed.view_as(dist).to(x.dtype)  # (K, H, W)
             x = torch.cat([x, proposed[:, None]], 1)
         # channels-last: oneDNN's convolutions ran 1.7x faster so (fp32, forward + backward, one thread)
         x = x.contiguous(memory_format=torch.channels_last)
@@ -288,15 +290,6 @@ class PointerAMAT(AMAT):
 
 def _to_uint8(x: torch.Tensor) -> np.ndarray:
     return (x.detach().float().cpu() * OBS_ONE).round().clamp(0, 255).to(torch.uint8).numpy()
-
-
-def _one_hot_cells(flat: torch.Tensor, shape: tuple[int, int]) -> torch.Tensor:
-    """(K, H, W) float: 1 at each flat cell index of ``flat`` (K,), none where it is negative."""
-    h, w = shape
-    out = torch.zeros(len(flat), h * w, device=flat.device)
-    have = flat >= 0
-    out[have.nonzero()[:, 0], flat[have]] = 1.0
-    return out.view(len(flat), h, w)
 
 
 def _same_group(groups: torch.Tensor) -> torch.Tensor:
