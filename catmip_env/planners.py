@@ -16,6 +16,9 @@ which goal an active robot picks from its own clean belief (docs/design.md#plann
                        that finds that cell empty explores on. Not among the paper's baselines;
 * ``rrt-relay-heading`` the same, toward where that rescuer should be by now: moved from that cell
                        toward the goal it was heading for (``heard_goal``, ``comms.estimated_cells``);
+* ``rrt-relay-coord``  ``rrt-relay-heading`` whose robots spread out while the target is unknown: a
+                       cluster's score loses 0.5 for each teammate heading within 7 cells of it (linearly
+                       less farther away; the goals the robot last heard of, ``heard_goal``);
 * ``apf``              an artificial potential field: attraction to every frontier cluster (weight =
                        cluster size / (1 + path distance)), repulsion from teammates within radius 5,
                        greedy descent from the robot; stops at a frontier or a local minimum;
@@ -51,6 +54,8 @@ REPULSION_RADIUS = 5.0
 RRT_STEP = 0.5
 RRT_ITERATIONS = 10_000
 RRT_TARGETS = 500
+CROWDING = 0.5  # rrt-relay-coord: a teammate's goal on a cluster costs it this much of its score
+CROWDING_RADIUS = 7.0  # cells (half the utility square's side)
 
 
 class Nearest(Planner):
@@ -118,6 +123,9 @@ class RRT(Planner):
         cells[targets[:n, 0], targets[:n, 1]] = True
         labels, n_clusters = _label8(cells)
         counts = ctx.unexplored_counts() / float(SQUARE * SQUARE)
+        crowding = self.crowding(ctx)
+        if crowding is not None:
+            counts = counts - crowding
         reach = ctx.dist[ctx.dist >= 0]
         far = max(int(reach.max()), 1)
         best, best_score = None, -np.inf
@@ -133,6 +141,10 @@ class RRT(Planner):
             if score > best_score:
                 best, best_score = (int(m[0]), int(m[1])), score
         return best
+
+    def crowding(self, ctx: DecisionContext) -> np.ndarray | None:
+        """(H, W) what a cluster there loses to the robot's teammates (none: RRT ignores them)."""
+        return None
 
 
 class Relay:
@@ -206,6 +218,30 @@ class NearestRelay(Relay, Nearest):
 class RRTRelayHeading(Relay, RRT):
     name = "rrt-relay-heading"
     heading = True
+
+
+class RRTRelayCoord(RRTRelayHeading):
+    """``rrt-relay-heading`` with coordinated exploration: while a robot does not know the target, each
+    teammate whose goal it has heard of (``heard_goal``, its own memory) takes ``CROWDING`` from the score
+    of a cluster at that goal, linearly less out to ``CROWDING_RADIUS`` cells (Euclidean), so that the
+    team spreads over the map instead of exploring the same frontier."""
+
+    name = "rrt-relay-coord"
+
+    def crowding(self, ctx):
+        st, b, i = ctx.engine.state, ctx.b, ctx.i
+        if ctx.knows_target:
+            return None
+        heard = (st.heard_tick[b, i] >= 0) & (st.heard_goal[b, i, :, 0] >= 0)
+        heard[i] = False
+        if not heard.any():
+            return None
+        h, w = ctx.explored.shape
+        rr, cc = np.mgrid[0:h, 0:w]
+        out = np.zeros((h, w))
+        for g in st.heard_goal[b, i, heard]:
+            out += np.clip(1.0 - np.hypot(rr - g[0], cc - g[1]) / CROWDING_RADIUS, 0.0, None)
+        return CROWDING * out
 
 
 def _label8(mask: np.ndarray) -> tuple[np.ndarray, int]:
@@ -297,6 +333,7 @@ PLANNERS = {
         RRT,
         RRTRelay,
         RRTRelayHeading,
+        RRTRelayCoord,
         APF,
         RandomFrontier,
         RandomWindow,
@@ -306,8 +343,8 @@ PLANNERS = {
 
 
 def make_planner(name: str, seed: int = 0) -> Planner:
-    """A planner by name: nearest, nearest-relay, utility, rrt, rrt-relay, rrt-relay-heading, apf,
-    random-frontier, random-rescue, random-uniform."""
+    """A planner by name: nearest, nearest-relay, utility, rrt, rrt-relay, rrt-relay-heading,
+    rrt-relay-coord, apf, random-frontier, random-rescue, random-uniform."""
     try:
         return PLANNERS[name](seed=seed)
     except KeyError:

@@ -245,6 +245,12 @@ TRAIN_PRESETS["general-hint"] = TRAIN_PRESETS["general-relay-noise"].replace(
 TRAIN_PRESETS["general-hint-noise3"] = TRAIN_PRESETS["general-hint"].replace(
     worlds=[*_MIXTURE, _NOISY_TASK2, _NOISY_TASK3], warm_start_rounds=4, value_warmup_iterations=7
 )
+# and reading the coordinated planner's proposals (rrt-relay-coord: rrt-relay-heading whose robots leave the
+# frontier a teammate is heading for to it), which is also its teacher and its anchor
+_COORD = "rrt-relay-coord"
+TRAIN_PRESETS["general-coord"] = TRAIN_PRESETS["general-hint-noise3"].replace(
+    amat={**TRAIN_PRESETS["general-hint"].amat, "hint": _COORD}, warm_start=_COORD, anchor=_COORD
+)
 
 #: presets that fine-tune a trained model: a new run of one needs ``init_from`` (``catmip train`` refuses it
 #: without; from fresh weights they would be a slow, unwarmed paper run)
@@ -259,6 +265,7 @@ FINE_TUNING_PRESETS = (
     "general-heading",
     "general-hint",
     "general-hint-noise3",
+    "general-coord",
 )
 
 

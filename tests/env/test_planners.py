@@ -31,7 +31,8 @@ def floor():
 
 
 @pytest.mark.parametrize(
-    "name", ["nearest", "utility", "rrt", "rrt-relay", "nearest-relay", "apf", "random-frontier"]
+    "name",
+    ["nearest", "utility", "rrt", "rrt-relay", "rrt-relay-coord", "nearest-relay", "apf", "random-frontier"],
 )
 def test_baseline_finishes_task1_and_beats_the_random_window_floor(name, floor):
     rescue, mean_tick = _run(name)

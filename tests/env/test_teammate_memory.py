@@ -6,7 +6,7 @@ The rules: docs/design.md#communication-and-slam-noise.
 
 import numpy as np
 
-from catmip_env import EnvConfig
+from catmip_env import EnvConfig, make_config
 from catmip_env.constants import CH_CLASS0, OBS_CLUE, OBS_HALF, OBS_ONE, TARGET_BIT
 from catmip_env.events import EventEngine
 from catmip_env.planners import make_planner
@@ -223,3 +223,24 @@ def test_a_neighbourhood_that_decides_together_hears_its_members_new_goals():
     assert heard_goal[0, 1, 1].tolist() == heard_goal[0, 2, 1].tolist() == [4, 5]  # its neighbourhood's
     assert heard_goal[0, 0, 1].tolist() == heard_goal[0, 1, 0].tolist() == [-1, -1]  # not the others'
     assert (heard_goal[0, :, 2] == -1).all()  # a busy robot chose nothing new
+
+
+def test_coordinated_rrt_leaves_the_frontier_a_teammate_is_heading_for():
+    """rrt-relay-coord is rrt-relay-heading until a robot has heard of a teammate's goal; then it leaves the
+    cluster there to that teammate (same seeds, so the same trees)."""
+    eng = EventEngine(make_config("task2", activation=(0, 0)), 8, seed=5, goal_mode="cell")
+    eng.reset()
+    st = eng.state
+    st.heard_goal[:] = -1  # no news of any goal yet
+    plain = make_planner("rrt-relay-heading", seed=0).act(eng)
+    assert np.array_equal(make_planner("rrt-relay-coord", seed=0).act(eng), plain)
+    w = eng.shape[1]
+    for b, i in zip(*np.nonzero(eng.active)):
+        j = (i + 1) % st.pos.shape[1]  # robot i heard that j heads for the cell i would have chosen
+        st.heard_tick[b, i, j], st.heard_goal[b, i, j] = 0, divmod(int(plain[b, i]), w)
+    coord = make_planner("rrt-relay-coord", seed=0).act(eng)
+    away = []
+    for b, i in zip(*np.nonzero(eng.active)):
+        if coord[b, i] != plain[b, i]:
+            away.append(np.hypot(*np.subtract(divmod(int(coord[b, i]), w), divmod(int(plain[b, i]), w))))
+    assert len(away) >= 0.75 * eng.active.sum() and min(away) >= 3  # elsewhere, not next door

@@ -469,12 +469,17 @@ def test_the_noisy_task3_preset_adds_one_world_to_the_relay_noise_mixture():
     assert (env.map_size, env.slam_noise, n, env.comm_ranges) == (32, 0.05, 16, (None, 4.0, 2.0))
 
 
-def test_the_noisy_task3_hint_preset_adds_that_world_and_a_round_to_the_hint_preset():
+def test_the_hint_presets_add_the_noisy_task3_world_a_round_and_the_coordinated_proposer():
     base, noisy = make_train_config("general-hint"), make_train_config("general-hint-noise3")
     assert noisy.worlds == make_train_config("general-noise3").worlds
     assert noisy.worlds[:-1] == base.worlds
     assert (noisy.warm_start_rounds, base.warm_start_rounds) == (4, 3)
     assert noisy.amat == base.amat and noisy.amat["hint"] == noisy.warm_start == "rrt-relay-heading"
+    # general-coord: the same with the coordinated planner as proposer, teacher and anchor
+    coord = json.loads(make_train_config("general-coord").to_json())
+    changed = {k for k, v in json.loads(noisy.to_json()).items() if coord[k] != v}
+    assert changed == {"amat", "warm_start", "anchor"}
+    assert coord["amat"] == noisy.amat | {"hint": "rrt-relay-coord"} and coord["anchor"] == "rrt-relay-coord"
     # general-hint is its recorded run's config but for the command's flags (run-records/general-hint)
     ran = json.loads((RECORDS / "general-hint" / "config.json").read_text())
     command = {"init_from", "threads", "iterations", "eval_every", "checkpoint_every", "seed"}
