@@ -480,8 +480,9 @@ def test_the_hint_presets_add_the_noisy_task3_world_a_round_and_the_coordinated_
     changed = {k for k, v in json.loads(noisy.to_json()).items() if coord[k] != v}
     assert changed == {"amat", "warm_start", "anchor"}
     assert coord["amat"] == noisy.amat | {"hint": "rrt-relay-coord"} and coord["anchor"] == "rrt-relay-coord"
-    # general-hint is its recorded run's config but for the command's flags (run-records/general-hint)
-    ran = json.loads((RECORDS / "general-hint" / "config.json").read_text())
+    # each is its recorded run's config but for the command's flags (run-records/general-hint, general-coord)
     command = {"init_from", "threads", "iterations", "eval_every", "checkpoint_every", "seed"}
-    cfg = json.loads(base.to_json())
-    assert {k: cfg[k] for k in cfg.keys() - command} == {k: ran[k] for k in ran.keys() - command}
+    for preset in ("general-hint", "general-hint-noise3", "general-coord"):
+        ran = json.loads((RECORDS / preset / "config.json").read_text())
+        cfg = json.loads(make_train_config(preset).to_json())
+        assert {k: cfg[k] for k in cfg.keys() - command} == {k: ran[k] for k in ran.keys() - command}, preset
