@@ -1,5 +1,9 @@
 """Scratch planner variants (not in the repo): rrt-relay-heading with a team-cohesion term in RRT's
-cluster score. Usage: LAM=0.5 WHO=rescuer python variants.py eval --method tether ..."""
+cluster score. Usage: LAM=0.5 WHO=rescuer python variants.py eval --method tether ...
+
+The file as it ran for the ninth sitting's gates (it repeats RRT.choose's loop to add its terms). The
+variant that was kept, LAM=0 MU=0.5 RAD=7, is catmip_env.planners.RRTRelayCoord through RRT's crowding
+hook; on 30 Task-3 maps the two played the same episodes."""
 import os, sys
 import numpy as np
 from catmip_env import planners as PL
