@@ -22,7 +22,6 @@ from typing import Any
 
 import numpy as np
 
-from catmip_env.files import atomic_path
 from catmip_rl.evaluation.evaluate import EvalSetting
 from catmip_rl.evaluation.stats import shared_maps_cis
 from catmip_rl.evaluation.suite import (
@@ -37,7 +36,7 @@ from catmip_rl.evaluation.suite import (
     rescued_by_100,  # fmt: skip
     setting_numbers,
 )
-from catmip_rl.files import atomic_write_text
+from catmip_rl.files import atomic_savefig, atomic_write_text
 
 __all__ = [
     "EntryError", "check_entry", "load_entries", "leaderboard_rows", "paired_rows", "paired_names",
@@ -289,10 +288,7 @@ def _figure(rows: list[dict[str, Any]], path: Path, episodes: int) -> Path:
     fig.colorbar(image, ax=right, label="rescued by tick 100")
     fig.suptitle(f"CATMiP suite {SUITE}: {episodes} held-out maps per setting")
     fig.tight_layout()
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=150, format="png")
-    plt.close(fig)
-    return path
+    return atomic_savefig(fig, path, dpi=150)
 
 
 def paired_names(vs: str) -> tuple[str, str]:
