@@ -188,8 +188,8 @@ TRAIN_PRESETS["general-sigma2"] = TRAIN_PRESETS["general-critic"].replace(
     eval_every=20,
 )
 
-# the chain that trained the memory model (amat_general.pt; run-records/general-dagger-rrt, general-relay,
-# general-relay-noise): each stage starts from the previous stage's weights (init_from)
+# the chain that trained the memory model (run-records/general-memory/amat_general.pt; the records
+# general-dagger-rrt, general-relay, general-relay-noise): each stage starts from the one before (init_from)
 # 1. DAgger of RRT in its own action space over the mixture, from a Nearest-imitating `general` student
 TRAIN_PRESETS["general-rrt"] = TRAIN_PRESETS["general"].replace(
     amat={"goals": "cell", "cell_mask": "reachable"},
@@ -218,7 +218,7 @@ TRAIN_PRESETS["general-noise3"] = TRAIN_PRESETS["general-relay-noise"].replace(
 
 # a relay that knows where a rescuer was heading: the model sees each remembered teammate where it should be
 # by now (moved toward the goal it was heading for, EnvConfig.teammate_heading), and the anchor is
-# rrt-relay-heading, whose relay looks for a rescuer there; from amat_general's weights (an arm with the
+# rrt-relay-heading, whose relay looks for a rescuer there; from the memory model's weights (an arm with the
 # anchor on the relay decisions only, anchor_on "relay", lost Task 2: run-records/general-heading-relay)
 TRAIN_PRESETS["general-heading"] = TRAIN_PRESETS["general-relay-noise"].replace(
     amat={"goals": "cell", "cell_mask": "reachable", "teammate_memory": True, "teammate_heading": True},
@@ -227,8 +227,8 @@ TRAIN_PRESETS["general-heading"] = TRAIN_PRESETS["general-relay-noise"].replace(
 
 # the memory model reading its teacher's proposals (AmatConfig.hint): rrt-relay-heading's goal for each
 # deciding robot is one more per-cell input and a logit bonus, so that the model starts from what the teacher
-# would do and learns where to do otherwise. From amat_general's weights (init_from; the new weights start at
-# zero, the same function): a short DAgger of the teacher (32 episodes of each world a round) for the bonus
+# would do and learns where to do otherwise. From the memory model's weights (init_from; the new weights start
+# at zero, the same function): a short DAgger of the teacher (32 episodes of each world a round) for the bonus
 # and the channel, then the anchored PPO of general-relay-noise with the anchor at a quarter of its weight
 TRAIN_PRESETS["general-hint"] = TRAIN_PRESETS["general-relay-noise"].replace(
     amat={"goals": "cell", "cell_mask": "reachable", "teammate_memory": True, "hint": "rrt-relay-heading"},
@@ -246,7 +246,8 @@ TRAIN_PRESETS["general-hint-noise3"] = TRAIN_PRESETS["general-hint"].replace(
     worlds=[*_MIXTURE, _NOISY_TASK2, _NOISY_TASK3], warm_start_rounds=4, value_warmup_iterations=7
 )
 # and reading the coordinated planner's proposals (rrt-relay-coord: rrt-relay-heading whose robots leave the
-# frontier a teammate is heading for to it), which is also its teacher and its anchor
+# frontier a teammate is heading for to it), which is also its teacher and its anchor: the DAgger and
+# iteration 0 of a run from the memory model are amat_general.pt (run-records/general-coord)
 _COORD = "rrt-relay-coord"
 TRAIN_PRESETS["general-coord"] = TRAIN_PRESETS["general-hint-noise3"].replace(
     amat={**TRAIN_PRESETS["general-hint"].amat, "hint": _COORD}, warm_start=_COORD, anchor=_COORD

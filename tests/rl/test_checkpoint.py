@@ -202,7 +202,8 @@ def test_shipped_models_load_by_name(tmp_path, monkeypatch):
     assert load_model("smallma").config.window == 5  # SmallMA, D = 5
     assert parse_method("amat:sync").synchronous and not parse_method("amat:paper").synchronous  # Synch-AMAT
     general = load_model("general").config  # the second-generation model: cell goals, the teammate memory
-    assert (general.goals, general.teammate_memory) == ("cell", True)
+    assert (general.goals, general.teammate_memory) == ("cell", True)  # and a coordinated planner's proposals
+    assert general.hint == "rrt-relay-coord" and not parse_method("amat:general").loop_guard
     with pytest.raises(FileNotFoundError, match=r"shipped: general, paper, smallma, sync, task1"):
         load_model("task9")
     monkeypatch.chdir(tmp_path)  # a path named like a shipped model wins: paths keep working

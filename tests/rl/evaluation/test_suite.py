@@ -171,6 +171,25 @@ def test_the_committed_leaderboard_checks_and_is_up_to_date(tmp_path):
     assert vs.read_text() == (root / "vs_rrt.md").read_text()
 
 
+def test_a_committed_entry_that_names_a_file_in_the_clone_was_played_from_that_file():
+    """An entry's files (its model, a policy's weights) that lie in the clone hold the bytes it played:
+    a model moved or replaced (amat_general.pt) takes its entry along, not someone else's results."""
+    from pathlib import Path
+
+    from catmip_rl.shipped import file_sha256
+
+    clone = Path(__file__).resolve().parents[3]
+    checked = 0
+    for entry in load_entries(clone / "leaderboard" / "entries"):
+        for run in entry["runs"]:
+            for f in [run["source"], *(run.get("files") or [])] if run["source"] else run.get("files") or []:
+                if not Path(f["file"]).is_absolute():
+                    assert (clone / f["file"]).is_file(), f"{entry['method']}: {f['file']}"
+                    assert file_sha256(clone / f["file"]) == f["sha256"], f"{entry['method']}: {f['file']}"
+                    checked += 1
+    assert checked >= 10  # the shipped models, the memory model and the MARL seeds' weights
+
+
 def test_vs_pairs_every_entry_with_the_reference_on_the_same_maps(suite, tmp_path, capsys):
     out, paths = suite
     entries = out / "s" / "entries"
