@@ -4,11 +4,10 @@ file shipped as amat_general.pt; paired.csv's rows are method_a − method_b).""
 import csv
 import sys
 
+from task_tables import ROWS, bold, cell  # the Task 2/3 tables' rows and cells
+
 ME, COLUMNS, PAPER = "coord0", ["rrt", "nearest", "rrt-relay-coord", "amat_paper"], ["rrt", "nearest", "amat_paper"]
 NAMES = {"rrt": "RRT", "nearest": "Nearest", "amat_paper": "`amat_paper`"}
-ROWS = [("full", "0", "full communication"), ("sigma4", "0", "σ = 4"), ("sigma2", "0", "σ = 2"),
-        ("full", "0.05", "full communication, 5 % SLAM noise"), ("sigma4", "0.05", "σ = 4, 5 % SLAM noise"),
-        ("sigma2", "0.05", "σ = 2, 5 % SLAM noise")]
 d = sys.argv[1]
 succ = {(r["setting"], r["method"]): r for r in csv.DictReader(open(f"{d}/by_setting.csv"))}
 diff = {}
@@ -18,9 +17,6 @@ for r in csv.DictReader(open(f"{d}/paired.csv")):
         diff[(r["setting"], r["method_b"])] = t
     elif r["method_b"] == ME:
         diff[(r["setting"], r["method_a"])] = (-t[0], -t[2], -t[1])
-sign = lambda x: f"{x:+.3f}".replace("-", "−")
-cell = lambda t: f"{sign(t[0])} [{sign(t[1])}, {sign(t[2])}]"
-bold = lambda t, s: f"**{s}**" if t[1] > 0 or t[2] < 0 else s
 print("| rescued by tick 100 (by the horizon) | `amat:general` | RRT | Nearest | `rrt-relay-coord` | `amat_paper` "
       "| − best of RRT, Nearest and `amat_paper` [95 % CI] | − `rrt-relay-coord` [95 % CI] |")
 print("|---|---|---|---|---|---|---|---|")
