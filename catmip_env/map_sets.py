@@ -12,8 +12,11 @@ comparable or refused::
     report.status                                         # "verified" or "not frozen"
 
 The frozen seeds (:data:`FROZEN_SEEDS`): 0 is the paper protocol's (its first 100 maps are the figures'
-maps); 1 and 2 are the development sets earlier models were compared and chosen on; 1000 is the held-out
-set (:data:`HELDOUT_SEED`) that claims are made on and nothing is chosen on.
+maps); 1 and 2 are the development sets earlier models were compared and chosen on. The benchmark suite
+has two splits (:data:`SPLITS`): **validation**, seed 1000 (:data:`VALIDATION_SEED`), public, for tuning,
+gates and every choice (the project chose models and planners on it); and **test**, seed 20261201
+(:data:`TEST_SEED`), which nothing was tuned or chosen on: an entry plays it once, after every choice
+is frozen.
 
 ``python -m catmip_env.map_sets --write`` regenerates the manifests (maintainers, after a deliberate
 change of map generation).
@@ -36,13 +39,16 @@ from catmip_env.files import atomic_path
 from catmip_env.world import BatchedWorld
 
 __all__ = [
-    "FROZEN_SEEDS", "HELDOUT_SEED", "MANIFEST_EPISODES", "MapSetMismatch", "MapSetReport", "check_maps",
+    "FROZEN_SEEDS", "VALIDATION_SEED", "TEST_SEED", "SPLITS", "MANIFEST_EPISODES", "MapSetMismatch", "MapSetReport", "check_maps",
     "manifest", "map_hash", "map_hashes",
 ]  # fmt: skip
 
-FROZEN_SEEDS = (0, 1, 2, 1000)
-HELDOUT_SEED = 1000
-"""The held-out map set: claims are made on it, and no model or setting is chosen on it."""
+VALIDATION_SEED = 1000
+"""The suite's validation maps: public, for tuning, gates and every choice (the project chose on them)."""
+TEST_SEED = 20261201
+"""The suite's test maps: nothing is chosen on them; an entry plays them once, after every choice."""
+SPLITS = {"validation": VALIDATION_SEED, "test": TEST_SEED}
+FROZEN_SEEDS = (0, 1, 2, VALIDATION_SEED, TEST_SEED)
 MANIFEST_EPISODES = 1000
 TASKS = ("task1", "task2", "task3")
 FORMAT = "catmip-map-set-v1"

@@ -215,14 +215,14 @@ def _suite(args: argparse.Namespace) -> int:
     advice = "pick a new folder, or --resume the suite in it"
     with output_folder(args.out, "--out", keep=args.resume, advice=advice):
         paths = run_suite(args.method, args.out, args.episodes, args.jobs, args.threads,
-                          not args.no_progress, dict(args.code), dict(args.notes))  # fmt: skip
+                          not args.no_progress, dict(args.code), dict(args.notes), args.split)  # fmt: skip
     for path in paths:
         entry = json.loads(path.read_text())
         iqm, (low, high) = (
             entry["aggregate"]["iqm_success_by_100"],
             entry["aggregate"]["iqm_success_by_100_ci"],
         )
-        print(f"{entry['method']}: suite {SUITE} IQM rescued by tick 100 {iqm:.3f} [{low:.3f}, {high:.3f}] "
+        print(f"{entry['method']}: suite {SUITE} ({entry['split']} split) IQM rescued by tick 100 {iqm:.3f} [{low:.3f}, {high:.3f}] "
               f"over {len(entry['settings'])} settings x {entry['episodes']} maps -> {path}")  # fmt: skip
     print(f"check and rank them: catmip leaderboard --entries {Path(args.out) / 'entries'}"
           + ("" if args.episodes == EPISODES else f" --episodes {args.episodes}"))  # fmt: skip

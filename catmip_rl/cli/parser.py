@@ -240,14 +240,15 @@ def add_parallel_flags(p: argparse.ArgumentParser) -> None:
 
 
 def add_suite(suites) -> None:
-    from catmip_rl.evaluation.suite import EPISODES, SEED, SETTINGS, SUITE
+    from catmip_rl.evaluation.suite import EPISODES, SETTINGS, SPLITS, SUITE
 
     su = suites.add_parser(
         "suite", help=f"the benchmark suite ({SUITE}): one leaderboard entry per method",
         formatter_class=Formatter,
         description=f"Play each method on the {len(SETTINGS)} settings of suite {SUITE} (Tasks 2 and 3 x "
-        "communication full / sigma 4 / sigma 2 x SLAM noise 0 / 5 %) on the held-out maps "
-        f"(seed {SEED}) and write OUT/entries/NAME.json for catmip leaderboard; per-run results in "
+        "communication full / sigma 4 / sigma 2 x SLAM noise 0 / 5 %) on the frozen maps of --split "
+        f"(validation: seed {SPLITS['validation']}, for every choice; test: seed {SPLITS['test']}, played "
+        "once per entry after every choice is frozen) and write OUT/entries/NAME.json for catmip leaderboard; per-run results in "
         "OUT/runs/. An interrupted suite continues with --resume (complete runs are read back, not "
         "played again).",
     )  # fmt: skip
@@ -255,6 +256,9 @@ def add_suite(suites) -> None:
         "--method", action="append", required=True, type=checked(check_runs),
         help="a method (repeatable; NAME=METHOD; NAME=SPEC,SPEC,...: its training runs)",
     )  # fmt: skip
+    su.add_argument("--split", choices=sorted(SPLITS), default="validation",
+                    help="the maps: validation (tuning, gates, every choice) or test (the leaderboard's; "
+                    "play it once, after every choice is frozen)")  # fmt: skip
     su.add_argument("--episodes", type=number_type(int, 1, below=EPISODES + 1, bound=f"from 1 to {EPISODES}"),
                     default=EPISODES, help="maps per setting (an entry of fewer is a preview: the "
                     "leaderboard takes the suite's count)")  # fmt: skip

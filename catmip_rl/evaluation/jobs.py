@@ -104,7 +104,9 @@ def run_one(job: Job) -> dict[str, Any]:
         for key in ("rescue_tick", "sampled_rescue_tick")
         if key in episodes[0]
     }
-    return {"out": job.out, "summary": summary, "curve": curve, "sampled_curve": sampled, "ticks": ticks}
+    maps = [e["map_hash"] for e in episodes]  # the maps played, in order (an entry's digest)
+    return {"out": job.out, "summary": summary, "curve": curve, "sampled_curve": sampled, "ticks": ticks,
+            "maps": maps}  # fmt: skip
 
 
 def map_jobs(tasks: list[Job], jobs: int, progress: bool, desc: str) -> list[dict[str, Any]]:

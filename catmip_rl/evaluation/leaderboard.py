@@ -28,11 +28,11 @@ from catmip_rl.evaluation.suite import (
     BY_TICK,
     ENTRY_FORMAT,
     EPISODES,
-    SEED,
     SETTINGS,
+    SPLITS,
     SUITE,
     iqm_interval,
-    maps_digest,
+    split_digest,
     rescued_by_100,  # fmt: skip
     setting_numbers,
 )
@@ -103,7 +103,10 @@ def _check_header(entry: Any, episodes: int) -> None:
     method and its training runs, and holds every setting of the suite and no other."""
     if not isinstance(entry, dict) or entry.get("format") != ENTRY_FORMAT:
         raise ValueError(f"not a {ENTRY_FORMAT} file")
-    for key, want in (("suite", SUITE), ("seed", SEED), ("episodes", episodes)):
+    split = entry.get("split")
+    if split not in SPLITS:
+        raise ValueError(f"split is {split!r}, not one of {sorted(SPLITS)}")
+    for key, want in (("suite", SUITE), ("seed", SPLITS[split]), ("episodes", episodes)):
         if entry.get(key) != want:
             raise ValueError(f"{key} is {entry.get(key)!r}, the leaderboard's is {want!r}")
     if not isinstance(entry.get("method"), str) or not entry["method"].strip():
@@ -130,8 +133,10 @@ def _setting_ticks(entry: dict[str, Any], st: EvalSetting, episodes: int) -> tup
         if stated.get(key) != getattr(st, key):
             suite_value = getattr(st, key)
             raise ValueError(f"{st.label}: {key} is {stated.get(key)!r}, the suite's is {suite_value!r}")
-    if stated.get("maps_sha256") != maps_digest(st.task, episodes):
-        raise ValueError(f"{st.label}: its maps are not the frozen held-out maps (maps_sha256 differs)")
+    if stated.get("maps_sha256") != split_digest(st.task, entry["split"], episodes):
+        raise ValueError(
+            f"{st.label}: its maps are not the frozen {entry['split']} maps (maps_sha256 differs)"
+        )
     horizon = stated.get("horizon")
     if type(horizon) is not int or horizon < BY_TICK:
         raise ValueError(f"{st.label}: horizon {horizon!r} is not a horizon of the suite")
@@ -215,7 +220,7 @@ def _paired_markdown(rows: list[dict[str, Any]], vs: str, episodes: int) -> str:
     head = ["method", "runs", "ahead / behind", *(_short(s.label) for s in SETTINGS)]
     lines = _page_head(
         f"CATMiP suite {SUITE}: each method against {vs}",
-        f"Success by tick 100 less {vs}'s on the same {episodes} held-out maps (seed {SEED}) per setting, "
+        f"Success by tick 100 less {vs}'s on the same {episodes} test maps (seed {SPLITS['test']}) per setting, "
         "with a 95 % CI over the maps and the method's training runs (the reference's runs averaged per "
         "map); bold where the interval excludes 0. Ahead / behind: the settings whose interval lies above "
         "/ below 0. Recomputed from the entries' rescue ticks (`catmip leaderboard --vs`).",
@@ -245,7 +250,7 @@ def _markdown(rows: list[dict[str, Any]], episodes: int) -> str:
     head += [_short(s.label) for s in SETTINGS]
     lines = _page_head(
         f"CATMiP leaderboard, suite {SUITE}",
-        f"Success by tick 100 on {episodes} held-out maps (seed {SEED}) per setting; the aggregate is the "
+        f"Success by tick 100 on {episodes} test maps (seed {SPLITS['test']}) per setting; the aggregate is the "
         "IQM over (training runs × settings) with a 95 % CI over runs and maps. T2/T3: Task 2 (20×20, 3 "
         "robots) / Task 3 (32×32, 6 robots); full / σ4 / σ2: communication; +n: 5 % SLAM noise. Every "
         "number is recomputed from the entry's rescue ticks (`catmip leaderboard`).",
@@ -286,7 +291,7 @@ def _figure(rows: list[dict[str, Any]], path: Path, episodes: int) -> Path:
             right.text(j, y[i], f"{v:.2f}", ha="center", va="center", fontsize=7, color=colour)
     right.set_xticks(range(len(SETTINGS)), [_short(s.label) for s in SETTINGS], rotation=45, ha="right")
     fig.colorbar(image, ax=right, label="rescued by tick 100")
-    fig.suptitle(f"CATMiP suite {SUITE}: {episodes} held-out maps per setting")
+    fig.suptitle(f"CATMiP suite {SUITE}: {episodes} test maps per setting")
     fig.tight_layout()
     return atomic_savefig(fig, path, dpi=150)
 

@@ -1,10 +1,12 @@
-"""The benchmark suite: one fixed grid of settings on the held-out maps, one entry per method.
+"""The benchmark suite: one fixed grid of settings on frozen maps, one entry per method.
 
-    run_suite(["nearest", "mine=py:my_policy.py:make_policy"], out="out/suite")  # catmip bench suite
+    run_suite(["nearest", "mine=py:my_policy.py:make_policy"], split="validation")  # catmip bench suite
 
-**Suite v1** (:data:`SETTINGS`): Tasks 2 and 3 × communication full / σ = 4 / σ = 2 × SLAM noise 0 / 5 %,
-each on the 1,000 held-out maps (seed 1000, frozen in ``catmip_env/frozen_maps``), evaluation
-activation, the paper's horizon, the longest macro-action 10 ticks. Task 1 is left out: every planner and
+**Suite v2** (:data:`SETTINGS`): Tasks 2 and 3 × communication full / σ = 4 / σ = 2 × SLAM noise 0 / 5 %,
+each on 1,000 frozen maps of a **split** (:data:`~catmip_env.map_sets.SPLITS`, frozen in
+``catmip_env/frozen_maps``): *validation* (seed 1000) for tuning, gates and every choice; *test* (seed
+20261201), played once per entry after every choice is frozen -- the leaderboard ranks test entries
+only. Evaluation activation, the paper's horizon, the longest macro-action 10 ticks. Task 1 is left out: every planner and
 AMAT rescue within 0.02 of each other there by tick 100, so it no longer tells methods apart. Weak
 communication and SLAM noise are where the planners differ most (RRT 0.64 against Nearest 0.48 on Task 2
 at σ = 2) and where a learned planner can win.
@@ -32,7 +34,7 @@ from typing import Any
 import numpy as np
 
 from catmip_env.machine import machine_info
-from catmip_env.map_sets import HELDOUT_SEED, MANIFEST_EPISODES, manifest
+from catmip_env.map_sets import MANIFEST_EPISODES, SPLITS
 from catmip_rl.evaluation.evaluate import EvalSetting
 from catmip_rl.evaluation.jobs import Job, check_methods, default_threads, map_jobs, run_dir
 from catmip_rl.evaluation.methods import PLAY_OPTIONS, Method, method_source, parse_runs
@@ -41,12 +43,11 @@ from catmip_rl.evaluation.user_policy import PolicyError, parse_policy_source
 from catmip_rl.files import atomic_write_text
 
 __all__ = [
-    "SUITE", "SEED", "EPISODES", "SETTINGS", "ENTRY_FORMAT", "run_suite", "make_entry", "setting_numbers",
+    "SUITE", "SPLITS", "EPISODES", "SETTINGS", "ENTRY_FORMAT", "run_suite", "make_entry", "setting_numbers",
     "iqm_interval", "maps_digest", "entry_json", "rescued_by_100",
 ]  # fmt: skip
 
-SUITE = "v1"
-SEED = HELDOUT_SEED
+SUITE = "v2"
 EPISODES = MANIFEST_EPISODES
 SETTINGS = tuple(
     EvalSetting(task, comm, noise)
@@ -54,16 +55,31 @@ SETTINGS = tuple(
     for comm in ("full", "4", "2")
     for noise in (0.0, 0.05)
 )
-ENTRY_FORMAT = "catmip-suite-entry-v1"
+ENTRY_FORMAT = "catmip-suite-entry-v2"
 BY_TICK = 100  # the paper's headline: rescued by tick 100
 RESAMPLES = 2_000
 PACKAGES = ("catmip", "numpy", "numba", "torch", "torchrl", "tensordict")
 
 
-def maps_digest(task: str, episodes: int) -> str:
-    """SHA-256 of the frozen held-out maps' hashes (the first ``episodes`` of seed :data:`SEED`)."""
-    hashes = manifest(task)["seeds"][str(SEED)][:episodes]
+def maps_digest(hashes: list[str]) -> str:
+    """SHA-256 of a list of map hashes (:func:`~catmip_env.map_sets.map_hash`, one per map in order):
+    an entry's digest is computed from the maps its runs played; the leaderboard computes the frozen
+    split's from the manifest (:func:`split_digest`)."""
     return hashlib.sha256("\n".join(hashes).encode()).hexdigest()
+
+
+def split_digest(task: str, split: str, episodes: int) -> str:
+    """:func:`maps_digest` of the first ``episodes`` frozen maps of ``split`` for ``task``."""
+    from catmip_env.map_sets import manifest
+
+    return maps_digest(manifest(task)["seeds"][str(SPLITS[split])][:episodes])
+
+
+def check_split(split: str) -> int:
+    """The seed of ``split``; ValueError naming the splits for anything else."""
+    if split not in SPLITS:
+        raise ValueError(f"split must be one of {sorted(SPLITS)}, got {split!r}")
+    return SPLITS[split]
 
 
 def rescued_by_100(rescue_tick: np.ndarray, horizon: int) -> np.ndarray:
@@ -172,17 +188,21 @@ def entry_actions(summary: dict[str, Any]) -> str | None:
 
 
 def make_entry(name: str, runs: list[Method], results: dict[str, list[dict[str, Any]]], episodes: int,
-               code: str = "", notes: str = "") -> dict[str, Any]:  # fmt: skip
-    """The suite entry of method ``name`` (its training ``runs``) from its :func:`~catmip_rl.evaluation.
-    jobs.run_one` results per setting label (one per run, in order)."""
+               code: str = "", notes: str = "", split: str = "validation") -> dict[str, Any]:  # fmt: skip
+    """The suite entry of method ``name`` (its training ``runs``) on ``split`` from its
+    :func:`~catmip_rl.evaluation.jobs.run_one` results per setting label (one per run, in order); each
+    setting's ``maps_sha256`` is the digest of the maps its runs played (ValueError if they differ)."""
     settings, success = {}, []
     for st in SETTINGS:
         res = results[st.label]
         horizon = int(res[0]["summary"]["horizon"])
+        played = {maps_digest(r["maps"]) for r in res}
+        if len(played) != 1:
+            raise ValueError(f"the runs of {name} played different maps in {st.label}")
         ticks = np.array([[-1 if np.isnan(t) else int(t) for t in r["ticks"]["rescue_tick"]] for r in res])
         settings[st.label] = {
             "task": st.task, "comm": st.comm, "noise": st.noise, "max_ma_ticks": st.max_ma_ticks,
-            "horizon": horizon, "maps_sha256": maps_digest(st.task, episodes),
+            "horizon": horizon, "maps_sha256": played.pop(),
             **setting_numbers(ticks, horizon), "rescue_tick": ticks.tolist(),
         }  # fmt: skip
         success.append(rescued_by_100(ticks, horizon))
@@ -203,7 +223,8 @@ def make_entry(name: str, runs: list[Method], results: dict[str, list[dict[str, 
             }
             for k, m in enumerate(runs)
         ],  # fmt: skip
-        "seed": SEED,
+        "split": split,
+        "seed": check_split(split),
         "episodes": episodes,
         "aggregate": {"iqm_success_by_100": iqm, "iqm_success_by_100_ci": [low, high]},
         "settings": settings,
@@ -224,12 +245,14 @@ def run_suite(
     progress: bool = True,
     code: dict[str, str] | None = None,
     notes: dict[str, str] | None = None,
+    split: str = "validation",
 ) -> list[Path]:
     """Play every method (``NAME=SPEC`` or ``NAME=SPEC,SPEC,...`` for several training runs) on every
-    setting of the suite and write one entry per method, with its ``code`` link and ``notes`` (by
+    setting of the suite on the maps of ``split`` and write one entry per method, with its ``code`` link and ``notes`` (by
     method name) where given, else those of the entry already in ``out``; returns the entries' paths.
     Resumes an interrupted suite in the same ``out``. A method that cannot play a setting
     (``WorldNotSupported``), an unreadable model or a broken policy raises before anything is played."""
+    seed = check_split(split)
     groups = [parse_runs(m) for m in methods]
     names = [runs[0].name for runs in groups]
     if not groups or len(set(names)) != len(names):
@@ -240,16 +263,16 @@ def run_suite(
             f"code / notes given for {unknown}, which the suite does not play (methods: {names})"
         )
     if not 1 <= episodes <= EPISODES:
-        raise ValueError(f"episodes must be from 1 to the {EPISODES} frozen held-out maps, got {episodes}")
+        raise ValueError(f"episodes must be from 1 to the {EPISODES} frozen maps of a split, got {episodes}")
     panels = [(st.label, st) for st in SETTINGS]
-    _plays, not_played = check_methods(groups, panels, SEED)
+    _plays, not_played = check_methods(groups, panels, seed)
     if not_played:
         (label, name), why = next(iter(not_played.items()))
         raise ValueError(f"method {name} cannot play {label} ({why}): a suite entry needs every setting")
     threads = default_threads(jobs, threads)
     out = Path(out)
     tasks = [
-        Job(m, st, episodes, SEED, str(run_dir(out / "runs" / st.label / m.name, k, len(runs))), threads,
+        Job(m, st, episodes, seed, str(run_dir(out / "runs" / st.label / m.name, k, len(runs))), threads,
             resume=True, sampled=False)  # an entry is the argmax (or the policy's own) actions: one pass
         for runs in groups for k, m in enumerate(runs) for st in SETTINGS
     ]  # fmt: skip
@@ -271,7 +294,7 @@ def run_suite(
         path = out / "entries" / f"{_file_name(name)}.json"
         kept = _recorded(path)  # a resumed suite keeps the link and notes it was given before
         entry = make_entry(name, runs, per_setting, episodes, (code or {}).get(name, kept["code"]),
-                           (notes or {}).get(name, kept["notes"]))  # fmt: skip
+                           (notes or {}).get(name, kept["notes"]), split)  # fmt: skip
         atomic_write_text(path, entry_json(entry))
         paths.append(path)
     return paths
