@@ -21,13 +21,30 @@ SQUARE = 15  # side of the square whose unexplored cells measure a goal's utilit
 
 
 class Planner:
-    """Base class: ``act(engine)`` returns (B, N) cell-mode actions (only active robots' matter)."""
+    """Base class: ``act(engine)`` returns (B, N) cell-mode actions (only active robots' matter).
+
+    Its random draws come from one stream per world and episode (:meth:`world_rng`: the planner's
+    seed, the engine's seed and the world's episode index), so a world's episode depends on its own
+    map and decisions only, never on the batch it is played in: maps 0 .. K-1 played alone give the
+    same episodes as in a batch of 1,000 (what a leaderboard replay checks)."""
 
     name = "planner"
     rescue_rule = True  # a rescuer that knows the target heads for it
 
     def __init__(self, seed: int = 0) -> None:
-        self.rng = np.random.default_rng(seed)
+        self.seed = int(seed)
+        self.rng = np.random.default_rng(seed)  # the stream of the world deciding now (world_rng)
+        self._streams: dict[int, tuple[tuple[int, int], np.random.Generator]] = {}
+
+    def world_rng(self, engine: EventEngine, b: int) -> np.random.Generator:
+        """The random stream of world ``b``'s current episode (a new one when the world's episode or
+        the engine's seed changes)."""
+        key = (int(engine.world.base_seed), int(engine.state.episode[b]))
+        held = self._streams.get(b)
+        if held is None or held[0] != key:
+            held = (key, np.random.default_rng([self.seed, *key]))
+            self._streams[b] = held
+        return held[1]
 
     def act(self, engine: EventEngine) -> np.ndarray:
         if engine.goal_mode != "cell":
@@ -37,6 +54,7 @@ class Planner:
         out = (st.pos[..., 0] * w + st.pos[..., 1]).astype(np.int64)  # default: stay
         live = ~st.done
         for b, i in zip(*np.nonzero(engine.active & live[:, None])):
+            self.rng = self.world_rng(engine, int(b))
             ctx = DecisionContext(engine, int(b), int(i))
             goal = ctx.rescue_goal() if self.rescue_rule else None
             if goal is None:
