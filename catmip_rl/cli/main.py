@@ -93,18 +93,34 @@ def _setting(args: argparse.Namespace):
     return EvalSetting(args.task, args.comm, args.noise, args.max_ma_ticks)
 
 
+def _no_plots_note(no_plots: bool) -> str:
+    """Why ``catmip eval`` draws no curve.png: '' when it draws one or ``--no-plots`` said so; else (no
+    matplotlib: an env-only install, whose evaluation needs no plots) the one line that says so."""
+    from catmip_rl.evaluation.plots import check_matplotlib
+
+    if no_plots:
+        return ""
+    try:
+        check_matplotlib()
+    except ImportError as err:
+        return f"catmip eval: results written, no curve.png: {err} (--no-plots skips it without this line)"
+    return ""
+
+
 def _eval(args: argparse.Namespace) -> int:
     from catmip_rl.evaluation.evaluate import evaluate
     from catmip_rl.evaluation.methods import PLAY_OPTIONS
     from catmip_rl.outputs import output_folder
 
+    note = _no_plots_note(args.no_plots)  # decided before the work
+    plots = not (args.no_plots or note)
     with output_folder(args.out, "--out", force=args.force) as out:
         torch_threads(args.threads)
         result = evaluate(
             args.method, _setting(args), args.episodes, args.seed, progress=not args.no_progress,
             allow_other_maps=args.allow_other_maps, threads=args.threads, sampled_too=not args.argmax_only,
         )  # fmt: skip
-        result.write(out, curve_title=f"{args.episodes} maps (seed {args.seed})")
+        result.write(out, curve_title=f"{args.episodes} maps (seed {args.seed})" if plots else None)
     s = result.summary
     rescue = "-" if s["mean_rescue_tick"] is None else f"{s['mean_rescue_tick']:.1f}"
     p, n = s["success_by_100"], s["episodes"]
@@ -142,7 +158,10 @@ def _eval(args: argparse.Namespace) -> int:
             f"{s['bytes_per_decision_raw']:.0f} bytes with raw macro-observations"
         )
     print(f"  maps: {s['map_set']} {s['map_set_status']} ({s['map_set_verified_episodes']} checked)")
-    print(f"wrote {out}/episodes.csv, episodes.json, curve.csv, curve.png, summary.json, run.json")
+    png = "curve.png, " if plots else ""
+    print(f"wrote {out}/episodes.csv, episodes.json, curve.csv, {png}summary.json, run.json")
+    if note:
+        print(note, file=sys.stderr)
     return 0
 
 

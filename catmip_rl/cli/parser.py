@@ -212,6 +212,11 @@ def add_eval_render(sub) -> None:
     )
     ev.add_argument("--no-progress", action="store_true", help="no progress bar")
     ev.add_argument(
+        "--no-plots", action="store_true",
+        help="write no curve.png (the results only). Without matplotlib (an env-only install) the results "
+        "are written all the same and one line says that the plots need the render extra",
+    )  # fmt: skip
+    ev.add_argument(
         "--argmax-only", action="store_true",
         help="play a learned policy's argmax actions only, not the maps again with sampled actions (half the "
         "time; the summary then has no sampled_* numbers)",

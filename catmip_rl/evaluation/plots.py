@@ -30,7 +30,9 @@ def check_matplotlib() -> None:
     try:
         import matplotlib  # noqa: F401
     except ImportError as err:
-        raise ImportError("the plots need matplotlib: pip install 'catmip[rl]'") from err
+        raise ImportError(
+            "the plots need the render extra (matplotlib): pip install 'catmip[render]'"
+        ) from err
 
 
 def trailing_mean(values: np.ndarray, width: int) -> np.ndarray:
