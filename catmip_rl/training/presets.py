@@ -118,9 +118,6 @@ TRAIN_PRESETS: dict[str, TrainConfig] = {
         **(_WARM_START | {"warm_start": ""}),
         **_EVAL_64,
     ),
-    # the window model fine-tuned on the mixture (docs/notes/general-model.md: it lowered Task 3); kept so
-    # that the recorded runs' commands still run
-    "general-window": _ON_THE_MIXTURE.replace(init_from="paper", value_warmup_iterations=5),
     # one model for every team and map size (amat_general.pt): cell goals with a pointer head
     # (amat.pointer), DAgger of Nearest in the same action space over the mixture (16 rounds, ~4,000
     # episodes), then PPO on it with communication drawn per episode and SLAM noise in one world
@@ -157,37 +154,6 @@ TRAIN_PRESETS["paper-warm-smallma"] = _PAPER_WARM_5604.replace(
     env_overrides={"window": 5}, amat={"window": 5}
 )
 
-# the memory model's anchored PPO (run-records/general-relay: cell goals, the teammate memory, anchored to
-# rrt-relay) with a centralised critic that reads the world's true state (amat.critic) in place of the
-# encoder's value head; from a general-relay model (init_from), the new critic trained alone for its first
-# 20 iterations (four turns of each world) at ten times the policy's rate
-TRAIN_PRESETS["general-critic"] = TRAIN_PRESETS["general"].replace(
-    amat={"goals": "cell", "cell_mask": "reachable", "teammate_memory": True, "critic": "state"},
-    warm_start="",
-    anchor="rrt-relay",
-    anchor_coef=0.2,
-    lr=5e-5,
-    critic_lr=5e-4,
-)
-
-# general-critic where the bars are: only the worlds with sigma = 2 (Tasks 2 and 3, with and without 5 % SLAM
-# noise), with more episodes an iteration than the mixture gives them (Task 2: 128 instead of 64; Task 3: 64
-# instead of 16), so that every update averages its advantages over more episodes of the settings where
-# carrying the news pays; from a general-critic run (init_from: its state critic comes along), evaluated on
-# Task 3 with sigma = 2
-_SIGMA2 = {"activation": [2, 5], "comm_sigma": 2.0}
-TRAIN_PRESETS["general-sigma2"] = TRAIN_PRESETS["general-critic"].replace(
-    env_overrides=_SIGMA2,
-    worlds=[
-        {"preset": "task2", **_SIGMA2, "num_worlds": 128},
-        {"preset": "task2", **_SIGMA2, "slam_noise": 0.05, "num_worlds": 128},
-        {"preset": "task3", **_SIGMA2, "num_worlds": 64},
-        {"preset": "task3", **_SIGMA2, "slam_noise": 0.05, "num_worlds": 64},
-    ],
-    value_warmup_iterations=4,  # one value-only turn of each world: the critic learnt the mixture's returns
-    eval_every=20,
-)
-
 # the chain that trained the memory model (run-records/general-memory/amat_general.pt; the records
 # general-dagger-rrt, general-relay, general-relay-noise): each stage starts from the one before (init_from)
 # 1. DAgger of RRT in its own action space over the mixture, from a Nearest-imitating `general` student
@@ -210,64 +176,30 @@ _NOISY_TASK2 = {**_MIXTURE[2], "slam_noise": 0.05}  # the mixture's Task-2 world
 TRAIN_PRESETS["general-relay-noise"] = TRAIN_PRESETS["general-relay"].replace(
     warm_start="", worlds=[*_MIXTURE, _NOISY_TASK2], value_warmup_iterations=6
 )
-# 4. and a Task-3 world under 5 % SLAM noise (where the model trailed its teacher most on the suite)
+# amat_general.pt's last stage, from the memory model's weights (init_from; the new weights start at zero,
+# the same function): the model reads the coordinated planner rrt-relay-coord's goal for each deciding robot
+# (AmatConfig.hint: one more per-cell input and a logit bonus), and that planner is also its teacher and its
+# anchor; a short DAgger of it (4 rounds of 32 episodes a world) over the mixture with a Task-2 and a Task-3
+# world under 5 % SLAM noise added, then the anchored PPO of general-relay-noise with the anchor at a quarter
+# of its weight. Its DAgger and iteration 0 are amat_general.pt (run-records/general-coord, --iterations 1)
 _NOISY_TASK3 = {**_MIXTURE[4], "slam_noise": 0.05}  # the mixture's Task-3 world, under noise
-TRAIN_PRESETS["general-noise3"] = TRAIN_PRESETS["general-relay-noise"].replace(
-    worlds=[*_MIXTURE, _NOISY_TASK2, _NOISY_TASK3], value_warmup_iterations=7
-)
-
-# a relay that knows where a rescuer was heading: the model sees each remembered teammate where it should be
-# by now (moved toward the goal it was heading for, EnvConfig.teammate_heading), and the anchor is
-# rrt-relay-heading, whose relay looks for a rescuer there; from the memory model's weights (an arm with the
-# anchor on the relay decisions only, anchor_on "relay", lost Task 2: run-records/general-heading-relay)
-TRAIN_PRESETS["general-heading"] = TRAIN_PRESETS["general-relay-noise"].replace(
-    amat={"goals": "cell", "cell_mask": "reachable", "teammate_memory": True, "teammate_heading": True},
-    anchor="rrt-relay-heading",
-)
-
-# the memory model reading its teacher's proposals (AmatConfig.hint): rrt-relay-heading's goal for each
-# deciding robot is one more per-cell input and a logit bonus, so that the model starts from what the teacher
-# would do and learns where to do otherwise. From the memory model's weights (init_from; the new weights start
-# at zero, the same function): a short DAgger of the teacher (32 episodes of each world a round) for the bonus
-# and the channel, then the anchored PPO of general-relay-noise with the anchor at a quarter of its weight
-TRAIN_PRESETS["general-hint"] = TRAIN_PRESETS["general-relay-noise"].replace(
-    amat={"goals": "cell", "cell_mask": "reachable", "teammate_memory": True, "hint": "rrt-relay-heading"},
-    warm_start="rrt-relay-heading",
-    warm_start_rounds=3,
+_COORD = "rrt-relay-coord"
+TRAIN_PRESETS["general-coord"] = TRAIN_PRESETS["general-relay-noise"].replace(
+    amat={"goals": "cell", "cell_mask": "reachable", "teammate_memory": True, "hint": _COORD},
+    worlds=[*_MIXTURE, _NOISY_TASK2, _NOISY_TASK3],
+    value_warmup_iterations=7,
+    warm_start=_COORD,
+    warm_start_rounds=4,
     warm_start_steps=150,
     warm_start_worlds=32,
     warm_start_lr=3e-4,
-    anchor="rrt-relay-heading",
+    anchor=_COORD,
     anchor_coef=0.05,
-)
-# the same with a Task-3 world under 5 % SLAM noise among the worlds (general-noise3's seven; the mixture has
-# none, and Task 3 with noise is where the warm start trailed its teacher on the suite) and a fourth round
-TRAIN_PRESETS["general-hint-noise3"] = TRAIN_PRESETS["general-hint"].replace(
-    worlds=[*_MIXTURE, _NOISY_TASK2, _NOISY_TASK3], warm_start_rounds=4, value_warmup_iterations=7
-)
-# and reading the coordinated planner's proposals (rrt-relay-coord: rrt-relay-heading whose robots leave the
-# frontier a teammate is heading for to it), which is also its teacher and its anchor: the DAgger and
-# iteration 0 of a run from the memory model are amat_general.pt (run-records/general-coord)
-_COORD = "rrt-relay-coord"
-TRAIN_PRESETS["general-coord"] = TRAIN_PRESETS["general-hint-noise3"].replace(
-    amat={**TRAIN_PRESETS["general-hint"].amat, "hint": _COORD}, warm_start=_COORD, anchor=_COORD
 )
 
 #: presets that fine-tune a trained model: a new run of one needs ``init_from`` (``catmip train`` refuses it
 #: without; from fresh weights they would be a slow, unwarmed paper run)
-FINE_TUNING_PRESETS = (
-    "paper-sharp",
-    "general-critic",
-    "general-sigma2",
-    "general-rrt",
-    "general-relay",
-    "general-relay-noise",
-    "general-noise3",
-    "general-heading",
-    "general-hint",
-    "general-hint-noise3",
-    "general-coord",
-)
+FINE_TUNING_PRESETS = ("paper-sharp", "general-rrt", "general-relay", "general-relay-noise", "general-coord")
 
 
 def make_train_config(preset: str = "paper", **overrides: Any) -> TrainConfig:

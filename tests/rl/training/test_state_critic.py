@@ -2,6 +2,9 @@
 the policy's weights are drawn as before, that PPO trains it (and only it during the value warm-up),
 that runs start from a model without it and resume exactly, and the refusals."""
 
+import json
+from pathlib import Path
+
 import numpy as np
 import pytest
 import torch
@@ -14,6 +17,7 @@ from catmip_rl.amat.config import AmatConfig
 from catmip_rl.amat.critic import StateCritic, critic_state
 from catmip_rl.amat.pointer import make_model
 from catmip_rl.checkpoint import save_model
+from catmip_rl.training.config import TrainConfig
 from catmip_rl.training.presets import make_train_config
 from catmip_rl.training.train import build_run, ppo_iteration, train
 
@@ -144,8 +148,10 @@ def test_the_critic_learns_at_its_own_rate_and_the_schedule_keeps_the_ratio(tmp_
         make_train_config("tiny", critic_lr=-1.0)
 
 
-def test_the_sigma2_preset_trains_the_state_critic_model_on_the_sigma2_worlds_only():
-    cfg = make_train_config("general-sigma2")
+def test_the_sigma2_arm_trains_the_state_critic_model_on_the_sigma2_worlds_only():
+    # the recorded arm's config (its preset left with its record: docs/notes/retired-presets.json)
+    retired = json.loads((Path(__file__).parents[3] / "docs/notes/retired-presets.json").read_text())
+    cfg = TrainConfig.from_json(json.dumps(retired["presets"]["general-sigma2"]["config"]))
     worlds = cfg.world_configs()
     assert [(env.map_size, env.slam_noise, n) for env, n in worlds] == [
         (20, 0.0, 128), (20, 0.05, 128), (32, 0.0, 64), (32, 0.05, 64)

@@ -14,6 +14,7 @@ from catmip_rl.training.presets import make_train_config
 from catmip_rl.training.train import METRICS, train
 
 RECORDS = Path(__file__).parents[3] / "run-records"
+RETIRED = Path(__file__).parents[3] / "docs" / "notes" / "retired-presets.json"
 
 
 def _params(model):
@@ -332,12 +333,14 @@ def test_a_mixture_of_worlds_is_checked(tmp_path):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("preset", ["paper-warm-sync", "paper-warm-smallma", "general", "general-window"])
+@pytest.mark.parametrize("preset", ["paper-warm-sync", "paper-warm-smallma", "general", "paper-sharp"])
 def test_the_issue_presets_build_and_train_an_iteration(preset, tmp_path):
     """The variants' and the general models' presets as `catmip train` runs them, shrunk: a DAgger round
-    where they warm-start, then one PPO iteration (general-window from amat_paper.pt's weights; general
+    where they warm-start, then one PPO iteration (paper-sharp fine-tuning amat_paper.pt's weights; general
     with cell goals)."""
     cfg = make_train_config(preset)
+    if preset == "paper-sharp":  # a fine-tuning preset: catmip train asks for --init-from
+        cfg = cfg.replace(init_from="paper")
     small = {"num_worlds": 2, "iterations": 1, "eval_every": 0, "threads": 1, "warm_start_rounds": 1,
              "warm_start_steps": 1}  # fmt: skip
     if cfg.worlds:
@@ -350,8 +353,8 @@ def test_the_issue_presets_build_and_train_an_iteration(preset, tmp_path):
     assert saved.env_config().synchronous == (preset == "paper-warm-sync")
     assert saved.amat_config().window == (5 if preset == "paper-warm-smallma" else 7)
     assert saved.amat_config().goals == ("cell" if preset == "general" else "window")
-    assert (run / "warm_start.csv").exists() == (preset != "general-window")
-    assert (run / "init_from.json").exists() == (preset == "general-window")
+    assert (run / "warm_start.csv").exists() == (preset != "paper-sharp")
+    assert (run / "init_from.json").exists() == (preset == "paper-sharp")
 
 
 def test_a_warm_start_on_a_mixture_imitates_in_every_world(tmp_path):
@@ -462,27 +465,38 @@ def test_the_memory_model_chain_presets_are_the_recorded_runs(preset, record):
     assert make_train_config(preset).world_configs()[-1][0].teammate_memory == (preset != "general-rrt")
 
 
-def test_the_noisy_task3_preset_adds_one_world_to_the_relay_noise_mixture():
-    base, noisy = make_train_config("general-relay-noise"), make_train_config("general-noise3")
-    assert noisy.worlds[:-1] == base.worlds
-    env, n = noisy.world_configs()[-1]
+def test_the_last_stage_adds_a_noisy_task3_world_a_round_and_the_coordinated_proposer():
+    base, coord = make_train_config("general-relay-noise"), make_train_config("general-coord")
+    assert coord.worlds[:-1] == base.worlds  # the memory model's worlds and a Task-3 world under noise
+    env, n = coord.world_configs()[-1]
     assert (env.map_size, env.slam_noise, n, env.comm_ranges) == (32, 0.05, 16, (None, 4.0, 2.0))
-
-
-def test_the_hint_presets_add_the_noisy_task3_world_a_round_and_the_coordinated_proposer():
-    base, noisy = make_train_config("general-hint"), make_train_config("general-hint-noise3")
-    assert noisy.worlds == make_train_config("general-noise3").worlds
-    assert noisy.worlds[:-1] == base.worlds
-    assert (noisy.warm_start_rounds, base.warm_start_rounds) == (4, 3)
-    assert noisy.amat == base.amat and noisy.amat["hint"] == noisy.warm_start == "rrt-relay-heading"
-    # general-coord: the same with the coordinated planner as proposer, teacher and anchor
-    coord = json.loads(make_train_config("general-coord").to_json())
-    changed = {k for k, v in json.loads(noisy.to_json()).items() if coord[k] != v}
-    assert changed == {"amat", "warm_start", "anchor"}
-    assert coord["amat"] == noisy.amat | {"hint": "rrt-relay-coord"} and coord["anchor"] == "rrt-relay-coord"
-    # each is its recorded run's config but for the command's flags (run-records/general-hint, general-coord)
+    assert (coord.warm_start_rounds, coord.warm_start_worlds, coord.anchor_coef) == (4, 32, 0.05)
+    assert coord.amat["hint"] == coord.warm_start == coord.anchor == "rrt-relay-coord"
+    assert coord.amat == base.amat | {"hint": "rrt-relay-coord"}
+    # it is its recorded run's config but for the command's flags (run-records/general-coord)
     command = {"init_from", "threads", "iterations", "eval_every", "checkpoint_every", "seed"}
-    for preset in ("general-hint", "general-hint-noise3", "general-coord"):
-        ran = json.loads((RECORDS / preset / "config.json").read_text())
-        cfg = json.loads(make_train_config(preset).to_json())
-        assert {k: cfg[k] for k in cfg.keys() - command} == {k: ran[k] for k in ran.keys() - command}, preset
+    ran = json.loads((RECORDS / "general-coord" / "config.json").read_text())
+    cfg = json.loads(coord.to_json())
+    assert {k: cfg[k] for k in cfg.keys() - command} == {k: ran[k] for k in ran.keys() - command}
+
+
+def test_the_retired_presets_still_build_as_they_were_recorded():
+    """The presets that left with their records (run-records/README.md) are kept as full configs in
+    docs/notes/retired-presets.json: each still builds with today's TrainConfig, unchanged, so that a
+    recorded command can run again; none is still a preset."""
+    retired = json.loads(RETIRED.read_text())["presets"]
+    assert len(retired) == 7
+    for name, entry in retired.items():
+        cfg = TrainConfig.from_json(json.dumps(entry["config"]))
+        assert json.loads(cfg.to_json()) == entry["config"], name
+        with pytest.raises(ValueError, match="unknown training preset"):
+            make_train_config(name)
+    # general-coord is general-hint-noise3 (general-hint with a noisy Task-3 world) with another proposer
+    hint, noise3 = (
+        TrainConfig.from_json(json.dumps(retired[n]["config"]))
+        for n in ("general-hint", "general-hint-noise3")
+    )
+    assert noise3.worlds[:-1] == hint.worlds
+    coord = make_train_config("general-coord")
+    as_noise3 = coord.replace(amat=noise3.amat, warm_start=noise3.warm_start, anchor=noise3.anchor)
+    assert json.loads(as_noise3.to_json()) == retired["general-hint-noise3"]["config"]
