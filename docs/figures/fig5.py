@@ -4,6 +4,9 @@ variant (AMAT, Synch-AMAT, SmallMA).
     python docs/figures/fig5.py AMAT=run-records/paper-warm Synch-AMAT=runs/sync SmallMA=runs/smallma \
         --out docs/figures/fig5
 
+(the paper runs' ``metrics.csv`` are in git history, run-records/README.md says where; the figure's
+points are ``docs/figures/fig5.csv``)
+
 Three panels, each a moving average over ``--smooth`` logged points: the periodic evaluation (rescued by
 tick 100 with argmax actions on the run's fixed evaluation maps of its training world, evaluation
 activation (0, 0)); the success of the training episodes themselves (sampled actions, training
