@@ -1,11 +1,13 @@
-"""The leaderboard (``catmip leaderboard``): suite entries checked, then ranked in a table and a figure.
+"""The leaderboard (``catmip leaderboard``): suite entries checked, optionally replayed, then ranked in a
+table and a figure.
 
-An entry (``catmip bench suite``, :func:`~catmip_rl.evaluation.suite.make_entry`) is accepted only if
-it is one of this suite: its format and version, the held-out seed and every map of it, every setting
-and no other, its maps' digest equal to the frozen maps' (``catmip_env/frozen_maps``), one list of
-rescue ticks per training run and map, and every number it states equal to the number recomputed from
-those ticks. The table's numbers and intervals are the leaderboard's own recomputation, not the
-entry's. A refused entry is one line naming its file and the first problem (:class:`EntryError`).
+Every entry is checked first (:mod:`~catmip_rl.evaluation.entry_check`: the suite, the split, the frozen
+maps, every number recomputed from its rescue ticks); with ``replay`` (``--replay K``) the first K maps
+of every setting and training run are played again from the files the entry names
+(:mod:`~catmip_rl.evaluation.replay`) and an entry whose ticks differ is refused. The table ranks the
+test split's entries by the IQM of success by tick 100; an entry level with the one above it (their
+paired difference over the settings has a 95 % CI that holds 0, :func:`level_with`) shares its rank.
+Each row shows its class (planner, learned, hybrid, floor) and whether it was verified by replay.
 
 Every entry played the same maps, so any two compare map by map: :func:`paired_rows` (``catmip
 leaderboard --vs METHOD``) gives each entry's difference from one reference in every setting.
@@ -13,8 +15,8 @@ leaderboard --vs METHOD``) gives each entry's difference from one reference in e
 
 from __future__ import annotations
 
-import json
-import math
+import csv
+import io
 import os
 import re
 from pathlib import Path
@@ -22,32 +24,19 @@ from typing import Any
 
 import numpy as np
 
-from catmip_rl.evaluation.evaluate import EvalSetting
-from catmip_rl.evaluation.stats import shared_maps_cis
-from catmip_rl.evaluation.suite import (
-    BY_TICK,
-    ENTRY_FORMAT,
-    EPISODES,
-    SETTINGS,
-    SPLITS,
-    SUITE,
-    iqm_interval,
-    split_digest,
-    rescued_by_100,  # fmt: skip
-    setting_numbers,
-)
+from catmip_rl.evaluation.entry import CLASSES, EPISODES, SETTINGS, SPLITS, SUITE
+from catmip_rl.evaluation.entry_check import EntryError, load_entries
+from catmip_rl.evaluation.stats import CONFIDENCE, shared_maps_cis
 from catmip_rl.files import atomic_savefig, atomic_write_text
 
 __all__ = [
-    "EntryError", "check_entry", "load_entries", "leaderboard_rows", "paired_rows", "paired_names",
-    "render_leaderboard",
+    "EntryError", "load_entries", "leaderboard_rows", "level_with", "paired_rows", "paired_names",
+    "render_leaderboard", "md_text",
 ]  # fmt: skip
 
 SHORT = {"full": "full", "4": "σ4", "2": "σ2"}  # column headings: T2 σ2 +n
-
-
-class EntryError(ValueError):
-    """An entry the leaderboard refuses (the message names the file and the problem)."""
+CLASS_COLOURS = {"planner": "tab:blue", "learned": "tab:green", "hybrid": "tab:purple", "floor": "tab:gray"}
+LEVEL_RESAMPLES = 4_000
 
 
 def _short(label: str) -> str:
@@ -55,132 +44,57 @@ def _short(label: str) -> str:
     return f"T{st.task[-1]} {SHORT[st.comm]}" + (" +n" if st.noise else "")
 
 
-def _ticks(entry: dict[str, Any], label: str, horizon: int, episodes: int) -> np.ndarray:
-    ticks = entry["settings"][label].get("rescue_tick")
-    runs = len(entry["runs"])
-    if not isinstance(ticks, list) or len(ticks) != runs:
-        raise ValueError(f"{label}: rescue_tick must hold one list per training run ({runs})")
-    for run in ticks:
-        if not isinstance(run, list) or len(run) != episodes or not all(type(t) is int for t in run):
-            raise ValueError(f"{label}: each run's rescue_tick must be {episodes} integers (one per map)")
-    array = np.array(ticks, np.int64)
-    if array.min() < -1 or array.max() > horizon:
-        raise ValueError(f"{label}: rescue ticks must be -1 (not rescued) or 0 .. {horizon}")
-    return array
+def md_text(text: str) -> str:
+    """``text`` as a Markdown table cell shows it and nothing more: no cell break (``|``), link, code,
+    emphasis or HTML (entries hold no control characters: checked). An underscore inside a word stays
+    as it is (``amat_general``: no emphasis there)."""
+    text = re.sub(r"([\\`*\[\]<>|~])", r"\\\1", text)
+    return re.sub(r"(?<![A-Za-z0-9])_|_(?![A-Za-z0-9])", r"\\_", text)
 
 
-def _same(stated: Any, recomputed: float | None) -> bool:
-    if recomputed is None or stated is None:
-        return stated is None and recomputed is None
-    return isinstance(stated, (int, float)) and math.isclose(stated, recomputed, rel_tol=0, abs_tol=1e-9)
-
-
-def check_entry(entry: Any, episodes: int = EPISODES) -> dict[str, Any]:
-    """The leaderboard's numbers of ``entry`` (aggregate and per setting, recomputed from its ticks, and
-    ``success``: per setting whether each run rescued each map by tick 100, (runs, maps)); ValueError
-    naming the first thing that makes it no entry of this suite."""
-    _check_header(entry, episodes)
-    numbers, success = {}, {}
-    for st in SETTINGS:
-        ticks, horizon = _setting_ticks(entry, st, episodes)
-        numbers[st.label] = setting_numbers(ticks, horizon, intervals=False)  # the table shows the means
-        stated = entry["settings"][st.label]
-        for key in ("success_by_100", "success_rate", "mean_rescue_tick"):
-            if not _same(stated.get(key), numbers[st.label][key]):
-                raise ValueError(
-                    f"{st.label}: {key} {stated.get(key)!r} is not what its rescue ticks give "
-                    f"({numbers[st.label][key]!r})"
-                )
-        success[st.label] = rescued_by_100(ticks, horizon)
-    iqm, low, high = iqm_interval(list(success.values()))
-    if not _same((entry.get("aggregate") or {}).get("iqm_success_by_100"), iqm):
-        raise ValueError(f"aggregate iqm_success_by_100 is not what its rescue ticks give ({iqm!r})")
-    return {"iqm": iqm, "iqm_ci": [low, high], "settings": numbers, "success": success}
-
-
-def _check_header(entry: Any, episodes: int) -> None:
-    """ValueError unless ``entry`` is an entry of this suite (format, suite, seed, episodes), names a
-    method and its training runs, and holds every setting of the suite and no other."""
-    if not isinstance(entry, dict) or entry.get("format") != ENTRY_FORMAT:
-        raise ValueError(f"not a {ENTRY_FORMAT} file")
-    split = entry.get("split")
-    if split not in SPLITS:
-        raise ValueError(f"split is {split!r}, not one of {sorted(SPLITS)}")
-    for key, want in (("suite", SUITE), ("seed", SPLITS[split]), ("episodes", episodes)):
-        if entry.get(key) != want:
-            raise ValueError(f"{key} is {entry.get(key)!r}, the leaderboard's is {want!r}")
-    if not isinstance(entry.get("method"), str) or not entry["method"].strip():
-        raise ValueError("it names no method")
-    if not isinstance(entry.get("runs"), list) or not entry["runs"]:
-        raise ValueError("it lists no training run")
-    settings = entry.get("settings")
-    labels = [st.label for st in SETTINGS]
-    if not isinstance(settings, dict):
-        raise ValueError("it has no settings")
-    missing, extra = [s for s in labels if s not in settings], sorted(set(settings) - set(labels))
-    if missing or extra:
-        problem = f"missing setting(s) {missing}" if missing else f"setting(s) not in suite {SUITE}: {extra}"
-        raise ValueError(problem)
-
-
-def _setting_ticks(entry: dict[str, Any], st: EvalSetting, episodes: int) -> tuple[np.ndarray, int]:
-    """The rescue ticks ``(runs, episodes)`` and horizon of setting ``st`` of ``entry``; ValueError
-    unless the setting is the suite's (task, communication, noise, macro-action length, frozen maps)."""
-    stated = entry["settings"][st.label]
-    if not isinstance(stated, dict):
-        raise ValueError(f"{st.label}: not an object")
-    for key in ("task", "comm", "noise", "max_ma_ticks"):
-        if stated.get(key) != getattr(st, key):
-            suite_value = getattr(st, key)
-            raise ValueError(f"{st.label}: {key} is {stated.get(key)!r}, the suite's is {suite_value!r}")
-    if stated.get("maps_sha256") != split_digest(st.task, entry["split"], episodes):
-        raise ValueError(
-            f"{st.label}: its maps are not the frozen {entry['split']} maps (maps_sha256 differs)"
-        )
-    horizon = stated.get("horizon")
-    if type(horizon) is not int or horizon < BY_TICK:
-        raise ValueError(f"{st.label}: horizon {horizon!r} is not a horizon of the suite")
-    return _ticks(entry, st.label, horizon, episodes), horizon
-
-
-def load_entries(folder: str | Path, episodes: int = EPISODES) -> list[dict[str, Any]]:
-    """Every ``*.json`` entry in ``folder``, checked (:func:`check_entry`), with the leaderboard's numbers
-    under ``"checked"``; :class:`EntryError` naming the first bad file, or an empty or missing folder."""
-    folder = Path(folder)
-    if not folder.is_dir():
-        raise EntryError(f"no such folder of entries: {folder}")
-    paths = sorted(folder.glob("*.json"))
-    if not paths:
-        raise EntryError(f"no entries (*.json) in {folder}")
-    entries = []
-    for path in paths:
-        try:
-            entry = json.loads(path.read_text())
-            entry["checked"] = check_entry(entry, episodes)
-        except (OSError, json.JSONDecodeError) as err:
-            raise EntryError(f"entry {path}: unreadable ({err})") from None
-        except (ValueError, TypeError, KeyError) as err:
-            raise EntryError(f"entry {path} refused: {err}") from None
-        entries.append(entry | {"file": path.name})
-    names = [e["method"] for e in entries]
-    if len(set(names)) != len(names):
-        twice = sorted({n for n in names if names.count(n) > 1})
-        raise EntryError(f"two entries name the same method: {twice}")
-    return entries
+def level_with(
+    upper: dict[str, np.ndarray], lower: dict[str, np.ndarray], seed: int = 0
+) -> tuple[float, float, float]:
+    """The paired difference ``upper - lower`` in success by tick 100 pooled over the settings (each
+    setting's per-map difference of the runs' means, averaged over maps and settings) with its 95 % CI:
+    each resample draws every task's maps with replacement, alike for its settings (they share maps)."""
+    rng = np.random.default_rng(seed)
+    diffs = {label: upper[label].mean(axis=0) - lower[label].mean(axis=0) for label in upper}
+    draws = np.zeros(LEVEL_RESAMPLES)
+    for task in sorted({st.task for st in SETTINGS}):
+        labels = [st.label for st in SETTINGS if st.task == task]
+        per_map = np.mean([diffs[label] for label in labels], axis=0)  # (maps,) over the task's settings
+        picks = rng.integers(per_map.size, size=(LEVEL_RESAMPLES, per_map.size))
+        draws += per_map[picks].mean(axis=1) * len(labels)
+    draws /= len(SETTINGS)
+    point = float(np.mean([d.mean() for d in diffs.values()]))
+    low, high = np.quantile(draws, [(1 - CONFIDENCE) / 2, (1 + CONFIDENCE) / 2])
+    return point, float(low), float(high)
 
 
 def leaderboard_rows(entries: list[dict[str, Any]]) -> list[dict[str, Any]]:
-    """One row per entry, best aggregate first: method, runs, actions, the IQM of success by tick 100
-    over (runs × settings) with its 95 % CI, each setting's success by tick 100, code and notes."""
+    """One row per entry, best aggregate first: rank (shared with the row above when level with it,
+    :func:`level_with`), method, class, runs, actions, the IQM of success by tick 100 over (runs ×
+    settings) with its 95 % CI, each setting's success by tick 100, verified (maps replayed per setting,
+    0: not replayed), what it was chosen on, code and notes."""
     rows = []
-    for e in entries:
+    for e in sorted(entries, key=lambda e: -e["checked"]["iqm"]):
         checked = e["checked"]
         low, high = checked["iqm_ci"]
-        row = {"method": e["method"], "runs": len(e["runs"]), "actions": e.get("actions") or "",
-               "iqm": checked["iqm"], "iqm_ci_low": low, "iqm_ci_high": high}  # fmt: skip
+        row = {"method": e["method"], "class": e["class"], "runs": len(e["runs"]),
+               "actions": e.get("actions") or "", "iqm": checked["iqm"], "iqm_ci_low": low,
+               "iqm_ci_high": high, "verified": e.get("replayed", 0), "chosen_on": e.get("chosen_on") or "",
+               "success": checked["success"]}  # fmt: skip
         row |= {st.label: checked["settings"][st.label]["success_by_100"] for st in SETTINGS}
         rows.append(row | {"code": e.get("code") or "", "notes": e.get("notes") or ""})
-    return sorted(rows, key=lambda r: -r["iqm"])
+    for k, row in enumerate(rows):
+        row["rank"] = k + 1
+        if k:
+            above = rows[k - 1]
+            row["vs_above"] = level_with(above["success"], row["success"])
+            if row["vs_above"][1] <= 0:  # the interval holds 0 (or lies below): level with the row above
+                row["rank"] = above["rank"]
+    return rows
 
 
 def paired_rows(entries: list[dict[str, Any]], vs: str) -> list[dict[str, Any]]:
@@ -201,7 +115,7 @@ def paired_rows(entries: list[dict[str, Any]], vs: str) -> list[dict[str, Any]]:
     intervals = iter(zip(diffs, shared_maps_cis(diffs)))  # every entry played the same maps
     rows = []
     for row in others:
-        out = {"method": row["method"], "runs": row["runs"], "ahead": 0, "behind": 0}
+        out = {"method": row["method"], "class": row["class"], "runs": row["runs"], "ahead": 0, "behind": 0}
         for st in SETTINGS:
             diff, (low, high) = next(intervals)
             out[st.label] = (float(diff.mean()), low, high)
@@ -216,18 +130,22 @@ def _page_head(title: str, text: str, head: list[str]) -> list[str]:
     return [f"# {title}", "", text, "", "| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
 
 
-def _paired_markdown(rows: list[dict[str, Any]], vs: str, episodes: int) -> str:
-    head = ["method", "runs", "ahead / behind", *(_short(s.label) for s in SETTINGS)]
+def _maps(episodes: int, split: str) -> str:
+    return f"{episodes} {split} maps (seed {SPLITS[split]}) per setting"
+
+
+def _paired_markdown(rows: list[dict[str, Any]], vs: str, episodes: int, split: str) -> str:
+    head = ["method", "class", "runs", "ahead / behind", *(_short(s.label) for s in SETTINGS)]
     lines = _page_head(
-        f"CATMiP suite {SUITE}: each method against {vs}",
-        f"Success by tick 100 less {vs}'s on the same {episodes} test maps (seed {SPLITS['test']}) per setting, "
-        "with a 95 % CI over the maps and the method's training runs (the reference's runs averaged per "
-        "map); bold where the interval excludes 0. Ahead / behind: the settings whose interval lies above "
-        "/ below 0. Recomputed from the entries' rescue ticks (`catmip leaderboard --vs`).",
+        f"CATMiP suite {SUITE} ({split} split): each method against {md_text(vs)}",
+        f"Success by tick 100 less {md_text(vs)}'s on the same {_maps(episodes, split)}, with a 95 % CI "
+        "over the maps and the method's training runs (the reference's runs averaged per map); bold where "
+        "the interval excludes 0. Ahead / behind: the settings whose interval lies above / below 0. "
+        "Recomputed from the entries' rescue ticks (`catmip leaderboard --vs`).",
         head,
     )
     for r in rows:
-        cells = [r["method"], str(r["runs"]), f"{r['ahead']} / {r['behind']}"]
+        cells = [md_text(r["method"]), r["class"], str(r["runs"]), f"{r['ahead']} / {r['behind']}"]
         for st in SETTINGS:
             diff, low, high = r[st.label]
             cell = f"{diff:+.3f} [{low:+.3f}, {high:+.3f}]"
@@ -237,51 +155,80 @@ def _paired_markdown(rows: list[dict[str, Any]], vs: str, episodes: int) -> str:
 
 
 def _paired_csv(rows: list[dict[str, Any]], vs: str) -> str:
-    lines = ["method,vs,runs,setting,diff_success_by_100,ci_low,ci_high"]
+    out = io.StringIO()
+    writer = csv.writer(out, lineterminator="\n")
+    writer.writerow(["method", "class", "vs", "runs", "setting", "diff_success_by_100", "ci_low", "ci_high"])
     for r in rows:
         for st in SETTINGS:
             diff, low, high = r[st.label]
-            lines.append(f"{r['method']},{vs},{r['runs']},{st.label},{diff:.6f},{low:.6f},{high:.6f}")
-    return "\n".join(lines) + "\n"
+            writer.writerow([r["method"], r["class"], vs, r["runs"], st.label, f"{diff:.6f}", f"{low:.6f}",
+                             f"{high:.6f}"])  # fmt: skip
+    return out.getvalue()
 
 
-def _markdown(rows: list[dict[str, Any]], episodes: int) -> str:
-    head = ["rank", "method", "runs", "actions", "IQM by tick 100 [95 % CI]"]
-    head += [_short(s.label) for s in SETTINGS]
+def _verified(row: dict[str, Any]) -> str:
+    return f"✓ {row['verified']} maps" if row["verified"] else "not replayed"
+
+
+def _markdown(rows: list[dict[str, Any]], episodes: int, split: str) -> str:
+    head = ["rank", "method", "class", "runs", "actions", "IQM by tick 100 [95 % CI]"]
+    head += [_short(s.label) for s in SETTINGS] + ["verified"]
     lines = _page_head(
-        f"CATMiP leaderboard, suite {SUITE}",
-        f"Success by tick 100 on {episodes} test maps (seed {SPLITS['test']}) per setting; the aggregate is the "
-        "IQM over (training runs × settings) with a 95 % CI over runs and maps. T2/T3: Task 2 (20×20, 3 "
-        "robots) / Task 3 (32×32, 6 robots); full / σ4 / σ2: communication; +n: 5 % SLAM noise. Every "
-        "number is recomputed from the entry's rescue ticks (`catmip leaderboard`).",
+        f"CATMiP leaderboard, suite {SUITE} ({split} split)",
+        f"Success by tick 100 on {_maps(episodes, split)}; the aggregate is the IQM over (training runs "
+        "× settings) with a 95 % CI over runs and maps. A rank shared with the row above: the two are "
+        "level (their paired difference over the settings has a 95 % CI that holds 0). Class: planner; "
+        "learned (plays from its own observations); hybrid (reads a planner at play time); floor (no "
+        "skill). T2/T3: Task 2 (20×20, 3 robots) / Task 3 (32×32, 6 robots); full / σ4 / σ2: "
+        "communication; +n: 5 % SLAM noise. Every number is recomputed from the entry's rescue ticks; "
+        "verified: the first maps of every setting and run replayed from the entry's files gave its "
+        "ticks (`catmip leaderboard --replay K`).",
         head,
     )
-    for k, r in enumerate(rows, 1):
-        method = f"[{r['method']}]({r['code']})" if r["code"] else r["method"]
-        cells = [str(k), method, str(r["runs"]), r["actions"],
+    for r in rows:
+        method = md_text(r["method"])
+        if r["code"]:
+            method = f"[{method}](<{r['code']}>)"
+        cells = [str(r["rank"]), method, r["class"], str(r["runs"]), md_text(r["actions"]),
                  f"**{r['iqm']:.3f}** [{r['iqm_ci_low']:.3f}, {r['iqm_ci_high']:.3f}]",
-                 *(f"{r[s.label]:.2f}" for s in SETTINGS)]  # fmt: skip
+                 *(f"{r[s.label]:.2f}" for s in SETTINGS), _verified(r)]  # fmt: skip
         lines.append("| " + " | ".join(cells) + " |")
-    notes = [f"- **{r['method']}**: {r['notes']}" for r in rows if r["notes"]]
-    return "\n".join(lines + ([""] + notes if notes else [])) + "\n"
+    about = []
+    for r in rows:
+        said = [md_text(r["notes"])] if r["notes"] else []
+        said += [f"chosen on: {md_text(r['chosen_on'])}"] if r["chosen_on"] else []
+        if said:
+            about.append(f"- **{md_text(r['method'])}** ({r['class']}): " + "; ".join(said))
+    return "\n".join(lines + ([""] + about if about else [])) + "\n"
 
 
-def _figure(rows: list[dict[str, Any]], path: Path, episodes: int) -> Path:
+def _figure(rows: list[dict[str, Any]], path: Path, episodes: int, split: str) -> Path:
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.lines import Line2D
 
     n = len(rows)
-    fig, (left, right) = plt.subplots(1, 2, figsize=(11, 1.8 + 0.35 * n), width_ratios=[1, 2.2], sharey=True)
+    fig, (left, right) = plt.subplots(1, 2, figsize=(12, 2.0 + 0.36 * n), width_ratios=[1, 2.2], sharey=True)
     y = np.arange(n)[::-1]
-    iqm = np.array([r["iqm"] for r in rows])
-    err = np.array([[r["iqm"] - r["iqm_ci_low"] for r in rows], [r["iqm_ci_high"] - r["iqm"] for r in rows]])
-    left.errorbar(iqm, y, xerr=err, fmt="o", color="black", capsize=3)
-    left.set_yticks(y, [r["method"] for r in rows])
-    left.set_xlabel("IQM, rescued by tick 100")
-    left.set_xlim(0, 1)
+    for yk, r in zip(y, rows):
+        colour = CLASS_COLOURS[r["class"]]
+        err = [[r["iqm"] - r["iqm_ci_low"]], [r["iqm_ci_high"] - r["iqm"]]]
+        left.errorbar(r["iqm"], yk, xerr=err, fmt="o", color=colour, markersize=3.5, elinewidth=2.5,
+                      capsize=5, capthick=1.5)  # fmt: skip
+    labels = [f"{r['rank']}. {r['method'][:28]}" + (" ✓" if r["verified"] else "") for r in rows]
+    left.set_yticks(y, labels)
+    for tick, r in zip(left.get_yticklabels(), rows):
+        tick.set_color(CLASS_COLOURS[r["class"]])
+    lows, highs = [r["iqm_ci_low"] for r in rows], [r["iqm_ci_high"] for r in rows]
+    span = max(max(highs) - min(lows), 0.05)
+    left.set_xlim(max(0.0, min(lows) - 0.06 * span), min(1.0, max(highs) + 0.06 * span))
+    left.set_xlabel("IQM, rescued by tick 100 (95 % CI)")
     left.grid(axis="x", alpha=0.3)
+    used = [c for c in CLASSES if any(r["class"] == c for r in rows)]
+    left.legend([Line2D([], [], color=CLASS_COLOURS[c], marker="o", lw=2.5) for c in used], used,
+                loc="best", fontsize=8, title="class", title_fontsize=8)  # fmt: skip
     grid = np.array([[r[s.label] for s in SETTINGS] for r in rows])
     image = right.imshow(grid, aspect="auto", cmap="viridis", vmin=0, vmax=1,
                          extent=(-0.5, len(SETTINGS) - 0.5, -0.5, n - 0.5))  # fmt: skip
@@ -291,7 +238,8 @@ def _figure(rows: list[dict[str, Any]], path: Path, episodes: int) -> Path:
             right.text(j, y[i], f"{v:.2f}", ha="center", va="center", fontsize=7, color=colour)
     right.set_xticks(range(len(SETTINGS)), [_short(s.label) for s in SETTINGS], rotation=45, ha="right")
     fig.colorbar(image, ax=right, label="rescued by tick 100")
-    fig.suptitle(f"CATMiP suite {SUITE}: {episodes} test maps per setting")
+    verified = "; ✓ verified by replay" if any(r["verified"] for r in rows) else ""
+    fig.suptitle(f"CATMiP suite {SUITE}, {split} split: {episodes} maps per setting{verified}")
     fig.tight_layout()
     return atomic_savefig(fig, path, dpi=150)
 
@@ -303,30 +251,43 @@ def paired_names(vs: str) -> tuple[str, str]:
 
 
 def _link(code: str, folder: Path, out: Path) -> str:
-    """An entry's ``code`` as the page in ``out`` links it: a URL as it is; a path (relative to the
-    entries ``folder``, e.g. ``../../examples/mappo_torchrl.py``) made relative to ``out``."""
-    if not code or "://" in code or Path(code).is_absolute():
+    """An entry's ``code`` as the page in ``out`` links it: a web address as it is; a relative path (from
+    the entries ``folder``, e.g. ``../../examples/mappo_torchrl.py``) made relative to ``out``."""
+    if not code or "://" in code:
         return code
     return Path(os.path.relpath((folder / code).resolve(), out.resolve())).as_posix()
 
 
 def render_leaderboard(
-    folder: str | Path, out: str | Path, episodes: int = EPISODES, vs: str | None = None
+    folder: str | Path,
+    out: str | Path,
+    episodes: int = EPISODES,
+    vs: str | None = None,
+    split: str = "test",
+    replay: int = 0,
+    progress: bool = False,
 ) -> list[Path]:
-    """Check every entry in ``folder`` and write ``out/leaderboard.md`` and ``out/leaderboard.png`` and,
-    given ``vs``, every other entry against it (:func:`paired_rows`) to ``out/vs_NAME.md`` / ``.csv``;
-    returns the files' paths. Nothing is written unless every entry is accepted and ``vs`` is one."""
-    entries = load_entries(folder, episodes)
+    """Check every entry in ``folder`` (all of ``split``), replay the first ``replay`` maps of each
+    (:func:`~catmip_rl.evaluation.replay.replay_entry`; 0: none), and write ``out/leaderboard.md`` and
+    ``out/leaderboard.png`` and, given ``vs``, every other entry against it (:func:`paired_rows`) to
+    ``out/vs_NAME.md`` / ``.csv``; returns the files' paths. Nothing is written unless every entry is
+    accepted (and replays to its ticks) and ``vs`` is one."""
+    entries = load_entries(folder, episodes, split)
+    if replay:
+        from catmip_rl.evaluation.replay import replay_entry
+
+        for e in entries:
+            e["replayed"] = replay_entry(e, replay, progress=progress)
     out = Path(out)
     rows = [r | {"code": _link(r["code"], Path(folder), out)} for r in leaderboard_rows(entries)]
     paired = paired_rows(entries, vs) if vs is not None else None
     out.mkdir(parents=True, exist_ok=True)
     md = out / "leaderboard.md"
-    atomic_write_text(md, _markdown(rows, episodes))
-    paths = [md, _figure(rows, out / "leaderboard.png", episodes)]
+    atomic_write_text(md, _markdown(rows, episodes, split))
+    paths = [md, _figure(rows, out / "leaderboard.png", episodes, split)]
     if paired is not None:
         md_name, csv_name = paired_names(vs)
-        atomic_write_text(out / md_name, _paired_markdown(paired, vs, episodes))
+        atomic_write_text(out / md_name, _paired_markdown(paired, vs, episodes, split))
         atomic_write_text(out / csv_name, _paired_csv(paired, vs))
         paths += [out / md_name, out / csv_name]
     return paths

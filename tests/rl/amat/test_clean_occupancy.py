@@ -13,7 +13,7 @@ from catmip_rl.checkpoint import save_model
 from catmip_rl.evaluation.evaluate import EvalSetting, evaluate
 from catmip_rl.evaluation.execution import CellGoalExecutor
 from catmip_rl.evaluation.methods import make_policy, parse_method
-from catmip_rl.evaluation.suite import entry_actions
+from catmip_rl.evaluation.entry import entry_actions
 from tests.rl.amat.test_pointer import shaken
 
 

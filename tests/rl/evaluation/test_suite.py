@@ -1,6 +1,7 @@
 """catmip bench suite and catmip leaderboard: a user's policy file gives an entry the leaderboard
-accepts; an interrupted suite resumes; an entry with other maps, a missing setting or a number its
-ticks do not give is refused with one line naming the file; ``--vs`` pairs every entry with one."""
+accepts; an interrupted suite resumes; an entry with other maps, a missing setting, a number its ticks
+do not give, an unbounded or unescaped field is refused with one line naming the file; ``--vs`` pairs
+every entry with one. Replays: tests/rl/evaluation/test_replay.py."""
 
 from __future__ import annotations
 
@@ -14,8 +15,9 @@ import pytest
 
 from catmip_rl.cli.main import main
 from catmip_rl.evaluation import jobs
+from catmip_rl.evaluation.entry import SETTINGS, entry_actions
 from catmip_rl.evaluation.leaderboard import EntryError, load_entries, paired_rows
-from catmip_rl.evaluation.suite import SETTINGS, entry_actions, run_suite
+from catmip_rl.evaluation.suite import run_suite
 
 POLICY = textwrap.dedent(
     """
@@ -43,7 +45,8 @@ def suite(tmp_path_factory):
     (out / "mine.py").write_text(POLICY)
     (out / "weights.bin").write_bytes(b"trained")
     mine = f"mine=py:{out / 'mine.py'}:make_policy"
-    about = {"code": {"mine": "https://example.org/mine"}, "notes": {"mine": "first allowed goal"}}
+    about = {"code": {"mine": "https://example.org/mine"}, "notes": {"mine": "first allowed goal"},
+             "classes": {"mine": "learned"}, "chosen_on": {"mine": "nothing"}}  # fmt: skip
     paths = run_suite(["nearest", mine], out / "s", episodes=2, progress=False, **about)
     return out, paths
 
@@ -54,6 +57,14 @@ def test_a_users_policy_file_gives_an_entry_the_leaderboard_accepts(suite, capsy
     entry = json.loads(paths[1].read_text())
     assert set(entry["settings"]) == {st.label for st in SETTINGS} and entry["episodes"] == 2
     assert entry["runs"][0]["source"]["sha256"] and entry["actions"] == "argmax"
+    assert (entry["split"], entry["seed"], entry["class"], entry["chosen_on"]) == (
+        "validation",
+        1000,
+        "learned",
+        "nothing",
+    )
+    assert entry["runs"][0]["spec"] == f"py:{out / 'mine.py'}:make_policy"
+    assert json.loads(paths[0].read_text())["class"] == "planner"
     assert entry["runs"][0]["files"] == [
         {"file": str(out / "weights.bin"), "sha256": sha256(b"trained").hexdigest()}
     ]
@@ -63,17 +74,22 @@ def test_a_users_policy_file_gives_an_entry_the_leaderboard_accepts(suite, capsy
     assert entry["machine"]["cpu_capability"] in ("AVX512", "AVX2", "DEFAULT")
     summary = json.loads((out / "s" / "runs" / SETTINGS[0].label / "mine" / "summary.json").read_text())
     assert summary["sampled_pass"] is False and "sampled_success_by_100" not in summary
-    code = main(
-        ["leaderboard", "--entries", str(out / "s" / "entries"), "--episodes", "2", "--out", str(out / "lb")]
-    )
-    assert code == 0
+    board = ["leaderboard", "--entries", str(out / "s" / "entries"), "--episodes", "2"]
+    assert main([*board, "--out", str(out / "lb0")]) == 2  # the leaderboard ranks the test split's only
+    assert "is on the validation split; this leaderboard ranks the test split's" in capsys.readouterr().err
+    assert main([*board, "--split", "validation", "--out", str(out / "lb")]) == 0
     md = (out / "lb" / "leaderboard.md").read_text()
-    assert "| [mine](https://example.org/mine) |" in md and "| nearest |" in md and "first allowed goal" in md
+    assert (
+        "| 1 | [mine](<https://example.org/mine>) | learned |" in md
+        or "[mine](<https://example.org/mine>) | learned" in md
+    )
+    assert "| nearest | planner |" in md and "first allowed goal" in md and "(validation split)" in md
+    assert md.count("not replayed") == 2
     assert (out / "lb" / "leaderboard.png").stat().st_size > 5000
     printed = capsys.readouterr().out
     assert "| rank | method |" in printed and "T3 σ2 +n" in printed
     # the leaderboard's count of maps is the suite's: a preview is not a ranked entry
-    assert main(["leaderboard", "--entries", str(out / "s" / "entries"), "--out", str(out / "lb2")]) == 2
+    assert main([*board[:3], "--split", "validation", "--out", str(out / "lb2")]) == 2
     assert "episodes is 2, the leaderboard's is 1000" in capsys.readouterr().err
 
 
@@ -87,10 +103,11 @@ def test_an_interrupted_suite_resumes_without_playing_again(suite, monkeypatch):
     monkeypatch.setattr(jobs, "evaluate", no_play)
     again = run_suite(["nearest"], out / "s", episodes=2, progress=False)
     assert json.loads(again[0].read_text())["settings"] == before["settings"]
-    # resumed without --code / --notes, an entry keeps the link and notes it was given
+    # resumed without --code / --notes / --class, an entry keeps the link, notes and class it was given
     mine = run_suite([f"mine=py:{out / 'mine.py'}:make_policy"], out / "s", episodes=2, progress=False)
     kept = json.loads(mine[0].read_text())
     assert (kept["code"], kept["notes"]) == ("https://example.org/mine", "first allowed goal")
+    assert (kept["class"], kept["chosen_on"]) == ("learned", "nothing")
     with pytest.raises(ValueError, match="holds other results"):  # the same folder, another method
         run_suite(["nearest=rrt"], out / "s", episodes=2, progress=False)
     (out / "weights.bin").write_bytes(b"trained again")  # the same policy file, new weights
@@ -118,7 +135,7 @@ def test_an_entry_names_the_files_below_the_working_folder_relative_to_it(suite,
     [
         (
             lambda e: e["settings"]["task3-sigma2-noise0-ma10"].update(maps_sha256="0" * 64),
-            "not the frozen held-out",
+            "not the frozen validation maps",
         ),
         (
             lambda e: e["settings"].pop("task2-sigma4-noise0.05-ma10"),
@@ -131,6 +148,27 @@ def test_an_entry_names_the_files_below_the_working_folder_relative_to_it(suite,
         (lambda e: e["settings"]["task2-full-noise0-ma10"]["rescue_tick"][0].pop(), "must be 2 integers"),
         (lambda e: e.update(suite="v0"), "suite is 'v0'"),
         (lambda e: e["aggregate"].update(iqm_success_by_100=0.99), "aggregate iqm_success_by_100"),
+        (lambda e: e["aggregate"].update(iqm_success_by_100_ci=[0.0, 1.0]), "iqm_success_by_100_ci"),
+        (
+            lambda e: e["settings"]["task2-full-noise0-ma10"].update(success_by_100_ci=[0, 1]),
+            "success_by_100_ci",
+        ),
+        (lambda e: e["settings"]["task2-full-noise0-ma10"].update(success_rate=True), "success_rate True"),
+        (
+            lambda e: e["settings"]["task2-full-noise0-ma10"]["rescue_tick"][0].__setitem__(0, 10**30),
+            "rescue tick 1000000000000000000000000000000 is neither",
+        ),
+        (
+            lambda e: e["settings"]["task2-full-noise0-ma10"].update(horizon=500),
+            "horizon 500, the suite's is",
+        ),
+        (lambda e: e.update(method="rrt-fake\n| rrt-fake | 0.999 |"), "method holds a control character"),
+        (lambda e: e.update(notes="x" * 300_000), "notes is 300,000 characters"),
+        (lambda e: e.update(code="javascript:alert(1)"), "neither an http(s) address nor a relative path"),
+        (lambda e: e.update({"class": "oracle"}), "class is 'oracle'"),
+        (lambda e: e.update(extra="smuggled"), "unknown field(s) ['extra']"),
+        (lambda e: e.update(runs=e["runs"] * 11), "11 training runs, at most 10"),
+        (lambda e: e.update(split="test"), "seed is 1000, the leaderboard's is 20261201"),
     ],
 )
 def test_a_tampered_entry_is_refused_with_one_line_naming_it(suite, tmp_path, tamper, problem, capsys):
@@ -139,12 +177,10 @@ def test_a_tampered_entry_is_refused_with_one_line_naming_it(suite, tmp_path, ta
     tamper(entry)
     (tmp_path / "nearest.json").write_text(json.dumps(entry))
     with pytest.raises(EntryError, match="nearest.json refused") as err:
-        load_entries(tmp_path, episodes=2)
+        load_entries(tmp_path, episodes=2, split="validation")
     assert problem in str(err.value) and "\n" not in str(err.value)
-    assert (
-        main(["leaderboard", "--entries", str(tmp_path), "--episodes", "2", "--out", str(tmp_path / "o")])
-        == 2
-    )
+    args = ["leaderboard", "--entries", str(tmp_path), "--episodes", "2", "--split", "validation"]
+    assert main([*args, "--out", str(tmp_path / "o")]) == 2
     assert capsys.readouterr().err.count("\n") == 1 and not (tmp_path / "o" / "leaderboard.md").exists()
 
 
@@ -193,19 +229,29 @@ def test_a_committed_entry_that_names_a_file_in_the_clone_was_played_from_that_f
 def test_vs_pairs_every_entry_with_the_reference_on_the_same_maps(suite, tmp_path, capsys):
     out, paths = suite
     entries = out / "s" / "entries"
-    args = ["leaderboard", "--entries", str(entries), "--episodes", "2", "--out", str(tmp_path)]
+    args = [
+        "leaderboard",
+        "--entries",
+        str(entries),
+        "--episodes",
+        "2",
+        "--split",
+        "validation",
+        "--out",
+        str(tmp_path),
+    ]
     assert main([*args, "--vs", "nearest"]) == 0
     rows = (tmp_path / "vs_nearest.csv").read_text().splitlines()[1:]
     mine, nearest = (json.loads(p.read_text())["settings"] for p in reversed(paths))
     assert len(rows) == len(SETTINGS)  # one method besides the reference, every setting
     for row, st in zip(rows, SETTINGS):
-        method, vs, runs, label, diff = row.split(",")[:5]
+        method, cls, vs, runs, label, diff = row.split(",")[:6]
         by_100 = [[0 <= t <= 100 for t in s[st.label]["rescue_tick"][0]] for s in (mine, nearest)]
-        assert (method, vs, runs, label) == ("mine", "nearest", "1", st.label)
+        assert (method, cls, vs, runs, label) == ("mine", "learned", "nearest", "1", st.label)
         assert float(diff) == pytest.approx(np.mean(by_100[0]) - np.mean(by_100[1]))
     md = (tmp_path / "vs_nearest.md").read_text()
-    assert "| mine | 1 |" in md and "| nearest |" not in md and "against nearest" in md
-    assert "| method | runs | ahead / behind |" in capsys.readouterr().out
+    assert "| mine | learned | 1 |" in md and "| nearest |" not in md and "against nearest" in md
+    assert "| method | class | runs | ahead / behind |" in capsys.readouterr().out
     before = (tmp_path / "leaderboard.md").stat().st_mtime_ns
     assert main([*args, "--vs", "rrt", "--force"]) == 2  # no entry of that name: one line, nothing written
     err = capsys.readouterr().err
@@ -220,7 +266,7 @@ def test_a_paired_interval_spans_the_training_runs(suite):
         settings = {st.label: {"success_by_100": float(np.mean(success))} for st in SETTINGS}
         checked = {"iqm": float(np.mean(success)), "iqm_ci": [0.0, 1.0], "settings": settings,
                    "success": {st.label: np.array(success, bool) for st in SETTINGS}}  # fmt: skip
-        return {"method": name, "runs": [{}] * len(success), "checked": checked}
+        return {"method": name, "class": "learned", "runs": [{}] * len(success), "checked": checked}
 
     every, none = [True] * 100, [False] * 100
     entries = [entry("ref", [every, none]), entry("ahead", [every]), entry("split", [every, none])]
@@ -251,7 +297,7 @@ def test_an_entry_names_a_shipped_model_by_its_path_in_the_clone(monkeypatch):
 
     import catmip_rl
     from catmip_rl.evaluation.methods import parse_method
-    from catmip_rl.evaluation.suite import _shown_target
+    from catmip_rl.evaluation.entry import _shown_target
 
     monkeypatch.chdir(Path(catmip_rl.__file__).resolve().parents[1])  # the clone's root
     assert _shown_target(parse_method("amat:paper")) == "catmip_rl/models/amat_paper.pt"
@@ -274,8 +320,50 @@ def test_a_policy_that_breaks_mid_suite_says_what_is_kept_and_how_to_go_on(tmp_p
         )
     )
     with pytest.raises(ValueError) as err:
-        run_suite([f"late=py:{tmp_path / 'late.py'}:make_policy"], tmp_path / "s", episodes=1, progress=False)
+        run_suite([f"late=py:{tmp_path / 'late.py'}:make_policy"], tmp_path / "s", episodes=1, progress=False,
+                  classes={"late": "learned"})  # fmt: skip
     message = str(err.value)
     assert "no memory left" in message and "the 6 finished run(s) are kept" in message
     assert "--resume" in message
     assert len(list((tmp_path / "s" / "runs").rglob("run.json"))) == 6  # Task 2's six settings
+
+
+def test_a_policys_class_is_stated_and_a_test_entry_says_what_it_was_chosen_on(tmp_path):
+    """A ``py:`` policy states its class (the project's methods have theirs: a stated class they
+    contradict is refused), and an entry on the test split says what its method was chosen on; both
+    refused before anything is played."""
+    (tmp_path / "p.py").write_text(POLICY)
+    mine = f"mine=py:{tmp_path / 'p.py'}:make_policy"
+    with pytest.raises(ValueError, match="state its class with --class mine=CLASS"):
+        run_suite([mine], tmp_path / "a", episodes=1, progress=False)
+    with pytest.raises(ValueError, match="--class nearest=learned, but nearest is a planner"):
+        run_suite(["nearest"], tmp_path / "b", episodes=1, progress=False, classes={"nearest": "learned"})
+    with pytest.raises(ValueError, match="the class must be one of planner, learned, hybrid, floor"):
+        run_suite([mine], tmp_path / "c", episodes=1, progress=False, classes={"mine": "oracle"})
+    with pytest.raises(
+        ValueError, match="an entry on the test split states what random-uniform was chosen on"
+    ):
+        run_suite(["random-uniform"], tmp_path / "d", episodes=1, progress=False, split="test")
+    assert not any((tmp_path / d).exists() and any((tmp_path / d).rglob("*.json")) for d in "abcd")
+
+
+def test_a_duplicate_method_names_both_files_and_a_fifo_is_not_opened(suite, tmp_path):
+    import os
+
+    _out, paths = suite
+    for name in ("a.json", "b.json"):
+        (tmp_path / name).write_text(paths[0].read_text())
+    with pytest.raises(EntryError, match=r"entries .*a\.json and .*b\.json name the same method 'nearest'"):
+        load_entries(tmp_path, episodes=2, split="validation")
+    (tmp_path / "b.json").unlink()
+    os.mkfifo(tmp_path / "c.json")
+    with pytest.raises(EntryError, match=r"c\.json refused: not a regular file"):
+        load_entries(tmp_path, episodes=2, split="validation")
+
+
+def test_a_method_or_note_cannot_forge_a_row_of_the_table():
+    from catmip_rl.evaluation.leaderboard import md_text
+
+    assert md_text("x | 0.999 |") == "x \\| 0.999 \\|"
+    assert md_text("[a](javascript:b)") == "\\[a\\](javascript:b)" and md_text("<img>") == "\\<img\\>"
+    assert md_text("amat_general") == "amat_general"

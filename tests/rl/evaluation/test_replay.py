@@ -1,0 +1,87 @@
+"""catmip leaderboard --replay: an entry is played again from the files it names and refused in one line
+when a replayed rescue tick differs from the one it states, or a file is not the one it played."""
+
+from __future__ import annotations
+
+import json
+import textwrap
+
+import numpy as np
+import pytest
+
+from catmip_rl.cli.main import main
+from catmip_rl.evaluation.entry import SETTINGS
+from catmip_rl.evaluation.suite import run_suite
+
+POLICY = textwrap.dedent(
+    """
+    from pathlib import Path
+
+    class LastAllowed:
+        files = [Path(__file__).with_name("weights.bin")]
+
+        def act(self, engine):
+            return engine.masks.shape[-1] - 1 - engine.masks[..., ::-1].argmax(-1)
+
+    def make_policy(env_config, seed):
+        return LastAllowed()
+    """
+)
+
+
+@pytest.fixture(scope="module")
+def entries(tmp_path_factory):
+    out = tmp_path_factory.mktemp("replay")
+    (out / "mine.py").write_text(POLICY)
+    (out / "weights.bin").write_bytes(b"trained")
+    methods = ["rrt", f"mine=py:{out / 'mine.py'}:make_policy"]
+    about = {"classes": {"mine": "learned"}, "chosen_on": {"rrt": "nothing", "mine": "validation split"}}
+    run_suite(methods, out / "s", episodes=3, progress=False, split="test", **about)
+    return out
+
+
+def _board(folder, out, k=2):
+    return ["leaderboard", "--entries", str(folder), "--episodes", "3", "--replay", str(k), "--no-progress",
+            "--out", str(out)]  # fmt: skip
+
+
+def test_replayed_entries_are_marked_verified(entries, capsys):
+    assert main(_board(entries / "s" / "entries", entries / "lb")) == 0
+    md = (entries / "lb" / "leaderboard.md").read_text()
+    assert md.count("✓ 2 maps") == 2 and "(test split)" in md
+
+
+def test_an_entry_with_one_edited_tick_is_refused_in_one_line(entries, tmp_path, capsys):
+    """One rescue tick edited by hand, and every number the entry states restated to fit it: the checks
+    of the numbers pass, the replay does not."""
+    from catmip_rl.evaluation.entry import iqm_interval, rescued_by_100, setting_numbers
+    from catmip_rl.evaluation.entry_check import check_entry
+
+    entry = json.loads((entries / "s" / "entries" / "rrt.json").read_text())
+    label = SETTINGS[7].label
+    setting = entry["settings"][label]
+    ticks = setting["rescue_tick"][0]
+    ticks[1] = ticks[1] - 1 if ticks[1] > 0 else 57
+    setting.update(setting_numbers(np.array([ticks]), setting["horizon"]))
+    success = [rescued_by_100(np.array(s["rescue_tick"]), s["horizon"]) for s in entry["settings"].values()]
+    iqm, low, high = iqm_interval(success)
+    entry["aggregate"] = {"iqm_success_by_100": iqm, "iqm_success_by_100_ci": [low, high]}
+    check_entry(entry, 3)
+    (tmp_path / "rrt.json").write_text(json.dumps(entry))
+    assert main(_board(tmp_path, tmp_path / "lb", k=3)) == 2
+    err = capsys.readouterr().err
+    assert (
+        err.count("\n") == 1
+        and f"rrt.json refused: replaying map 1 of {label} (run 0) gave rescue tick" in err
+    )
+    assert not (tmp_path / "lb" / "leaderboard.md").exists()
+
+
+def test_an_entry_whose_weights_changed_is_refused(entries, capsys):
+    (entries / "weights.bin").write_bytes(b"trained again")
+    try:
+        assert main(_board(entries / "s" / "entries", entries / "lb2")) == 2
+    finally:
+        (entries / "weights.bin").write_bytes(b"trained")
+    err = capsys.readouterr().err
+    assert "weights.bin, whose SHA-256 differs from the entry's" in err and err.count("\n") == 1
