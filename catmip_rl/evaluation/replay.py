@@ -33,7 +33,7 @@ def check_files(entry: dict[str, Any], k: int) -> None:
         path = Path(f["file"])
         where = f"entry {entry['path']}: run {k} plays {path}"
         if not path.is_file():
-            raise EntryError(f"{where}, which is not here (replay from the folder the entry's paths start in)")
+            raise EntryError(f"{where}, which is not here (replay from the folder its paths start in)")
         if file_sha256(path) != f["sha256"]:
             raise EntryError(f"{where}, whose SHA-256 differs from the entry's: not the file it played")
 

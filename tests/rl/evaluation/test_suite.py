@@ -296,8 +296,8 @@ def test_an_entry_names_a_shipped_model_by_its_path_in_the_clone(monkeypatch):
     from pathlib import Path
 
     import catmip_rl
-    from catmip_rl.evaluation.methods import parse_method
     from catmip_rl.evaluation.entry import _shown_target
+    from catmip_rl.evaluation.methods import parse_method
 
     monkeypatch.chdir(Path(catmip_rl.__file__).resolve().parents[1])  # the clone's root
     assert _shown_target(parse_method("amat:paper")) == "catmip_rl/models/amat_paper.pt"
