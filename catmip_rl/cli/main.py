@@ -291,7 +291,7 @@ def _compare(args: argparse.Namespace) -> int:
             print(f"note: {len(unrecorded)} result folder(s) have no run.json (written by an older catmip), "
                   f"so their files were not checked as one run's: {', '.join(unrecorded[:3])}"
                   + (", ..." if len(unrecorded) > 3 else ""), file=sys.stderr)  # fmt: skip
-        report = compare(results, seed=args.seed, vs=args.vs, pairs=args.pairs)
+        report = compare(results, seed=args.seed, vs=args.vs, pairs=args.pairs, unpaired=args.unpaired)
         written = report.write(args.out)  # the files first: a closed pipe on stdout loses nothing
     print(report.markdown())
     print(f"wrote {args.out}/: {', '.join(p.name for p in written)}")

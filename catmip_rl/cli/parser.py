@@ -366,8 +366,11 @@ def add_compare(sub) -> None:
         "CI (over the maps, or over training runs and maps); for every pair of methods on the same maps the "
         "paired difference in success by tick 100 and in mean rescue tick with 95 % CIs; across runs "
         "(training seeds) the IQM and mean with 95 % stratified-bootstrap CIs, the probability of "
-        "improvement and performance profiles (rliable). Writes compare.md, by_setting.csv, paired.csv, "
-        "aggregate.csv, improvement.csv and PNGs into --out (each where there is something to show).",
+        "improvement and performance profiles (rliable); curves.png overlays every method's success vs time "
+        "per setting with 95 % bands. Every method must have played the same settings, seeds, horizons and "
+        "maps (else one line names two folders and what differs; --unpaired shows them marked). Writes "
+        "compare.md, by_setting.csv, curves.csv, paired.csv, aggregate.csv, improvement.csv and PNGs into "
+        "--out (each where there is something to show).",
     )  # fmt: skip
     co.add_argument(
         "results", nargs="+", metavar="RESULT",
@@ -386,6 +389,11 @@ def add_compare(sub) -> None:
         metavar="A:B,...",
         help="only these pairs (A - B); repeat the flag or separate pairs by commas",
     )
+    co.add_argument(
+        "--unpaired", action="store_true",
+        help="compare methods that did not all play the same settings, seeds, horizons and maps (refused "
+        "without it): side by side, each row marked paired or unpaired, pairs only where the maps agree",
+    )  # fmt: skip
     co.set_defaults(name="compare")
 
 

@@ -12,6 +12,13 @@ if shorter), the paper's headline measure. What is read is checked first
 (:mod:`~catmip_rl.evaluation.results_check`: one line naming the folder for an empty, inconsistent or
 duplicated result, or a copied folder given as a second run of its method).
 
+Every method must have played what every other played (:func:`played_on`: the setting, the map seed,
+the horizon and the maps themselves, by the digest of their map hashes), and the runs of one method the
+same in each setting: otherwise :func:`check_alike` refuses in one line naming two folders and what
+differs (a method evaluated on another ``--seed``, setting or episode count). ``unpaired=True``
+(``catmip compare --unpaired``) shows such methods side by side instead, each row marked paired or
+unpaired; the runs of one method must still agree.
+
 * **Paired comparisons** (every pair of methods, in every setting where both played the same maps, map
   hash by map hash): the mean per-map difference in success by tick 100 with a 95 % percentile
   bootstrap CI over maps (``scipy.stats.bootstrap``, paired), an exact McNemar p-value (binomial test
@@ -25,6 +32,7 @@ duplicated result, or a copied folder given as a second run of its method).
 
 from __future__ import annotations
 
+import hashlib
 import json
 import warnings
 from dataclasses import dataclass, field
@@ -42,11 +50,11 @@ from catmip_rl.evaluation.results_check import (
     episodes_digest,
     summary_fields,
 )
-from catmip_rl.evaluation.stats import CONFIDENCE, mcnemar_p, paired_difference, success_interval
+from catmip_rl.evaluation.stats import CONFIDENCE, curve_band, mcnemar_p, paired_difference, success_interval
 from catmip_rl.files import atomic_write_csv, atomic_write_text
 from catmip_rl.outputs import check_record
 
-__all__ = ["Result", "load_results", "compare", "Comparison"]
+__all__ = ["Result", "PlayedOn", "played_on", "check_alike", "load_results", "compare", "Comparison"]
 
 RLIABLE_RESAMPLES = 2_000  # rliable's stratified bootstrap runs a Python call per resample (~1 ms)
 
@@ -64,6 +72,85 @@ class Result:
     rescue_tick: np.ndarray  # (E,) float, nan where not rescued
     digest: str = ""  # results_check.episodes_digest of episodes.json: equal for a copied folder
     recorded: bool = True  # its files checked against its run.json (False: written before records)
+    horizon: int | None = None  # summary.json's horizon (None: a result built by hand)
+
+
+@dataclass(frozen=True)
+class PlayedOn:
+    """What a result was played on: two results can be paired map by map exactly when these are equal."""
+
+    setting: str  # the setting's label: task, communication, SLAM noise, longest macro-action
+    seed: int  # the map seed (the suite's splits: validation 1000, test 20261201)
+    horizon: int | None
+    episodes: int
+    maps_sha256: str  # of the map hashes in play order, as a suite entry's maps_sha256
+
+    def describe(self) -> str:
+        from catmip_env.map_sets import SPLITS
+
+        split = next((f" ({name} split)" for name, s in SPLITS.items() if s == self.seed), "")
+        horizon = "" if self.horizon is None else f", horizon {self.horizon}"
+        return (f"{self.setting}, seed {self.seed}{split}{horizon}, {self.episodes} maps "
+                f"sha256 {self.maps_sha256[:12]}")  # fmt: skip
+
+
+def played_on(result: Result) -> PlayedOn:
+    """What ``result`` was played on: its setting, map seed, horizon and the digest of the maps its
+    episodes played (computed from their map hashes, never taken from a summary)."""
+    digest = hashlib.sha256("\n".join(result.maps).encode()).hexdigest()  # = suite.maps_digest
+    return PlayedOn(result.setting, result.seed, result.horizon, len(result.maps), digest)
+
+
+ADVICE = (
+    "give every method the same settings, --seed and --episodes, or pass --unpaired to show them "
+    "side by side marked unpaired"
+)
+
+
+def _unlike(a: Result, pa: PlayedOn, b: Result, pb: PlayedOn | None) -> str:
+    """One line: ``a`` played ``pa`` and ``b`` played ``pb`` (None: ``b``'s method has nothing there)."""
+    if pb is None:
+        return (f"{a.path} ({a.method}: {pa.describe()}) and {b.path} ({b.method}) were not played alike "
+                f"({b.method} has no result in {pa.setting} on those maps)")  # fmt: skip
+    keys = ("setting", "seed", "horizon", "maps_sha256")
+    fields = [k.removesuffix("_sha256") for k in keys if getattr(pa, k) != getattr(pb, k)]
+    differ = ", ".join(fields[:-1]) + (" and " if len(fields) > 1 else "") + fields[-1]
+    return (f"{a.path} ({a.method}: {pa.describe()}) and {b.path} ({b.method}: {pb.describe()}) were not "
+            f"played alike (they differ in {differ})")  # fmt: skip
+
+
+def check_alike(results: list[Result], unpaired: bool = False) -> None:
+    """ValueError (one line naming two folders, what each played and what differs) unless the runs of
+    each method played the same in each setting and, without ``unpaired``, every method played the same
+    (:func:`played_on`) as every other: the same settings, each on the same seed, horizon and maps."""
+    by_method: dict[str, dict[PlayedOn, Result]] = {}
+    first: dict[tuple[str, str], tuple[PlayedOn, Result]] = {}
+    for r in results:
+        p = played_on(r)
+        seen = first.setdefault((r.method, r.setting), (p, r))
+        if seen[0] != p:
+            raise ValueError(
+                _unlike(seen[1], seen[0], r, p) + f": the runs of one method ({r.method}) must play the same "
+                "maps (give each the same --seed and --episodes)"
+            )
+        by_method.setdefault(r.method, {}).setdefault(p, r)
+    if unpaired:
+        return
+    ref_plays, *others = by_method.values()
+    for plays in others:
+        if set(plays) == set(ref_plays):
+            continue
+        a_only = [p for p in ref_plays if p not in plays]
+        b_only = [p for p in plays if p not in ref_plays]
+        same = [(pa, pb) for pa in a_only for pb in b_only if pa.setting == pb.setting]
+        if same or (a_only and b_only):
+            pa, pb = same[0] if same else (a_only[0], b_only[0])
+            message = _unlike(ref_plays[pa], pa, plays[pb], pb)
+        elif a_only:
+            message = _unlike(ref_plays[a_only[0]], a_only[0], next(iter(plays.values())), None)
+        else:
+            message = _unlike(plays[b_only[0]], b_only[0], next(iter(ref_plays.values())), None)
+        raise ValueError(f"{message}, so they cannot be compared map by map; {ADVICE}")
 
 
 def _load_one(folder: Path, name: str | None) -> Result:
@@ -84,7 +171,7 @@ def _load_one(folder: Path, name: str | None) -> Result:
     with np.errstate(invalid="ignore"):
         success = ticks <= min(100, horizon)
     digest, recorded = episodes_digest(rows), record is not None
-    return Result(folder, method, label, seed, maps, success, ticks, digest, recorded)
+    return Result(folder, method, label, seed, maps, success, ticks, digest, recorded, horizon)
 
 
 def load_results(specs: list[str]) -> list[Result]:
@@ -128,19 +215,22 @@ class Comparison:
     improvement: list[dict[str, Any]] = field(default_factory=list)
     scores: dict[str, np.ndarray] = field(default_factory=dict)  # method -> (runs, settings)
     settings: list[str] = field(default_factory=list)  # the columns of ``scores``
-    left_out: list[str] = field(default_factory=list)  # settings not every method played
+    left_out: list[str] = field(default_factory=list)  # settings not every method played alike
+    curves: list[dict[str, Any]] = field(default_factory=list)  # success vs time per setting and method
 
     def write(self, out: str | Path) -> list[Path]:
-        """compare.md and, where there is something to show, paired.csv / .png (two methods on the same
+        """compare.md, by_setting.csv, curves.csv / .png (every method's success vs time per setting, with
+        95 % bands) and, where there is something to show, paired.csv / .png (two methods on the same
         maps), aggregate.csv (any method), aggregate.png, profile.png and improvement.csv (a method with
         several runs), each atomic, in ``out``; the files written."""
-        from catmip_rl.evaluation.plots import plot_aggregate, plot_paired, plot_profiles
+        from catmip_rl.evaluation.plots import plot_aggregate, plot_curves, plot_paired, plot_profiles
 
         out = Path(out)
         out.mkdir(parents=True, exist_ok=True)
         written = []
         for name, rows in (
             ("by_setting", self.by_setting),
+            ("curves", self.curves),
             ("paired", self.paired),
             ("aggregate", self.aggregate),
             ("improvement", self.improvement),
@@ -149,12 +239,51 @@ class Comparison:
                 written.append(atomic_write_csv(out / f"{name}.csv", rows))
         atomic_write_text(out / "compare.md", self.markdown())
         written.append(out / "compare.md")
+        if self.curves:
+            notes = self._unpaired_notes()
+            title = "Success rate vs mission time (95 % band: bootstrap over maps and runs)"
+            written.append(plot_curves(self.curves, out / "curves.png", title, notes=notes))
         if self.paired:
             written.append(plot_paired(self.paired, out / "paired.png"))
         if self.several_runs:  # with one run per method they would show single points, not spreads
             written.append(plot_aggregate(self.aggregate, out / "aggregate.png"))
             written.append(plot_profiles(self.scores, out / "profile.png"))
         return written
+
+    def _unpaired_notes(self) -> dict[str, str]:
+        """setting -> what the curves' panel says where not every method played it alike: the methods on
+        other maps than the most of them, and those that did not play it."""
+        notes = {}
+        everyone = {r["method"] for r in self.by_setting}
+        for setting in dict.fromkeys(r["setting"] for r in self.by_setting if not r["paired"]):
+            rows = [r for r in self.by_setting if r["setting"] == setting]
+            sets = [r["map_set"] for r in rows]
+            most = max(set(sets), key=sets.count)
+            other = [r["method"] for r in rows if r["map_set"] != most]
+            missing = sorted(everyone - {r["method"] for r in rows})
+            said = [f"{', '.join(other)} on other maps"] if other else []
+            said += [f"{', '.join(missing)} not played"] if missing else []
+            notes[setting] = "unpaired: " + "; ".join(said)
+        return notes
+
+    def _played_lines(self) -> list[str]:
+        """What each setting was played on: one line when every method played it alike, else a line per
+        set of maps with the methods that played it (the rows marked unpaired, which ``--unpaired`` let
+        through: methods are paired only with those of the same maps)."""
+        lines = []
+        everyone = sorted({r["method"] for r in self.by_setting})
+        for setting in sorted({r["setting"] for r in self.by_setting}):
+            rows = [r for r in self.by_setting if r["setting"] == setting]
+            if all(r["paired"] for r in rows):
+                lines.append(f"- {setting}: every method played the same {_played(rows[0])}.")
+                continue
+            missing = sorted(set(everyone) - {r["method"] for r in rows})
+            absent = f" ({', '.join(missing)} did not play it)" if missing else ""
+            lines.append(f"- {setting}: **unpaired**, not every method played the same maps{absent}:")
+            for k in sorted({r["map_set"] for r in rows}):
+                on = [r for r in rows if r["map_set"] == k]
+                lines.append(f"  - maps {k}: {_played(on[0])}: {', '.join(r['method'] for r in on)}")
+        return lines
 
     @property
     def several_runs(self) -> bool:
@@ -170,11 +299,13 @@ class Comparison:
         cells = {}
         for r in self.by_setting:
             runs = f" ({r['runs']} runs)" if r["runs"] > 1 else ""
+            mark = "" if r["paired"] else f" **unpaired** (maps {r['map_set']})"
             cells[r["method"], r["setting"]] = (
-                f"{r['success_by_100']:.3f} [{r['ci_low']:.3f}, {r['ci_high']:.3f}]{runs}"
+                f"{r['success_by_100']:.3f} [{r['ci_low']:.3f}, {r['ci_high']:.3f}]{runs}{mark}"
             )
         for m in sorted({r["method"] for r in self.by_setting}):
             lines.append(f"| {m} | " + " | ".join(cells.get((m, s), "–") for s in settings) + " |")
+        lines += [""] + self._played_lines()
         head = "| setting | A | B | maps | success A | success B | A - B [95 % CI] | McNemar p |"
         head += " rescue tick A - B (maps) |"
         lines += ["", "## Paired per-map differences (success by tick 100, A - B)", "", head]
@@ -192,7 +323,7 @@ class Comparison:
         if self.aggregate:
             lines += ["", f"## Across runs (training seeds): settings {', '.join(self.settings)}", ""]
             if self.left_out:
-                lines += [f"Left out (not played by every method): {', '.join(self.left_out)}.", ""]
+                lines += [f"Left out (not played alike by every method): {', '.join(self.left_out)}.", ""]
             lines += ["| method | runs | IQM [95 % CI] | mean [95 % CI] |", "|---|---|---|---|"]
             for r in self.aggregate:
                 iqm, mean = (_interval(r, k) for k in ("iqm", "mean"))
@@ -217,13 +348,12 @@ def _setting_rows(groups: dict[str, dict[str, list[Result]]], seed: int) -> list
     for one run (scipy's percentile bootstrap), over runs and maps together for several runs of the
     same maps (:func:`runs_and_maps_ci`); the success by the horizon and the mean rescue tick beside it."""
 
+    everyone = {m for per in groups.values() for m in per}
     rows = []
     for setting, methods in sorted(groups.items()):
+        played = {m: played_on(runs[0]) for m, runs in sorted(methods.items())}  # check_alike: runs alike
+        groups_of_maps = list(dict.fromkeys(played.values()))  # the map sets played, numbered from 1
         for method, runs in sorted(methods.items()):
-            if any(r.maps != runs[0].maps for r in runs):
-                raise ValueError(
-                    f"the runs of {method} in {setting} played different maps; give each the same --seed"
-                )
             success = np.array([r.success for r in runs], float)  # (runs, maps)
             mean = float(success.mean())
             low, high, over = success_interval(success, seed)
@@ -233,7 +363,36 @@ def _setting_rows(groups: dict[str, dict[str, list[Result]]], seed: int) -> list
                 "success_by_100": mean, "ci_low": low, "ci_high": high, "ci_over": over,
                 "success": float(np.mean([(~np.isnan(r.rescue_tick)).mean() for r in runs])),
                 "mean_rescue_tick": float(np.mean(ticks)) if ticks else None,
+                "seed": played[method].seed, "horizon": played[method].horizon,
+                "maps_sha256": played[method].maps_sha256,
+                "paired": set(methods) == everyone and len(groups_of_maps) == 1,
+                "map_set": groups_of_maps.index(played[method]) + 1,
             })  # fmt: skip
+    return rows
+
+
+def _played(row: dict[str, Any]) -> str:
+    horizon = "" if row["horizon"] is None else f", horizon {row['horizon']}"
+    return f"{row['maps']} maps of seed {row['seed']}{horizon} (sha256 {row['maps_sha256'][:12]})"
+
+
+def _curve_rows(groups: dict[str, dict[str, list[Result]]], seed: int) -> list[dict[str, Any]]:
+    """Per setting and method the success rate by each tick (the mean over its runs) with its 95 %
+    percentile band (:func:`~catmip_rl.evaluation.stats.curve_band`: a bootstrap over the maps, and the
+    runs with them), as rows for :func:`~catmip_rl.evaluation.plots.plot_curves`."""
+    rows = []
+    for setting, methods in sorted(groups.items()):
+        for method, runs in sorted(methods.items()):
+            ticks = np.array([r.rescue_tick for r in runs], float)  # (runs, maps), nan: not rescued
+            finite = ticks[~np.isnan(ticks)]
+            horizon = runs[0].horizon or int(max(100, finite.max() if finite.size else 0))
+            grid = np.arange(horizon + 1)
+            with np.errstate(invalid="ignore"):  # nan <= t is False: not rescued
+                curve = (ticks[:, :, None] <= grid).mean(axis=(0, 1))
+            low, high = curve_band(ticks, horizon, seed)
+            at = {"panel": setting, "method": method, "runs": len(runs)}
+            rows += [at | {"tick": int(t), "success_rate": float(curve[t]), "ci_low": float(low[t]),
+                           "ci_high": float(high[t])} for t in grid]  # fmt: skip
     return rows
 
 
@@ -295,11 +454,15 @@ def _paired_rows(groups: dict[str, dict[str, list[Result]]], vs: str | None = No
 def _score_matrices(
     groups: dict[str, dict[str, list[Result]]],
 ) -> tuple[dict[str, np.ndarray], list[str], list[str]]:
-    """method -> (runs, settings) success-by-100 over the settings every method played, the settings,
-    and those left out. A method's runs are its results in each setting, in folder order; a method with
-    different run counts across settings keeps the smallest count."""
+    """method -> (runs, settings) success-by-100 over the settings every method played alike (the same
+    maps: :func:`played_on`), the settings, and those left out. A method's runs are its results in each
+    setting, in folder order; a method with different run counts across settings keeps the smallest
+    count."""
     methods = sorted({m for per in groups.values() for m in per})
-    common = sorted(s for s, per in groups.items() if all(m in per for m in methods))
+    common = sorted(
+        s for s, per in groups.items()
+        if all(m in per for m in methods) and len({played_on(runs[0]) for runs in per.values()}) == 1
+    )  # fmt: skip
     left_out = sorted(set(groups) - set(common))
     scores = {}
     for m in methods:
@@ -310,20 +473,27 @@ def _score_matrices(
 
 
 def compare(
-    results: list[Result], seed: int = 0, vs: str | None = None, pairs: list[tuple[str, str]] | None = None
+    results: list[Result],
+    seed: int = 0,
+    vs: str | None = None,
+    pairs: list[tuple[str, str]] | None = None,
+    unpaired: bool = False,
 ) -> Comparison:
     """Paired differences on the same maps (every pair of methods; each against ``vs``, as method - vs; or
     the chosen ``pairs`` (A, B), as A - B), and (with rliable) IQM / mean with 95 % stratified-bootstrap
-    CIs and the probability of improvement across runs and settings."""
+    CIs and the probability of improvement across runs and settings. Every method must have played
+    alike (:func:`check_alike`); with ``unpaired`` they may not have, and the rows say which are."""
     if not results:
         raise ValueError("nothing to compare: no results")
     check_runs(results)
+    check_alike(results, unpaired)
     names = sorted({r.method for r in results})
     for wanted in ([vs] if vs is not None else []) + [m for pair in pairs or [] for m in pair]:
         if wanted not in names:
             raise ValueError(f"no results of method {wanted!r} to compare against; the methods are {names}")
     groups = _by_setting(results)
-    report = Comparison(paired=_paired_rows(groups, vs, pairs), by_setting=_setting_rows(groups, seed))
+    report = Comparison(paired=_paired_rows(groups, vs, pairs), by_setting=_setting_rows(groups, seed),
+                        curves=_curve_rows(groups, seed))  # fmt: skip
     scores, report.settings, report.left_out = _score_matrices(groups)
     report.scores = scores
     if len(scores) < 1 or not report.settings:

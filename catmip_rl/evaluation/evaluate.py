@@ -92,6 +92,14 @@ class EvalSetting:
         comm = "full" if comm_sigma(self.comm) is None else f"sigma{self.comm}"
         return f"{self.task}-{comm}-noise{self.noise:g}-ma{self.max_ma_ticks}"
 
+    @property
+    def title(self) -> str:
+        """The setting as a figure titles it, "Task 2, σ = 2, 5 % noise" (:func:`~catmip_rl.evaluation.
+        plots.setting_title`)."""
+        from catmip_rl.evaluation.plots import setting_title
+
+        return setting_title(self)
+
 
 def comm_sigma(comm: str | float | None) -> float | None:
     """``"full"``/None -> None, ``"4"`` -> 4.0; anything else (below ``MIN_COMM_SIGMA`` included) raises."""

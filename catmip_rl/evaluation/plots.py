@@ -1,10 +1,12 @@
 """Every plot the evaluation commands draw: ``catmip bench paper``'s success-vs-time figure
-(:func:`plot_figure`, also the demo's) and ``catmip compare``'s paired differences, aggregate intervals
-and performance profiles."""
+(:func:`plot_figure`, also the demo's, ``catmip eval``'s and ``catmip compare``'s curves) and ``catmip
+compare``'s paired differences, aggregate intervals and performance profiles. A setting is titled by
+:func:`setting_title` ("Task 2, σ = 2, 5 % noise") wherever a figure names one."""
 
 from __future__ import annotations
 
 import csv
+import re
 from pathlib import Path
 from typing import Any
 
@@ -13,6 +15,7 @@ import numpy as np
 from catmip_rl.files import atomic_savefig
 
 __all__ = [
+    "setting_title",
     "check_matplotlib",
     "trailing_mean",
     "plot_figure",
@@ -22,6 +25,32 @@ __all__ = [
     "method_style",
     "plot_curves",
 ]
+
+
+LABEL = re.compile(r"(task\d+)-(full|sigma(.+))-noise(.+)-ma(\d+)")  # EvalSetting.label's form
+DEFAULT_MA_TICKS = 10  # EvalSetting's longest macro-action: not said in a title
+
+
+def setting_title(setting: Any) -> str:
+    """The title a figure gives a setting (an ``EvalSetting`` or its label): "Task 2, σ = 2, 5 % noise",
+    "Task 1, full communication", "Task 2, full communication, macro-actions ≤ 20 ticks" (SLAM noise and
+    the longest macro-action are said where they are not the defaults, 0 and 10 ticks). Any other text
+    (a panel already named, such as the paper figures') is returned as it is."""
+    label = getattr(setting, "label", setting)
+    match = LABEL.fullmatch(str(label))
+    if match is None:
+        return str(label)
+    task, comm, sigma, noise, ma = match.groups()
+    try:
+        noise_pct = float(noise) * 100
+    except ValueError:
+        return str(label)
+    parts = [f"Task {task.removeprefix('task')}", "full communication" if sigma is None else f"σ = {sigma}"]
+    if noise_pct:
+        parts.append(f"{noise_pct:.4g} % noise")
+    if int(ma) != DEFAULT_MA_TICKS:
+        parts.append(f"macro-actions ≤ {int(ma)} ticks")
+    return ", ".join(parts)
 
 
 def check_matplotlib() -> None:
@@ -59,34 +88,49 @@ def _save(fig, path: Path) -> Path:
     return atomic_savefig(fig, path)
 
 
+PAIRED_KINDS = (  # colour, marker (readable in grey print too), legend text
+    ("tab:green", "D", "A better: the 95 % CI lies above 0"),
+    ("tab:red", "D", "B better: the 95 % CI lies below 0"),
+    ("tab:gray", "o", "no difference shown: the CI holds 0"),
+)
+
+
 def plot_paired(rows: list[dict[str, Any]], path: Path) -> Path:
-    """The paired difference in success by tick 100 (A - B, 95 % CI) of each compared pair, grouped by
-    setting (a heading per setting), the figure's height sized to its rows."""
+    """The paired difference in success by tick 100 (A - B, 95 % CI over maps) of each compared pair,
+    grouped by setting (a heading per setting, :func:`setting_title`), with a title and a legend of what
+    the colours and markers say; the figure's height sized to its rows."""
     plt = _pyplot()
+    from matplotlib.lines import Line2D
+
     settings = list(dict.fromkeys(r["setting"] for r in rows))
     lines = len(rows) + len(settings)
-    fig, ax = plt.subplots(figsize=(8, 0.9 + 0.28 * lines), layout="constrained")
-    y, ticks, labels = 0, [], []
+    fig, ax = plt.subplots(figsize=(8, 1.9 + 0.28 * lines), layout="constrained")
+    y, ticks, labels, headings = 0, [], [], []
     for setting in settings:
-        ax.text(0.0, y, setting, transform=ax.get_yaxis_transform(), ha="right", va="center",
-                fontsize=8, fontweight="bold")  # fmt: skip
+        ticks.append(y)
+        labels.append(setting_title(setting))
+        headings.append(True)
         y += 1
         for r in (r for r in rows if r["setting"] == setting):
             ci = [[r["diff"] - r["ci_low"]], [r["ci_high"] - r["diff"]]]
-            color = "tab:green" if r["ci_low"] > 0 else "tab:red" if r["ci_high"] < 0 else "tab:gray"
-            marker = "o" if color == "tab:gray" else "D"  # readable in grey print too
+            kind = 0 if r["ci_low"] > 0 else 1 if r["ci_high"] < 0 else 2
+            color, marker, _ = PAIRED_KINDS[kind]
             ax.errorbar(r["diff"], y, xerr=ci, fmt=marker, color=color, capsize=3)
             ticks.append(y)
             labels.append(f"{r['method_a']} − {r['method_b']}")
+            headings.append(False)
             y += 1
     ax.axvline(0.0, color="k", lw=0.8)
-    ax.set_yticks(ticks, labels, fontsize=7)
+    ax.set_yticks(ticks, labels, fontsize=8)
+    for label, heading in zip(ax.get_yticklabels(), headings):
+        label.set_fontweight("bold" if heading else "normal")
+    ax.tick_params(axis="y", length=0)
     ax.set_ylim(y - 0.5, -0.7)
     ax.grid(axis="x", alpha=0.3)
     ax.set_xlabel("paired difference in success by tick 100, A − B (95 % CI over maps)")
-    ax.set_title(
-        "diamonds: a difference shown (green: A better, red: B better); circles: none shown", fontsize=9
-    )
+    ax.set_title("Paired per-map differences in success by tick 100 (A − B)")
+    handles = [Line2D([], [], color=c, marker=m, linestyle="none", label=text) for c, m, text in PAIRED_KINDS]
+    fig.legend(handles=handles, loc="outside lower center", ncol=3, fontsize=8, frameon=False)
     return _save(fig, path)
 
 
@@ -149,9 +193,13 @@ def plot_figure(curves_csv: str | Path, png: str | Path, title: str = "") -> Pat
     return plot_curves(rows, png, title)
 
 
-def plot_curves(rows: list[dict[str, Any]], png: str | Path, title: str = "") -> Path:
+def plot_curves(
+    rows: list[dict[str, Any]], png: str | Path, title: str = "", notes: dict[str, str] | None = None
+) -> Path:
     """:func:`plot_figure` of rows already read: panel, method, tick, success_rate (and ci_low, ci_high,
-    runs where known)."""
+    runs where known). Panels are titled by :func:`setting_title` (a setting's label becomes "Task 2,
+    σ = 2, 5 % noise"), ``notes[panel]`` on a second line; up to three panels a row; one legend below,
+    of every method that any panel draws."""
     plt = _pyplot()
     panels = list(dict.fromkeys(r["panel"] for r in rows))
     methods = list(dict.fromkeys(r["method"] for r in rows))
@@ -159,36 +207,51 @@ def plot_curves(rows: list[dict[str, Any]], png: str | Path, title: str = "") ->
     index = {
         m: list(dict.fromkeys(base)).index(b) for m, b in zip(methods, base)
     }  # a sampled pass: its method's colour
+    own: dict[tuple[str, str], list[dict[str, Any]]] = {}
+    for r in rows:
+        own.setdefault((r["panel"], r["method"]), []).append(r)
+    columns = len(panels) if len(panels) <= 3 else 2 if len(panels) == 4 else 3
+    lines = -(-len(panels) // columns)
+    legend_rows = -(-len(methods) // min(len(methods), 4))
     fig, axes = plt.subplots(
-        1, len(panels), figsize=(max(4.2 * len(panels), 6.0), 3.6), sharey=True, squeeze=False
-    )
+        lines, columns, figsize=(max(4.2 * columns, 6.0), 3.4 * lines + 0.5 + 0.22 * legend_rows),
+        squeeze=False, layout="constrained",
+    )  # fmt: skip
     runs = {r["method"]: int(r.get("runs") or 1) for r in rows}
-    for ax, panel in zip(axes[0], panels):
+    banded = any(r.get("ci_low") not in (None, "") for r in rows)
+    handles: dict[str, Any] = {}
+    for k, ax in enumerate(axes.flat):
+        if k >= len(panels):
+            ax.set_visible(False)
+            continue
+        panel = panels[k]
         for method in methods:
-            own = [r for r in rows if r["panel"] == panel and r["method"] == method]
-            if not own:
+            drawn = own.get((panel, method))
+            if not drawn:
                 continue
-            t = np.array([int(r["tick"]) for r in own])
-            v = np.array([float(r["success_rate"]) for r in own])
+            t = np.array([int(r["tick"]) for r in drawn])
+            v = np.array([float(r["success_rate"]) for r in drawn])
             label = method + (f" (mean of {runs[method]} runs)" if runs[method] > 1 else "")
             style = method_style(index[method], method)
-            ax.plot(t, v, label=label, **style)
-            if own[0].get("ci_low") not in (None, "") and not method.endswith("(sampled)"):
-                low = np.array([float(r["ci_low"]) for r in own])
-                high = np.array([float(r["ci_high"]) for r in own])
+            (line,) = ax.plot(t, v, label=label, **style)
+            handles.setdefault(label, line)
+            if drawn[0].get("ci_low") not in (None, "") and not method.endswith("(sampled)"):
+                low = np.array([float(r["ci_low"]) for r in drawn])
+                high = np.array([float(r["ci_high"]) for r in drawn])
                 ax.fill_between(t, low, high, color=style["color"], alpha=0.15, lw=0)
-        ax.set_title(panel)
-        ax.set_xlabel("mission time (ticks)")
+        note = (notes or {}).get(panel)
+        ax.set_title(setting_title(panel) + (f"\n({note})" if note else ""), fontsize=10)
+        if k + columns >= len(panels):  # the lowest panel of its column
+            ax.set_xlabel("mission time (ticks)")
+        if k % columns == 0:
+            ax.set_ylabel("success rate (95 % band)" if banded else "success rate")
         ax.set_ylim(0, 1.02)
+        ax.set_xlim(left=0)
         ax.grid(alpha=0.3)
-    banded = any(r.get("ci_low") not in (None, "") for r in rows)
-    axes[0][0].set_ylabel("success rate (95 % band)" if banded else "success rate")
-    handles, labels = axes[0][0].get_legend_handles_labels()
-    columns = min(len(labels), 4)
-    rows = -(-len(labels) // columns)  # below the panels, so that no curve is hidden
-    fig.set_size_inches(fig.get_size_inches()[0], 3.6 + 0.22 * rows)
-    fig.legend(handles, labels, loc="lower center", ncol=columns, fontsize=8, frameon=False)
+    fig.legend(
+        list(handles.values()), list(handles), loc="outside lower center", ncol=min(len(handles), 4),
+        fontsize=8, frameon=False,
+    )  # fmt: skip
     if title:
         fig.suptitle(title)
-    fig.tight_layout(rect=(0, 0.22 * rows / (3.6 + 0.22 * rows) + 0.02, 1, 1))
     return atomic_savefig(fig, png)

@@ -45,7 +45,9 @@ def test_compare_pairs_only_the_same_maps_and_aggregates_runs(tmp_path):
     _write(tmp_path / "other", "a", [10] * 100, maps=[f"{e + 500:08x}" for e in range(100)], label="task2-x")
     seeds = f"c={tmp_path}/c0,{tmp_path}/c1,{tmp_path}/c2"
     results = load_results([str(tmp_path / "a"), str(tmp_path / "b"), seeds, str(tmp_path / "other")])
-    report = compare(results)
+    with pytest.raises(ValueError, match=r"other \(a: task2-x.* and .*b \(b\) were not played alike"):
+        compare(results)  # only "a" played task2-x: refused without unpaired
+    report = compare(results, unpaired=True)
     pairs = {(r["method_a"], r["method_b"]): r for r in report.paired}
     ab = pairs[("a", "b")]
     assert ab["diff"] == pytest.approx(0.2) and ab["ci_low"] > 0.1 and ab["ci_high"] < 0.3
@@ -61,6 +63,7 @@ def test_compare_pairs_only_the_same_maps_and_aggregates_runs(tmp_path):
     a = cell[("a", "task1-full-noise0-ma10")]
     assert a["ci_over"] == "maps" and a["ci_low"] < 0.8 < a["ci_high"] and a["success"] == pytest.approx(0.8)
     assert cell[("a", "task2-x")]["success_by_100"] == 1.0  # a setting only "a" played is still listed
+    assert not cell[("a", "task2-x")]["paired"] and c["paired"]  # ... marked unpaired
     agg = {r["method"]: r for r in report.aggregate}
     assert agg["c"]["runs"] == 3 and agg["c"]["mean"] == pytest.approx(0.6)
     assert agg["c"]["mean_ci_low"] <= 0.6 <= agg["c"]["mean_ci_high"] and agg["a"]["mean_ci_low"] is None
