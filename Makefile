@@ -5,7 +5,7 @@ PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 DSTAMP := $(VENV)/.installed-distributed
 
-.PHONY: demo demo-env test test-fast test-distributed test-compat-lower lint api bench bench-quick clean clean-cache
+.PHONY: demo demo-env test test-fast test-distributed test-compat-lower lint api bench bench-quick dist clean clean-cache
 
 # torch comes from the machine's CPU wheel first, so that nothing pulls a CUDA build
 $(STAMP): pyproject.toml
@@ -74,10 +74,18 @@ bench: $(STAMP)
 bench-quick: $(STAMP)
 	$(PY) benchmarks/run_all.py --quick
 
+# the release: dist/catmip-VERSION.tar.gz and the wheel built from that sdist (python -m build, in an
+# isolated environment with setuptools from the index); tests/test_wheel.py installs such a wheel in a
+# clean venv and runs the env alone, then the rl extra
+dist: $(STAMP)
+	rm -rf dist
+	$(PY) -m build --outdir dist .
+	ls -l dist
+
 # drop numba's compiled kernels (the packages already do when their sources change: catmip_env/numba_cache.py)
 clean-cache:
 	find . -path ./$(VENV) -prune -o \( -name '*.nbi' -o -name '*.nbc' \) -exec rm -f {} +
 
 clean:
-	rm -rf $(VENV) out .pytest_cache .hypothesis
+	rm -rf $(VENV) out dist build .pytest_cache .hypothesis
 	find . -name __pycache__ -prune -exec rm -rf {} +

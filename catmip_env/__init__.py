@@ -29,7 +29,7 @@ from catmip_env.kernels.state import WorldState  # noqa: E402
 from catmip_env.planners import make_planner  # noqa: E402
 from catmip_env.world import BatchedWorld, StepResult  # noqa: E402
 
-__version__ = "0.1.0"
+__version__ = "1.0.0"
 
 __all__ = [
     "EXPLORER",

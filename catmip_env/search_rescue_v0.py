@@ -8,6 +8,22 @@ Use :func:`parallel_env` (or :func:`env` for the AEC API through ``parallel_to_a
 
 ``obs_format="flat"`` gives every robot one float32 ``Box`` vector (what SuperSuit's wrappers and
 vector-env converters take) with the action mask in ``infos[robot]["action_mask"]``.
+
+**Versioning** (PettingZoo's rule). The suffix is the environment's version: any change that can move
+results — the dynamics, rewards, observations or spaces, termination, the random streams, the map
+generator, or a default — renames it ``search_rescue_v1`` (registered as ``catmip/SearchRescue-v1``), so
+that results reported on ``v0`` are never compared with another world unawares. A new option whose
+default keeps the old behaviour (an ``EnvConfig`` field such as ``teammate_memory``), a fix that only
+changes an error message, and speed-ups that keep every episode identical keep the suffix.
+``tests/env/test_fingerprint.py`` (golden hashes of whole episodes) and the frozen map sets
+(``catmip_env/frozen_maps/``, checked by every evaluation) fail on a change that moves results.
+
+**Version history.**
+
+* ``v0`` (catmip 0.1.0 and 1.0.0; the current and only version): primitive and macro (decision-event)
+  levels, window and cell goal modes, the dict and flat observation formats; an invalid action
+  becomes "stay" and is flagged (``invalid_action="raise"`` is the strict mode). Its dynamics were
+  developed before the first release and are frozen as of 1.0.0.
 """
 
 from __future__ import annotations
@@ -130,8 +146,7 @@ class SearchRescueEnv(ParallelEnv):
     (primitive: sets ``horizon_ticks``; macro: at most this many steps).
     ``reset(options={"episode_index": k})`` replays episode k of the current seed.
 
-    **Version history.** v0: primitive and macro levels, window and cell goal modes; invalid actions
-    become "stay" by default (``invalid_action="raise"`` is strict); the flat observation format.
+    **Version history** and the rule that bumps the suffix: the module's docstring.
     """
 
     metadata = {
