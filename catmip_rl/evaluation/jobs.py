@@ -23,8 +23,8 @@ from catmip_env.events import EventEngine
 from catmip_env.play import WorldNotSupported
 from catmip_rl.evaluation.evaluate import EvalSetting, evaluate, progress_bar
 from catmip_rl.evaluation.methods import PLAY_OPTIONS, Method, changed_files, make_policy, method_source
+from catmip_rl.evaluation.results_check import check_resumed
 from catmip_rl.evaluation.warmup import torch_threads
-from catmip_rl.outputs import check_record
 
 __all__ = ["Job", "run_one", "map_jobs", "check_methods", "run_dir", "default_threads", "die_with_parent"]
 
@@ -73,7 +73,7 @@ def _done(job: Job) -> dict[str, Any] | None:
             f"{job.out} holds results played before {changed[0]} changed (its SHA-256 differs): "
             "give a new output folder"
         )
-    check_record(job.out)  # its files one run's (a folder of an older catmip has no record)
+    check_resumed(Path(job.out), job.setting.task, job.seed, job.episodes)  # as strictly as a fresh run
     return summary
 
 

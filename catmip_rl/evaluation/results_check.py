@@ -209,3 +209,40 @@ def check_runs(results: Sequence[Any]) -> None:
                 f"{other.path} and {r.path} hold the same results: a copy is not a second training run"
             )
         seen[r.method, episodes] = r
+
+
+def check_resumed(folder: Path, task: str, seed: int, episodes: int) -> None:
+    """A result folder that a resumed grid (``bench suite`` / ``bench paper --resume``) would read back
+    instead of playing, checked as strictly as the run that wrote it: its record (run.json: every file
+    the run wrote, with its SHA-256; a folder without one is not trusted), its summary and episodes as
+    :func:`episode_ticks`, :func:`check_counts` and :func:`check_csv` check them, ``episodes`` maps, and
+    those maps the ones this installation generates for ``task`` and ``seed`` (the frozen manifest's,
+    or generated here for a seed that is not frozen). ValueError of one line naming the folder."""
+    from catmip_env.map_sets import check_maps, map_hashes
+    from catmip_rl.outputs import RECORD, check_record
+
+    if check_record(folder) is None:
+        raise ValueError(
+            f"{folder} holds results without their record ({RECORD}): they cannot be trusted as one run's; "
+            "remove the folder to play it again"
+        )
+    try:
+        summary = json.loads((folder / "summary.json").read_text())
+        rows = json.loads((folder / "episodes.json").read_text())
+    except (OSError, ValueError) as err:
+        raise ValueError(f"{folder} is not a readable result ({type(err).__name__}: {err})") from None
+    if not isinstance(summary, dict):
+        raise ValueError(f"{folder}: summary.json is not an object")
+    _label, _method, horizon, _seed = summary_fields(folder, summary, None)
+    maps, ticks = episode_ticks(folder, rows, horizon)
+    check_counts(folder, summary, ticks, horizon)
+    check_csv(folder, maps, ticks)
+    if len(maps) != episodes:
+        raise ValueError(f"{folder} holds {len(maps)} episodes, not the {episodes} its grid plays")
+    try:
+        report = check_maps(task, seed, maps)
+        if report.status != "verified" and maps != map_hashes(task, seed, episodes):
+            raise ValueError("differs")
+    except ValueError:
+        raise ValueError(f"{folder} holds episodes on other maps than maps 0 .. {episodes - 1} of {task}, "
+                         f"seed {seed}: play it again") from None  # fmt: skip

@@ -31,9 +31,10 @@ from catmip_rl.evaluation.entry import (
     entry_json,
     make_entry,
     method_class,
+    method_spec,
 )
 from catmip_rl.evaluation.jobs import Job, check_methods, default_threads, map_jobs, run_dir
-from catmip_rl.evaluation.methods import parse_runs
+from catmip_rl.evaluation.methods import Method, parse_runs
 from catmip_rl.evaluation.user_policy import PolicyError
 from catmip_rl.files import atomic_write_text
 
@@ -62,26 +63,10 @@ def run_suite(
     seed = check_split(split)
     groups = [parse_runs(m) for m in methods]
     names = [runs[0].name for runs in groups]
-    if not groups or len(set(names)) != len(names):
-        raise ValueError(f"the suite needs methods with unique names (use NAME=METHOD), got {names}")
     about = {"code": code or {}, "notes": notes or {}, "class": classes or {}, "chosen_on": chosen_on or {}}
-    unknown = sorted(set().union(*about.values()) - set(names))
-    if unknown:
-        raise ValueError(
-            f"code / notes / class / chosen-on given for {unknown}, which the suite does not play "
-            f"(methods: {names})"
-        )
-    if not 1 <= episodes <= EPISODES:
-        raise ValueError(f"episodes must be from 1 to the {EPISODES} frozen maps of a split, got {episodes}")
     out = Path(out)
     kept = {name: _recorded(out / "entries" / f"{_file_name(name)}.json") for name in names}
-    for runs, name in zip(groups, names):  # before anything is played
-        method_class(name, runs, about["class"].get(name) or kept[name]["class"] or None)
-        if split == "test" and not (about["chosen_on"].get(name) or kept[name]["chosen_on"]):
-            raise ValueError(
-                f"an entry on the test split states what {name} was chosen on: --chosen-on "
-                f"{name}=TEXT (e.g. 'validation split', or 'nothing: a published planner')"
-            )
+    _check_request(groups, names, about, kept, split, episodes)
     panels = [(st.label, st) for st in SETTINGS]
     _plays, not_played = check_methods(groups, panels, seed)
     if not_played:
@@ -115,6 +100,36 @@ def run_suite(
         atomic_write_text(path, entry_json(entry))
         paths.append(path)
     return paths
+
+
+def _check_request(groups: list[list[Method]], names: list[str], about: dict[str, dict[str, str]],
+                   kept: dict[str, dict[str, str]], split: str, episodes: int) -> None:  # fmt: skip
+    """ValueError, before anything is played, for a suite request that cannot give entries: methods
+    without unique names, a training run listed twice (one run), ``about`` (code, notes, class,
+    chosen-on) for a method not played, an episode count past the split's, a method without a class or,
+    on the test split, without what it was chosen on (given now or in its entry in ``out``, ``kept``)."""
+    if not groups or len(set(names)) != len(names):
+        raise ValueError(f"the suite needs methods with unique names (use NAME=METHOD), got {names}")
+    for runs in groups:
+        specs = [method_spec(m) for m in runs]
+        if len(set(specs)) != len(specs):
+            twice = next(s for s in specs if specs.count(s) > 1)
+            raise ValueError(f"method {runs[0].name} lists the training run {twice} twice: each run once")
+    unknown = sorted(set().union(*about.values()) - set(names))
+    if unknown:
+        raise ValueError(
+            f"code / notes / class / chosen-on given for {unknown}, which the suite does not play "
+            f"(methods: {names})"
+        )
+    if not 1 <= episodes <= EPISODES:
+        raise ValueError(f"episodes must be from 1 to the {EPISODES} frozen maps of a split, got {episodes}")
+    for runs, name in zip(groups, names):
+        method_class(name, runs, about["class"].get(name) or kept[name]["class"] or None)
+        if split == "test" and not (about["chosen_on"].get(name) or kept[name]["chosen_on"]):
+            raise ValueError(
+                f"an entry on the test split states what {name} was chosen on: --chosen-on "
+                f"{name}=TEXT (e.g. 'validation split', or 'nothing: a published planner')"
+            )
 
 
 def _recorded(path: Path) -> dict[str, str]:

@@ -367,3 +367,46 @@ def test_a_method_or_note_cannot_forge_a_row_of_the_table():
     assert md_text("x | 0.999 |") == "x \\| 0.999 \\|"
     assert md_text("[a](javascript:b)") == "\\[a\\](javascript:b)" and md_text("<img>") == "\\<img\\>"
     assert md_text("amat_general") == "amat_general"
+
+
+@pytest.mark.parametrize(
+    ("tamper", "problem"),
+    [
+        (lambda f: (f / "run.json").unlink(), "without their record (run.json)"),
+        (lambda f: _edit_episodes(f, lambda rows: rows.pop()), "episodes.json holds 1"),
+        (
+            lambda f: _edit_episodes(f, lambda rows: rows[1].update(map_hash=rows[0]["map_hash"])),
+            "played twice",
+        ),
+        (lambda f: _edit_episodes(f, lambda rows: rows[0].update(map_hash="0badc0de")), "on other maps"),
+        (lambda f: _edit_episodes(f, lambda rows: rows[0].update(rescue_tick=10_000, rescued=True)), "10000"),
+    ],
+)
+def test_a_resumed_suite_checks_what_it_reads_back_as_strictly_as_a_fresh_run(tmp_path, tamper, problem):
+    """A finished run's folder whose record was deleted, or whose episodes were edited with the record
+    made to fit, is refused by --resume (one line naming the folder), not read into the entry."""
+    run_suite(["nearest"], tmp_path / "s", episodes=2, progress=False)
+    folder = tmp_path / "s" / "runs" / SETTINGS[3].label / "nearest"
+    tamper(folder)
+    with pytest.raises(ValueError, match=re.escape(problem)) as err:
+        run_suite(["nearest"], tmp_path / "s", episodes=2, progress=False)
+    assert str(folder) in str(err.value) and "\n" not in str(err.value)
+
+
+def _edit_episodes(folder, change):
+    """Edit a run's episodes.json (and its episodes.csv row count and summary, as a careful forger
+    would), then rewrite its record so that the files' SHA-256 match."""
+    from catmip_rl.outputs import RECORD, _sha256
+
+    rows = json.loads((folder / "episodes.json").read_text())
+    change(rows)
+    (folder / "episodes.json").write_text(json.dumps(rows))
+    (folder / "episodes.csv").unlink(missing_ok=True)
+    record = json.loads((folder / RECORD).read_text())
+    record["files"] = {n: _sha256(folder / n) for n in record["files"] if (folder / n).is_file()}
+    (folder / RECORD).write_text(json.dumps(record))
+
+
+def test_a_training_run_listed_twice_is_refused():
+    with pytest.raises(ValueError, match="lists the training run rrt twice"):
+        run_suite(["x=rrt,rrt"], "/nonexistent/never-written", episodes=1, progress=False)
