@@ -234,14 +234,16 @@ def _suite(args: argparse.Namespace) -> int:
     advice = "pick a new folder, or --resume the suite in it"
     with output_folder(args.out, "--out", keep=args.resume, advice=advice):
         paths = run_suite(args.method, args.out, args.episodes, args.jobs, args.threads,
-                          not args.no_progress, dict(args.code), dict(args.notes), args.split)  # fmt: skip
+                          not args.no_progress, dict(args.code), dict(args.notes), args.split,
+                          dict(args.classes), dict(args.chosen_on))  # fmt: skip
     for path in paths:
         entry = json.loads(path.read_text())
         iqm, (low, high) = (
             entry["aggregate"]["iqm_success_by_100"],
             entry["aggregate"]["iqm_success_by_100_ci"],
         )
-        print(f"{entry['method']}: suite {SUITE} ({entry['split']} split) IQM rescued by tick 100 {iqm:.3f} [{low:.3f}, {high:.3f}] "
+        print(f"{entry['method']}: suite {SUITE} ({entry['split']} split) IQM rescued by tick 100 "
+              f"{iqm:.3f} [{low:.3f}, {high:.3f}] "
               f"over {len(entry['settings'])} settings x {entry['episodes']} maps -> {path}")  # fmt: skip
     print(f"check and rank them: catmip leaderboard --entries {Path(args.out) / 'entries'}"
           + ("" if args.episodes == EPISODES else f" --episodes {args.episodes}"))  # fmt: skip
@@ -257,7 +259,8 @@ def _leaderboard(args: argparse.Namespace) -> int:
     with output_folder(args.out, "--out", keep=True):  # the README and entries beside stay
         for name in names:  # checked once held: no writer since
             check_new_file(Path(args.out) / name, "--out", force=args.force)
-        paths = render_leaderboard(args.entries, args.out, args.episodes, args.vs)
+        paths = render_leaderboard(args.entries, args.out, args.episodes, args.vs, args.split, args.replay,
+                                   not args.no_progress)  # fmt: skip
     for path in paths:
         if path.suffix == ".md":
             print(path.read_text().split("\n\n", 2)[2].rstrip())  # the table

@@ -253,9 +253,9 @@ def add_suite(suites) -> None:
         description=f"Play each method on the {len(SETTINGS)} settings of suite {SUITE} (Tasks 2 and 3 x "
         "communication full / sigma 4 / sigma 2 x SLAM noise 0 / 5 %) on the frozen maps of --split "
         f"(validation: seed {SPLITS['validation']}, for every choice; test: seed {SPLITS['test']}, played "
-        "once per entry after every choice is frozen) and write OUT/entries/NAME.json for catmip leaderboard; per-run results in "
-        "OUT/runs/. An interrupted suite continues with --resume (complete runs are read back, not "
-        "played again).",
+        "once per entry after every choice is frozen) and write OUT/entries/NAME.json for catmip "
+        "leaderboard; per-run results in OUT/runs/. An interrupted suite continues with --resume "
+        "(complete runs are read back, not played again).",
     )  # fmt: skip
     su.add_argument(
         "--method", action="append", required=True, type=checked(check_runs),
@@ -272,6 +272,13 @@ def add_suite(suites) -> None:
                     help="a link to a method's code, shown on the leaderboard (repeatable)")  # fmt: skip
     su.add_argument("--notes", action="append", default=[], type=name_value, metavar="NAME=TEXT",
                     help="what a method is: its training compute and seeds (repeatable)")  # fmt: skip
+    su.add_argument("--class", dest="classes", action="append", default=[], type=name_value,
+                    metavar="NAME=CLASS", help="your py: policy's class: learned (plays from its own "
+                    "observations), hybrid (reads a planner at play time), planner or floor; the "
+                    "project's methods have theirs (repeatable)")  # fmt: skip
+    su.add_argument("--chosen-on", action="append", default=[], type=name_value, metavar="NAME=TEXT",
+                    help="what a method's choices (hyperparameters, snapshot, variant) were made on, e.g. "
+                    "'validation split'; needed on the test split (repeatable)")  # fmt: skip
     su.add_argument("--out", default="out/suite", help="new or empty folder (or the suite to --resume)")
     su.add_argument("--resume", action="store_true", help="continue the suite in a non-empty --out")
     su.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -295,6 +302,12 @@ def add_leaderboard(sub) -> None:
     lb.add_argument("--out", default="out/leaderboard", help="folder for leaderboard.md and leaderboard.png")
     lb.add_argument("--force", action="store_true", help="replace the files it would write in --out")
     lb.add_argument("--vs", metavar="METHOD", help="an entry's method: pair every other entry with it")
+    lb.add_argument("--split", choices=("test", "validation"), default="test",
+                    help="the split whose entries are ranked (the leaderboard's: test)")  # fmt: skip
+    lb.add_argument("--replay", type=NON_NEGATIVE_INT, default=0, metavar="K",
+                    help="play the first K maps of every setting and run of every entry again from its "
+                    "files and refuse an entry whose ticks differ (0: check the numbers only)")  # fmt: skip
+    lb.add_argument("--no-progress", action="store_true", help="no progress bar")
     lb.set_defaults(name="leaderboard")
 
 
