@@ -184,27 +184,49 @@ def test_a_tampered_entry_is_refused_with_one_line_naming_it(suite, tmp_path, ta
     assert capsys.readouterr().err.count("\n") == 1 and not (tmp_path / "o" / "leaderboard.md").exists()
 
 
+def _unverified(page: str) -> str:
+    """A leaderboard page without what only a replay says (the verified column and the title's mark)."""
+    return re.sub(r"✓ \d+ maps|not replayed", "-", page)
+
+
 def test_the_committed_leaderboard_checks_and_is_up_to_date(tmp_path):
     from pathlib import Path
 
     from catmip_rl.evaluation.leaderboard import render_leaderboard
 
     root = Path(__file__).resolve().parents[3] / "leaderboard"
-    entries = load_entries(root / "entries")  # every committed entry: the full suite, checked
-    assert {"nearest", "random-rescue", "random-uniform"} <= {e["method"] for e in entries}
+    entries = load_entries(root / "entries")  # every committed entry: the full suite's test split, checked
+    assert {e["split"] for e in entries} == {"test"} and len(entries) >= 1
+    assert {e["class"] for e in entries} <= {"planner", "learned", "hybrid", "floor"}
     out = tmp_path / "out" / "board"  # a page elsewhere links an entry's code where it lies
-    md, _png, vs, _csv = render_leaderboard(root / "entries", out, vs="rrt")
+    vs = "rrt" if any(e["method"] == "rrt" for e in entries) else None
+    paths = render_leaderboard(root / "entries", out, vs=vs)
 
     def files_linked(page: str, where: Path) -> str:
-        return re.sub(r"\]\((?![a-z]+://)([^)]+)\)", lambda m: f"]({(where / m[1]).resolve()})", page)
+        return re.sub(r"\]\(<?(?![a-z]+://)([^)>]+)>?\)", lambda m: f"]({(where / m[1]).resolve()})", page)
 
-    text = files_linked(md.read_text(), out)
-    assert "examples/mappo_torchrl.py" in text and text.count(str(Path(__file__).parents[3])) >= 2
+    text = files_linked(paths[0].read_text(), out)
     for link in re.findall(r"\]\((/[^)]+)\)", text):
         assert Path(link).is_file(), link
-    # redrawn after the last entry
-    assert text == files_linked((root / "leaderboard.md").read_text(), root)
-    assert vs.read_text() == (root / "vs_rrt.md").read_text()
+    # redrawn after the last entry, and replayed when it was (every row verified)
+    committed = (root / "leaderboard.md").read_text()
+    assert _unverified(text) == _unverified(files_linked(committed, root))
+    assert committed.count("✓ ") == len(entries) and "not replayed" not in committed
+    if vs:
+        assert paths[2].read_text() == (root / "vs_rrt.md").read_text()
+
+
+@pytest.mark.slow
+def test_every_committed_entry_replays_to_its_ticks(monkeypatch):
+    """CI replays the project's own entries on two maps per setting and training run, from the clone."""
+    from pathlib import Path
+
+    from catmip_rl.evaluation.replay import replay_entry
+
+    clone = Path(__file__).resolve().parents[3]
+    monkeypatch.chdir(clone)  # the entries name their files from the clone's root
+    entries = load_entries(Path("leaderboard") / "entries")
+    assert [replay_entry(e, 2) for e in entries] == [2] * len(entries)
 
 
 def test_a_committed_entry_that_names_a_file_in_the_clone_was_played_from_that_file():
