@@ -225,9 +225,13 @@ class CatmipEnv(EnvBase):
 def engine_observation(engine: EventEngine, device: str | torch.device = "cpu") -> TensorDict:
     """The observation :class:`CatmipEnv` gives for ``engine``'s current event, batch ``(B,)``: the
     ``"robots"`` group (maps, class one-hot, action mask, active) and the ground-truth ``"state"``; also
-    what :class:`~catmip_rl.adapters.torchrl_policy.TorchRLPolicy` feeds a TorchRL policy."""
-    state = torch.from_numpy(engine.world.ground_truth(None))
+    what :class:`~catmip_rl.adapters.torchrl_policy.TorchRLPolicy` feeds a TorchRL policy, without
+    ``"state"`` (a policy is given a read-only view, :class:`~catmip_rl.evaluation.user_policy.EngineView`,
+    which withholds the ground truth)."""
     robots = _robot_rows(engine, None)
+    if not isinstance(engine, EventEngine):  # a policy's read-only view: ground truth is withheld from it
+        return TensorDict({K.ROBOTS: robots}, batch_size=(engine.num_worlds,)).to(device)
+    state = torch.from_numpy(engine.world.ground_truth(None))
     return TensorDict({K.ROBOTS: robots, K.STATE: state}, batch_size=(engine.num_worlds,)).to(device)
 
 

@@ -22,7 +22,7 @@ from __future__ import annotations
 import json
 import math
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -35,6 +35,7 @@ from catmip_env.events import EventEngine
 from catmip_env.map_sets import check_maps, map_hash
 from catmip_env.play import episode_columns, play, plays_one_world_at_a_time
 from catmip_rl.evaluation.methods import Method, make_policy, method_source, parse_method, policy_files
+from catmip_rl.evaluation.sandbox import close_policy
 from catmip_rl.files import atomic_write_csv, atomic_write_text
 
 if TYPE_CHECKING:  # the planners need no torch: an env-only install evaluates them
@@ -192,6 +193,7 @@ def evaluate(
     policy: Any = None,
     allow_other_maps: bool = False,
     threads: int = 1,
+    isolated: bool | None = None,
 ) -> EvalResult:
     """Play ``episodes`` maps of ``setting`` (episode indices 0.. of ``seed``) with ``method``.
 
@@ -205,7 +207,9 @@ def evaluate(
     ``evaluate("mine", setting, policy=MyPolicy())``. The maps are checked against the frozen map sets
     (:mod:`catmip_env.map_sets`) before any is played: other maps raise ``MapSetMismatch`` unless
     ``allow_other_maps`` (the summary's ``map_set_*`` keys say what was found). ``threads``: the env's
-    worlds stepped on that many threads (the same results).
+    worlds stepped on that many threads (the same results). ``isolated``: a ``py:`` policy plays in a
+    worker process that holds no engine (:mod:`~catmip_rl.evaluation.sandbox`; None: as the
+    :class:`Method` says; the project's planners and models always play here).
     """
     if policy is not None:
         if not isinstance(method, str) or not method.strip() or ":" in method or "=" in method:
@@ -214,8 +218,22 @@ def evaluate(
     method = parse_method(method) if isinstance(method, str) else method
     if not isinstance(episodes, int) or episodes < 1:
         raise ValueError(f"episodes must be an int >= 1, got {episodes!r}")
+    if isolated is not None and method.kind in ("py", "policy"):
+        if isolated and method.kind == "policy":
+            raise ValueError("isolated=True plays a py:FILE.py:FACTORY policy; an object lives in this process")
+        method = replace(method, isolated=bool(isolated))
     sync = method.synchronous
     policy, goal_mode, needs = make_policy(method, setting.env_config(None, sync), seed, model, policy)
+    try:
+        return _evaluate(method, setting, episodes, seed, policy, goal_mode, needs, progress, engine_hook,
+                         sampled_too, allow_other_maps, threads)  # fmt: skip
+    finally:
+        close_policy(policy)
+
+
+def _evaluate(method, setting, episodes, seed, policy, goal_mode, needs, progress, engine_hook, sampled_too,
+              allow_other_maps, threads) -> EvalResult:  # fmt: skip
+    sync = method.synchronous
     cfg = setting.env_config(needs, sync)
     engine = EventEngine(cfg, num_worlds=episodes, seed=seed, goal_mode=goal_mode, threads=threads)
     engine.reset(episode_indices=np.arange(episodes))
@@ -261,6 +279,7 @@ def evaluate(
         loop_guard=method.loop_guard,
         clean_occupancy=method.clean_occupancy,
         synchronous=method.synchronous,
+        isolated=method.isolated,
         checkpoint=method.target if method.kind == "amat" else None,
         policy=method.target if method.kind in ("py", "policy") else None,
         source=method_source(method),
@@ -380,8 +399,11 @@ def render_episode(
     method = parse_method(method) if isinstance(method, str) else method
     sync = method.synchronous
     policy, goal_mode, needs = make_policy(method, setting.env_config(None, sync), seed, model)
-    eng = EventEngine(setting.env_config(needs, sync), num_worlds=1, seed=seed, goal_mode=goal_mode)
-    if plays_one_world_at_a_time(policy):
-        policy.reset()
-    fps = RENDER_FPS if fps is None else fps
-    return render.render_episode(eng, policy, path, episode, fps=fps, max_frames=max_frames)
+    try:
+        eng = EventEngine(setting.env_config(needs, sync), num_worlds=1, seed=seed, goal_mode=goal_mode)
+        if plays_one_world_at_a_time(policy):
+            policy.reset()
+        fps = RENDER_FPS if fps is None else fps
+        return render.render_episode(eng, policy, path, episode, fps=fps, max_frames=max_frames)
+    finally:
+        close_policy(policy)

@@ -68,7 +68,9 @@ class Method:
     with the loop guard of :class:`AmatExecutor`; ``synchronous``: plays in the synchronous world (every
     robot decides together every ``max_ma_ticks`` ticks), a ``sync:`` spec or a model trained in it;
     ``clean_occupancy`` (cell-goal AMAT): its active robots read occupancy from their action masks
-    (:func:`~catmip_rl.amat.inputs.clean_occupancy`), an ``amat-clean:`` spec or a file that asks."""
+    (:func:`~catmip_rl.amat.inputs.clean_occupancy`), an ``amat-clean:`` spec or a file that asks;
+    ``isolated`` (``py:``): the policy plays in a worker process that holds no engine
+    (:mod:`~catmip_rl.evaluation.sandbox`: the same results for an honest policy, what a replay plays)."""
 
     name: str
     kind: str
@@ -76,6 +78,7 @@ class Method:
     loop_guard: bool = False
     synchronous: bool = False
     clean_occupancy: bool = False
+    isolated: bool = False
 
 
 def amat_label(path: str | Path) -> str:
@@ -196,12 +199,19 @@ def make_policy(
     """(policy with ``act(engine)``, goal mode, what the policy needs of the env config or None: an AMAT's
     goal window and teammate memory, :meth:`AmatConfig.env_overrides`) for ``method`` in the setting whose
     config is ``env_config``. ``model`` overrides loading an AMAT checkpoint; ``policy``
-    is the object of a "policy" method (what a ``py:`` factory returns: a policy at either level)."""
+    is the object of a "policy" method (what a ``py:`` factory returns: a policy at either level). An
+    isolated ``py:`` policy (:attr:`Method.isolated`) holds a worker process: end it with
+    :func:`~catmip_rl.evaluation.sandbox.close_policy` when done."""
     if method.kind == "planner":
         return make_planner(method.target, seed=seed), "cell", None
     if method.kind in WINDOW_KINDS:
         teacher = make_window_planner(method.target, seed=seed, follow_heading=WINDOW_KINDS[method.kind])
         return teacher, "window", None
+    if method.kind == "py" and method.isolated:  # in a worker process that holds no engine
+        from catmip_rl.evaluation.sandbox import isolated_policy
+
+        wrapped = isolated_policy(method.target, method.name, env_config, seed)
+        return wrapped, wrapped.goal_mode, None
     if method.kind in ("py", "policy"):
         if method.kind == "py":
             factory = load_factory(parse_policy_source(method.target), method.name)

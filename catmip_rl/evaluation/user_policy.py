@@ -35,10 +35,13 @@ import hashlib
 import importlib
 import importlib.util
 import inspect
+import os
 import re
 import sys
+import threading
 import traceback
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterator, Mapping
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -46,13 +49,16 @@ from typing import Any
 import numpy as np
 
 from catmip_env.config import EnvConfig
+from catmip_env.constants import TARGET_BIT
 from catmip_env.events import GOAL_MODES, EventEngine
 from catmip_env.play import WorldNotSupported
 from catmip_env.spaces import macro_infos, macro_observations, parse_actions
 
 __all__ = [
     "POLICY_LEVELS", "PolicyError", "PolicySource", "parse_policy_source", "load_factory", "make_user_policy",
-    "wrap_user_policy", "WrappedUserPolicy", "CheckedEnginePolicy", "PettingZooPolicy",
+    "wrap_user_policy", "WrappedUserPolicy", "CheckedEnginePolicy", "PettingZooPolicy", "EngineView",
+    "StateView", "engine_view", "view_arrays", "view_meta", "read_only", "known_target", "VIEW_STATE_FIELDS",
+    "WITHHELD_STATE_FIELDS", "VIEW_ARRAYS", "no_exit", "policy_failure",
 ]  # fmt: skip
 
 POLICY_LEVELS = ("pettingzoo", "engine")
@@ -63,6 +69,38 @@ class PolicyError(ValueError):
     """A user's policy could not be loaded or did something the protocol does not allow."""
 
 
+class _ExitCalled(BaseException):
+    """``os._exit(code)`` called by a policy while :func:`no_exit` guards it (the process goes on)."""
+
+    def __init__(self, code: Any) -> None:
+        super().__init__(code)
+        self.code = code
+
+
+@contextmanager
+def no_exit() -> Iterator[None]:
+    """While a policy's code runs in this process: ``os._exit`` (and ``posix._exit``) called from this
+    thread raises instead of ending the process without a word (an ``os._exit(0)`` would end ``catmip``
+    with exit code 0 and no results), so that it is reported as the policy's failure. Other threads
+    exit as before. A policy played in a worker process (:mod:`~catmip_rl.evaluation.sandbox`) needs no
+    guard: its process's end is observed."""
+    real, caller = os._exit, threading.get_ident()
+    modules = [m for m in (os, sys.modules.get("posix"), sys.modules.get("nt")) if m is not None]
+
+    def guarded(code: int) -> None:
+        if threading.get_ident() != caller:
+            real(code)
+        raise _ExitCalled(code)
+
+    for module in modules:
+        module._exit = guarded
+    try:
+        yield
+    finally:
+        for module in modules:
+            module._exit = real
+
+
 def _describe(exc: BaseException) -> str:
     """The exception on one line, with where it was raised (the innermost frame: file, line, function)."""
     frames = traceback.extract_tb(exc.__traceback__)
@@ -70,6 +108,8 @@ def _describe(exc: BaseException) -> str:
     where = f" (at {Path(last.filename).name}:{last.lineno} in {last.name})" if last else ""
     if isinstance(exc, SystemExit):
         return f"SystemExit({exc.code!r}): the policy called sys.exit() or exit(){where}"
+    if isinstance(exc, _ExitCalled):
+        return f"os._exit({exc.code!r}): the policy tried to end the process{where}"
     text = " ".join(str(exc).split())
     return (f"{type(exc).__name__}: {text}" if text else type(exc).__name__) + where
 
@@ -131,12 +171,14 @@ def load_factory(src: PolicySource, name: str | None = None) -> Callable[..., An
                 module = importlib.util.module_from_spec(spec)
                 sys.modules[name] = module
                 try:
-                    spec.loader.exec_module(module)
+                    with no_exit():
+                        spec.loader.exec_module(module)
                 except BaseException:
                     del sys.modules[name]
                     raise
         else:
-            module = importlib.import_module(src.source)
+            with no_exit():
+                module = importlib.import_module(src.source)
     except KeyboardInterrupt:
         raise
     except BaseException as exc:  # SyntaxError, ImportError, SystemExit, anything the module runs
@@ -149,6 +191,156 @@ def load_factory(src: PolicySource, name: str | None = None) -> Callable[..., An
     if not callable(factory):
         raise PolicyError(f"{who}: {src.factory} is a {type(factory).__name__}, not a callable factory")
     return factory
+
+
+# -- what an engine-level policy reads: a read-only view -----------------------------------------------
+VIEW_STATE_FIELDS = (
+    "pos", "heading", "cls", "speed", "can_rescue", "belief", "comp", "goal", "ticks", "done", "episode",
+    "comm_sigma", "heard_tick", "heard_pos", "heard_knows", "heard_goal",
+)  # fmt: skip
+"""The fields of the engine's ``state`` a policy reads (:class:`EngineView`), plus ``target`` as known."""
+WITHHELD_STATE_FIELDS = (
+    "grid", "rng", "used_occ", "moves", "collisions", "found_tick", "informed_tick", "rescue_tick",
+    "pending_reward",
+)  # fmt: skip
+"""The fields withheld from policies: the true map, the world's random stream, the noise drawn, and the
+episode's counters and outcome (what it is scored on)."""
+VIEW_ARRAYS = ("obs_global", "obs_local", "masks", "mstate", "active")
+"""The engine's arrays a policy reads besides ``state``'s (``active`` computed at each event)."""
+VIEW_DOC = "docs/benchmark-your-algorithm.md#what-a-policy-may-read"
+
+
+def read_only(array: np.ndarray) -> np.ndarray:
+    """``array``'s memory as a read-only array (no copy) whose flag cannot be set back: writing it raises
+    ``ValueError: assignment destination is read-only``."""
+    return np.asarray(memoryview(array).toreadonly())
+
+
+def known_target(state: Any) -> np.ndarray:
+    """(B, 2) the target's cell in the worlds where some robot's belief holds it (its ``TARGET_BIT``),
+    (-1, -1) elsewhere: no more than the beliefs say (a rescuer knows the target by its own belief)."""
+    b, n = state.pos.shape[:2]
+    tr, tc = state.target[:, 0], state.target[:, 1]
+    bits = state.belief[np.arange(b)[:, None], np.arange(n)[None, :], tr[:, None], tc[:, None]]
+    known = ((bits & TARGET_BIT) != 0).any(axis=1)
+    return np.where(known[:, None], state.target, -1).astype(np.int64)
+
+
+def view_arrays(engine: EventEngine) -> dict[str, np.ndarray]:
+    """The arrays of :class:`EngineView` of ``engine``'s current event, keyed by name (``state.`` for the
+    state's): the engine's own memory read-only, ``active`` and ``state.target`` computed (copies)."""
+    st = engine.state
+    arrays = {name: read_only(getattr(engine, name)) for name in VIEW_ARRAYS}
+    arrays |= {f"state.{name}": read_only(getattr(st, name)) for name in VIEW_STATE_FIELDS}
+    arrays["state.target"] = read_only(known_target(st))
+    return arrays
+
+
+def view_meta(engine: EventEngine) -> dict[str, Any]:
+    """What :class:`EngineView` says of ``engine`` besides its arrays (fixed for the engine's life)."""
+    return {"cfg": engine.cfg, "goal_mode": engine.goal_mode, "num_actions": engine.num_actions,
+            "stay_action": engine.stay_action, "base_seed": int(engine.world.base_seed)}  # fmt: skip
+
+
+class _Frozen:
+    """An object whose attributes are set once (by its class) and then refuse to be set or deleted."""
+
+    __slots__ = ()
+    _what = "the view"
+
+    def __setattr__(self, name: str, value: Any) -> None:
+        raise AttributeError(f"{self._what} is read-only: a policy may not set {name!r} ({VIEW_DOC})")
+
+    def __delattr__(self, name: str) -> None:
+        raise AttributeError(f"{self._what} is read-only: a policy may not delete {name!r} ({VIEW_DOC})")
+
+
+class StateView(_Frozen):
+    """``engine.state`` as a policy sees it: the fields of :data:`VIEW_STATE_FIELDS` read-only, ``target``
+    as the robots know it (:func:`known_target`); ground truth (:data:`WITHHELD_STATE_FIELDS`) is not
+    there."""
+
+    __slots__ = ("_arrays",)
+    _what = "engine.state"
+
+    def __init__(self, arrays: dict[str, np.ndarray]) -> None:
+        object.__setattr__(self, "_arrays", arrays)
+
+    def __getattr__(self, name: str) -> Any:
+        arrays = object.__getattribute__(self, "_arrays")
+        if name in arrays:
+            return arrays[name]
+        if name in WITHHELD_STATE_FIELDS:
+            raise AttributeError(
+                f"engine.state.{name} is withheld from policies (ground truth or the episode's outcome); "
+                f"a policy reads its robots' observations and beliefs ({VIEW_DOC})"
+            )
+        raise AttributeError(f"engine.state has no {name!r} ({VIEW_DOC})")
+
+    def __dir__(self) -> list[str]:
+        return sorted(object.__getattribute__(self, "_arrays"))
+
+
+class _WorldView(_Frozen):
+    __slots__ = ("base_seed",)
+    _what = "engine.world"
+
+    def __init__(self, base_seed: int) -> None:
+        object.__setattr__(self, "base_seed", base_seed)
+
+    def __getattr__(self, name: str) -> Any:
+        raise AttributeError(
+            f"engine.world.{name} is withheld from policies: of the world a policy reads only its seed "
+            f"(engine.world.base_seed) ({VIEW_DOC})"
+        )
+
+
+class EngineView(_Frozen):
+    """What an engine-level policy's ``act(engine)`` is given: the :class:`~catmip_env.events.EventEngine`'s
+    observations at the current event, every array read-only (writing one raises), and nothing that
+    steps, resets or edits the world. It has ``cfg``, ``num_worlds``, ``num_robots``, ``shape``,
+    ``num_actions``, ``goal_mode``, ``stay_action``, ``obs_global``, ``obs_local``, ``masks``, ``active``,
+    ``mstate``, ``world.base_seed``, ``action_to_cell`` and a ``state`` (:class:`StateView`) without the
+    ground truth (the true map; the target's cell only where a robot knows it).
+
+    Built from arrays and plain values, not from an engine: the same view is built in the process that
+    holds the engine (:func:`view_arrays`, no copy) and in a worker that holds none
+    (:mod:`~catmip_rl.evaluation.sandbox`)."""
+
+    __slots__ = ("cfg", "goal_mode", "num_actions", "stay_action", "num_worlds", "num_robots", "shape",
+                 "obs_global", "obs_local", "masks", "mstate", "active", "state", "world")  # fmt: skip
+    _what = "the engine a policy is given"
+
+    def __init__(self, meta: dict[str, Any], arrays: dict[str, np.ndarray]) -> None:
+        put = lambda k, v: object.__setattr__(self, k, v)  # noqa: E731
+        for key in ("cfg", "goal_mode", "num_actions", "stay_action"):
+            put(key, meta[key])
+        for key in VIEW_ARRAYS:
+            put(key, arrays[key])
+        b, n, *_ = arrays["masks"].shape
+        put("num_worlds", b)
+        put("num_robots", n)
+        put("shape", tuple(arrays["state.belief"].shape[2:]))
+        put("state", StateView({k[len("state.") :]: v for k, v in arrays.items() if k.startswith("state.")}))
+        put("world", _WorldView(meta["base_seed"]))
+
+    def action_to_cell(self, b: int, i: int, action: int) -> tuple[int, int]:
+        """Goal cell of robot i of world b for ``action`` (no validity check), as the engine's."""
+        if self.goal_mode == "cell":
+            return divmod(int(action), self.shape[1])
+        d = self.cfg.window
+        r, c = self.state.pos[b, i]
+        return int(r + action // d - d // 2), int(c + action % d - d // 2)
+
+    def __getattr__(self, name: str) -> Any:  # only for names it does not have
+        if name in ("step", "reset", "refresh", "seed"):
+            raise AttributeError(f"a policy may not call engine.{name}(): the evaluator steps the world")
+        raise AttributeError(f"the engine a policy is given has no {name!r} ({VIEW_DOC})")
+
+
+def engine_view(engine: EventEngine) -> EngineView:
+    """:class:`EngineView` of ``engine``'s current event (its memory, read-only: no copy)."""
+    return EngineView(view_meta(engine), view_arrays(engine))
 
 
 # -- what the factory returns ---------------------------------------------------------------------------
@@ -177,12 +369,13 @@ def make_user_policy(
     :class:`PettingZooPolicy` or a :class:`CheckedEnginePolicy` (a TorchRL module through
     :class:`~catmip_rl.adapters.torchrl_policy.TorchRLPolicy`)."""
     try:
-        policy = factory(env_config, seed)
+        with no_exit():
+            policy = factory(env_config, seed)
     except KeyboardInterrupt:
         raise
     except WorldNotSupported as exc:  # a policy for other worlds: bench paper leaves this panel out
         raise WorldNotSupported(f"policy {name} cannot play this world: {exc}") from None
-    except (Exception, SystemExit) as exc:
+    except BaseException as exc:  # SystemExit, GeneratorExit, os._exit: the policy's failure, not ours
         raise PolicyError(f"policy {name}: the factory raised {_describe(exc)}") from None
     return wrap_user_policy(policy, name)
 
@@ -239,6 +432,20 @@ def _check_allowed(actions: np.ndarray, engine: EventEngine, worlds: np.ndarray,
     )
 
 
+def policy_failure(name: str, what: str, exc: BaseException) -> str:
+    """The one line of a policy's call ``what`` that raised ``exc`` (a write to the read-only view said
+    as such)."""
+    described = _describe(exc)
+    if isinstance(exc, ValueError) and "read-only" in str(exc) or isinstance(exc, AttributeError) and (
+        "read-only" in str(exc) or "withheld" in str(exc)
+    ):
+        return (
+            f"policy {name}: {what} tried to change or read what a policy may not ({described}): a policy "
+            f"reads its observations and never writes the world it is scored in ({VIEW_DOC})"
+        )
+    return f"policy {name}: {what} raised {described}"
+
+
 class WrappedUserPolicy:
     """What both wrappers share: the policy's name, calls whose failures become :class:`PolicyError`,
     and the optional members of :class:`catmip_env.play.Policy` taken from the user's object."""
@@ -247,13 +454,14 @@ class WrappedUserPolicy:
 
     def _call(self, fn: Callable, what: str, *args):
         try:
-            return fn(*args)
+            with no_exit():
+                return fn(*args)
         except KeyboardInterrupt:
             raise
         except PolicyError:
             raise
-        except (Exception, SystemExit) as exc:  # sys.exit() in user code is its failure, not ours
-            raise PolicyError(f"policy {self.name}: {what} raised {_describe(exc)}") from None
+        except BaseException as exc:  # sys.exit(), GeneratorExit, os._exit: its failure, not ours
+            raise PolicyError(policy_failure(self.name, what, exc)) from None
 
     def forward_hooks(self, policy: Any) -> None:
         """Expose the optional members ``policy`` has (and only those: the evaluator asks by name)."""
@@ -290,7 +498,13 @@ class CheckedEnginePolicy(WrappedUserPolicy):
         self._act, self.name, self.goal_mode = act, name, goal_mode
 
     def act(self, engine: EventEngine) -> np.ndarray:
-        out = self._call(self._act, "act(engine)", engine)
+        """The policy's answer for ``engine``'s current event: ``act`` is given a read-only
+        :class:`EngineView` (never the engine), and its answer is checked against the engine."""
+        out = self._call(self._act, "act(engine)", engine_view(engine))
+        return self.checked(out, engine)
+
+    def checked(self, out: Any, engine: EventEngine) -> np.ndarray:
+        """``out`` (what ``act`` returned) as (B, N) int64 actions, or PolicyError saying what is wrong."""
         try:
             actions = np.asarray(out)
         except Exception as exc:
