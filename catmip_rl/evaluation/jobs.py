@@ -192,6 +192,8 @@ def _first_decision(method: Method, env_config, seed: int) -> None:
     """Build a ``py:`` policy and let it decide once in a fresh world of the setting: a factory or an
     ``act`` that fails (a :class:`~catmip_rl.evaluation.user_policy.PolicyError`) fails here, before
     any run is played, not after the baselines."""
+    from catmip_rl.evaluation.sandbox import close_policy
+
     policy, goal_mode, _needs = make_policy(method, env_config, seed)
     try:
         engine = EventEngine(env_config, num_worlds=1, seed=seed, goal_mode=goal_mode)
@@ -209,5 +211,3 @@ def default_threads(jobs: int, threads: int | None) -> int:
 def run_dir(folder: Path, k: int, runs: int) -> Path:
     """The folder of training run ``k`` of a method with ``runs`` runs: ``folder/runK``, or ``folder``."""
     return folder / f"run{k}" if runs > 1 else folder
-    from catmip_rl.evaluation.sandbox import close_policy
-
