@@ -9,6 +9,7 @@ model a config declares counted before it is built and its state dict fitted to 
 from __future__ import annotations
 
 import json
+import math
 import zipfile
 from pathlib import Path
 from typing import Any
@@ -22,6 +23,7 @@ from catmip_rl.amat.pointer import make_model
 __all__ = [
     "CheckpointError", "FORMAT", "MAX_ARCHIVE_BYTES", "MAX_PARAMETERS", "read_checkpoint", "model_from",
     "is_training_checkpoint", "check_archive", "declared_config", "check_training_entries", "check_extra",
+    "check_finite", "check_value_norm", "PLAY_KEYS",
 ]  # fmt: skip
 
 FORMAT = "catmip-amat-v1"
@@ -54,8 +56,10 @@ def check_archive(path: Path) -> None:
             if packed:
                 raise CheckpointError(f"{path} holds compressed members ({packed[0]}): not a torch archive")
             bad = archive.testzip()
-    except (zipfile.BadZipFile, EOFError, OSError, RuntimeError, NotImplementedError) as err:
-        raise CheckpointError(f"{path} is truncated or corrupted ({type(err).__name__}: {err})") from None
+    except (zipfile.BadZipFile, EOFError, OSError, RuntimeError, NotImplementedError, ValueError) as err:
+        # a damaged directory reads as names that are not UTF-8, offsets past the end, ...: the file named
+        why = " ".join(str(err).split())[:200]
+        raise CheckpointError(f"{path} is truncated or corrupted ({type(err).__name__}: {why})") from None
     if bad is not None:
         raise CheckpointError(
             f"{path} is corrupted: its member {bad} fails its checksum (the file was damaged after it was "
@@ -96,7 +100,8 @@ _EXTRA_TYPES: dict[str, tuple[type, ...]] = {
 def check_training_entries(blob: dict, path: Path) -> None:
     """A training checkpoint's entries of the types :func:`~catmip_rl.checkpoint.save_training_checkpoint`
     writes (``config``: the training config's JSON object); ``elapsed_s``, ``bf16`` and ``bf16_machine``
-    may be absent."""
+    may be absent. Also: the two random states of the size this torch restores, the value normaliser's
+    three finite scalars, and no NaN or infinity in any tensor (weights, optimiser, normaliser)."""
     _check_types(blob, _TYPES, path, "")
     if blob.get("iteration", 0) < 0 or blob.get("episodes", 0) < 0:
         raise CheckpointError(f"{path}: iteration and episodes must be >= 0")
@@ -106,14 +111,76 @@ def check_training_entries(blob: dict, path: Path) -> None:
         ok = False
     if not ok:
         raise CheckpointError(f"{path}: its config is not a training config's JSON object")
+    elapsed = blob.get("elapsed_s", 0.0)
+    if not (math.isfinite(elapsed) and elapsed >= 0):
+        raise CheckpointError(f"{path}: its elapsed_s is {elapsed!r}, not a finite number of seconds >= 0")
+    for key, fresh in (("generator", torch.Generator().get_state()), ("torch_rng", torch.get_rng_state())):
+        state = blob.get(key)
+        if state is not None and (state.dtype != fresh.dtype or state.shape != fresh.shape):
+            raise CheckpointError(
+                f"{path}: its {key} is a {state.dtype} random state of shape {tuple(state.shape)}, not the "
+                f"{fresh.dtype} {tuple(fresh.shape)} this torch restores (the file was edited or is foreign)"
+            )
+    if "value_norm" in blob:
+        check_value_norm(blob["value_norm"], path, "value_norm")
+    for key in ("model", "optimizer"):
+        if key in blob:
+            check_finite(blob[key], path, key)
 
 
 def check_extra(extra: Any, path: Path) -> None:
     """A model file's ``extra`` (what :func:`~catmip_rl.checkpoint.export_model` writes) of the right
-    types where present (None stands for unknown)."""
+    types where present (None stands for unknown); its ``play`` options booleans (``"no"`` is no
+    answer); its value normaliser as a training checkpoint's."""
     if not isinstance(extra, dict):
         raise CheckpointError(f"{path}: its extra is a {type(extra).__name__}, not a dict")
     _check_types({k: v for k, v in extra.items() if v is not None}, _EXTRA_TYPES, path, "extra ")
+    for key, value in (extra.get("play") or {}).items():
+        if key in PLAY_KEYS and not isinstance(value, bool):
+            raise CheckpointError(
+                f"{path}: its extra play {key} is {value!r} (a {type(value).__name__}), not true or false"
+            )
+    if extra.get("value_norm") is not None:
+        check_value_norm(extra["value_norm"], path, "extra value_norm")
+
+
+PLAY_KEYS = ("loop_guard", "clean_occupancy")
+"""The play options a model file's ``extra["play"]`` may set (booleans)."""
+_VALUE_NORM_KEYS = ("mean", "mean_sq", "debias")
+
+
+def check_value_norm(state: Any, path: Path, where: str) -> None:
+    """A value normaliser's state dict (:class:`~catmip_rl.training.gae.ValueNorm`): its three scalar
+    tensors, finite."""
+    if not isinstance(state, dict) or sorted(state) != sorted(_VALUE_NORM_KEYS) or not all(
+        isinstance(state[k], torch.Tensor) and state[k].numel() == 1 and state[k].is_floating_point()
+        for k in _VALUE_NORM_KEYS
+    ):
+        shown = {k: type(v).__name__ for k, v in state.items()} if isinstance(state, dict) else type(state).__name__
+        raise CheckpointError(
+            f"{path}: its {where} is not a value normaliser's state (expected the scalar tensors "
+            f"{', '.join(_VALUE_NORM_KEYS)}; found {shown})"
+        )
+    check_finite(state, path, where)
+
+
+def check_finite(tensors: Any, path: Path, where: str) -> None:
+    """No NaN or infinity in any floating tensor of ``tensors`` (nested dicts and lists): the first one
+    that has one is named."""
+    stack = [(where, tensors)]
+    while stack:
+        name, value = stack.pop()
+        if isinstance(value, torch.Tensor):
+            if value.is_floating_point() and value.numel() and not bool(torch.isfinite(value).all()):
+                bad = int((~torch.isfinite(value)).sum())
+                raise CheckpointError(
+                    f"{path}: its tensor {name} holds {bad} NaN or infinite value(s) (a diverged run's "
+                    "weights play nothing meaningful: use an earlier checkpoint)"
+                )
+        elif isinstance(value, dict):
+            stack.extend((f"{name}.{k}", v) for k, v in reversed(list(value.items())))
+        elif isinstance(value, (list, tuple)):
+            stack.extend((f"{name}[{i}]", v) for i, v in reversed(list(enumerate(value))))
 
 
 def _check_types(blob: dict, types: dict[str, tuple[type, ...]], path: Path, where: str) -> None:
@@ -187,6 +254,7 @@ def model_from(blob: Any, path: Path) -> AMAT:
             reason = reason if len(reason) <= 300 else reason[:300] + " ..."
     if reason:
         raise ValueError(f"checkpoint {path} does not fit the AMAT its config describes: {reason}")
+    check_finite(state, path, "state_dict")
     return model
 
 

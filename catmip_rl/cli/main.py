@@ -24,7 +24,7 @@ from typing import Any
 
 from catmip_rl.cli.args import CPUS, USER_ERRORS, explain
 from catmip_rl.cli.parser import DEFAULT_PRESET, TRAIN_FLAGS, build_parser
-from catmip_rl.evaluation.warmup import compile_kernels, torch_threads
+from catmip_rl.evaluation.warmup import command_plays_amat, compile_kernels, torch_threads
 from catmip_rl.training.config import TrainConfig
 from catmip_rl.training.presets import FINE_TUNING_PRESETS, TRAIN_PRESETS
 
@@ -313,7 +313,7 @@ def main(argv: list[str] | None = None) -> int:
     name = f"catmip {args.name}" + (f" {args.suite}" if args.name == "bench" else "")
     try:
         if args.name in ("eval", "render", "bench", "train"):  # the first run on a machine says it compiles
-            compile_kernels()
+            compile_kernels(amat=command_plays_amat(args))  # AMAT's kernels only where a model plays
         return COMMANDS[args.name](args)
     except BrokenPipeError:  # stdout closed by the reader (`| head`): the work and its files are done
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # no second error at exit

@@ -62,10 +62,17 @@ def _done(job: Job) -> dict[str, Any] | None:
     want |= {key: getattr(job.method, key) for key, _ in PLAY_OPTIONS}  # how an AMAT played
     found = {key: False for key, _ in PLAY_OPTIONS} | summary  # an older summary lacks newer options
     differs = [k for k, v in want.items() if found.get(k) != v]
+    source = found.get("source") if isinstance(found.get("source"), dict) else {}
+    if differs == ["source"] and want["source"] and source.get("file") == want["source"]["file"]:
+        raise ValueError(  # the same file, changed since: one readable line, not two dicts
+            f"{job.out} holds results played before {want['source']['file']} changed (its SHA-256 "
+            f"{str(source.get('sha256'))[:12]}... is now {want['source']['sha256'][:12]}...): give a new "
+            "output folder"
+        )
     if differs:
         raise ValueError(
-            f"{job.out} holds other results ({', '.join(f'{k} {found.get(k)!r}' for k in differs)}, "
-            f"not {', '.join(repr(want[k]) for k in differs)}): give a new output folder"
+            f"{job.out} holds other results ({', '.join(f'{k} {_said(found.get(k))}' for k in differs)}, "
+            f"not {', '.join(_said(want[k]) for k in differs)}): give a new output folder"
         )
     changed = changed_files(summary.get("policy_files"))
     if changed:
@@ -75,6 +82,13 @@ def _done(job: Job) -> dict[str, Any] | None:
         )
     check_resumed(Path(job.out), job.setting.task, job.seed, job.episodes)  # as strictly as a fresh run
     return summary
+
+
+def _said(value: Any) -> str:
+    """A recorded value in a message: a source as its file and SHA-256's start, anything else its repr."""
+    if isinstance(value, dict) and set(value) == {"file", "sha256"}:
+        return f"{value['file']} (SHA-256 {str(value['sha256'])[:12]}...)"
+    return repr(value)
 
 
 def run_one(job: Job) -> dict[str, Any]:

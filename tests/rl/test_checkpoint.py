@@ -69,7 +69,8 @@ def test_config_fields_are_bounded():
 def _training_checkpoint(**changes) -> dict:
     cfg = make_train_config("tiny")
     blob = {"iteration": 3, "episodes": 8, "elapsed_s": 1.0, "bf16": None, "model": {},
-            "amat_config": json.loads(cfg.amat_config().to_json()), "optimizer": {}, "value_norm": {},
+            "amat_config": json.loads(cfg.amat_config().to_json()), "optimizer": {},
+            "value_norm": {k: torch.zeros((), dtype=torch.float64) for k in ("mean", "mean_sq", "debias")},
             "generator": torch.Generator().get_state(), "torch_rng": torch.get_rng_state(),
             "config": cfg.to_json()}  # fmt: skip
     return blob | changes
