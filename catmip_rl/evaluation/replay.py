@@ -7,7 +7,8 @@ maps played alone give the ticks those maps got among the entry's 1,000. Each ru
 ``spec`` (:func:`~catmip_rl.evaluation.entry.method_spec`); every file it names (a model, a policy
 file, a policy's weights) must hold the bytes its SHA-256 says. Torch plays on one thread, as the suite's
 jobs do. A ``py:`` policy is played in a worker process that holds no engine
-(:mod:`~catmip_rl.evaluation.sandbox`), so that it cannot reach the world it is scored in.
+(:mod:`~catmip_rl.evaluation.sandbox`, ``evaluate(..., isolated=True)``), so that it cannot reach the
+world it is scored in.
 """
 
 from __future__ import annotations
@@ -61,7 +62,7 @@ def replay_entry(entry: dict[str, Any], maps: int, progress: bool = False) -> in
         except ValueError as err:
             raise EntryError(f"entry {entry['path']}: run {k}'s spec {run['spec']!r}: {err}") from None
         for st in SETTINGS:
-            result = evaluate(method, st, maps, seed, sampled_too=False)
+            result = evaluate(method, st, maps, seed, sampled_too=False, isolated=method.kind == "py")
             got, want = _ticks(result.episodes), entry["settings"][st.label]["rescue_tick"][k][:maps]
             bad = next((m for m in range(maps) if got[m] != want[m]), None)
             if bad is not None:

@@ -40,9 +40,9 @@ def entries(tmp_path_factory):
     return out
 
 
-def _board(folder, out, k=2):
-    return ["leaderboard", "--entries", str(folder), "--episodes", "3", "--replay", str(k), "--no-progress",
-            "--out", str(out)]  # fmt: skip
+def _board(folder, out, k=2, episodes=3):
+    return ["leaderboard", "--entries", str(folder), "--episodes", str(episodes), "--replay", str(k),
+            "--no-progress", "--out", str(out)]  # fmt: skip
 
 
 def test_replayed_entries_are_marked_verified(entries, capsys):
@@ -85,3 +85,35 @@ def test_an_entry_whose_weights_changed_is_refused(entries, capsys):
         (entries / "weights.bin").write_bytes(b"trained")
     err = capsys.readouterr().err
     assert "weights.bin, whose SHA-256 differs from the entry's" in err and err.count("\n") == 1
+
+
+WALKER = textwrap.dedent(
+    """
+    import gc
+    import numpy as np
+
+    class Walker:
+        '''PettingZoo level: finds the engine through the garbage collector and puts the rescuer next to
+        the target (in-process it can; in the replay's worker there is no engine to find).'''
+        def act(self, observations, infos):
+            from catmip_env.events import EventEngine
+            for eng in (o for o in gc.get_objects() if isinstance(o, EventEngine)):
+                eng.state.pos[:, 0] = eng.state.target + (0, 1)
+            active = (r for r in observations if infos[r]["active"])
+            return {r: int(np.argmax(observations[r]["action_mask"])) for r in active}
+
+    def make_policy(env_config, seed):
+        return Walker()
+    """
+)
+
+
+@pytest.mark.filterwarnings("ignore::FutureWarning")  # the walk touches torch's deprecated names
+def test_a_policy_that_reached_the_world_in_its_suite_is_refused_by_the_isolated_replay(tmp_path, capsys):
+    (tmp_path / "walker.py").write_text(WALKER)
+    spec = f"cheat=py:{tmp_path / 'walker.py'}:make_policy"
+    run_suite([spec], tmp_path / "s", episodes=2, progress=False, split="test",
+              classes={"cheat": "learned"}, chosen_on={"cheat": "nothing"})  # fmt: skip
+    assert main(_board(tmp_path / "s" / "entries", tmp_path / "lb", k=2, episodes=2)) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "cheat.json refused: replaying map 0 of" in err
