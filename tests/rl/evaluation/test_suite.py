@@ -14,10 +14,10 @@ import numpy as np
 import pytest
 
 from catmip_rl.cli.main import main
-from catmip_rl.evaluation import jobs
-from catmip_rl.evaluation.entry import SETTINGS, entry_actions
-from catmip_rl.evaluation.leaderboard import EntryError, load_entries, paired_rows
-from catmip_rl.evaluation.suite import run_suite
+from catmip_rl.benchmark import jobs
+from catmip_rl.benchmark.entry import SETTINGS, entry_actions
+from catmip_rl.benchmark.leaderboard import EntryError, load_entries, paired_rows
+from catmip_rl.benchmark.suite import run_suite
 
 POLICY = textwrap.dedent(
     """
@@ -192,7 +192,7 @@ def _unverified(page: str) -> str:
 def test_the_committed_leaderboard_checks_and_is_up_to_date(tmp_path):
     from pathlib import Path
 
-    from catmip_rl.evaluation.leaderboard import render_leaderboard
+    from catmip_rl.benchmark.leaderboard import render_leaderboard
 
     root = Path(__file__).resolve().parents[3] / "leaderboard"
     entries = load_entries(root / "entries")  # every committed entry: the full suite's test split, checked
@@ -221,7 +221,7 @@ def test_every_committed_entry_replays_to_its_ticks(monkeypatch):
     """CI replays the project's own entries on two maps per setting and training run, from the clone."""
     from pathlib import Path
 
-    from catmip_rl.evaluation.replay import replay_entry
+    from catmip_rl.benchmark.replay import replay_entry
 
     clone = Path(__file__).resolve().parents[3]
     monkeypatch.chdir(clone)  # the entries name their files from the clone's root
@@ -234,7 +234,7 @@ def test_a_committed_entry_that_names_a_file_in_the_clone_was_played_from_that_f
     a model moved or replaced (amat_general.pt) takes its entry along, not someone else's results."""
     from pathlib import Path
 
-    from catmip_rl.shipped import file_sha256
+    from catmip_rl.store.shipped import file_sha256
 
     clone = Path(__file__).resolve().parents[3]
     checked = 0
@@ -245,7 +245,12 @@ def test_a_committed_entry_that_names_a_file_in_the_clone_was_played_from_that_f
                     assert (clone / f["file"]).is_file(), f"{entry['method']}: {f['file']}"
                     assert file_sha256(clone / f["file"]) == f["sha256"], f"{entry['method']}: {f['file']}"
                     checked += 1
-    assert checked >= 10  # the shipped models, the memory model and the MARL seeds' weights
+    playing = sum(
+        run["kind"] in ("amat", "py")
+        for e in load_entries(clone / "leaderboard" / "entries")
+        for run in e["runs"]
+    )
+    assert checked >= playing  # every model and policy run names at least its file
 
 
 def test_vs_pairs_every_entry_with_the_reference_on_the_same_maps(suite, tmp_path, capsys):
@@ -318,7 +323,7 @@ def test_an_entry_names_a_shipped_model_by_its_path_in_the_clone(monkeypatch):
     from pathlib import Path
 
     import catmip_rl
-    from catmip_rl.evaluation.entry import _shown_target
+    from catmip_rl.benchmark.entry import _shown_target
     from catmip_rl.evaluation.methods import parse_method
 
     monkeypatch.chdir(Path(catmip_rl.__file__).resolve().parents[1])  # the clone's root
@@ -384,7 +389,7 @@ def test_a_duplicate_method_names_both_files_and_a_fifo_is_not_opened(suite, tmp
 
 
 def test_a_method_or_note_cannot_forge_a_row_of_the_table():
-    from catmip_rl.evaluation.leaderboard import md_text
+    from catmip_rl.benchmark.leaderboard import md_text
 
     assert md_text("x | 0.999 |") == "x \\| 0.999 \\|"
     assert md_text("[a](javascript:b)") == "\\[a\\](javascript:b)" and md_text("<img>") == "\\<img\\>"
@@ -418,7 +423,7 @@ def test_a_resumed_suite_checks_what_it_reads_back_as_strictly_as_a_fresh_run(tm
 def _edit_episodes(folder, change):
     """Edit a run's episodes.json (and its episodes.csv row count and summary, as a careful forger
     would), then rewrite its record so that the files' SHA-256 match."""
-    from catmip_rl.outputs import RECORD, _sha256
+    from catmip_rl.store.outputs import RECORD, _sha256
 
     rows = json.loads((folder / "episodes.json").read_text())
     change(rows)
