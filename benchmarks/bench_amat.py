@@ -7,7 +7,7 @@
   task1-3, real observations after 30 random decision events), with all robots active (the joint
   decision at t = 0) and with one active robot (a typical asynchronous event); also the split embed /
   encode / decode of the torch path, and the numba path
-  ``catmip_rl.amat.batch1.fast_amat.FastAmat`` on the same observations and on random dense maps (its
+  ``catmip_rl.amat.onboard.fast_amat.FastAmat`` on the same observations and on random dense maps (its
   worst case). Median of ``--repeats``.
 * acting — batched decisions (B = 64, 1024 worlds of Task 2, every robot active), one thread,
   agent-decisions per second.
@@ -38,8 +38,8 @@ from common import cpu_times, env_observation, steal_percent, write_json
 from catmip_env.config import PRESETS, make_config
 from catmip_env.events import EventEngine, random_valid_actions
 from catmip_env.play import play
-from catmip_rl.amat.batch1.fast_amat import FastAmat
 from catmip_rl.amat.model import AMAT, decision_order
+from catmip_rl.amat.onboard.fast_amat import FastAmat
 from catmip_rl.training.allocator import keep_freed_memory
 from catmip_rl.training.gae import SampleBatch
 from catmip_rl.training.parallel_update import ParallelGradients

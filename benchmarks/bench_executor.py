@@ -3,7 +3,7 @@
     python benchmarks/bench_executor.py [--events 25] [--model paper] [--out benchmarks/results/executor.json]
 
 ``catmip eval`` / ``bench paper`` / ``render`` play AMAT's argmax decisions through
-``catmip_rl.evaluation.execution.AmatExecutor``: by default one neighbourhood at a time on FastAmat, as a
+``catmip_rl.amat.onboard.execution.AmatExecutor``: by default one neighbourhood at a time on FastAmat, as a
 robot-side coordinator would; ``fast=False`` runs one padded torch batch of every live world's
 neighbourhoods. This script times both on the same engine states, pair by pair, one thread: per
 setting (Task 2 with 64 worlds, full communication and sigma = 2; Task 3 with 32 worlds, full
@@ -26,9 +26,9 @@ from common import cpu_times, machine_info, steal_percent, write_json
 
 from catmip_env.config import make_config
 from catmip_env.events import EventEngine
-from catmip_rl.checkpoint import load_model
-from catmip_rl.evaluation.execution import AmatExecutor
-from catmip_rl.files import atomic_savefig
+from catmip_rl.amat.onboard.execution import AmatExecutor
+from catmip_rl.store.checkpoint import load_model
+from catmip_rl.store.files import atomic_savefig
 
 SETTINGS = (  # (label, preset, communication range, worlds)
     ("task2-full", "task2", None, 64),

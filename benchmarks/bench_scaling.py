@@ -14,7 +14,7 @@ timed loop, as ``bench_engine.py``), decision events/s of ``EventEngine`` (B = 6
 window goals, whose drawing is timed apart and excluded, as ``bench_events.py``), and the batch-1 AMAT
 decision latency (Table 2 model, every robot active, embed -> encode -> argmax autoregressive decode, as
 ``bench_amat.py``; median over ``--seconds``) on a real observation (world 0 of the event engine after
-10 random decision events, its real action masks). When ``catmip_rl.amat.batch1.fast_amat.FastAmat``
+10 random decision events, its real action masks). When ``catmip_rl.amat.onboard.fast_amat.FastAmat``
 imports, its batch-1 ``decide`` on the same observation is a second curve (its sparse convolution
 depends on the map content, so random-noise maps would be unrepresentative).
 """
@@ -155,9 +155,9 @@ class AmatTimer:
         self.fast: Any = None
         self.fast_note = ""
         try:
-            from catmip_rl.amat.batch1.fast_amat import FastAmat  # written in parallel; optional
+            from catmip_rl.amat.onboard.fast_amat import FastAmat  # written in parallel; optional
         except Exception as exc:  # noqa: BLE001 - missing module or a broken import: skip the curve
-            self.fast_note = f"FastAmat (catmip_rl.amat.batch1) not available ({type(exc).__name__}: {exc})"
+            self.fast_note = f"FastAmat (catmip_rl.amat.onboard) not available ({type(exc).__name__}: {exc})"
         else:
             try:
                 self.fast = FastAmat.from_model(self.model)

@@ -15,7 +15,7 @@ from common import plot_scaling_panels, write_json
 from suite import NAMES, RunStatus
 from targets import Check, all_checks
 
-from catmip_rl.files import atomic_savefig
+from catmip_rl.store.files import atomic_savefig
 
 __all__ = ["TITLES", "load_results", "machine_line", "plot_summary", "scaling_table", "write_summary"]
 

@@ -26,7 +26,7 @@ from catmip_env.ascii_maps import Layout, parse_layout  # noqa: E402
 from catmip_env.config import EXPLORER, PRESETS, RESCUER, EnvConfig, RobotClass, make_config  # noqa: E402
 from catmip_env.events import EventEngine  # noqa: E402
 from catmip_env.kernels.state import WorldState  # noqa: E402
-from catmip_env.planners import make_planner  # noqa: E402
+from catmip_env.planners.baselines import make_planner  # noqa: E402
 from catmip_env.world import BatchedWorld, StepResult  # noqa: E402
 
 __version__ = "1.0.0"

@@ -21,7 +21,7 @@ from catmip_env import make_config
 from catmip_env.episode_stats import episode_metrics
 from catmip_env.events import EventEngine
 from catmip_env.files import atomic_path
-from catmip_env.planners import PLANNERS, make_planner
+from catmip_env.planners.baselines import PLANNERS, make_planner
 from catmip_env.play import play
 from catmip_env.render import render_episode
 from catmip_env.warmup import compile_kernels

@@ -25,7 +25,7 @@ from catmip_env.play import Policy, play
 
 __all__ = [
     "render_world", "render_ansi", "episode_status", "add_caption", "save_gif", "episode_frames",
-    "render_episode", "CLASS_COLOURS", "RENDER_FPS",
+    "render_episode", "LiveWindow", "CLASS_COLOURS", "RENDER_FPS",
 ]  # fmt: skip
 
 RENDER_FPS = 8
@@ -244,3 +244,30 @@ def render_episode(
 ) -> Path:
     """GIF at ``path`` of :func:`episode_frames` (``fps`` frames, i.e. ticks, per second)."""
     return save_gif(episode_frames(engine, policy, episode, max_frames, caption), path, fps=fps)
+
+
+class LiveWindow:
+    """A live matplotlib window showing one frame after another (the PettingZoo env's human mode)."""
+
+    def __init__(self) -> None:
+        import matplotlib.pyplot as plt
+
+        self._fig, ax = plt.subplots()
+        ax.set_axis_off()
+        self._im = None
+        self._ax = ax
+
+    def show(self, frame: np.ndarray) -> None:
+        import matplotlib.pyplot as plt
+
+        if self._im is None:
+            self._im = self._ax.imshow(frame)
+        else:
+            self._im.set_data(frame)
+        self._fig.canvas.draw_idle()
+        plt.pause(1e-3)
+
+    def close(self) -> None:
+        import matplotlib.pyplot as plt
+
+        plt.close(self._fig)

@@ -39,7 +39,7 @@ from pettingzoo.utils import parallel_to_aec, wrappers
 from catmip_env.config import EnvConfig, make_config
 from catmip_env.constants import PRIMITIVE_ACTIONS
 from catmip_env.events import GOAL_MODES, INVALID_ACTION_MODES, EventEngine
-from catmip_env.render import RENDER_FPS, render_ansi, render_world
+from catmip_env.render import RENDER_FPS, LiveWindow, render_ansi, render_world
 from catmip_env.spaces import (
     LEVELS,
     OBS_FORMATS,
@@ -206,7 +206,7 @@ class SearchRescueEnv(ParallelEnv):
         self._invalid = np.zeros(n, np.bool_)  # actions replaced by "stay" at the last step
         self._invalid_count = np.zeros(n, np.int64)  # ... and since reset
         self._steps = 0
-        self._fig = None
+        self._window: LiveWindow | None = None
         self.state_space = state_space(config)
         parts = part_spaces(config, level, compact_obs)
         self.flat_layout = flat_layout(parts)  # part -> (slice, shape) of the flat vector
@@ -346,24 +346,15 @@ class SearchRescueEnv(ParallelEnv):
         frame = render_world(self.world, 0)
         if self.render_mode == "rgb_array":
             return frame
-        import matplotlib.pyplot as plt  # human mode: a live matplotlib window
-
-        if self._fig is None:
-            self._fig, ax = plt.subplots()
-            ax.set_axis_off()
-            self._im = ax.imshow(frame)
-        else:
-            self._im.set_data(frame)
-        self._fig.canvas.draw_idle()
-        plt.pause(1e-3)
+        if self._window is None:  # human mode: a live matplotlib window
+            self._window = LiveWindow()
+        self._window.show(frame)
         return None
 
     def close(self) -> None:
-        if self._fig is not None:
-            import matplotlib.pyplot as plt
-
-            plt.close(self._fig)
-            self._fig = None
+        if self._window is not None:
+            self._window.close()
+            self._window = None
 
 
 def parallel_env(

@@ -23,9 +23,9 @@ from catmip_env.config import make_config
 from catmip_env.events import EventEngine
 from catmip_env.files import atomic_path
 from catmip_env.numba_cache import sources_digest
-from catmip_env.planners import PLANNERS, make_planner
+from catmip_env.planners.baselines import PLANNERS, make_planner
+from catmip_env.planners.window import make_window_planner
 from catmip_env.play import play
-from catmip_env.window_planner import make_window_planner
 
 __all__ = ["compile_kernels", "compile_once", "is_compiled", "small_engine"]
 

@@ -9,7 +9,7 @@ The package is grouped by what each part does (``docs/architecture.md`` draws it
 * :mod:`catmip_rl.evaluation` — decentralised execution, the paper's evaluation protocol and figures;
 * :mod:`catmip_rl.adapters` — TorchRL (``CatmipEnv``, actor, critic) and Ray: the only modules that
   import TorchRL or Ray;
-* :mod:`catmip_rl.checkpoint` — model files and training checkpoints; :mod:`catmip_rl.cli` — ``catmip``.
+* :mod:`catmip_rl.store.checkpoint` — model files and training checkpoints; :mod:`catmip_rl.cli` — ``catmip``.
 """
 
 from __future__ import annotations
@@ -27,7 +27,7 @@ __all__ = ["AMAT", "AmatConfig", "__version__", "decision_order", "load_model", 
 if find_spec("torch") is not None:  # the model and its files need torch; the planners do not
     from catmip_rl.amat.config import AmatConfig
     from catmip_rl.amat.model import AMAT, decision_order
-    from catmip_rl.checkpoint import load_model, save_model
+    from catmip_rl.store.checkpoint import load_model, save_model
 
 
 def __getattr__(name: str):

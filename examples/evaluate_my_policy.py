@@ -69,7 +69,8 @@ def make_policy(env_config, seed: int) -> GreedyFrontier:
 
 
 def main(argv: list[str] | None = None) -> dict[str, float]:
-    from catmip_rl.evaluation.compare import compare, load_results
+    from catmip_rl.benchmark.compare import compare
+    from catmip_rl.benchmark.results import load_results
     from catmip_rl.evaluation.evaluate import EvalSetting, evaluate
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])

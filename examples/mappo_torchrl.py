@@ -61,8 +61,8 @@ from catmip_rl.adapters.torchrl_marl import (
     make_critic,
     save_policy,
 )
-from catmip_rl.checkpoint import atomic_torch_save
-from catmip_rl.files import atomic_write_csv, atomic_write_text
+from catmip_rl.store.checkpoint import atomic_torch_save
+from catmip_rl.store.files import atomic_write_csv, atomic_write_text
 
 EPISODE_REWARD = (K.ROBOTS, "episode_reward")
 STATE = "state.pt"  # what --resume needs; policy.pt holds the actor's weights alone

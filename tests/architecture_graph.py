@@ -10,8 +10,9 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGES = ("catmip_env", "catmip_rl")
 
-# catmip_env's flat modules, layered: their groups, lowest first; a folder of catmip_env (kernels/, the
-# numba engine room) and of catmip_rl is a group of its own
+# Every folder of the two packages is a group of its own (catmip_env/kernels/, catmip_env/planners/,
+# catmip_rl/amat/, catmip_rl/store/, ...). catmip_env's flat modules are layered in these groups, lowest
+# first; catmip_rl's flat modules are its face (__init__ and a path kept for 1.0 code), imported by none.
 ENV_GROUPS = {
     "env: config": (
         "constants",
@@ -25,13 +26,8 @@ ENV_GROUPS = {
     ),
     "env: world": ("world", "chunks"),
     "env: events": ("events", "episode_stats"),
-    "env: planners": ("planners", "planner_core", "window_planner"),
-    "env: play": ("play", "map_sets", "render", "warmup", "demo"),
+    "env: play": ("play", "map_sets", "render", "warmup", "demo", "rollout"),
     "env: PettingZoo": ("search_rescue_v0", "spaces"),
-}
-RL_TOP = {
-    name: "rl: checkpoint"
-    for name in ("__init__", "checkpoint", "files", "shipped", "model_files", "outputs")
 }
 
 
@@ -46,12 +42,14 @@ def modules(root: Path = ROOT) -> dict[str, Path]:
 
 
 def group(module: str) -> str:
-    """The box a module is drawn in (KeyError for a module no group names: add it to ENV_GROUPS)."""
+    """The box a module is drawn in: its folder, or for a flat module of catmip_env its ENV_GROUPS entry
+    (StopIteration for one no group names: add it there)."""
     pkg, *rest = module.split(".")
+    short = "rl" if pkg == "catmip_rl" else "env"
+    if len(rest) > 1:  # a folder: catmip_env/kernels/, catmip_rl/store/, ...
+        return f"{short}: {rest[0]}"
     if pkg == "catmip_rl":
-        return f"rl: {rest[0]}" if len(rest) > 1 else RL_TOP[rest[0]]
-    if len(rest) > 1:  # a folder: catmip_env/kernels/
-        return f"env: {rest[0]}"
+        return "rl: package"
     name = rest[0] if rest else "__init__"
     return next(g for g, names in ENV_GROUPS.items() if name in names)
 

@@ -39,7 +39,7 @@ from catmip_env.files import atomic_path
 from catmip_env.play import WorldNotSupported
 from catmip_rl.adapters import keys as K
 from catmip_rl.adapters.torchrl_policy import TorchRLPolicy
-from catmip_rl.files import atomic_write_text
+from catmip_rl.store.files import atomic_write_text
 
 __all__ = ["ALGOS", "PolicyNet", "Critic", "make_actor", "decision_samples", "save_policy", "load_policy"]
 

@@ -8,7 +8,7 @@ from dataclasses import asdict, dataclass
 from typing import Any
 
 from catmip_env.fields import BOOL, INT, check
-from catmip_env.planners import PLANNERS
+from catmip_env.planners.baselines import PLANNERS
 
 __all__ = ["AmatConfig", "GOAL_KINDS", "CELL_MASKS", "CRITICS"]
 

@@ -10,6 +10,9 @@ import os
 from typing import Any
 
 __all__ = [
+    "Parser",
+    "Formatter",
+    "add_allow_other_maps",
     "POSITIVE_INT", "NON_NEGATIVE_INT", "PROBABILITY", "CPUS", "UP_TO_CPUS", "checked", "check_comm",
     "check_method", "check_methods", "check_runs", "parse_set", "set_item", "USER_ERRORS", "number_type",
     "name_value", "pair_list", "explain", "missing_extra",
@@ -156,3 +159,36 @@ def parse_set(items: list[str]) -> dict:
         return dict(set_item(item) for item in items)
     except argparse.ArgumentTypeError as err:
         raise ValueError(f"--set {err}") from None
+
+
+class Parser(argparse.ArgumentParser):
+    """Errors as one line: ``catmip eval: error: argument --threads: expected an int >= 1, got '0'``."""
+
+    def error(self, message: str):
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+    def parse_known_args(self, args=None, namespace=None):
+        """Strict in every subcommand too: a flag that ``catmip bench perf`` does not take is refused by it,
+        with its usage (argparse otherwise hands it to the top parser as an unknown argument)."""
+        namespace, extras = super().parse_known_args(args, namespace)
+        if extras:
+            self.error(f"unrecognized arguments: {' '.join(extras)}")
+        return namespace, extras
+
+
+class Formatter(argparse.ArgumentDefaultsHelpFormatter):
+    """Defaults shown where there is one (not for switches, nor flags that default to the preset's)."""
+
+    def _get_help_string(self, action: argparse.Action) -> str:
+        default = action.default
+        if default is None or default is False or default == [] or default is argparse.SUPPRESS:
+            return action.help or ""
+        return super()._get_help_string(action)
+
+
+def add_allow_other_maps(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "--allow-other-maps", action="store_true",
+        help="evaluate even if this installation generates maps other than the frozen map sets' "
+        "(catmip_env/frozen_maps; the summary records it); without it such a run is refused",
+    )  # fmt: skip

@@ -22,11 +22,12 @@ from pathlib import Path
 
 import torch
 
-from catmip_rl.evaluation.evaluate import EvalSetting, evaluate, render_episode
+from catmip_rl.cli.render import render_episode
+from catmip_rl.cli.warmup import compile_kernels
+from catmip_rl.evaluation.evaluate import EvalSetting, evaluate
 from catmip_rl.evaluation.plots import plot_figure
-from catmip_rl.evaluation.warmup import compile_kernels
-from catmip_rl.files import atomic_write_csv, atomic_write_text
-from catmip_rl.shipped import resolve_model
+from catmip_rl.store.files import atomic_write_csv, atomic_write_text
+from catmip_rl.store.shipped import resolve_model
 
 PLANNERS = ("nearest", "utility", "rrt", "apf", "random-frontier", "random-rescue", "random-uniform")
 COLUMNS = ("success_rate", "success_by_100", "sampled_success_by_100", "mean_rescue_tick",

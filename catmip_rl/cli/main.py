@@ -24,7 +24,8 @@ from typing import Any
 
 from catmip_rl.cli.args import CPUS, USER_ERRORS, explain
 from catmip_rl.cli.parser import DEFAULT_PRESET, TRAIN_FLAGS, build_parser
-from catmip_rl.evaluation.warmup import command_plays_amat, compile_kernels, torch_threads
+from catmip_rl.cli.warmup import command_plays_amat, compile_kernels
+from catmip_rl.evaluation.workers import torch_threads
 from catmip_rl.training.config import TrainConfig
 from catmip_rl.training.presets import FINE_TUNING_PRESETS, TRAIN_PRESETS
 
@@ -53,7 +54,7 @@ def _config(base: TrainConfig, overrides: dict[str, Any]) -> TrainConfig:
 
 
 def _train(args: argparse.Namespace) -> int:
-    from catmip_rl.checkpoint import resume_checkpoint
+    from catmip_rl.store.checkpoint import resume_checkpoint
     from catmip_rl.training.run_dir import RunDirLock
     from catmip_rl.training.train import train
 
@@ -110,7 +111,7 @@ def _no_plots_note(no_plots: bool) -> str:
 def _eval(args: argparse.Namespace) -> int:
     from catmip_rl.evaluation.evaluate import evaluate
     from catmip_rl.evaluation.methods import PLAY_OPTIONS
-    from catmip_rl.outputs import output_folder
+    from catmip_rl.store.outputs import output_folder
 
     note = _no_plots_note(args.no_plots)  # decided before the work
     plots = not (args.no_plots or note)
@@ -166,8 +167,8 @@ def _eval(args: argparse.Namespace) -> int:
 
 
 def _render(args: argparse.Namespace) -> int:
-    from catmip_rl.evaluation.evaluate import render_episode
-    from catmip_rl.outputs import output_file
+    from catmip_rl.cli.render import render_episode
+    from catmip_rl.store.outputs import output_file
 
     with output_file(args.out, "--out", force=args.force, suffixes=(".gif",)):
         torch_threads(args.threads)
@@ -190,8 +191,8 @@ def _bench(args: argparse.Namespace) -> int:
         return _suite(args)
     from contextlib import ExitStack
 
-    from catmip_rl.evaluation.paper import FIGURES, run_figure
-    from catmip_rl.outputs import output_folder, remove_results
+    from catmip_rl.benchmark.paper import FIGURES, run_figure
+    from catmip_rl.store.outputs import output_folder, remove_results
 
     if args.all == (args.figure is not None):
         raise ValueError("give --figure N or --all (one of them)")
@@ -227,8 +228,9 @@ def _check_parallel(args: argparse.Namespace) -> None:
 
 
 def _suite(args: argparse.Namespace) -> int:
-    from catmip_rl.evaluation.suite import EPISODES, SUITE, run_suite
-    from catmip_rl.outputs import output_folder
+    from catmip_rl.benchmark.entry import EPISODES, SUITE
+    from catmip_rl.benchmark.suite import run_suite
+    from catmip_rl.store.outputs import output_folder
 
     _check_parallel(args)
     advice = "pick a new folder, or --resume the suite in it"
@@ -251,9 +253,9 @@ def _suite(args: argparse.Namespace) -> int:
 
 
 def _leaderboard(args: argparse.Namespace) -> int:
-    from catmip_rl.evaluation.leaderboard import paired_names, render_leaderboard
-    from catmip_rl.files import check_new_file
-    from catmip_rl.outputs import output_folder
+    from catmip_rl.benchmark.leaderboard import paired_names, render_leaderboard
+    from catmip_rl.store.files import check_new_file
+    from catmip_rl.store.outputs import output_folder
 
     names = ["leaderboard.md", "leaderboard.png", *(paired_names(args.vs) if args.vs else ())]
     with output_folder(args.out, "--out", keep=True):  # the README and entries beside stay
@@ -269,9 +271,9 @@ def _leaderboard(args: argparse.Namespace) -> int:
 
 
 def _export(args: argparse.Namespace) -> int:
-    from catmip_rl.checkpoint import export_model
-    from catmip_rl.files import check_new_file
-    from catmip_rl.outputs import output_file
+    from catmip_rl.store.checkpoint import export_model
+    from catmip_rl.store.files import check_new_file
+    from catmip_rl.store.outputs import output_file
 
     with output_file(args.out, "--out", force=args.force, suffixes=(".pt",)) as out:
         check_new_file(out.with_suffix(".json"), "--out's config file", force=args.force)  # written beside it
@@ -284,8 +286,9 @@ def _export(args: argparse.Namespace) -> int:
 
 
 def _compare(args: argparse.Namespace) -> int:
-    from catmip_rl.evaluation.compare import compare, load_results
-    from catmip_rl.outputs import output_folder
+    from catmip_rl.benchmark.compare import compare
+    from catmip_rl.benchmark.results import load_results
+    from catmip_rl.store.outputs import output_folder
 
     with output_folder(args.out, "--out", force=args.force, replace_results=False):  # it may sit beside them
         results = load_results(args.results)

@@ -16,20 +16,19 @@ from catmip_rl.cli.args import (
     POSITIVE_INT,
     PROBABILITY,
     UP_TO_CPUS,
+    Formatter,
+    Parser,
+    add_allow_other_maps,
     check_comm,
     check_method,
-    check_methods,
-    check_runs,
     checked,
-    name_value,
-    number_type,
-    pair_list,
     set_item,
 )  # fmt: skip
+from catmip_rl.cli.bench_parser import add_bench, add_compare, add_export, add_leaderboard
 from catmip_rl.training.config import TrainConfig, check_field, field_docs
 from catmip_rl.training.presets import TRAIN_PRESETS
 
-__all__ = ["DEFAULT_PRESET", "TRAIN_FLAGS", "Formatter", "Parser", "build_parser", "version"]
+__all__ = ["DEFAULT_PRESET", "TRAIN_FLAGS", "build_parser", "version"]
 
 #: the TrainConfig fields ``catmip train`` has a flag for, and the flag; each flag's help is its field's
 #: docstring and its check the field's own; every other field: ``--set FIELD=VALUE``
@@ -47,31 +46,6 @@ METAVARS = {"warm_start": "PLANNER", "init_from": "MODEL", "device": "{cpu,cuda,
 DEFAULT_PRESET = "task1-warm"
 """``catmip train`` without ``--preset``: the Task-1 recipe (~40 minutes on one CPU thread, as the shipped
 model was trained), not the paper's 62,500 iterations (days)."""
-
-
-class Parser(argparse.ArgumentParser):
-    """Errors as one line: ``catmip eval: error: argument --threads: expected an int >= 1, got '0'``."""
-
-    def error(self, message: str):
-        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
-
-    def parse_known_args(self, args=None, namespace=None):
-        """Strict in every subcommand too: a flag that ``catmip bench perf`` does not take is refused by it,
-        with its usage (argparse otherwise hands it to the top parser as an unknown argument)."""
-        namespace, extras = super().parse_known_args(args, namespace)
-        if extras:
-            self.error(f"unrecognized arguments: {' '.join(extras)}")
-        return namespace, extras
-
-
-class Formatter(argparse.ArgumentDefaultsHelpFormatter):
-    """Defaults shown where there is one (not for switches, nor flags that default to the preset's)."""
-
-    def _get_help_string(self, action: argparse.Action) -> str:
-        default = action.default
-        if default is None or default is False or default == [] or default is argparse.SUPPRESS:
-            return action.help or ""
-        return super()._get_help_string(action)
 
 
 def version() -> str:
@@ -161,7 +135,7 @@ def train_value(name: str, kind: str):
 def add_setting_flags(p: argparse.ArgumentParser) -> None:
     from catmip_rl.evaluation.evaluate import TASKS
     from catmip_rl.evaluation.methods import METHOD_HELP
-    from catmip_rl.shipped import shipped_models
+    from catmip_rl.store.shipped import shipped_models
 
     shipped = ", ".join(shipped_models()) or "none"
     p.add_argument(
@@ -185,14 +159,6 @@ def add_setting_flags(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--threads", type=UP_TO_CPUS, default=min(2, CPUS),
                    help="CPU threads of torch and of the env (its worlds split over them)")  # fmt: skip
-
-
-def add_allow_other_maps(p: argparse.ArgumentParser) -> None:
-    p.add_argument(
-        "--allow-other-maps", action="store_true",
-        help="evaluate even if this installation generates maps other than the frozen map sets' "
-        "(catmip_env/frozen_maps; the summary records it); without it such a run is refused",
-    )  # fmt: skip
 
 
 def add_eval_render(sub) -> None:
@@ -235,179 +201,6 @@ def add_eval_render(sub) -> None:
     rd.add_argument("--out", required=True, help="path of the GIF to write (ending in .gif)")
     rd.add_argument("--force", action="store_true", help="overwrite an existing --out")
     rd.set_defaults(name="render")
-
-
-def add_parallel_flags(p: argparse.ArgumentParser) -> None:
-    """--jobs and --threads of a command that plays a grid of evaluations (bench suite, bench paper)."""
-    p.add_argument("--jobs", type=UP_TO_CPUS, default=min(2, CPUS), help="parallel processes")
-    p.add_argument("--threads", type=UP_TO_CPUS, default=None,
-                   help="torch CPU threads of each process (default: 2 with one job, else 1)")  # fmt: skip
-
-
-def add_suite(suites) -> None:
-    from catmip_rl.evaluation.suite import EPISODES, SETTINGS, SPLITS, SUITE
-
-    su = suites.add_parser(
-        "suite", help=f"the benchmark suite ({SUITE}): one leaderboard entry per method",
-        formatter_class=Formatter,
-        description=f"Play each method on the {len(SETTINGS)} settings of suite {SUITE} (Tasks 2 and 3 x "
-        "communication full / sigma 4 / sigma 2 x SLAM noise 0 / 5 %) on the frozen maps of --split "
-        f"(validation: seed {SPLITS['validation']}, for every choice; test: seed {SPLITS['test']}, played "
-        "once per entry after every choice is frozen) and write OUT/entries/NAME.json for catmip "
-        "leaderboard; per-run results in OUT/runs/. An interrupted suite continues with --resume "
-        "(complete runs are read back, not played again).",
-    )  # fmt: skip
-    su.add_argument(
-        "--method", action="append", required=True, type=checked(check_runs),
-        help="a method (repeatable; NAME=METHOD; NAME=SPEC,SPEC,...: its training runs)",
-    )  # fmt: skip
-    su.add_argument("--split", choices=sorted(SPLITS), default="validation",
-                    help="the maps: validation (tuning, gates, every choice) or test (the leaderboard's; "
-                    "play it once, after every choice is frozen)")  # fmt: skip
-    su.add_argument("--episodes", type=number_type(int, 1, below=EPISODES + 1, bound=f"from 1 to {EPISODES}"),
-                    default=EPISODES, help="maps per setting (an entry of fewer is a preview: the "
-                    "leaderboard takes the suite's count)")  # fmt: skip
-    add_parallel_flags(su)
-    su.add_argument("--code", action="append", default=[], type=name_value, metavar="NAME=URL",
-                    help="a link to a method's code, shown on the leaderboard (repeatable)")  # fmt: skip
-    su.add_argument("--notes", action="append", default=[], type=name_value, metavar="NAME=TEXT",
-                    help="what a method is: its training compute and seeds (repeatable)")  # fmt: skip
-    su.add_argument("--class", dest="classes", action="append", default=[], type=name_value,
-                    metavar="NAME=CLASS", help="your py: policy's class: learned (plays from its own "
-                    "observations), hybrid (reads a planner at play time), planner or floor; the "
-                    "project's methods have theirs (repeatable)")  # fmt: skip
-    su.add_argument("--chosen-on", action="append", default=[], type=name_value, metavar="NAME=TEXT",
-                    help="what a method's choices (hyperparameters, snapshot, variant) were made on, e.g. "
-                    "'validation split'; needed on the test split (repeatable)")  # fmt: skip
-    su.add_argument("--out", default="out/suite", help="new or empty folder (or the suite to --resume)")
-    su.add_argument("--resume", action="store_true", help="continue the suite in a non-empty --out")
-    su.add_argument("--no-progress", action="store_true", help="no progress bar")
-    su.set_defaults(name="bench")
-
-
-def add_leaderboard(sub) -> None:
-    from catmip_rl.evaluation.suite import EPISODES
-
-    lb = sub.add_parser(
-        "leaderboard", help="check suite entries and rank them (Markdown + PNG)", formatter_class=Formatter,
-        description="Check every entry (*.json) in --entries against the suite (format, every setting, the "
-        "frozen maps, numbers recomputed from its rescue ticks) and write OUT/leaderboard.md and "
-        "OUT/leaderboard.png; a refused entry is one line naming its file. --vs METHOD also writes "
-        "OUT/vs_METHOD.md / .csv: every other entry against METHOD, setting by setting, paired on the "
-        "same maps with 95 % CIs.",
-    )  # fmt: skip
-    lb.add_argument("--entries", default="leaderboard/entries", help="folder of entry files")
-    lb.add_argument("--episodes", type=POSITIVE_INT, default=EPISODES,
-                    help="maps per setting of every entry (the suite's; fewer: previews)")  # fmt: skip
-    lb.add_argument("--out", default="out/leaderboard", help="folder for leaderboard.md and leaderboard.png")
-    lb.add_argument("--force", action="store_true", help="replace the files it would write in --out")
-    lb.add_argument("--vs", metavar="METHOD", help="an entry's method: pair every other entry with it")
-    lb.add_argument("--split", choices=("test", "validation"), default="test",
-                    help="the split whose entries are ranked (the leaderboard's: test)")  # fmt: skip
-    lb.add_argument("--replay", type=NON_NEGATIVE_INT, default=0, metavar="K",
-                    help="play the first K maps of every setting and run of every entry again from its "
-                    "files and refuse an entry whose ticks differ (0: check the numbers only)")  # fmt: skip
-    lb.add_argument("--no-progress", action="store_true", help="no progress bar")
-    lb.set_defaults(name="leaderboard")
-
-
-def add_bench(sub) -> None:
-    from catmip_rl.evaluation.paper import DEFAULT_METHODS, FIGURES
-
-    be = sub.add_parser("bench", help="the benchmark suite, the paper's figures or the speed benchmarks",
-                        description="catmip bench suite: the benchmark's fixed grid, one leaderboard entry "
-                        "per method; catmip bench paper: the paper's figures; catmip bench perf: the "
-                        "performance benchmarks of benchmarks/.")  # fmt: skip
-    suites = be.add_subparsers(dest="suite", required=True, metavar="{suite,paper,perf}")
-    add_suite(suites)
-    pa = suites.add_parser(
-        "paper", help="the paper's figures: success rate vs mission time", formatter_class=Formatter,
-        description="Evaluate methods on the settings of a paper figure (--figure N) or of all of them "
-        "(--all) and draw success vs mission time into OUT/fig{N}/.",
-    )  # fmt: skip
-    pa.add_argument("--figure", type=int, choices=sorted(FIGURES), help="paper figure")
-    pa.add_argument("--all", action="store_true", help="every paper figure")
-    pa.add_argument("--methods", default=",".join(DEFAULT_METHODS), type=checked(check_methods),
-                    help="comma list of methods (NAME=METHOD allowed; see catmip eval -h)")  # fmt: skip
-    pa.add_argument("--method", action="append", default=[], type=checked(check_runs),
-                    help="one more method (repeatable); NAME=SPEC,SPEC,... the training runs of one method, "
-                         "summarised as their mean with a CI over runs and maps")  # fmt: skip
-    pa.add_argument("--episodes", type=POSITIVE_INT, default=100, help="maps per (panel, method)")
-    pa.add_argument("--seed", type=NON_NEGATIVE_INT, default=0, help="map set")
-    add_parallel_flags(pa)
-    pa.add_argument("--out", default="out/paper", help="figures go to OUT/fig{N}/ (new or empty)")
-    again = pa.add_mutually_exclusive_group()
-    again.add_argument("--force", action="store_true", help="write into non-empty OUT/fig{N}/ folders")
-    again.add_argument(
-        "--resume", action="store_true",
-        help="continue OUT/fig{N}/: its complete runs (same method, files, panel, seed and maps) are read "
-        "back, not played again, and an interrupted figure keeps its complete runs",
-    )  # fmt: skip
-    pa.add_argument("--no-progress", action="store_true", help="no progress bar")
-    add_allow_other_maps(pa)
-    pa.set_defaults(name="bench")
-    pe = suites.add_parser(
-        "perf", help="the performance benchmarks (benchmarks/run_all.py)", formatter_class=Formatter,
-        description="Run benchmarks/run_all.py (from the repository root): JSON/CSV results and plots of "
-        "the env, collection and training speed.",
-    )  # fmt: skip
-    pe.add_argument("--quick", action="store_true", help="short settings")
-    pe.set_defaults(name="bench")
-
-
-def add_export(sub) -> None:
-    ex = sub.add_parser(
-        "export", help="a training run's model as a model file", formatter_class=Formatter,
-        description="Write the model of a training run (its checkpoints/latest.pt) or of one training "
-        "checkpoint as a model file (what catmip_rl/models/ ships, loadable with amat:PATH), with the run's "
-        "config, iteration, training minutes and origin in the file.",
-    )  # fmt: skip
-    ex.add_argument("source", help="a training run dir, its checkpoints/ folder or a checkpoint file")
-    ex.add_argument("--out", required=True, help="the model file to write (ending in .pt)")
-    ex.add_argument("--force", action="store_true", help="overwrite an existing --out (and its .json)")
-    ex.add_argument(
-        "--half", action="store_true", help="float16 weights: half the bytes (a snapshot to commit)"
-    )
-    ex.set_defaults(name="export")
-
-
-def add_compare(sub) -> None:
-    co = sub.add_parser(
-        "compare", help="paired differences and across-seed statistics of eval results",
-        formatter_class=Formatter,
-        description="Compare catmip eval results: per setting each method's success by tick 100 with a 95 % "
-        "CI (over the maps, or over training runs and maps); for every pair of methods on the same maps the "
-        "paired difference in success by tick 100 and in mean rescue tick with 95 % CIs; across runs "
-        "(training seeds) the IQM and mean with 95 % stratified-bootstrap CIs, the probability of "
-        "improvement and performance profiles (rliable); curves.png overlays every method's success vs time "
-        "per setting with 95 % bands. Every method must have played the same settings, seeds, horizons and "
-        "maps (else one line names two folders and what differs; --unpaired shows them marked). Writes "
-        "compare.md, by_setting.csv, curves.csv, paired.csv, aggregate.csv, improvement.csv and PNGs into "
-        "--out (each where there is something to show).",
-    )  # fmt: skip
-    co.add_argument(
-        "results", nargs="+", metavar="RESULT",
-        help="a folder of catmip eval results (searched recursively: a bench paper figure folder works), or "
-        "NAME=DIR[,DIR...]: every result under those folders as runs of the method NAME (its training seeds)",
-    )  # fmt: skip
-    co.add_argument("--out", default="out/compare", help="new or empty folder for the tables and plots")
-    co.add_argument("--force", action="store_true", help="write into a non-empty --out")
-    co.add_argument("--seed", type=NON_NEGATIVE_INT, default=0, help="seed of the bootstrap resampling")
-    pick = co.add_mutually_exclusive_group()
-    pick.add_argument("--vs", metavar="METHOD", help="pair every method with this one only (METHOD - it)")
-    pick.add_argument(
-        "--pairs",
-        type=pair_list,
-        action="extend",
-        metavar="A:B,...",
-        help="only these pairs (A - B); repeat the flag or separate pairs by commas",
-    )
-    co.add_argument(
-        "--unpaired", action="store_true",
-        help="compare methods that did not all play the same settings, seeds, horizons and maps (refused "
-        "without it): side by side, each row marked paired or unpaired, pairs only where the maps agree",
-    )  # fmt: skip
-    co.set_defaults(name="compare")
 
 
 def build_parser() -> argparse.ArgumentParser:

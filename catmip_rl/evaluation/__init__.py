@@ -1,11 +1,10 @@
-"""Evaluating policies on the paper's protocol.
+"""Playing one method under the protocol: the methods by name, your own policy, statistics and plots.
 
 * ``methods`` — the methods by name (planners, window planners, AMAT models, your own ``py:`` policy);
-* ``user_policy`` — your policy at the PettingZoo or engine level, checked at every call;
-* ``execution`` — decentralised AMAT execution (per-neighbourhood decisions, message sizes);
+* ``user_policy`` — your policy's factory found and loaded, and the read-only view it is given;
+* ``checked_policy`` — your policy as the evaluator plays it: every call guarded, every answer checked;
+* ``sandbox`` — a ``py:`` policy played in a worker process that holds no engine;
 * ``evaluate`` — settings and the evaluation itself (frozen map sets checked);
-* ``compare`` — paired per-map differences and across-seed statistics with CIs;
-* ``results_check`` — what ``compare`` checks in the result folders it reads (counts, ranges, copies);
-* ``plots`` — every plot the evaluation commands draw (the paper figures, ``catmip compare``'s);
-* ``paper`` — the paper's figures: every method on every panel, tables and plots.
+* ``stats`` — success intervals, curve bands and paired tests; ``plots`` — every plot the commands draw;
+* ``warmup`` — what a command or a worker does before it plays (kernels compiled, threads, its parent).
 """

@@ -1,6 +1,5 @@
-"""Evaluation protocol of the paper's Section 7: one setting, one method, N episodes.
-
-The protocol: docs/design.md#evaluation-protocol.
+"""Evaluation protocol of the paper's Section 7 (docs/design-evaluation.md): one setting, one method,
+N episodes.
 
     setting = EvalSetting("task2", comm="4", noise=0.05, max_ma_ticks=10)
     result = evaluate("amat:runs/a/checkpoints/latest.pt", setting, episodes=100, seed=0)
@@ -28,7 +27,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from catmip_env import EnvConfig, make_config, render
+from catmip_env import EnvConfig, make_config
 from catmip_env.config import MIN_COMM_SIGMA
 from catmip_env.episode_stats import EpisodeRecords, decision_metrics, episode_metrics, success_curve
 from catmip_env.events import EventEngine
@@ -36,20 +35,12 @@ from catmip_env.map_sets import check_maps, map_hash
 from catmip_env.play import episode_columns, play, plays_one_world_at_a_time
 from catmip_rl.evaluation.methods import Method, make_policy, method_source, parse_method, policy_files
 from catmip_rl.evaluation.sandbox import close_policy
-from catmip_rl.files import atomic_write_csv, atomic_write_text
+from catmip_rl.store.files import atomic_write_csv, atomic_write_text
 
 if TYPE_CHECKING:  # the planners need no torch: an env-only install evaluates them
     from catmip_rl.amat.model import AMAT
 
-__all__ = [
-    "EvalSetting",
-    "EvalResult",
-    "evaluate",
-    "episode_rows",
-    "render_episode",
-    "TASKS",
-    "COMM_SETTINGS",
-]
+__all__ = ["EvalSetting", "EvalResult", "evaluate", "episode_rows", "TASKS", "COMM_SETTINGS"]
 
 TASKS = ("task1", "task2", "task3")
 COMM_SETTINGS = {"full": None, "4": 4.0, "2": 2.0}
@@ -151,8 +142,8 @@ class EvalResult:
     def write(self, out: str | Path, curve_title: str | None = None) -> Path:
         """``episodes.csv``, ``episodes.json``, ``curve.csv``, ``summary.json`` (and ``curve.png`` with
         ``curve_title``) in ``out``: written aside, moved in together, with their record ``run.json``
-        last (:func:`~catmip_rl.outputs.commit_results`)."""
-        from catmip_rl.outputs import commit_results, staging_dir
+        last (:func:`~catmip_rl.store.outputs.commit_results`)."""
+        from catmip_rl.store.outputs import commit_results, staging_dir
 
         stage = staging_dir(out)
         atomic_write_text(stage / "episodes.json", json.dumps(self.episodes, indent=1))
@@ -220,7 +211,9 @@ def evaluate(
         raise ValueError(f"episodes must be an int >= 1, got {episodes!r}")
     if isolated is not None and method.kind in ("py", "policy"):
         if isolated and method.kind == "policy":
-            raise ValueError("isolated=True plays a py:FILE.py:FACTORY policy; an object lives in this process")
+            raise ValueError(
+                "isolated=True plays a py:FILE.py:FACTORY policy; an object lives in this process"
+            )
         method = replace(method, isolated=bool(isolated))
     sync = method.synchronous
     policy, goal_mode, needs = make_policy(method, setting.env_config(None, sync), seed, model, policy)
@@ -379,31 +372,3 @@ def _play_maps(policy, engine: EventEngine, bar, engine_hook) -> EpisodeRecords:
         policy.reset()
         records.append(play(one, policy, on_event=lambda eng, e=e: on_event(eng, e)))
     return EpisodeRecords.concat(records)
-
-
-def render_episode(
-    method: str | Method,
-    setting: EvalSetting,
-    path: str | Path,
-    episode: int = 0,
-    seed: int = 0,
-    fps: int | None = None,
-    max_frames: int = 600,
-    model: AMAT | None = None,
-) -> Path:
-    """GIF of one evaluation episode (the map of ``episode`` of ``seed``, as in :func:`evaluate`),
-    one frame per tick (:func:`catmip_env.render.render_episode`): robots, their goals, explored area,
-    communication links; ``fps`` defaults to the env's ``metadata["render_fps"]``."""
-    from catmip_env.render import RENDER_FPS
-
-    method = parse_method(method) if isinstance(method, str) else method
-    sync = method.synchronous
-    policy, goal_mode, needs = make_policy(method, setting.env_config(None, sync), seed, model)
-    try:
-        eng = EventEngine(setting.env_config(needs, sync), num_worlds=1, seed=seed, goal_mode=goal_mode)
-        if plays_one_world_at_a_time(policy):
-            policy.reset()
-        fps = RENDER_FPS if fps is None else fps
-        return render.render_episode(eng, policy, path, episode, fps=fps, max_frames=max_frames)
-    finally:
-        close_policy(policy)

@@ -20,10 +20,11 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from catmip_env.config import EnvConfig
-from catmip_env.planners import PLANNERS, make_planner
-from catmip_env.window_planner import WINDOW_KINDS, make_window_planner
-from catmip_rl.evaluation.user_policy import load_factory, make_user_policy, parse_policy_source
-from catmip_rl.shipped import file_sha256, model_file, resolve_model
+from catmip_env.planners.baselines import PLANNERS, make_planner
+from catmip_env.planners.window import WINDOW_KINDS, make_window_planner
+from catmip_rl.evaluation.checked_policy import make_user_policy
+from catmip_rl.evaluation.user_policy import load_factory, parse_policy_source
+from catmip_rl.store.shipped import file_sha256, model_file, resolve_model
 
 if TYPE_CHECKING:  # AMAT's methods import torch when one is played: the planners run without it
     from catmip_rl.amat.model import AMAT
@@ -115,7 +116,7 @@ def parse_method(spec: str) -> Method:
             path = spec[len(prefix) :]
             if not path:
                 raise ValueError(f"amat method needs a checkpoint: {prefix}PATH")
-            from catmip_rl.checkpoint import model_play
+            from catmip_rl.store.checkpoint import model_play
 
             target = resolve_model(path)
             label = amat_label(target) + ("-guard" if guard else "") + ("-clean" if clean else "")
@@ -219,8 +220,8 @@ def make_policy(
             factory = lambda _cfg, _seed: policy  # noqa: E731
         wrapped = make_user_policy(factory, env_config, seed, method.name)
         return wrapped, wrapped.goal_mode, None
-    from catmip_rl.checkpoint import load_model
-    from catmip_rl.evaluation.execution import AmatExecutor, CellGoalExecutor
+    from catmip_rl.amat.onboard.execution import AmatExecutor, CellGoalExecutor
+    from catmip_rl.store.checkpoint import load_model
 
     model = model if model is not None else load_model(method.target)
     needs = model.config.env_overrides()

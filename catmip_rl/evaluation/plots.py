@@ -12,7 +12,7 @@ from typing import Any
 
 import numpy as np
 
-from catmip_rl.files import atomic_savefig
+from catmip_rl.store.files import atomic_savefig
 
 __all__ = [
     "setting_title",

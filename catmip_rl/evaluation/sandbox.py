@@ -13,8 +13,8 @@ a policy read and receives its actions:
 
 Nothing the worker sends is unpickled: answers come back as JSON and raw array bytes, and the parent checks
 them against its own engine exactly as it checks an in-process policy's
-(:class:`~catmip_rl.evaluation.user_policy.CheckedEnginePolicy`,
-:class:`~catmip_rl.evaluation.user_policy.PettingZooPolicy`), so an honest policy's results are identical
+(:class:`~catmip_rl.evaluation.checked_policy.CheckedEnginePolicy`,
+:class:`~catmip_rl.evaluation.checked_policy.PettingZooPolicy`), so an honest policy's results are identical
 in-process and isolated. A worker that ends (``os._exit``, a crash, a signal) is a
 :class:`~catmip_rl.evaluation.user_policy.PolicyError` naming its exit code.
 
@@ -32,7 +32,6 @@ import subprocess
 import sys
 import tempfile
 import weakref
-from collections.abc import Mapping
 from multiprocessing.connection import Connection
 from typing import Any
 
@@ -40,23 +39,22 @@ import numpy as np
 
 from catmip_env.config import EnvConfig
 from catmip_env.play import WorldNotSupported
+from catmip_rl.evaluation.checked_policy import (
+    CheckedEnginePolicy,
+    PettingZooPolicy,
+    WrappedUserPolicy,
+)
 from catmip_rl.evaluation.user_policy import (
     VIEW_ARRAYS,
     VIEW_STATE_FIELDS,
-    CheckedEnginePolicy,
     EngineView,
-    PettingZooPolicy,
     PolicyError,
-    WrappedUserPolicy,
-    load_factory,
-    make_user_policy,
-    parse_policy_source,
 )
+from catmip_rl.evaluation.workers import ARRAY_KINDS
 
 __all__ = ["isolated_policy", "close_policy", "IsolatedWorker"]
 
 _KEYS = (*VIEW_ARRAYS, *(f"state.{f}" for f in VIEW_STATE_FIELDS), "state.target")
-_DTYPE_KINDS = "biufc"  # what an answer's array may hold (never objects)
 _MAX_HEADER = 1 << 24
 _MAX_PAYLOAD = 1 << 31
 _MAX_ELEMENTS = 1 << 28
@@ -70,7 +68,7 @@ def _view_array(view: EngineView, key: str) -> np.ndarray:
 class IsolatedWorker:
     """One spawned process playing one ``py:`` policy (and the policies its ``sampled`` makes), and the pipe
     to it. :meth:`close` ends it (also when the parent is collected or exits; a killed parent takes it
-    along: :func:`~catmip_rl.evaluation.jobs.die_with_parent`)."""
+    along: :func:`~catmip_rl.evaluation.workers.die_with_parent`)."""
 
     def __init__(self, target: str, name: str, env_config: EnvConfig, seed: int, threads: int | None) -> None:
         # a new interpreter (python -m this module), not multiprocessing's spawn, which would import the
@@ -79,7 +77,7 @@ class IsolatedWorker:
         mine, child = socket.socketpair()
         self.conn = Connection(mine.detach())
         self.proc = subprocess.Popen(
-            [sys.executable, "-m", "catmip_rl.evaluation.sandbox", str(child.fileno())],
+            [sys.executable, "-m", "catmip_rl.evaluation.workers", str(child.fileno())],
             pass_fds=(child.fileno(),), stdin=subprocess.DEVNULL,
         )  # fmt: skip
         child.close()
@@ -96,11 +94,15 @@ class IsolatedWorker:
         try:
             self.conn.send(message)
             reply = json.loads(self.conn.recv_bytes(_MAX_HEADER))
-            payload = self.conn.recv_bytes(_MAX_PAYLOAD) if isinstance(reply, dict) and reply.get("bytes") else None
+            payload = (
+                self.conn.recv_bytes(_MAX_PAYLOAD) if isinstance(reply, dict) and reply.get("bytes") else None
+            )
         except (EOFError, OSError):
             self._ended(what)
         except ValueError as err:  # a reply that is not JSON, or too long
-            raise PolicyError(f"policy {self.name}: its process sent a malformed reply to {what} ({err})") from None
+            raise PolicyError(
+                f"policy {self.name}: its process sent a malformed reply to {what} ({err})"
+            ) from None
         if not isinstance(reply, dict):
             raise PolicyError(f"policy {self.name}: its process sent a malformed reply to {what}")
         if "world" in reply:
@@ -138,7 +140,9 @@ class IsolatedWorker:
             os.ftruncate(fd, max(size, 64))
             mm = np.memmap(path, np.uint8, mode="r+", shape=(max(size, 64),))
             arrays = {
-                key: np.frombuffer(mm, np.dtype(dtype), int(np.prod(shape, dtype=np.int64)), off).reshape(shape)
+                key: np.frombuffer(mm, np.dtype(dtype), int(np.prod(shape, dtype=np.int64)), off).reshape(
+                    shape
+                )
                 for (key, shape, dtype), off in zip(layout, offsets)
             }
             meta = {"cfg": view.cfg, "goal_mode": view.goal_mode, "num_actions": view.num_actions,
@@ -181,11 +185,13 @@ def _answer_array(reply: dict[str, Any], payload: bytes | None, name: str) -> np
             raise ValueError(f"shape {shape}")
         if dtype.kind == "O":  # what np.asarray made of it: refused by the checks, as in-process
             return np.empty(shape, dtype)
-        if dtype.kind not in _DTYPE_KINDS or payload is None:
+        if dtype.kind not in ARRAY_KINDS or payload is None:
             raise ValueError(f"dtype {dtype}")
         return np.frombuffer(payload, dtype, count).reshape(shape)
     except (KeyError, TypeError, ValueError) as err:
-        raise PolicyError(f"policy {name}: its process sent a malformed answer to act(engine) ({err})") from None
+        raise PolicyError(
+            f"policy {name}: its process sent a malformed answer to act(engine) ({err})"
+        ) from None
 
 
 def _engine_act(worker: IsolatedWorker, handle: int):
@@ -212,7 +218,9 @@ def _pettingzoo_act(worker: IsolatedWorker, handle: int):
     return act
 
 
-def _proxy(worker: IsolatedWorker, handle: int, info: dict[str, Any]) -> CheckedEnginePolicy | PettingZooPolicy:
+def _proxy(
+    worker: IsolatedWorker, handle: int, info: dict[str, Any]
+) -> CheckedEnginePolicy | PettingZooPolicy:
     """The parent's policy for the worker's policy ``handle``: the in-process wrapper (its checks against
     the engine, its messages) around calls to the worker."""
     name, goal_mode, hooks = worker.name, str(info["goal_mode"]), set(info.get("hooks", ()))
@@ -227,9 +235,12 @@ def _proxy(worker: IsolatedWorker, handle: int, info: dict[str, Any]) -> Checked
     if info.get("files") is not None:
         policy.files = WrappedUserPolicy._files(policy, list(info["files"]))
     if "start_episodes" in hooks:
-        policy.start_episodes = lambda b, n: worker.request(
-            "start_episodes(num_worlds, num_robots)", ("start_episodes", handle, int(b), int(n))
-        ) and None
+        policy.start_episodes = lambda b, n: (
+            worker.request(
+                "start_episodes(num_worlds, num_robots)", ("start_episodes", handle, int(b), int(n))
+            )
+            and None
+        )
     if "episode_columns" in hooks:
         policy.episode_columns = lambda: _columns(worker, handle)
     if "sampled" in hooks:
@@ -251,8 +262,10 @@ def _columns(worker: IsolatedWorker, handle: int) -> Any:
     columns = {}
     for name, dtype, values in reply["columns"]:  # values of other kinds: their reprs, refused as such
         dt = np.dtype(str(dtype)) if dtype != "str" else None
-        columns[name] = np.asarray(values, dt) if dt is not None and dt.kind in _DTYPE_KINDS else np.asarray(
-            [str(v) for v in values]
+        columns[name] = (
+            np.asarray(values, dt)
+            if dt is not None and dt.kind in ARRAY_KINDS
+            else np.asarray([str(v) for v in values])
         )
     return columns
 
@@ -261,7 +274,8 @@ def isolated_policy(
     target: str, name: str, env_config: EnvConfig, seed: int, threads: int | None = None
 ) -> CheckedEnginePolicy | PettingZooPolicy:
     """The ``py:`` policy ``target`` (``py:FILE.py:FACTORY``) built in a new worker process for
-    ``env_config`` and ``seed``: the same wrapper :func:`~catmip_rl.evaluation.user_policy.make_user_policy`
+    ``env_config`` and ``seed``: the same wrapper
+    :func:`~catmip_rl.evaluation.checked_policy.make_user_policy`
     gives (its ``act``, ``goal_mode``, optional members), whose policy runs in the worker. ``threads``:
     torch's threads there (default: this process's, where torch is imported). Call its ``close()`` (or
     :func:`close_policy`) when done. PolicyError / WorldNotSupported as in-process."""
@@ -280,138 +294,3 @@ def close_policy(policy: Any) -> None:
     """End an isolated policy's worker (nothing for any other policy)."""
     if getattr(policy, "isolated", False):
         policy.close()
-
-
-# -- the worker's side (no engine here) ----------------------------------------------------------------------
-def _info(policy: WrappedUserPolicy) -> dict[str, Any]:
-    hooks = [h for h in ("start_episodes", "episode_columns", "sampled") if hasattr(policy, h)]
-    if isinstance(policy, PettingZooPolicy) and policy._reset is not None:
-        hooks.append("reset")
-    return {
-        "level": "engine" if isinstance(policy, CheckedEnginePolicy) else "pettingzoo",
-        "goal_mode": policy.goal_mode,
-        "deterministic": getattr(policy, "deterministic", None),
-        "files": list(getattr(policy, "files", None) or []) if hasattr(policy, "files") else None,
-        "hooks": hooks,
-    }
-
-
-def _json(value: Any) -> Any:
-    """An answer's key or value as JSON keeps it (str, int, bool, float, None), else its repr."""
-    return value if value is None or isinstance(value, (str, int, float)) else repr(value)
-
-
-def _serve(conn: Connection) -> None:
-    from catmip_env.spaces import integer_action
-    from catmip_rl.evaluation.jobs import die_with_parent
-
-    target, name, env_config, seed, threads, parent, path = conn.recv()
-    die_with_parent(parent)
-    sys.path[:] = path  # the caller's: a module policy imports as it would there
-    if threads is not None:
-        try:
-            import torch
-
-            torch.set_num_threads(int(threads))
-        except ModuleNotFoundError:
-            pass
-
-    def send(reply: dict[str, Any], payload: bytes | None = None) -> None:
-        conn.send_bytes(json.dumps(reply | ({"bytes": True} if payload is not None else {})).encode())
-        if payload is not None:
-            conn.send_bytes(payload)
-
-    policies: dict[int, WrappedUserPolicy] = {}
-    views: dict[int, EngineView] = {}
-    maps: list[Any] = []
-    while True:
-        try:
-            message = conn.recv()
-        except (EOFError, OSError):
-            return
-        kind, args = message[0], message[1:]
-        if kind == "close":
-            return
-        try:
-            if kind == "hello":
-                policies[0] = make_user_policy(load_factory(parse_policy_source(target), name), env_config,
-                                               seed, name)  # fmt: skip
-                send({"info": _info(policies[0])})
-            elif kind == "view":
-                handle, path, spec, meta = args
-                mm = np.memmap(path, np.uint8, mode="r")  # read-only: a write raises (or faults) here
-                maps.append(mm)
-                arrays = {key: np.frombuffer(mm, np.dtype(dtype), int(np.prod(shape, dtype=np.int64)), off)
-                          .reshape(shape) for key, shape, dtype, off in spec}  # fmt: skip
-                views[handle] = EngineView(meta, arrays)
-                send({})
-            elif kind == "act":
-                policy = policies[args[0]]
-                if isinstance(policy, CheckedEnginePolicy):
-                    out = policy._call(policy._act, "act(engine)", views[args[0]])
-                    try:
-                        actions = np.asarray(out)
-                    except Exception as exc:
-                        from catmip_rl.evaluation.user_policy import _describe
-
-                        raise PolicyError(
-                            f"policy {name}: act(engine) returned {type(out).__name__} ({_describe(exc)})"
-                        ) from None
-                    if actions.dtype.kind not in _DTYPE_KINDS:
-                        send({"dtype": "object", "shape": list(actions.shape)})
-                    else:
-                        actions = np.ascontiguousarray(actions)
-                        send({"dtype": actions.dtype.str, "shape": list(actions.shape)}, actions.tobytes())
-                else:
-                    observations, infos = args[1], args[2]
-                    out = policy._call(policy._act, "act(observations, infos)", observations, infos)
-                    if not isinstance(out, Mapping):
-                        raise PolicyError(
-                            f"policy {name}: act(observations, infos) returned {type(out).__name__}, "
-                            "expected a dict {robot: action}"
-                        )
-                    try:
-                        pairs = [[_json(k), integer_action(k, v)] for k, v in out.items()]
-                    except (TypeError, ValueError) as exc:
-                        send({"parse_error": " ".join(str(exc).split())})
-                    else:
-                        send({"actions": pairs})
-            elif kind == "reset":
-                policy = policies[args[0]]
-                policy.reset()
-                send({})
-            elif kind == "start_episodes":
-                policies[args[0]].start_episodes(args[1], args[2])
-                send({})
-            elif kind == "episode_columns":
-                reported = policies[args[0]].episode_columns()
-                if not isinstance(reported, dict):
-                    send({"not_a_dict": type(reported).__name__})
-                else:
-                    columns = []
-                    for key, values in reported.items():
-                        arr = np.asarray(values)
-                        kind_ok = arr.dtype.kind in _DTYPE_KINDS
-                        columns.append([_json(key), arr.dtype.str if kind_ok else "str",
-                                        arr.tolist() if kind_ok else [repr(v) for v in arr.ravel()]])  # fmt: skip
-                    send({"columns": columns})
-            elif kind == "sampled":
-                handle = max(policies) + 1
-                policies[handle] = policies[args[0]].sampled(args[1])
-                send({"handle": handle, "info": _info(policies[handle])})
-            else:
-                send({"error": f"policy {name}: unknown request {kind!r}"})
-        except WorldNotSupported as exc:
-            send({"world": str(exc)})
-        except PolicyError as exc:
-            send({"error": str(exc)})
-        except KeyboardInterrupt:
-            return
-        except BaseException as exc:  # the evaluator's own code around the policy: named, not hidden
-            from catmip_rl.evaluation.user_policy import _describe
-
-            send({"error": f"policy {name}: in its process, {kind} failed: {_describe(exc)}"})
-
-
-if __name__ == "__main__":  # the worker: python -m catmip_rl.evaluation.sandbox FD
-    _serve(Connection(int(sys.argv[1])))

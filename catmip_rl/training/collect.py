@@ -22,8 +22,8 @@ from catmip_env import EnvConfig
 from catmip_env.constants import global_channels, local_channels
 from catmip_env.episode_stats import DecisionTracker, EpisodeRecords, episode_records, training_stats
 from catmip_env.events import EventEngine
-from catmip_env.planner_core import Planner
-from catmip_env.planners import Relay, make_planner
+from catmip_env.planners.baselines import Relay, make_planner
+from catmip_env.planners.core import Planner
 from catmip_env.play import Policy
 from catmip_rl.amat.critic import critic_state, state_channels
 from catmip_rl.amat.inputs import macro_observation
@@ -139,7 +139,7 @@ class Collector:
     ) -> Rollout:
         """One episode per world (episode indices ``first_episode + b``); returns the samples.
 
-        ``labeler.act(engine)`` (e.g. a :class:`~catmip_env.window_planner.WindowPlanner`, or a planner
+        ``labeler.act(engine)`` (e.g. a :class:`~catmip_env.planners.window.WindowPlanner`, or a planner
         for cell goals), if given, labels every event's active robots with its actions
         (``Rollout.label``; a relay planner's also says which labels its relay rule chose,
         ``Rollout.label_relay``); each active robot then executes the label instead of the policy's action

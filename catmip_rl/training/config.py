@@ -15,7 +15,7 @@ from typing import Any
 
 from catmip_env import EnvConfig, make_config
 from catmip_env.fields import BOOL, INT, NUMBER, STR, Rule, check, is_str
-from catmip_env.planners import PLANNERS, Relay
+from catmip_env.planners.baselines import PLANNERS, Relay
 from catmip_rl.amat.config import AmatConfig
 
 __all__ = ["TrainConfig", "check_field", "field_docs"]

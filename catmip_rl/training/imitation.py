@@ -6,7 +6,7 @@ AMAT, the planner itself for the cell-goal model (``amat.pointer``).
     episodes, log = dagger(model, collector, "nearest", rounds=6, steps_per_round=300)  # then PPO
 
 Each round rolls out the current policy on ``cfg.num_worlds`` new training episodes while the teacher
-(:class:`~catmip_env.window_planner.WindowPlanner`: the planner's goal, projected into the robot's
+(:class:`~catmip_env.planners.window.WindowPlanner`: the planner's goal, projected into the robot's
 window; or the planner's own cell goal; the rescue rule for a rescuer that knows the target) labels
 every active robot's decision; with
 probability ``beta`` (1 in round 0, halving every round) a robot executes the label instead, DAgger's
@@ -27,13 +27,13 @@ import torch
 
 from catmip_env.constants import TARGET_BIT
 from catmip_env.events import EventEngine
-from catmip_env.planner_core import Planner
-from catmip_env.planners import Relay, make_planner
+from catmip_env.planners.baselines import Relay, make_planner
+from catmip_env.planners.core import Planner
+from catmip_env.planners.window import WindowPlanner, make_window_planner
 from catmip_env.play import Policy
-from catmip_env.window_planner import WindowPlanner, make_window_planner
 from catmip_rl.amat.inputs import one_hot_class
 from catmip_rl.amat.model import AMAT, INVALID_LOGIT
-from catmip_rl.files import open_csv_log, write_csv_row
+from catmip_rl.store.files import open_csv_log, write_csv_row
 from catmip_rl.training.collect import Collector, Rollout
 from catmip_rl.training.config import TrainConfig
 from catmip_rl.training.gae import ValueNorm, async_gae
@@ -109,7 +109,7 @@ def make_teacher(
 ) -> Planner | WindowPlanner:
     """The teacher planner ``name`` for a model whose goals are ``goals`` (``AmatConfig.goals``): its goals
     projected into the goal window ("window"; ``follow_heading=False``: along a heading-free path, see
-    :class:`~catmip_env.window_planner.WindowPlanner`), or the planner itself ("cell": the same action
+    :class:`~catmip_env.planners.window.WindowPlanner`), or the planner itself ("cell": the same action
     space, nothing projected)."""
     if goals == "window":
         return make_window_planner(name, seed=seed, follow_heading=follow_heading)
@@ -240,7 +240,7 @@ def dagger(
     round (logging, progress). A list of collectors (a mixture of worlds) collects from each every
     round into a buffer of its own (their maps differ in size and team), and the steps take their
     batches from the buffers in turn. ``follow_heading=False`` projects a named teacher's goals along a
-    heading-free path (:class:`~catmip_env.window_planner.WindowPlanner`). ``imitate_stay=False`` leaves
+    heading-free path (:class:`~catmip_env.planners.window.WindowPlanner`). ``imitate_stay=False`` leaves
     the teacher's "stay" labels unscored (``TrainConfig.warm_start_stay``). With ``value_norm`` the value
     head learns the rollouts' returns (discounted by ``gamma``) beside the labels, and ``value_norm``
     follows them (:func:`imitation_loss`; ``TrainConfig.warm_start_value``). With ``relay_weight`` > 0

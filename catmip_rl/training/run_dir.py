@@ -15,10 +15,10 @@ from pathlib import Path
 
 import torch
 
-from catmip_rl.checkpoint import initial_weights, resume_checkpoint
-from catmip_rl.files import check_new_dir, check_not_dangling
-from catmip_rl.model_files import CheckpointError, model_from
-from catmip_rl.outputs import OutputInUse, OutputLock, first_missing, remove_debris
+from catmip_rl.store.checkpoint import initial_weights, resume_checkpoint
+from catmip_rl.store.files import check_new_dir, check_not_dangling
+from catmip_rl.store.model_files import CheckpointError, model_from
+from catmip_rl.store.outputs import OutputInUse, OutputLock, first_missing, remove_debris
 from catmip_rl.training.config import TrainConfig
 
 __all__ = [
@@ -35,7 +35,7 @@ RunDirInUse = OutputInUse
 
 
 class RunDirLock(OutputLock):
-    """The exclusive hold of a run dir by this process (:class:`~catmip_rl.outputs.OutputLock` on
+    """The exclusive hold of a run dir by this process (:class:`~catmip_rl.store.outputs.OutputLock` on
     ``RUN_DIR/.lock``, which stays when released: a dead run never leaves a stale lock, and its run dir
     resumes at once). Creates the run dir if needed: ``created`` is the outermost folder it made (None
     if the run dir existed), and ``release(undo=True)`` removes what acquiring added."""

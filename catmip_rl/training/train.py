@@ -5,7 +5,7 @@ one loop.
     (warm start: DAgger rounds against a window-projected planner, ``training.imitation``)
     loop:  LR (``ppo.lr_factor``) -> collect one episode per world (``collect``) -> async GAE and
            the batch (``gae``) -> PPO epochs with a target-KL stop (``ppo``) -> log -> evaluate
-           -> checkpoint (``catmip_rl.checkpoint``)
+           -> checkpoint (``catmip_rl.store.checkpoint``)
 
 Everything needed to continue a run exactly is saved atomically in ``RUN_DIR/checkpoints``; the
 resolved config is ``RUN_DIR/config.json`` (written once every check has passed and the parts are
@@ -29,8 +29,8 @@ import torch
 from catmip_env.config import EnvConfig
 from catmip_rl.amat.model import AMAT
 from catmip_rl.amat.pointer import make_model
-from catmip_rl.checkpoint import load_initial_weights, restore_training, save_training_checkpoint
-from catmip_rl.files import atomic_write_text, open_csv_log, write_csv_row
+from catmip_rl.store.checkpoint import load_initial_weights, restore_training, save_training_checkpoint
+from catmip_rl.store.files import atomic_write_text, open_csv_log, write_csv_row
 from catmip_rl.training.allocator import keep_freed_memory
 from catmip_rl.training.collect import Collector, Rollout
 from catmip_rl.training.config import TrainConfig

@@ -21,11 +21,22 @@ from tests.architecture_graph import group, group_edges, import_graph  # noqa: E
 
 # where each group's box is drawn (x, y of its centre, in box units)
 POSITION = {
-    "env: config": (0, 0), "env: kernels": (0, 1.5), "env: world": (0, 3),
-    "env: events": (0, 4), "env: planners": (-1, 5), "env: play": (0.2, 6), "env: PettingZoo": (-1, 7),
-    "rl: amat": (2.2, 3), "rl: training": (2.2, 5), "rl: checkpoint": (3.4, 6.5), "rl: evaluation": (2, 7),
-    "rl: adapters": (4, 4), "rl: cli": (3.4, 8),
-}  # fmt: skip
+    "env: config": (0, 0),
+    "env: kernels": (0, 1.5),
+    "env: world": (0, 3),
+    "env: events": (0, 4),
+    "env: planners": (-1, 5),
+    "env: play": (0.2, 6),
+    "env: PettingZoo": (-1, 7),
+    "rl: amat": (2.2, 3),
+    "rl: package": (4.2, 3),
+    "rl: store": (3.4, 4.2),
+    "rl: training": (2.2, 5.2),
+    "rl: adapters": (4.2, 6),
+    "rl: evaluation": (2, 7),
+    "rl: benchmark": (3.4, 8.2),
+    "rl: cli": (1.6, 9.2),
+}
 
 
 def reduce_edges(edges: set[tuple[str, str]]) -> set[tuple[str, str]]:
@@ -71,7 +82,7 @@ def draw(out: Path) -> Path:
         if not mod.endswith("__init__"):
             members.setdefault(group(mod), []).append(mod.rsplit(".", 1)[1])
     w, h, sx, sy = 1.9, 0.66, 1.75, 1.0
-    fig, ax = plt.subplots(figsize=(13, 10))
+    fig, ax = plt.subplots(figsize=(13, 11))
     centre = {g: (x * sx, y * sy) for g, (x, y) in POSITION.items()}
     eager = reduce_edges(group_edges(import_graph(lazy=False)))  # the layers: acyclic
     lazy = group_edges(graph) - group_edges(import_graph(lazy=False))  # optional paths (extras)
@@ -95,9 +106,9 @@ def draw(out: Path) -> Path:
         ax.text(x, y + h / 2 - 0.27, "\n".join(lines), ha="center", va="top", fontsize=7, zorder=3)
     ax.text(0, -0.75, "catmip_env (numpy + numba, no torch)", ha="center", color="#2f6fb0", fontsize=11)
     ax.text(5.2, 2.2, "catmip_rl (torch)", ha="center", color="#c06a16", fontsize=11)
-    ax.text(7.0, 3.5, "the only TorchRL / Ray imports", ha="center", va="center", fontsize=8, color="0.35")
+    ax.text(7.35, 6.45, "the only TorchRL / Ray imports", ha="center", va="center", fontsize=8, color="0.35")
     ax.set_xlim(-2.8, 8.4)
-    ax.set_ylim(-1.1, 8.6)
+    ax.set_ylim(-1.1, 9.8)
     ax.set_axis_off()
     ax.set_title(
         "CATMiP modules by group. Arrow: imports at module level, directly or through the box it points to;\n"

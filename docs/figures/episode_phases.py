@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from catmip_rl.files import atomic_savefig, atomic_write_csv, atomic_write_text
+from catmip_rl.store.files import atomic_savefig, atomic_write_csv, atomic_write_text
 
 PHASES = (("target_found_tick", "target found"), ("rescuer_informed_tick", "a rescuer knows"),
           ("rescue_tick", "rescued"))  # fmt: skip

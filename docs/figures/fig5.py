@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from catmip_rl.evaluation.plots import trailing_mean
-from catmip_rl.files import atomic_savefig, atomic_write_csv
+from catmip_rl.store.files import atomic_savefig, atomic_write_csv
 
 PANELS = (
     ("eval_success", "evaluation: rescued by tick 100 (argmax)"),

@@ -25,10 +25,10 @@ import torch
 
 from catmip_env.episode_stats import episode_metrics
 from catmip_env.events import EventEngine
-from catmip_env.planners import make_planner
+from catmip_env.planners.baselines import make_planner
 from catmip_env.play import play
 from catmip_rl.cli.args import parse_set
-from catmip_rl.files import atomic_savefig, atomic_write_csv, atomic_write_text
+from catmip_rl.store.files import atomic_savefig, atomic_write_csv, atomic_write_text
 from catmip_rl.training.config import TrainConfig
 from catmip_rl.training.ppo import native_bf16
 from catmip_rl.training.presets import make_train_config

@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from catmip_rl.evaluation.plots import trailing_mean
-from catmip_rl.files import atomic_savefig, atomic_write_csv
+from catmip_rl.store.files import atomic_savefig, atomic_write_csv
 
 
 def read_run(run_dir: Path) -> tuple[dict, list[dict]]:

@@ -17,8 +17,8 @@ import re
 import sys
 from pathlib import Path
 
-from catmip_rl.evaluation.paper import summary_table
-from catmip_rl.files import atomic_write_text
+from catmip_rl.benchmark.paper import summary_table
+from catmip_rl.store.files import atomic_write_text
 
 
 def table(path: Path, bold: bool = False) -> str:

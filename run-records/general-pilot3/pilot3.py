@@ -4,7 +4,7 @@ from pathlib import Path
 import torch
 torch.set_num_threads(1)
 from catmip_env.config import make_config
-from catmip_rl.checkpoint import load_model, save_model
+from catmip_rl.store.checkpoint import load_model, save_model
 from catmip_rl.training.collect import Collector
 from catmip_rl.training.gae import ValueNorm
 from catmip_rl.training.imitation import dagger

@@ -5,7 +5,7 @@ import numpy as np
 from catmip_env import make_config
 from catmip_env.episode_stats import DecisionTracker
 from catmip_env.events import EventEngine
-from catmip_env.window_planner import make_window_planner
+from catmip_env.planners.window import make_window_planner
 
 
 def _play(policy, worlds=4, **overrides):

@@ -10,7 +10,7 @@ import pytest
 
 from catmip_env import BatchedWorld, make_config
 from catmip_env.events import EventEngine
-from catmip_env.planners import make_planner
+from catmip_env.planners.baselines import make_planner
 
 SETTINGS = {
     "task2-full": {},

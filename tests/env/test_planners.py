@@ -8,7 +8,7 @@ import pytest
 
 from catmip_env import EnvConfig, make_config
 from catmip_env.events import EventEngine
-from catmip_env.planners import PLANNERS, make_planner
+from catmip_env.planners.baselines import PLANNERS, make_planner
 
 EPISODES = 24
 SEED = 2024

@@ -16,7 +16,7 @@ from catmip_env.episode_stats import (
     success_curve,
 )
 from catmip_env.events import EventEngine, random_valid_actions
-from catmip_env.planners import make_planner
+from catmip_env.planners.baselines import make_planner
 from catmip_env.play import play
 from catmip_env.render import episode_frames, episode_status
 

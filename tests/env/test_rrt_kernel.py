@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from catmip_env.kernels.rrt import grow_rrt
+from catmip_env.planners.rrt import grow_rrt
 
 
 def _reference_rrt(explored, occupied, r0, c0, u, step, max_targets):

@@ -9,7 +9,7 @@ import numpy as np
 from catmip_env import EnvConfig, make_config
 from catmip_env.constants import CH_CLASS0, OBS_CLUE, OBS_HALF, OBS_ONE, TARGET_BIT
 from catmip_env.events import EventEngine
-from catmip_env.planners import make_planner
+from catmip_env.planners.baselines import make_planner
 from tests.env.helpers import preset_engine, random_actions
 
 

@@ -1,4 +1,4 @@
-"""Planners projected into the goal window (catmip_env.window_planner): hand-drawn paths and whole
+"""Planners projected into the goal window (catmip_env.planners.window): hand-drawn paths and whole
 episodes against the cell-mode planners."""
 
 import numpy as np
@@ -7,8 +7,8 @@ import pytest
 from catmip_env import make_config
 from catmip_env.constants import EXPLORED, OCCUPIED
 from catmip_env.events import EventEngine
-from catmip_env.planners import make_planner
-from catmip_env.window_planner import make_window_planner, project_goal
+from catmip_env.planners.baselines import make_planner
+from catmip_env.planners.window import make_window_planner, project_goal
 
 # '#' known occupied, '.' known free, '?' unexplored (counts as free), 'R' the robot, 'o' another robot
 MAP = """

@@ -1,4 +1,4 @@
-"""Model files and checkpoints (``catmip_rl.checkpoint``, ``catmip_rl.model_files``): read weights-only, by
+"""Model files and checkpoints (``store.checkpoint``, ``store.model_files``): read weights-only, by
 name, path or run dir, and verified before they are trusted: flipped bytes, a model too big to
 build, entries of the wrong types, another run's checkpoint, random bytes and truncations are each one
 line naming the file (exit 2 from the CLI), and nothing large is allocated on the way."""
@@ -17,10 +17,10 @@ import torch
 import catmip_rl
 from catmip_rl import AMAT, save_model
 from catmip_rl.amat.config import LIMITS, AmatConfig
-from catmip_rl.checkpoint import SHIPPED_DIR, atomic_torch_save, load_model
 from catmip_rl.cli.main import main
 from catmip_rl.evaluation.methods import parse_method
-from catmip_rl.model_files import MAX_PARAMETERS, CheckpointError, read_checkpoint
+from catmip_rl.store.checkpoint import SHIPPED_DIR, atomic_torch_save, load_model
+from catmip_rl.store.model_files import MAX_PARAMETERS, CheckpointError, read_checkpoint
 from catmip_rl.training.presets import make_train_config
 from tests.rl.helpers import one_line_error
 

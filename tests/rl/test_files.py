@@ -1,4 +1,5 @@
-"""Atomic result files (catmip_env.files, catmip_rl.files): whole files or nothing, nothing left behind."""
+"""Atomic result files (catmip_env.files, catmip_rl.store.files): whole files or nothing, nothing left
+behind."""
 
 import matplotlib
 
@@ -9,7 +10,7 @@ import numpy as np
 import pytest
 
 from catmip_env.files import atomic_path
-from catmip_rl.files import atomic_savefig, atomic_write_text
+from catmip_rl.store.files import atomic_savefig, atomic_write_text
 
 
 def test_an_error_while_writing_leaves_the_old_file_and_no_temporary(tmp_path):

@@ -13,10 +13,10 @@ import torch
 
 from catmip_rl import AMAT, save_model
 from catmip_rl.amat.config import AmatConfig
-from catmip_rl.checkpoint import SHIPPED_DIR, load_model
 from catmip_rl.cli.main import main
 from catmip_rl.evaluation.methods import parse_method
-from catmip_rl.model_files import CheckpointError, read_checkpoint
+from catmip_rl.store.checkpoint import SHIPPED_DIR, load_model
+from catmip_rl.store.model_files import CheckpointError, read_checkpoint
 from tests.rl.helpers import one_line_error
 from tests.rl.test_checkpoint import _training_checkpoint
 
@@ -96,7 +96,7 @@ def test_play_options_must_be_booleans(tmp_path, value):
 
 def test_amat_kernels_compile_only_where_a_model_plays(tmp_path, monkeypatch):
     from catmip_env import warmup as env_warmup
-    from catmip_rl.evaluation import warmup
+    from catmip_rl.cli import warmup
 
     compiled = []
     monkeypatch.setattr(env_warmup, "compile_once", lambda _p, what, _fn, _s: compiled.append(what) or 0.0)
@@ -115,8 +115,8 @@ def test_amat_kernels_compile_only_where_a_model_plays(tmp_path, monkeypatch):
 
 
 def test_a_changed_policy_file_is_one_readable_line(tmp_path):
+    from catmip_rl.benchmark.jobs import Job, run_one
     from catmip_rl.evaluation.evaluate import EvalSetting
-    from catmip_rl.evaluation.jobs import Job, run_one
 
     policy = tmp_path / "p.py"
     policy.write_text("class P:\n    def act(self, engine):\n        return engine.masks.argmax(-1)\n"

@@ -15,9 +15,9 @@ from pathlib import Path
 
 import pytest
 
+from catmip_rl.benchmark.results import load_results
 from catmip_rl.cli.main import main
-from catmip_rl.evaluation.compare import load_results
-from catmip_rl.outputs import (
+from catmip_rl.store.outputs import (
     RECORD,
     OutputInUse,
     check_record,
@@ -144,7 +144,7 @@ def test_bench_resume_reads_complete_runs_back_and_plays_the_rest(tmp_path, caps
     assert main([*argv, "--methods", "nearest,random-uniform"]) == 2  # not empty: --force or --resume
     assert "--resume to continue it" in capsys.readouterr().err
 
-    from catmip_rl.evaluation import jobs
+    from catmip_rl.benchmark import jobs
 
     played, evaluate = [], jobs.evaluate
 
@@ -164,7 +164,7 @@ def test_bench_resume_reads_complete_runs_back_and_plays_the_rest(tmp_path, caps
 _POOL_PARENT = """
 import multiprocessing, sys, time
 from concurrent.futures import ProcessPoolExecutor
-from catmip_rl.evaluation.jobs import die_with_parent
+from catmip_rl.evaluation.workers import die_with_parent
 import os
 if __name__ == "__main__":
     pool = ProcessPoolExecutor(2, mp_context=multiprocessing.get_context("spawn"),

@@ -1,4 +1,4 @@
-"""Small numba kernels of :class:`~catmip_rl.amat.batch1.fast_amat.FastAmat` on float32 vectors and
+"""Small numba kernels of :class:`~catmip_rl.amat.onboard.fast_amat.FastAmat` on float32 vectors and
 matrices: matrix products in register tiles, LayerNorm, exact GELU, one query's softmax attention,
 class tokens.
 

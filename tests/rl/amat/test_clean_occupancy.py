@@ -9,11 +9,11 @@ from catmip_env.config import make_config
 from catmip_env.constants import CH_OCCUPIED, EXPLORED, OBS_ONE, OCCUPIED
 from catmip_env.events import EventEngine, random_valid_actions
 from catmip_rl.amat.inputs import clean_occupancy
-from catmip_rl.checkpoint import save_model
+from catmip_rl.amat.onboard.execution import CellGoalExecutor
+from catmip_rl.benchmark.entry import entry_actions
 from catmip_rl.evaluation.evaluate import EvalSetting, evaluate
-from catmip_rl.evaluation.execution import CellGoalExecutor
 from catmip_rl.evaluation.methods import make_policy, parse_method
-from catmip_rl.evaluation.entry import entry_actions
+from catmip_rl.store.checkpoint import save_model
 from tests.rl.amat.test_pointer import shaken
 
 
@@ -132,7 +132,7 @@ def test_a_resumed_run_does_not_read_back_results_played_without_clean_occupancy
     """The same name, file and setting played another way is another run: resuming it is an error."""
     from dataclasses import replace
 
-    from catmip_rl.evaluation.jobs import Job, run_one
+    from catmip_rl.benchmark.jobs import Job, run_one
 
     path = save_model(shaken(0), tmp_path / "m.pt")
     setting = EvalSetting("task2", "2", 0.05, 10)

@@ -7,10 +7,10 @@ import torch.nn.functional as F
 
 from catmip_env.config import make_config
 from catmip_env.events import EventEngine
-from catmip_rl.amat.batch1.fast_amat import FastAmat
 from catmip_rl.amat.config import AmatConfig
 from catmip_rl.amat.kernels.conv import RUN_MAX, conv_weights, ones_conv
 from catmip_rl.amat.model import decision_order
+from catmip_rl.amat.onboard.fast_amat import FastAmat
 from tests.rl.helpers import shaken_model
 
 SMALL = AmatConfig(embed_dim=32, n_blocks=2, n_heads=2)

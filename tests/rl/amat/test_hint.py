@@ -11,13 +11,13 @@ import torch
 
 from catmip_env.config import make_config
 from catmip_env.events import EventEngine
-from catmip_env.planners import make_planner
+from catmip_env.planners.baselines import make_planner
 from catmip_rl.amat.config import AmatConfig
 from catmip_rl.amat.model import decision_order
+from catmip_rl.amat.onboard.execution import CellGoalExecutor
 from catmip_rl.amat.pointer import make_model
 from catmip_rl.amat.weights import with_hint
-from catmip_rl.checkpoint import initial_weights, save_model
-from catmip_rl.evaluation.execution import CellGoalExecutor
+from catmip_rl.store.checkpoint import initial_weights, save_model
 from catmip_rl.training.collect import Collector
 from catmip_rl.training.imitation import DemoBuffer, PlannerLabeler, imitation_loss
 from catmip_rl.training.presets import make_train_config

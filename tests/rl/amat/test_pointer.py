@@ -9,14 +9,14 @@ import torch
 from catmip_env.config import make_config
 from catmip_env.constants import EXPLORED, OCCUPIED
 from catmip_env.events import EventEngine, random_valid_actions
-from catmip_env.planner_core import distance_field
+from catmip_env.planners.core import distance_field
 from catmip_rl.amat.config import AmatConfig
 from catmip_rl.amat.inputs import macro_observation
 from catmip_rl.amat.kernels.cell_fields import cell_fields
 from catmip_rl.amat.model import AMAT, decision_order
+from catmip_rl.amat.onboard.execution import CellGoalExecutor
 from catmip_rl.amat.pointer import PointerAMAT, make_model
-from catmip_rl.checkpoint import load_model, save_model
-from catmip_rl.evaluation.execution import CellGoalExecutor
+from catmip_rl.store.checkpoint import load_model, save_model
 from catmip_rl.training.collect import Collector
 from tests.rl.helpers import shaken_model
 

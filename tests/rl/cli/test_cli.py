@@ -16,19 +16,19 @@ from hypothesis import HealthCheck, event, given, settings
 from hypothesis import strategies as st
 
 import catmip_rl
+import catmip_rl.benchmark.leaderboard
+import catmip_rl.benchmark.paper
+import catmip_rl.benchmark.suite
 import catmip_rl.evaluation.evaluate
-import catmip_rl.evaluation.leaderboard
-import catmip_rl.evaluation.paper
-import catmip_rl.evaluation.suite
 import catmip_rl.training.collect
 import catmip_rl.training.train
 from catmip_env.search_rescue_v0 import SearchRescueEnv
-from catmip_rl.checkpoint import SHIPPED_DIR, resume_checkpoint
 from catmip_rl.cli.args import CPUS
 from catmip_rl.cli.main import main
 from catmip_rl.cli.parser import DEFAULT_PRESET, build_parser
-from catmip_rl.files import open_csv_log
-from catmip_rl.model_files import CheckpointError, read_checkpoint
+from catmip_rl.store.checkpoint import SHIPPED_DIR, resume_checkpoint
+from catmip_rl.store.files import open_csv_log
+from catmip_rl.store.model_files import CheckpointError, read_checkpoint
 from catmip_rl.training.presets import TRAIN_PRESETS, make_train_config
 
 SHIPPED = SHIPPED_DIR / "amat_task1.pt"
@@ -77,7 +77,7 @@ def files(tmp_path_factory) -> dict[str, Path]:
 
 
 def _training_checkpoint(iteration: int, **config) -> dict:
-    """The keys ``--resume`` reads (catmip_rl.checkpoint.save_training_checkpoint), with a tiny config."""
+    """The keys ``--resume`` reads (catmip_rl.store.checkpoint.save_training_checkpoint), with a tiny config."""
     cfg = make_train_config("tiny", **config)
     return {"iteration": iteration, "episodes": 8, "model": {}, "optimizer": {}, "value_norm": {},
             "generator": torch.Generator().get_state(), "torch_rng": torch.get_rng_state(),
@@ -579,9 +579,9 @@ def test_fuzz_random_arguments_exit_0_or_2_without_a_traceback(
     with monkeypatch.context() as m:  # the first real work of each command raises _WorkStarted
         m.chdir(tmp_path_factory.mktemp("cwd"))  # a value such as "amat:/tmp/x" is a relative path to make
         m.setattr(catmip_rl.evaluation.evaluate, "EventEngine", _work_started)
-        m.setattr(catmip_rl.evaluation.paper, "map_jobs", _work_started)
-        m.setattr(catmip_rl.evaluation.suite, "map_jobs", _work_started)
-        m.setattr(catmip_rl.evaluation.leaderboard, "render_leaderboard", _work_started)
+        m.setattr(catmip_rl.benchmark.paper, "map_jobs", _work_started)
+        m.setattr(catmip_rl.benchmark.suite, "map_jobs", _work_started)
+        m.setattr(catmip_rl.benchmark.leaderboard, "render_leaderboard", _work_started)
         m.setattr(catmip_rl.training.train, "make_model", _work_started)
         m.setattr(subprocess, "call", _work_started)  # bench perf's benchmarks
         threads = torch.get_num_threads()
@@ -636,7 +636,7 @@ def test_eval_says_when_a_model_plays_with_the_loop_guard(tmp_path, capsys):
 
 
 def test_method_help_names_every_planner(capsys, monkeypatch):
-    from catmip_env.planners import PLANNERS
+    from catmip_env.planners.baselines import PLANNERS
 
     monkeypatch.setenv("COLUMNS", "100000")  # argparse wraps the help at a hyphen otherwise
     assert main(["eval", "--help"]) == 0

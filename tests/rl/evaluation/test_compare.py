@@ -8,8 +8,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from catmip_rl.benchmark.compare import compare
+from catmip_rl.benchmark.results import load_results
 from catmip_rl.cli.main import main
-from catmip_rl.evaluation.compare import compare, load_results
 from catmip_rl.evaluation.stats import mcnemar_p, paired_difference
 
 

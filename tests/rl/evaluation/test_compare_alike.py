@@ -10,8 +10,9 @@ from pathlib import Path
 
 import pytest
 
+from catmip_rl.benchmark.compare import compare
+from catmip_rl.benchmark.results import check_alike, load_results, played_on
 from catmip_rl.cli.main import main
-from catmip_rl.evaluation.compare import check_alike, compare, load_results, played_on
 
 
 def _write(folder: Path, method: str, ticks: list[int | None], label: str = "task1-full-noise0-ma10",

@@ -10,8 +10,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from catmip_rl.benchmark.compare import compare
+from catmip_rl.benchmark.results import Result, load_results
 from catmip_rl.cli.main import main
-from catmip_rl.evaluation.compare import Result, compare, load_results
 from catmip_rl.evaluation.evaluate import EvalResult, EvalSetting
 
 HORIZON = 300

@@ -14,11 +14,12 @@ from catmip_env.events import EventEngine
 from catmip_env.map_sets import map_hash
 from catmip_rl import AMAT, AmatConfig, save_model
 from catmip_rl.amat.model import decision_order
+from catmip_rl.amat.onboard.execution import GOAL_BYTES, AmatExecutor, message_bytes
+from catmip_rl.benchmark.paper import FIGURES, run_figure, summary_cell
 from catmip_rl.cli.main import main as cli
-from catmip_rl.evaluation.evaluate import EvalSetting, evaluate, render_episode
-from catmip_rl.evaluation.execution import GOAL_BYTES, AmatExecutor, message_bytes
+from catmip_rl.cli.render import render_episode
+from catmip_rl.evaluation.evaluate import EvalSetting, evaluate
 from catmip_rl.evaluation.methods import Method, parse_method, parse_runs
-from catmip_rl.evaluation.paper import FIGURES, run_figure, summary_cell
 
 
 def _sharp_model(window: int = 7, seed: int = 0) -> AMAT:

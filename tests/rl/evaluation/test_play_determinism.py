@@ -12,7 +12,7 @@ import sys
 import pytest
 
 from catmip_rl.evaluation.evaluate import EvalSetting, evaluate
-from catmip_rl.evaluation.warmup import torch_threads
+from catmip_rl.evaluation.workers import torch_threads
 
 SETTING = EvalSetting("task2", "2", 0.05)
 SEED = 20261201
@@ -20,7 +20,7 @@ SEED = 20261201
 PLAY = """
 import json, sys
 from catmip_rl.evaluation.evaluate import EvalSetting, evaluate
-from catmip_rl.evaluation.warmup import torch_threads
+from catmip_rl.evaluation.workers import torch_threads
 torch_threads(1)
 r = evaluate("amat:general", EvalSetting("task2", "2", 0.05), 6, 20261201, sampled_too=False)
 print(json.dumps([e.get("rescue_tick") for e in r.episodes]))

@@ -12,8 +12,9 @@ pytest.importorskip("matplotlib")
 
 from PIL import Image  # noqa: E402
 
+from catmip_rl.benchmark.compare import compare  # noqa: E402
+from catmip_rl.benchmark.results import load_results  # noqa: E402
 from catmip_rl.evaluation import plots  # noqa: E402
-from catmip_rl.evaluation.compare import compare, load_results  # noqa: E402
 from catmip_rl.evaluation.evaluate import EvalSetting  # noqa: E402
 from catmip_rl.evaluation.plots import setting_title  # noqa: E402
 

@@ -9,9 +9,9 @@ import textwrap
 import numpy as np
 import pytest
 
+from catmip_rl.benchmark.entry import SETTINGS
+from catmip_rl.benchmark.suite import run_suite
 from catmip_rl.cli.main import main
-from catmip_rl.evaluation.entry import SETTINGS
-from catmip_rl.evaluation.suite import run_suite
 
 POLICY = textwrap.dedent(
     """
@@ -54,8 +54,8 @@ def test_replayed_entries_are_marked_verified(entries, capsys):
 def test_an_entry_with_one_edited_tick_is_refused_in_one_line(entries, tmp_path, capsys):
     """One rescue tick edited by hand, and every number the entry states restated to fit it: the checks
     of the numbers pass, the replay does not."""
-    from catmip_rl.evaluation.entry import iqm_interval, rescued_by_100, setting_numbers
-    from catmip_rl.evaluation.entry_check import check_entry
+    from catmip_rl.benchmark.entry import iqm_interval, rescued_by_100, setting_numbers
+    from catmip_rl.benchmark.entry_check import check_entry
 
     entry = json.loads((entries / "s" / "entries" / "rrt.json").read_text())
     label = SETTINGS[7].label

@@ -13,11 +13,11 @@ from hashlib import sha256
 import numpy as np
 import pytest
 
-from catmip_rl.cli.main import main
 from catmip_rl.benchmark import jobs
 from catmip_rl.benchmark.entry import SETTINGS, entry_actions
 from catmip_rl.benchmark.leaderboard import EntryError, load_entries, paired_rows
 from catmip_rl.benchmark.suite import run_suite
+from catmip_rl.cli.main import main
 
 POLICY = textwrap.dedent(
     """

@@ -17,7 +17,8 @@ from catmip_env import search_rescue_v0
 from catmip_rl.adapters import keys as K
 from catmip_rl.adapters.torchrl_policy import TorchRLPolicy
 from catmip_rl.cli.main import main
-from catmip_rl.evaluation.evaluate import EvalSetting, evaluate, render_episode
+from catmip_rl.cli.render import render_episode
+from catmip_rl.evaluation.evaluate import EvalSetting, evaluate
 from catmip_rl.evaluation.methods import amat_label, parse_method
 from catmip_rl.evaluation.user_policy import PolicyError
 
@@ -320,7 +321,7 @@ def test_a_policy_file_imports_the_modules_beside_it(tmp_path, capsys):
 def test_sync_plays_a_policy_file_in_the_synchronous_world(tmp_path):
     seen = tmp_path / "seen.txt"  # the factory writes down the world it was asked to play
     (tmp_path / "pol.py").write_text(
-        "from catmip_env.planners import make_planner\n"
+        "from catmip_env.planners.baselines import make_planner\n"
         "def make(env_config, seed):\n"
         f"    open({str(seen)!r}, 'a').write(str(env_config.synchronous) + ' ')\n"
         "    policy = make_planner('nearest', seed=seed)\n"

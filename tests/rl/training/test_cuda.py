@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 import torch
 
-from catmip_rl.checkpoint import load_model
 from catmip_rl.cli.main import main as cli
+from catmip_rl.store.checkpoint import load_model
 from catmip_rl.training.collect import Collector
 from catmip_rl.training.presets import make_train_config
 from catmip_rl.training.train import build_run, ppo_iteration, train

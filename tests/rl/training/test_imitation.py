@@ -9,7 +9,7 @@ import torch
 
 from catmip_env import make_config
 from catmip_env.events import EventEngine
-from catmip_env.window_planner import make_window_planner
+from catmip_env.planners.window import make_window_planner
 from catmip_rl.amat.config import AmatConfig
 from catmip_rl.amat.model import AMAT
 from catmip_rl.training.collect import Collector
@@ -224,7 +224,7 @@ def test_the_rescue_losss_label_follows_the_heading_as_configured(follow_heading
 def test_dagger_of_a_planner_in_its_own_action_space_fits_a_cell_goal_model():
     """A cell-goal model imitates the planner itself (no projection): its labels are cell actions, and
     a few rounds take its agreement with Nearest far above chance on the teacher's own fresh episodes."""
-    from catmip_env.planners import make_planner
+    from catmip_env.planners.baselines import make_planner
     from catmip_rl.amat.pointer import make_model
 
     cfg = make_config("task1", activation=(2, 5), horizon_ticks=100)
@@ -249,7 +249,7 @@ def test_dagger_of_a_planner_in_its_own_action_space_fits_a_cell_goal_model():
 def test_labels_the_model_rules_out_are_left_unscored():
     """The cell-goal model narrows the env's mask to known free cells: a label on an unexplored cell
     leaves the loss (a finite loss from the other labels), and a batch of such labels alone scores 0."""
-    from catmip_env.planners import make_planner
+    from catmip_env.planners.baselines import make_planner
     from catmip_rl.amat.pointer import make_model
 
     cfg = make_config("task1", activation=(2, 5), horizon_ticks=60)
@@ -296,7 +296,7 @@ def test_a_warm_start_with_the_value_head_learns_the_returns_beside_the_labels()
 
 def _relay_rollout(worlds: int, teacher: str):
     """A Task-1 rollout (sigma = 2: the news travels by relay) played and labelled by ``teacher``."""
-    from catmip_env.planners import make_planner
+    from catmip_env.planners.baselines import make_planner
     from catmip_rl.amat.pointer import make_model
 
     cfg = make_config("task1", activation=(2, 5), horizon_ticks=100, comm_sigma=2.0)
@@ -330,7 +330,7 @@ def test_dagger_with_relay_weight_fits_the_relay_labels_and_refuses_another_teac
     """relay_weight adds the relay labels' cross-entropy, logged per round: from the same start and the
     same teacher episodes, the student agrees with more of those labels than one trained without it. A
     teacher without a relay rule is refused."""
-    from catmip_env.planners import make_planner
+    from catmip_env.planners.baselines import make_planner
     from catmip_rl.amat.pointer import make_model
     from catmip_rl.training.imitation import _relay_batch
 

@@ -12,11 +12,11 @@ import torch.nn.functional as F
 
 from catmip_env import make_config
 from catmip_env.events import EventEngine
-from catmip_env.planners import Nearest
+from catmip_env.planners.baselines import Nearest
 from catmip_rl.amat.config import AmatConfig
 from catmip_rl.amat.critic import StateCritic, critic_state
 from catmip_rl.amat.pointer import make_model
-from catmip_rl.checkpoint import save_model
+from catmip_rl.store.checkpoint import save_model
 from catmip_rl.training.config import TrainConfig
 from catmip_rl.training.presets import make_train_config
 from catmip_rl.training.train import build_run, ppo_iteration, train

@@ -162,7 +162,7 @@ def test_a_resumed_run_keeps_the_precision_auto_chose(monkeypatch, tmp_path):
 def test_a_run_resumed_on_another_kind_of_machine_chooses_its_precision_again(monkeypatch, tmp_path):
     import json
 
-    from catmip_rl.checkpoint import atomic_torch_save
+    from catmip_rl.store.checkpoint import atomic_torch_save
     from catmip_rl.training import ppo
     from catmip_rl.training.train import train
 

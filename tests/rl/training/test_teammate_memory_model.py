@@ -9,10 +9,10 @@ import torch
 from catmip_env import make_config
 from catmip_env.events import EventEngine
 from catmip_rl.amat.config import AmatConfig
+from catmip_rl.amat.onboard.execution import CellGoalExecutor
 from catmip_rl.amat.pointer import make_model
-from catmip_rl.checkpoint import save_model
 from catmip_rl.evaluation.evaluate import EvalSetting, evaluate
-from catmip_rl.evaluation.execution import CellGoalExecutor
+from catmip_rl.store.checkpoint import save_model
 from catmip_rl.training.presets import make_train_config
 
 AMAT = {"embed_dim": 16, "goals": "cell", "cell_channels": 8, "cell_layers": 2}

@@ -7,8 +7,8 @@ from pathlib import Path
 import pytest
 import torch
 
-from catmip_rl.checkpoint import load_model
 from catmip_rl.cli.main import main as cli
+from catmip_rl.store.checkpoint import load_model
 from catmip_rl.training.config import TrainConfig
 from catmip_rl.training.presets import make_train_config
 from catmip_rl.training.train import METRICS, train
@@ -110,7 +110,7 @@ def test_cli_step_control_warm_start_and_precision_flags(tmp_path, capsys):
 
 
 def test_a_new_run_can_start_from_another_runs_weights(tmp_path):
-    from catmip_rl.checkpoint import save_model
+    from catmip_rl.store.checkpoint import save_model
     from catmip_rl.training.train import build_run
 
     cfg = make_train_config("tiny", iterations=2, eval_every=0)
@@ -168,7 +168,7 @@ def test_a_new_run_can_start_from_another_runs_weights(tmp_path):
 def test_a_cell_goal_model_starts_a_run_on_the_other_mask(tmp_path):
     from catmip_rl.amat.config import AmatConfig
     from catmip_rl.amat.pointer import make_model
-    from catmip_rl.checkpoint import save_model
+    from catmip_rl.store.checkpoint import save_model
     from catmip_rl.training.train import build_run
 
     known = make_model(AmatConfig(embed_dim=16, goals="cell", cell_channels=8, cell_layers=2))
@@ -187,7 +187,7 @@ def test_a_cell_goal_model_starts_a_run_on_the_other_mask(tmp_path):
 
 
 def test_export_writes_a_runs_model_with_its_provenance(tmp_path, capsys):
-    from catmip_rl.checkpoint import load_model
+    from catmip_rl.store.checkpoint import load_model
 
     run, out = tmp_path / "run", tmp_path / "m.pt"
     cfg = make_train_config("tiny", iterations=2, eval_every=0)
@@ -216,7 +216,7 @@ def test_export_writes_a_runs_model_with_its_provenance(tmp_path, capsys):
 
 
 def test_a_half_precision_export_is_half_the_bytes_and_loads_as_float32(tmp_path):
-    from catmip_rl.checkpoint import load_model
+    from catmip_rl.store.checkpoint import load_model
 
     run = tmp_path / "run"
     model = train(make_train_config("tiny", iterations=1, eval_every=0), run, progress=False)

@@ -25,7 +25,7 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
-from catmip_rl.files import atomic_write_text, check_new_dir, check_new_file
+from catmip_rl.store.files import atomic_write_text, check_new_dir, check_new_file
 
 __all__ = [
     "OutputInUse", "OutputLock", "RECORD", "RUN_ID", "commit_results", "check_record", "remove_results",

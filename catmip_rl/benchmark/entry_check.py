@@ -1,6 +1,6 @@
 """Checking suite entries: what ``catmip leaderboard`` accepts, before it ranks anything.
 
-An entry (:mod:`~catmip_rl.evaluation.entry`) is accepted only if it is one of this suite: its format
+An entry (:mod:`~catmip_rl.benchmark.entry`) is accepted only if it is one of this suite: its format
 and version; a split and that split's seed and every map of it; every setting and no other, each with
 the suite's horizon; its maps' digest equal to the frozen maps' (``catmip_env/frozen_maps``); one list
 of rescue ticks per training run and map, each -1 or a tick within the horizon; a class, what it was
@@ -21,12 +21,12 @@ from typing import Any
 
 import numpy as np
 
-from catmip_rl.evaluation.entry import (
+from catmip_env.map_sets import SPLITS
+from catmip_rl.benchmark.entry import (
     CLASSES,
     ENTRY_FORMAT,
     EPISODES,
     SETTINGS,
-    SPLITS,
     SUITE,
     iqm_interval,
     rescued_by_100,

@@ -22,12 +22,12 @@ from typing import Any
 
 import numpy as np
 
+from catmip_rl.benchmark.jobs import Job, check_methods, default_threads, map_jobs, run_dir
 from catmip_rl.evaluation.evaluate import EvalSetting
-from catmip_rl.evaluation.jobs import Job, check_methods, default_threads, map_jobs, run_dir
 from catmip_rl.evaluation.methods import Method, parse_runs
 from catmip_rl.evaluation.plots import check_matplotlib, plot_figure
 from catmip_rl.evaluation.stats import curve_band, success_interval
-from catmip_rl.files import atomic_write_csv, atomic_write_text
+from catmip_rl.store.files import atomic_write_csv, atomic_write_text
 
 __all__ = [
     "FIGURES", "DEFAULT_METHODS", "figure_settings", "run_figure", "marl_eval_json",
@@ -93,7 +93,7 @@ def run_figure(
     played in ``summary.md``. Bad arguments (figure, methods, an unreadable AMAT checkpoint, a broken
     policy, episodes, seed, jobs, threads) raise before any run starts. ``threads``: torch threads of each
     job (default 2 for one job, else 1). ``resume``: a run whose folder already holds its complete results
-    is read back, not played again (:attr:`~catmip_rl.evaluation.jobs.Job.resume`)."""
+    is read back, not played again (:attr:`~catmip_rl.benchmark.jobs.Job.resume`)."""
     check_matplotlib()  # fail now rather than after the evaluations
     panels = figure_settings(figure)
     groups: list[list[Method]] = [parse_runs(m) for m in (methods or DEFAULT_METHODS)]

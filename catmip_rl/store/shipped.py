@@ -8,7 +8,7 @@ from pathlib import Path
 
 __all__ = ["SHIPPED_DIR", "shipped_models", "resolve_model", "model_file", "file_sha256"]
 
-SHIPPED_DIR = Path(__file__).parent / "models"
+SHIPPED_DIR = Path(__file__).parents[1] / "models"  # catmip_rl/models
 """Where the shipped models are: ``amat_NAME.pt`` loads as ``NAME``."""
 
 

@@ -1,7 +1,7 @@
 """What a suite entry is: the suite's grid (:data:`SETTINGS`, the splits), an entry's numbers and how
 one is made from its runs (:func:`make_entry`), its method's class (:func:`method_class`) and the spec
 that plays each training run again (:func:`method_spec`). Checking an entry is
-:mod:`~catmip_rl.evaluation.entry_check`'s; playing the suite, :mod:`~catmip_rl.evaluation.suite`'s.
+:mod:`~catmip_rl.benchmark.entry_check`'s; playing the suite, :mod:`~catmip_rl.benchmark.suite`'s.
 
 An entry (``catmip-suite-entry-v2``): the method, its class (planner / learned / hybrid / floor) and what
 it was chosen on, its training runs (spec, files with their SHA-256, training compute), the split and
@@ -150,7 +150,7 @@ def _training(method: Method) -> dict[str, Any] | None:
     """A model file's training record (minutes, iterations, episodes, seed), None for other methods."""
     if method.kind != "amat":
         return None
-    from catmip_rl.checkpoint import model_record
+    from catmip_rl.store.checkpoint import model_record
 
     return model_record(method.target)
 
@@ -209,7 +209,7 @@ def _derived_class(method: Method) -> str | None:
     if method.kind in ("planner", "window", "window-noheading"):
         return "floor" if method.target in FLOORS else "planner"
     if method.kind == "amat":
-        from catmip_rl.checkpoint import load_model
+        from catmip_rl.store.checkpoint import load_model
 
         return "hybrid" if load_model(method.target).config.hint else "learned"
     return None
@@ -243,7 +243,7 @@ def make_entry(name: str, runs: list[Method], results: dict[str, list[dict[str, 
                chosen_on: str = "") -> dict[str, Any]:  # fmt: skip
     """The suite entry of method ``name`` (its training ``runs``, of class ``cls`` or the one they
     give, :func:`method_class`; ``chosen_on``: what its choices were made on) on ``split`` from its
-    :func:`~catmip_rl.evaluation.jobs.run_one` results per setting label (one per run, in order); each
+    :func:`~catmip_rl.benchmark.jobs.run_one` results per setting label (one per run, in order); each
     setting's ``maps_sha256`` is the digest of the maps its runs played (ValueError if they differ)."""
     settings, success = {}, []
     for st in SETTINGS:

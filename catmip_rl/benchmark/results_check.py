@@ -186,7 +186,7 @@ def episodes_digest(rows: list[dict[str, Any]]) -> str:
 
 
 def check_runs(results: Sequence[Any]) -> None:
-    """Each of ``results`` (``compare.Result``) has episodes, one per map, and no two results of one
+    """Each of ``results`` (``results.Result``) has episodes, one per map, and no two results of one
     method hold the same episodes (the same digest, or with none the same maps and rescue ticks)."""
     seen: dict[tuple[str, Any], Any] = {}
     for r in results:
@@ -219,7 +219,7 @@ def check_resumed(folder: Path, task: str, seed: int, episodes: int) -> None:
     those maps the ones this installation generates for ``task`` and ``seed`` (the frozen manifest's,
     or generated here for a seed that is not frozen). ValueError of one line naming the folder."""
     from catmip_env.map_sets import check_maps, map_hashes
-    from catmip_rl.outputs import RECORD, check_record
+    from catmip_rl.store.outputs import RECORD, check_record
 
     if check_record(folder) is None:
         raise ValueError(

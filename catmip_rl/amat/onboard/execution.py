@@ -17,12 +17,12 @@ import torch
 
 from catmip_env.events import EventEngine
 from catmip_env.kernels.state import WorldState
-from catmip_env.planners import make_planner
+from catmip_env.planners.baselines import make_planner
 from catmip_env.play import MESSAGE_COLUMNS
-from catmip_rl.amat.batch1.fast_amat import FastAmat
 from catmip_rl.amat.config import AmatConfig
 from catmip_rl.amat.inputs import clean_occupancy, macro_observation
 from catmip_rl.amat.model import AMAT, decision_order
+from catmip_rl.amat.onboard.fast_amat import FastAmat
 
 __all__ = [
     "AmatExecutor",

@@ -1,7 +1,7 @@
 """Evaluation runs as jobs: a grid of (setting, method, training run) evaluations played by a process
 pool, each writing its own folder (:mod:`~catmip_rl.evaluation.evaluate`'s files) and returning what a
-figure or a suite entry is made of. ``catmip bench paper`` (:mod:`~catmip_rl.evaluation.paper`) and
-``catmip bench suite`` (:mod:`~catmip_rl.evaluation.suite`) run their grids through :func:`map_jobs`."""
+figure or a suite entry is made of. ``catmip bench paper`` (:mod:`~catmip_rl.benchmark.paper`) and
+``catmip bench suite`` (:mod:`~catmip_rl.benchmark.suite`) run their grids through :func:`map_jobs`."""
 
 from __future__ import annotations
 
@@ -9,8 +9,6 @@ import csv
 import json
 import multiprocessing
 import os
-import sys
-import time
 from concurrent.futures import ProcessPoolExecutor
 from contextlib import ExitStack
 from dataclasses import dataclass
@@ -21,12 +19,12 @@ import numpy as np
 
 from catmip_env.events import EventEngine
 from catmip_env.play import WorldNotSupported
+from catmip_rl.benchmark.results_check import check_resumed
 from catmip_rl.evaluation.evaluate import EvalSetting, evaluate, progress_bar
 from catmip_rl.evaluation.methods import PLAY_OPTIONS, Method, changed_files, make_policy, method_source
-from catmip_rl.evaluation.results_check import check_resumed
-from catmip_rl.evaluation.warmup import torch_threads
+from catmip_rl.evaluation.workers import die_with_parent, torch_threads
 
-__all__ = ["Job", "run_one", "map_jobs", "check_methods", "run_dir", "default_threads", "die_with_parent"]
+__all__ = ["Job", "run_one", "map_jobs", "check_methods", "run_dir", "default_threads"]
 
 
 @dataclass(frozen=True)
@@ -146,29 +144,6 @@ def map_jobs(tasks: list[Job], jobs: int, progress: bool, desc: str) -> list[dic
     return results
 
 
-def die_with_parent(parent: int) -> None:
-    """In a worker: end when process ``parent`` ends, however it ends (SIGKILL included), so that a
-    killed ``catmip bench`` leaves no worker behind. Linux asks the kernel (``PR_SET_PDEATHSIG``);
-    elsewhere a daemon thread polls for the parent."""
-    import signal
-    import threading
-
-    if sys.platform.startswith("linux"):
-        import ctypes
-
-        ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGKILL)  # 1: PR_SET_PDEATHSIG
-        if os.getppid() != parent:  # the parent died before the call
-            os._exit(1)
-        return
-
-    def watch() -> None:
-        while os.getppid() == parent:
-            time.sleep(1.0)
-        os._exit(1)
-
-    threading.Thread(target=watch, daemon=True, name="die-with-parent").start()
-
-
 def check_methods(
     groups: list[list[Method]], panels: list, seed: int
 ) -> tuple[dict[tuple[str, str], list[Method]], dict[tuple[str, str], str]]:
@@ -183,7 +158,7 @@ def check_methods(
     for runs in groups:
         for m in runs:
             if m.kind == "amat":
-                from catmip_rl.checkpoint import load_model  # torch: only where a model is played
+                from catmip_rl.store.checkpoint import load_model  # torch: only where a model is played
 
                 load_model(m.target)
         for panel, setting in panels:

@@ -28,7 +28,6 @@ from typing import Any
 import numpy as np
 
 from catmip_env.constants import OBS_SCALE
-from catmip_rl.amat.batch1.snapshot import extract_weights
 from catmip_rl.amat.config import AmatConfig
 from catmip_rl.amat.kernels.conv import (
     add_planes,
@@ -54,6 +53,7 @@ from catmip_rl.amat.kernels.numba_ops import (
     relu,
 )
 from catmip_rl.amat.model import INVALID_LOGIT
+from catmip_rl.amat.onboard.snapshot import extract_weights
 
 __all__ = ["FastAmat"]
 

@@ -1,10 +1,10 @@
 """The leaderboard (``catmip leaderboard``): suite entries checked, optionally replayed, then ranked in a
 table and a figure.
 
-Every entry is checked first (:mod:`~catmip_rl.evaluation.entry_check`: the suite, the split, the frozen
+Every entry is checked first (:mod:`~catmip_rl.benchmark.entry_check`: the suite, the split, the frozen
 maps, every number recomputed from its rescue ticks); with ``replay`` (``--replay K``) the first K maps
 of every setting and training run are played again from the files the entry names
-(:mod:`~catmip_rl.evaluation.replay`) and an entry whose ticks differ is refused. The table ranks the
+(:mod:`~catmip_rl.benchmark.replay`) and an entry whose ticks differ is refused. The table ranks the
 test split's entries by the IQM of success by tick 100; an entry level with the one above it (their
 paired difference over the settings has a 95 % CI that holds 0, :func:`level_with`) shares its rank.
 Each row shows its class (planner, learned, hybrid, floor) and whether it was verified by replay.
@@ -24,10 +24,11 @@ from typing import Any
 
 import numpy as np
 
-from catmip_rl.evaluation.entry import CLASSES, EPISODES, SETTINGS, SPLITS, SUITE
-from catmip_rl.evaluation.entry_check import EntryError, load_entries
+from catmip_env.map_sets import SPLITS
+from catmip_rl.benchmark.entry import CLASSES, EPISODES, SETTINGS, SUITE
+from catmip_rl.benchmark.entry_check import EntryError, load_entries
 from catmip_rl.evaluation.stats import CONFIDENCE, shared_maps_cis
-from catmip_rl.files import atomic_savefig, atomic_write_text
+from catmip_rl.store.files import atomic_savefig, atomic_write_text
 
 __all__ = [
     "EntryError", "load_entries", "leaderboard_rows", "level_with", "paired_rows", "paired_names",
@@ -268,13 +269,13 @@ def render_leaderboard(
     progress: bool = False,
 ) -> list[Path]:
     """Check every entry in ``folder`` (all of ``split``), replay the first ``replay`` maps of each
-    (:func:`~catmip_rl.evaluation.replay.replay_entry`; 0: none), and write ``out/leaderboard.md`` and
+    (:func:`~catmip_rl.benchmark.replay.replay_entry`; 0: none), and write ``out/leaderboard.md`` and
     ``out/leaderboard.png`` and, given ``vs``, every other entry against it (:func:`paired_rows`) to
     ``out/vs_NAME.md`` / ``.csv``; returns the files' paths. Nothing is written unless every entry is
     accepted (and replays to its ticks) and ``vs`` is one."""
     entries = load_entries(folder, episodes, split)
     if replay:
-        from catmip_rl.evaluation.replay import replay_entry
+        from catmip_rl.benchmark.replay import replay_entry
 
         for e in entries:
             e["replayed"] = replay_entry(e, replay, progress=progress)

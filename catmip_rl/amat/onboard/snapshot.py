@@ -1,4 +1,4 @@
-"""The weights snapshot of :class:`~catmip_rl.amat.batch1.fast_amat.FastAmat`: an ``AMAT.state_dict()``
+"""The weights snapshot of :class:`~catmip_rl.amat.onboard.fast_amat.FastAmat`: an ``AMAT.state_dict()``
 copied into numpy float32 arrays in the layouts its numba kernels read (:class:`FastWeights`).
 
 Convolutions go to the sparse kernels' layouts (:func:`~catmip_rl.amat.kernels.conv.conv_weights`), the

@@ -27,7 +27,7 @@ __all__ = [
 ]  # fmt: skip
 
 FORMAT = "catmip-amat-v1"
-"""The format tag of a model file (:func:`~catmip_rl.checkpoint.save_model`)."""
+"""The format tag of a model file (:func:`~catmip_rl.store.checkpoint.save_model`)."""
 MAX_ARCHIVE_BYTES = 1 << 30
 """The most bytes a model or checkpoint file may unpack to (the shipped models: ~5 MB; a training
 checkpoint with its optimiser: ~3x its model)."""
@@ -98,7 +98,8 @@ _EXTRA_TYPES: dict[str, tuple[type, ...]] = {
 
 
 def check_training_entries(blob: dict, path: Path) -> None:
-    """A training checkpoint's entries of the types :func:`~catmip_rl.checkpoint.save_training_checkpoint`
+    """A training checkpoint's entries of the types
+    :func:`~catmip_rl.store.checkpoint.save_training_checkpoint`
     writes (``config``: the training config's JSON object); ``elapsed_s``, ``bf16`` and ``bf16_machine``
     may be absent. Also: the two random states of the size this torch restores, the value normaliser's
     three finite scalars, and no NaN or infinity in any tensor (weights, optimiser, normaliser)."""
@@ -129,7 +130,7 @@ def check_training_entries(blob: dict, path: Path) -> None:
 
 
 def check_extra(extra: Any, path: Path) -> None:
-    """A model file's ``extra`` (what :func:`~catmip_rl.checkpoint.export_model` writes) of the right
+    """A model file's ``extra`` (what :func:`~catmip_rl.store.checkpoint.export_model` writes) of the right
     types where present (None stands for unknown); its ``play`` options booleans (``"no"`` is no
     answer); its value normaliser as a training checkpoint's."""
     if not isinstance(extra, dict):
@@ -152,11 +153,19 @@ _VALUE_NORM_KEYS = ("mean", "mean_sq", "debias")
 def check_value_norm(state: Any, path: Path, where: str) -> None:
     """A value normaliser's state dict (:class:`~catmip_rl.training.gae.ValueNorm`): its three scalar
     tensors, finite."""
-    if not isinstance(state, dict) or sorted(state) != sorted(_VALUE_NORM_KEYS) or not all(
-        isinstance(state[k], torch.Tensor) and state[k].numel() == 1 and state[k].is_floating_point()
-        for k in _VALUE_NORM_KEYS
+    if (
+        not isinstance(state, dict)
+        or sorted(state) != sorted(_VALUE_NORM_KEYS)
+        or not all(
+            isinstance(state[k], torch.Tensor) and state[k].numel() == 1 and state[k].is_floating_point()
+            for k in _VALUE_NORM_KEYS
+        )
     ):
-        shown = {k: type(v).__name__ for k, v in state.items()} if isinstance(state, dict) else type(state).__name__
+        shown = (
+            {k: type(v).__name__ for k, v in state.items()}
+            if isinstance(state, dict)
+            else type(state).__name__
+        )
         raise CheckpointError(
             f"{path}: its {where} is not a value normaliser's state (expected the scalar tensors "
             f"{', '.join(_VALUE_NORM_KEYS)}; found {shown})"

@@ -1,6 +1,6 @@
 """Planners projected into the goal window: a classical planner's goal as an AMAT window action.
 
-A planner (``catmip_env.planners``) picks any cell of the map; AMAT picks a goal inside the robot's
+A planner (``catmip_env.planners.baselines``) picks any cell of the map; AMAT picks a goal inside the robot's
 D x D window (docs/design.md#goals-and-masks). :class:`WindowPlanner` runs the planner on a window-mode
 :class:`~catmip_env.events.EventEngine` and turns each active robot's cell goal into a window action:
 
@@ -39,8 +39,8 @@ from catmip_env.constants import OCCUPIED, STEP_COL, STEP_ROW
 from catmip_env.events import EventEngine
 from catmip_env.kernels.bfs import UNREACHED, bfs_from, downhill
 from catmip_env.kernels.macro import action_masks
-from catmip_env.planner_core import Planner
-from catmip_env.planners import make_planner
+from catmip_env.planners.baselines import make_planner
+from catmip_env.planners.core import Planner
 
 __all__ = ["WINDOW_KINDS", "WindowPlanner", "make_window_planner", "project_goal", "window_method_name"]
 

@@ -10,10 +10,10 @@ only. Evaluation activation, the paper's horizon, the longest macro-action 10 ti
 out: every planner and AMAT rescue within 0.02 of each other there by tick 100. Weak communication and
 SLAM noise are where the planners differ most and where a learned planner can win.
 
-Every (setting, method, training run) is one evaluation (:mod:`~catmip_rl.evaluation.jobs`) in
+Every (setting, method, training run) is one evaluation (:mod:`~catmip_rl.benchmark.jobs`) in
 ``OUT/runs/LABEL/NAME[/runK]/``; an interrupted suite resumes: a run whose results are complete is read
 back, not played again. Each method then gets an entry, ``OUT/entries/NAME.json``
-(:mod:`~catmip_rl.evaluation.entry`); ``catmip leaderboard`` checks entries and ranks them.
+(:mod:`~catmip_rl.benchmark.entry`); ``catmip leaderboard`` checks entries and ranks them.
 """
 
 from __future__ import annotations
@@ -22,10 +22,10 @@ import json
 from pathlib import Path
 from typing import Any
 
-from catmip_rl.evaluation.entry import (
+from catmip_env.map_sets import SPLITS
+from catmip_rl.benchmark.entry import (
     EPISODES,
     SETTINGS,
-    SPLITS,
     SUITE,
     check_split,
     entry_json,
@@ -33,10 +33,10 @@ from catmip_rl.evaluation.entry import (
     method_class,
     method_spec,
 )
-from catmip_rl.evaluation.jobs import Job, check_methods, default_threads, map_jobs, run_dir
+from catmip_rl.benchmark.jobs import Job, check_methods, default_threads, map_jobs, run_dir
 from catmip_rl.evaluation.methods import Method, parse_runs
 from catmip_rl.evaluation.user_policy import PolicyError
-from catmip_rl.files import atomic_write_text
+from catmip_rl.store.files import atomic_write_text
 
 __all__ = ["SUITE", "SPLITS", "EPISODES", "SETTINGS", "run_suite"]
 

@@ -45,8 +45,8 @@ import numpy as np
 from catmip_env.constants import STEPS
 from catmip_env.events import EventEngine
 from catmip_env.kernels.comms import estimated_cells
-from catmip_env.kernels.rrt import grow_rrt
-from catmip_env.planner_core import SQUARE, DecisionContext, Planner, distance_field
+from catmip_env.planners.core import SQUARE, DecisionContext, Planner, distance_field
+from catmip_env.planners.rrt import grow_rrt
 
 __all__ = ["PLANNERS", "Relay", "make_planner"]
 

@@ -1,4 +1,4 @@
-"""What every planner of ``catmip_env.planners`` shares: the base class that turns one robot's choice into
+"""What every planner of ``planners.baselines`` shares: the base class that turns one robot's choice into
 the batch's cell actions (with the rescue rule), the context of one robot's decision (its belief
 layers, path distances, valid goals, frontier) and the fields they are built from.
 

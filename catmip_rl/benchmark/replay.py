@@ -2,9 +2,9 @@
 run are played again from the files the entry names, and their rescue ticks must be the entry's.
 
 The env is deterministic per seed, and a world's episode depends on its own map and decisions only
-(planners draw from one stream per world and episode, :class:`catmip_env.planner_core.Planner`), so K
+(planners draw from one stream per world and episode, :class:`catmip_env.planners.core.Planner`), so K
 maps played alone give the ticks those maps got among the entry's 1,000. Each run is rebuilt from its
-``spec`` (:func:`~catmip_rl.evaluation.entry.method_spec`); every file it names (a model, a policy
+``spec`` (:func:`~catmip_rl.benchmark.entry.method_spec`); every file it names (a model, a policy
 file, a policy's weights) must hold the bytes its SHA-256 says. Torch plays on one thread, as the suite's
 jobs do. A ``py:`` policy is played in a worker process that holds no engine
 (:mod:`~catmip_rl.evaluation.sandbox`, ``evaluate(..., isolated=True)``), so that it cannot reach the
@@ -16,11 +16,12 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from catmip_rl.evaluation.entry import SETTINGS, SPLITS
-from catmip_rl.evaluation.entry_check import EntryError
+from catmip_env.map_sets import SPLITS
+from catmip_rl.benchmark.entry import SETTINGS
+from catmip_rl.benchmark.entry_check import EntryError
 from catmip_rl.evaluation.evaluate import evaluate, progress_bar
 from catmip_rl.evaluation.methods import parse_method
-from catmip_rl.shipped import file_sha256
+from catmip_rl.store.shipped import file_sha256
 
 __all__ = ["replay_entry", "check_files"]
 
@@ -45,10 +46,10 @@ def _ticks(episodes: list[dict[str, Any]]) -> list[int]:
 
 def replay_entry(entry: dict[str, Any], maps: int, progress: bool = False) -> int:
     """Play maps 0 .. ``maps``-1 of every setting and training run of a checked ``entry`` (from
-    :func:`~catmip_rl.evaluation.entry_check.load_entries`) and compare their rescue ticks with the
+    :func:`~catmip_rl.benchmark.entry_check.load_entries`) and compare their rescue ticks with the
     entry's; returns ``maps``. :class:`EntryError` in one line at the first file that is not the one
     played or the first map whose tick differs."""
-    from catmip_rl.evaluation.warmup import torch_threads
+    from catmip_rl.evaluation.workers import torch_threads
 
     maps = min(maps, entry["episodes"])
     seed = SPLITS[entry["split"]]
