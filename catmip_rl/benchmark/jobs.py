@@ -123,10 +123,18 @@ def run_one(job: Job) -> dict[str, Any]:
 
 def map_jobs(tasks: list[Job], jobs: int, progress: bool, desc: str) -> list[dict[str, Any]]:
     """:func:`run_one` of every task, in order, on ``jobs`` processes (spawned: no state shared), with a
-    progress bar counting runs."""
+    progress bar weighted by each run's size (:func:`run_cost`: a Task-3 run counts about six Task-2
+    runs, so the estimate of the time left holds across tasks). Interrupted (Ctrl-C, SIGTERM through
+    ``catmip``), the pool's workers are stopped at once and its queues released."""
     bar = progress_bar(len(tasks), desc, progress, unit="run", leave=True)
+    weights = [run_cost(t) for t in tasks]
+    if bar is not None:
+        bar.total = sum(weights)
+        bar.bar_format = "{desc}: {percentage:3.0f}%|{bar}| [{elapsed}<{remaining}]"
+        bar.set_description_str(f"{desc} 0/{len(tasks)} runs")
     results: list[dict[str, Any]] = []
     with ExitStack() as stack:
+        pool = None
         if jobs <= 1:
             runs = map(run_one, tasks)
         else:
@@ -134,14 +142,30 @@ def map_jobs(tasks: list[Job], jobs: int, progress: bool, desc: str) -> list[dic
             pool = stack.enter_context(ProcessPoolExecutor(
                 max_workers=jobs, mp_context=spawn, initializer=die_with_parent, initargs=(os.getpid(),)
             ))  # fmt: skip
-            runs = pool.map(run_one, tasks)
-        for res in runs:
-            results.append(res)
-            if bar is not None:
-                bar.update(1)
+            futures = [pool.submit(run_one, t) for t in tasks]  # not pool.map: its iterator cancels them
+            runs = (f.result() for f in futures)  # on its way out, which a broken pool then trips over
+        try:
+            for res, weight in zip(runs, weights):
+                results.append(res)
+                if bar is not None:
+                    bar.set_description_str(f"{desc} {len(results)}/{len(tasks)} runs", refresh=False)
+                    bar.update(weight)
+        except BaseException:
+            if pool is not None:  # stop the workers now: the pool's exit would wait for their runs
+                for worker in list((getattr(pool, "_processes", None) or {}).values()):
+                    worker.terminate()  # the pool then ends its pending runs as broken, and exits
+            raise
     if bar is not None:
         bar.close()
     return results
+
+
+def run_cost(job: Job) -> float:
+    """A run's size in Task-2 runs of as many maps: maps × robots × cells × horizon (what a tick of the
+    batched world costs, over the episode), relative to Task 2's."""
+    cfg = job.setting.env_config()
+    h, w = cfg.map_shape
+    return job.episodes * cfg.num_robots * h * w * cfg.horizon_ticks / (3 * 400 * 400)
 
 
 def check_methods(

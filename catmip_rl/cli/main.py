@@ -314,6 +314,7 @@ def main(argv: list[str] | None = None) -> int:
     except SystemExit as done:  # --help, --version, or a bad flag (argparse printed one line)
         return done.code if isinstance(done.code, int) else (0 if done.code is None else 2)
     name = f"catmip {args.name}" + (f" {args.suite}" if args.name == "bench" else "")
+    previous = _stop_on_sigterm()
     try:
         if args.name in ("eval", "render", "bench", "train"):  # the first run on a machine says it compiles
             compile_kernels(amat=command_plays_amat(args))  # AMAT's kernels only where a model plays
@@ -330,8 +331,33 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{name}: {_one_line(what, err)}", file=sys.stderr)
         return 2
     except KeyboardInterrupt as err:
-        print(f"{name}: {_one_line('interrupted', err)}", file=sys.stderr)
-        return 130
+        stopped = isinstance(err, Terminated)
+        print(f"{name}: {_one_line('terminated' if stopped else 'interrupted', err)}", file=sys.stderr)
+        return 143 if stopped else 130
+    finally:
+        if previous is not None:
+            import signal
+
+            signal.signal(signal.SIGTERM, previous)
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM, raised where the command is, so that it stops as Ctrl-C does: its pools and files closed
+    (no half-written result, no leaked semaphore), what it finished kept."""
+
+
+def _stop_on_sigterm() -> Any:
+    """Turn SIGTERM into :class:`Terminated` while a command runs (main thread only); returns the
+    handler it replaced (None where none was replaced)."""
+    import signal
+    import threading
+
+    def stop(signum: int, _frame: Any) -> None:
+        raise Terminated()
+
+    if threading.current_thread() is not threading.main_thread():
+        return None
+    return signal.signal(signal.SIGTERM, stop)
 
 
 def _one_line(message: str, err: BaseException) -> str:
