@@ -93,6 +93,7 @@ def run_one(job: Job) -> dict[str, Any]:
     """Play ``job`` (or read it back, :attr:`Job.resume`) and write its folder; returns its ``summary``,
     ``curve`` / ``sampled_curve`` (success rate vs tick) and per-episode ``ticks`` (rescue ticks, NaN
     where not rescued, of the policy and of its sampled pass)."""
+    _no_link(Path(job.out))
     summary = _done(job)
     if summary is not None:
         episodes = json.loads((Path(job.out) / "episodes.json").read_text())
@@ -119,6 +120,14 @@ def run_one(job: Job) -> dict[str, Any]:
     maps = [e["map_hash"] for e in episodes]  # the maps played, in order (an entry's digest)
     return {"out": job.out, "summary": summary, "curve": curve, "sampled_curve": sampled, "ticks": ticks,
             "maps": maps}  # fmt: skip
+
+
+def _no_link(folder: Path) -> None:
+    """ValueError if a run's folder, or one of the two grid folders above it (``runs/LABEL/NAME[/runK]``),
+    is a symbolic link: a grid reads and writes its own folders, never through a link to elsewhere."""
+    for path in (folder, folder.parent, folder.parent.parent):
+        if path.is_symlink():
+            raise ValueError(f"{path} is a symbolic link: a grid reads and writes only its own folders")
 
 
 def map_jobs(tasks: list[Job], jobs: int, progress: bool, desc: str) -> list[dict[str, Any]]:

@@ -118,6 +118,10 @@ def output_folder(out: str | Path, what: str = "--out", force: bool = False, kee
     suite's runs to read back, a bench's other figures). What a killed writer left is removed. A folder
     this call created is removed again if the block fails before writing anything."""
     out = Path(out)
+    if out.is_symlink():
+        raise ValueError(
+            f"{what} {out} is a symbolic link: give the folder itself (nothing is written through a link)"
+        )
     check_new_dir(out, what, force=force or keep, advice=advice, ignore=(".lock",))  # before creating it
     created = first_missing(out)
     lock = holding(out, what)

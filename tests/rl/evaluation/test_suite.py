@@ -437,3 +437,22 @@ def _edit_episodes(folder, change):
 def test_a_training_run_listed_twice_is_refused():
     with pytest.raises(ValueError, match="lists the training run rrt twice"):
         run_suite(["x=rrt,rrt"], "/nonexistent/never-written", episodes=1, progress=False)
+
+
+def test_a_run_folder_replaced_by_a_link_is_not_written_through(tmp_path):
+    """A resumed suite whose run folder (or --out) became a symbolic link refuses it in one line; nothing
+    is written at the link's target."""
+    import shutil
+
+    run_suite(["nearest"], tmp_path / "s", episodes=1, progress=False)
+    folder = tmp_path / "s" / "runs" / SETTINGS[0].label / "nearest"
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    shutil.rmtree(folder)
+    folder.symlink_to(elsewhere, target_is_directory=True)
+    with pytest.raises(ValueError, match="is a symbolic link: a grid reads and writes only its own folders"):
+        run_suite(["nearest"], tmp_path / "s", episodes=1, progress=False)
+    assert not any(elsewhere.iterdir())
+    (tmp_path / "link").symlink_to(tmp_path / "s", target_is_directory=True)
+    assert main(["bench", "suite", "--method", "nearest", "--episodes", "1", "--resume", "--no-progress",
+                 "--out", str(tmp_path / "link")]) == 2  # fmt: skip
