@@ -124,9 +124,21 @@ class Run:
         return evaluate_policy(self.model, self.evaluator, self.cfg.eval_seed)
 
     def checkpoint(self, ckpt_dir: Path) -> None:
-        """Save the run as ``ckpt_dir/latest.pt`` and ``ckpt_dir/iter_NNNNNN.pt`` (its iteration)."""
-        self.save(ckpt_dir / "latest.pt")
+        """Save the run as ``ckpt_dir/iter_NNNNNN.pt`` (its iteration), then as ``ckpt_dir/latest.pt``:
+        a run stopped between the two resumes from the iteration before and writes both again, so
+        ``latest.pt`` never names an iteration whose snapshot is missing (:meth:`restore_snapshot`)."""
         self.save(ckpt_dir / f"iter_{self.iteration:06d}.pt")
+        self.save(ckpt_dir / "latest.pt")
+
+    def restore_snapshot(self, ckpt_dir: Path) -> bool:
+        """Write ``iter_NNNNNN.pt`` of the resumed iteration again if it is missing (a run of an older
+        catmip stopped after ``latest.pt``): the same state, since ``latest.pt`` is that iteration's.
+        Returns whether it was missing."""
+        path = ckpt_dir / f"iter_{self.iteration:06d}.pt"
+        if path.exists():
+            return False
+        self.save(path)
+        return True
 
     def save(self, path: Path) -> None:
         machine = None if self.bf16 is None else precision_machine(self.cfg.device)  # where bf16 was chosen
@@ -329,6 +341,8 @@ def train(cfg: TrainConfig, run_dir: str | Path, resume: bool = False, progress:
     try:
         _write_run_files(run, run_dir)
         logs.open(run_dir, run.iteration if resume else None)
+        if resume and run.restore_snapshot(ckpt_dir):
+            print(f"catmip train: iter_{run.iteration:06d}.pt was missing: written again from latest.pt")
 
         # -- imitation warm start (DAgger against a window-projected planner), once, before PPO -------
         # (every checkpoint, iter_000000.pt included, is written after it: a resumed run never repeats it)

@@ -55,6 +55,30 @@ def test_two_seeded_runs_are_identical_and_resume_continues_exactly(tmp_path):
     assert [int(r["iteration"]) for r in rows] == [1, 2]  # the rewound row 2 was replaced, not duplicated
 
 
+def test_a_run_stopped_between_its_snapshot_and_latest_resumes_with_every_snapshot(tmp_path, monkeypatch):
+    from catmip_rl.training import train as train_module
+
+    """A run's snapshot of an iteration is written before latest.pt names that iteration; a run of an
+    older catmip whose snapshot went missing after latest.pt gets it written again on --resume."""
+    cfg = make_train_config("tiny", iterations=2, eval_every=0, checkpoint_every=1)
+    run = tmp_path / "r"
+    train(cfg, run, progress=False)
+    ckpts = run / "checkpoints"
+    (ckpts / "iter_000002.pt").unlink()  # stopped while writing it, latest.pt at iteration 2
+    train(cfg.replace(iterations=3), run, resume=True, progress=False)
+    assert {p.name for p in ckpts.glob("iter_*.pt")} >= {"iter_000001.pt", "iter_000002.pt", "iter_000003.pt"}
+    written = []
+    real = train_module.Run.save
+
+    def record(self, path):
+        written.append(path.name)
+        real(self, path)
+
+    monkeypatch.setattr(train_module.Run, "save", record)
+    train(cfg.replace(iterations=4), run, resume=True, progress=False)
+    assert written.index("iter_000004.pt") < written.index("latest.pt")
+
+
 def test_errors(tmp_path):
     with pytest.raises(ValueError, match="window"):
         make_train_config("tiny", amat={"embed_dim": 32, "window": 5})
