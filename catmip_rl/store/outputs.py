@@ -120,7 +120,8 @@ def output_folder(out: str | Path, what: str = "--out", force: bool = False, kee
     out = Path(out)
     if out.is_symlink():
         raise ValueError(
-            f"{what} {out} is a symbolic link: give the folder itself (nothing is written through a link)"
+            f"{what} {out} is a symbolic link (to {os.readlink(out)}): give the folder itself (nothing is "
+            "written through a link)"
         )
     check_new_dir(out, what, force=force or keep, advice=advice, ignore=(".lock",))  # before creating it
     created = first_missing(out)
