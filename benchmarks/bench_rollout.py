@@ -1,4 +1,4 @@
-"""What the rollout teacher (catmip_env/rollout.py, issue 69) costs per episode and per searched decision
+"""What the rollout teacher costs per episode and per searched decision
 against its base planner ``rrt-relay-coord``, at a few budgets (one thread), and with ``--paired`` what it
 gains on the same maps (rescued by tick 100, paired bootstrap over maps: ``catmip compare``'s statistics).
 
@@ -22,7 +22,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 import numpy as np  # noqa: E402
 from common import machine_info, write_json  # noqa: E402
 
-from catmip_env.rollout import RolloutPlanner  # noqa: E402
+from catmip_env.planners.rollout import RolloutPlanner  # noqa: E402
 
 BUDGETS = ("news-k4s4h40", "both-k4s4h40", "always-k4s8h60")
 FORBIDDEN_SEEDS = (1000, 20261201)  # the validation and test splits: not for choices reported as held-out

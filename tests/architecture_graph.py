@@ -26,7 +26,7 @@ ENV_GROUPS = {
     ),
     "env: world": ("world", "chunks"),
     "env: events": ("events", "episode_stats"),
-    "env: play": ("play", "map_sets", "render", "warmup", "demo", "rollout"),
+    "env: play": ("play", "map_sets", "render", "warmup", "demo"),
     "env: PettingZoo": ("search_rescue_v0", "spaces"),
 }
 

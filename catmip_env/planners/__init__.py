@@ -3,7 +3,9 @@
 * ``baselines`` — :func:`make_planner` and :data:`PLANNERS` (``nearest``, ``rrt``, ...);
 * ``core`` — :class:`Planner` and what every planner shares (its random stream per world and episode);
 * ``window`` — a planner's goal projected into the D x D goal window (the window planners);
-* ``rrt`` — the numba RRT kernel the ``rrt`` planners grow.
+* ``rrt`` — the numba RRT kernel the ``rrt`` planners grow;
+* ``rollout`` — the rollout teacher: ``rrt-relay-coord`` improved by simulated continuations
+  (``py:catmip_env/planners/rollout.py:rollout_coord``; registered once its ceiling gate is met).
 """
 
 from __future__ import annotations

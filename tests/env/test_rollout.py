@@ -1,4 +1,4 @@
-"""The rollout teacher (catmip_env/rollout.py, issue 69): it never reads the true target, it is deterministic
+"""The rollout teacher: it never reads the true target, it is deterministic
 per seed and batch invariant, it plays full episodes, and with the search off it is rrt-relay-coord."""
 
 import numpy as np
@@ -8,7 +8,7 @@ from catmip_env import make_config
 from catmip_env.constants import CLUE, EXPLORED, FREE, TARGET
 from catmip_env.events import EventEngine
 from catmip_env.planners import make_planner
-from catmip_env.rollout import RolloutPlanner, known_world
+from catmip_env.planners.rollout import RolloutPlanner, known_world
 
 SMALL = {"candidates": 3, "samples": 2, "horizon": 20}
 SIGMA2_NOISE = {"comm_sigma": 2.0, "slam_noise": 0.05}  # the setting of the pilot

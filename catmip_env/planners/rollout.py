@@ -37,12 +37,8 @@ from catmip_env.events import EventEngine
 from catmip_env.kernels.bfs import bfs_from
 from catmip_env.kernels.comms import estimated_cells
 from catmip_env.kernels.rng import seed_state
-from catmip_env.planners import PLANNERS
-
-try:  # the RRT kernel moved into the planners package (issue 68)
-    from catmip_env.planners.rrt import grow_rrt
-except ImportError:  # pragma: no cover - the tree before the move
-    from catmip_env.kernels.rrt import grow_rrt
+from catmip_env.planners.baselines import PLANNERS
+from catmip_env.planners.rrt import grow_rrt
 
 __all__ = ["RolloutPlanner", "WHEN", "rollout_coord", "known_world"]
 
@@ -393,5 +389,5 @@ def _clusters8(mask: np.ndarray) -> list[np.ndarray]:
 
 
 def rollout_coord(cfg=None, seed: int = 0, **knobs) -> RolloutPlanner:
-    """The ``py:`` factory: ``--method rollout=py:catmip_env/rollout.py:rollout_coord``."""
+    """The ``py:`` factory: ``--method rollout=py:catmip_env/planners/rollout.py:rollout_coord``."""
     return RolloutPlanner(seed=seed, **knobs)
