@@ -48,7 +48,7 @@ from catmip_env.kernels.comms import estimated_cells
 from catmip_env.planners.core import SQUARE, DecisionContext, Planner, distance_field
 from catmip_env.planners.rrt import grow_rrt
 
-__all__ = ["PLANNERS", "Relay", "make_planner"]
+__all__ = ["PLANNERS", "RRT", "RRTRelay", "RRTRelayCoord", "RRTRelayHeading", "Relay", "make_planner"]
 
 REPULSION_RADIUS = 5.0
 RRT_STEP = 0.5

@@ -55,6 +55,7 @@ from catmip_env.events import EventEngine
 
 __all__ = [
     "POLICY_LEVELS",
+    "ReadOnlyView",
     "PolicyError",
     "PolicySource",
     "parse_policy_source",
@@ -254,7 +255,7 @@ def view_meta(engine: EventEngine) -> dict[str, Any]:
             "stay_action": engine.stay_action, "base_seed": int(engine.world.base_seed)}  # fmt: skip
 
 
-class _Frozen:
+class ReadOnlyView:
     """An object whose attributes are set once (by its class) and then refuse to be set or deleted."""
 
     __slots__ = ()
@@ -267,7 +268,7 @@ class _Frozen:
         raise AttributeError(f"{self._what} is read-only: a policy may not delete {name!r} ({VIEW_DOC})")
 
 
-class StateView(_Frozen):
+class StateView(ReadOnlyView):
     """``engine.state`` as a policy sees it: the fields of :data:`VIEW_STATE_FIELDS` read-only, ``target``
     as the robots know it (:func:`known_target`); ground truth (:data:`WITHHELD_STATE_FIELDS`) is not
     there."""
@@ -293,7 +294,7 @@ class StateView(_Frozen):
         return sorted(object.__getattribute__(self, "_arrays"))
 
 
-class _WorldView(_Frozen):
+class _WorldView(ReadOnlyView):
     __slots__ = ("base_seed",)
     _what = "engine.world"
 
@@ -307,7 +308,7 @@ class _WorldView(_Frozen):
         )
 
 
-class EngineView(_Frozen):
+class EngineView(ReadOnlyView):
     """What an engine-level policy's ``act(engine)`` is given: the :class:`~catmip_env.events.EventEngine`'s
     observations at the current event, every array read-only (writing one raises), and nothing that
     steps, resets or edits the world. It has ``cfg``, ``num_worlds``, ``num_robots``, ``shape``,
