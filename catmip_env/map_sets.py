@@ -39,8 +39,8 @@ from catmip_env.files import atomic_path
 from catmip_env.world import BatchedWorld
 
 __all__ = [
-    "FROZEN_SEEDS", "VALIDATION_SEED", "TEST_SEED", "SPLITS", "MANIFEST_EPISODES", "MapSetMismatch", "MapSetReport", "check_maps",
-    "manifest", "map_hash", "map_hashes",
+    "FROZEN_SEEDS", "VALIDATION_SEED", "TEST_SEED", "SPLITS", "MANIFEST_EPISODES", "MapSetMismatch",
+    "MapSetReport", "check_maps", "manifest", "map_hash", "map_hashes",
 ]  # fmt: skip
 
 VALIDATION_SEED = 1000

@@ -59,11 +59,18 @@ def test_nan_weights_are_refused_naming_the_tensor(tmp_path, capsys):
 @pytest.mark.parametrize(
     "change, needle",
     [
-        ({"torch_rng": torch.zeros(10, dtype=torch.uint8)}, "its torch_rng is a torch.uint8 random state of shape (10,)"),
+        (
+            {"torch_rng": torch.zeros(10, dtype=torch.uint8)},
+            "its torch_rng is a torch.uint8 random state of shape (10,)",
+        ),
         ({"generator": torch.zeros(3, dtype=torch.uint8)}, "its generator is a torch.uint8 random state"),
         ({"value_norm": {"mean": 1.0}}, "its value_norm is not a value normaliser's state"),
         (
-            {"value_norm": {k: torch.tensor(float("nan"), dtype=torch.float64) for k in ("mean", "mean_sq", "debias")}},
+            {
+                "value_norm": {
+                    k: torch.tensor(float("nan"), dtype=torch.float64) for k in ("mean", "mean_sq", "debias")
+                }
+            },
             "its tensor value_norm.mean holds 1 NaN",
         ),
         ({"model": {"w": torch.tensor([1.0, float("inf")])}}, "its tensor model.w holds 1 NaN or infinite"),
@@ -121,7 +128,9 @@ def test_a_changed_policy_file_is_one_readable_line(tmp_path):
     policy = tmp_path / "p.py"
     policy.write_text("class P:\n    def act(self, engine):\n        return engine.masks.argmax(-1)\n"
                       "def make(c, s):\n    return P()\n")  # fmt: skip
-    job = Job(parse_method(f"py:{policy}:make"), EvalSetting("task1"), 1, 0, str(tmp_path / "out"), resume=True)
+    job = Job(
+        parse_method(f"py:{policy}:make"), EvalSetting("task1"), 1, 0, str(tmp_path / "out"), resume=True
+    )
     run_one(job)
     policy.write_text(policy.read_text() + "# changed\n")
     with pytest.raises(ValueError) as err:

@@ -77,7 +77,7 @@ def files(tmp_path_factory) -> dict[str, Path]:
 
 
 def _training_checkpoint(iteration: int, **config) -> dict:
-    """The keys ``--resume`` reads (catmip_rl.store.checkpoint.save_training_checkpoint), with a tiny config."""
+    """The keys ``--resume`` reads (store.checkpoint.save_training_checkpoint), with a tiny config."""
     cfg = make_train_config("tiny", **config)
     return {"iteration": iteration, "episodes": 8, "model": {}, "optimizer": {}, "value_norm": {},
             "generator": torch.Generator().get_state(), "torch_rng": torch.get_rng_state(),

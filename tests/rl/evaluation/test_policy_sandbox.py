@@ -50,11 +50,13 @@ POLICIES = textwrap.dedent(
                 Walker.found += 1
                 st = eng.state
                 st.pos[:, 0] = st.target + (0, 1)
-            return {r: int(np.argmax(o["action_mask"])) for r, o in observations.items() if infos[r]["active"]}
+            return {r: int(np.argmax(o["action_mask"])) for r, o in observations.items()
+                    if infos[r]["active"]}
 
     class FirstAllowed:
         def act(self, observations, infos):
-            return {r: int(np.argmax(o["action_mask"])) for r, o in observations.items() if infos[r]["active"]}
+            return {r: int(np.argmax(o["action_mask"])) for r, o in observations.items()
+                    if infos[r]["active"]}
 
     class Exits:
         def act(self, engine):
@@ -98,12 +100,16 @@ def _ticks(res):
 
 
 def _cli(spec: str, out, capsys) -> tuple[int, str]:
-    code = main(["eval", "--method", spec, "--episodes", "2", "--out", str(out), "--no-progress", "--threads", "1"])
+    code = main(
+        ["eval", "--method", spec, "--episodes", "2", "--out", str(out), "--no-progress", "--threads", "1"]
+    )
     return code, capsys.readouterr().err
 
 
 @pytest.mark.parametrize("factory", ["make_teleport", "make_grid"])
-def test_an_engine_level_policy_cannot_write_the_world_or_read_its_truth(policy_file, tmp_path, capsys, factory):
+def test_an_engine_level_policy_cannot_write_the_world_or_read_its_truth(
+    policy_file, tmp_path, capsys, factory
+):
     out = tmp_path / "out"
     code, err = _cli(f"py:{policy_file}:{factory}", out, capsys)
     assert code == 2 and len(err.strip().splitlines()) == 1, err
@@ -123,7 +129,7 @@ def test_the_view_holds_what_a_policy_reads_and_the_target_only_where_known():
                 with pytest.raises(AttributeError, match="withheld"):
                     getattr(st, name)
             with pytest.raises(AttributeError, match="may not call engine.step"):
-                engine.step
+                engine.step  # noqa: B018 - reading the attribute is what fails
             return engine.masks.argmax(-1)
 
     evaluate("looks", SETTING, episodes=2, seed=0, policy=Looks())
@@ -175,7 +181,8 @@ def test_a_policy_that_ends_its_process_is_one_line(policy_file, tmp_path, capsy
 def test_a_worker_that_dies_is_reported(policy_file, tmp_path):
     killer = tmp_path / "killer.py"
     killer.write_text(
-        "import os, signal\nclass K:\n    def act(self, engine):\n        os.kill(os.getpid(), signal.SIGKILL)\n"
+        "import os, signal\nclass K:\n    def act(self, engine):\n"
+        "        os.kill(os.getpid(), signal.SIGKILL)\n"
         "def make(env_config, seed):\n    return K()\n"
     )
     with pytest.raises(PolicyError, match=r"its process ended during act\(engine\) \(signal 9\)"):
