@@ -5,13 +5,13 @@ not played alike. What is read is checked first (:mod:`~catmip_rl.benchmark.resu
 
 from __future__ import annotations
 
-import hashlib
 import json
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from catmip_rl.benchmark.entry import maps_digest
 from catmip_rl.benchmark.results_check import (
     check_counts,
     check_csv,
@@ -62,7 +62,7 @@ class PlayedOn:
 def played_on(result: Result) -> PlayedOn:
     """What ``result`` was played on: its setting, map seed, horizon and the digest of the maps its
     episodes played (computed from their map hashes, never taken from a summary)."""
-    digest = hashlib.sha256("\n".join(result.maps).encode()).hexdigest()  # = suite.maps_digest
+    digest = maps_digest(result.maps)  # the digest a suite entry states
     return PlayedOn(result.setting, result.seed, result.horizon, len(result.maps), digest)
 
 

@@ -337,13 +337,7 @@ class EngineView(ReadOnlyView):
         put("state", StateView({k[len("state.") :]: v for k, v in arrays.items() if k.startswith("state.")}))
         put("world", _WorldView(meta["base_seed"]))
 
-    def action_to_cell(self, b: int, i: int, action: int) -> tuple[int, int]:
-        """Goal cell of robot i of world b for ``action`` (no validity check), as the engine's."""
-        if self.goal_mode == "cell":
-            return divmod(int(action), self.shape[1])
-        d = self.cfg.window
-        r, c = self.state.pos[b, i]
-        return int(r + action // d - d // 2), int(c + action % d - d // 2)
+    action_to_cell = EventEngine.action_to_cell  # it reads goal_mode, shape, cfg, state.pos: all here
 
     def __getattr__(self, name: str) -> Any:  # only for names it does not have
         if name in ("step", "reset", "refresh", "seed"):
