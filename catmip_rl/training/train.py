@@ -124,15 +124,15 @@ class Run:
         return evaluate_policy(self.model, self.evaluator, self.cfg.eval_seed)
 
     def checkpoint(self, ckpt_dir: Path) -> None:
-        """Save the run as ``ckpt_dir/iter_NNNNNN.pt`` (its iteration), then as ``ckpt_dir/latest.pt``:
-        a run stopped between the two resumes from the iteration before and writes both again, so
-        ``latest.pt`` never names an iteration whose snapshot is missing (:meth:`restore_snapshot`)."""
-        self.save(ckpt_dir / f"iter_{self.iteration:06d}.pt")
+        """Save the run as ``ckpt_dir/latest.pt``, then as ``ckpt_dir/iter_NNNNNN.pt`` (its iteration):
+        once any snapshot exists, ``latest.pt`` does, so ``--resume`` always has it; a run stopped
+        between the two writes the missing snapshot again when it resumes (:meth:`restore_snapshot`)."""
         self.save(ckpt_dir / "latest.pt")
+        self.save(ckpt_dir / f"iter_{self.iteration:06d}.pt")
 
     def restore_snapshot(self, ckpt_dir: Path) -> bool:
-        """Write ``iter_NNNNNN.pt`` of the resumed iteration again if it is missing (a run of an older
-        catmip stopped after ``latest.pt``): the same state, since ``latest.pt`` is that iteration's.
+        """Write ``iter_NNNNNN.pt`` of the resumed iteration again if it is missing (a run stopped
+        after ``latest.pt``, see :meth:`checkpoint`): the same state, since ``latest.pt`` is that iteration's.
         Returns whether it was missing."""
         path = ckpt_dir / f"iter_{self.iteration:06d}.pt"
         if path.exists():

@@ -58,8 +58,8 @@ def test_two_seeded_runs_are_identical_and_resume_continues_exactly(tmp_path):
 def test_a_run_stopped_between_its_snapshot_and_latest_resumes_with_every_snapshot(tmp_path, monkeypatch):
     from catmip_rl.training import train as train_module
 
-    """A run's snapshot of an iteration is written before latest.pt names that iteration; a run of an
-    older catmip whose snapshot went missing after latest.pt gets it written again on --resume."""
+    """latest.pt is written before an iteration's snapshot (a run stopped after its first snapshot
+    can always --resume); a run stopped between the two gets the snapshot written again on --resume."""
     cfg = make_train_config("tiny", iterations=2, eval_every=0, checkpoint_every=1)
     run = tmp_path / "r"
     train(cfg, run, progress=False)
@@ -76,7 +76,7 @@ def test_a_run_stopped_between_its_snapshot_and_latest_resumes_with_every_snapsh
 
     monkeypatch.setattr(train_module.Run, "save", record)
     train(cfg.replace(iterations=4), run, resume=True, progress=False)
-    assert written.index("iter_000004.pt") < written.index("latest.pt")
+    assert written.index("latest.pt") < written.index("iter_000004.pt")
 
 
 def test_errors(tmp_path):
