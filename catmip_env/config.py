@@ -16,9 +16,15 @@ from typing import Any, NoReturn
 from catmip_env.fields import BOOL, INT, NUMBER, STR, Rule, check, is_int, is_number, is_str
 
 __all__ = [
-    "EnvConfig", "RobotClass", "PRESETS", "EXPLORER", "RESCUER", "make_config", "MAX_MAP_SIZE",
+    "EnvConfig",
+    "RobotClass",
+    "PRESETS",
+    "EXPLORER",
+    "RESCUER",
+    "make_config",
+    "MAX_MAP_SIZE",
     "MIN_COMM_SIGMA",
-]  # fmt: skip
+]
 
 #: Spawn box side: robots start on free cells of the 4x4 box just inside a map corner.
 SPAWN_BOX = 4
@@ -226,13 +232,20 @@ _RULES: dict[str, Rule] = {
     "random_classes": Rule("a list of class names", _list_of(is_str)),
     "classes": Rule("a list of robot classes", _list_of(lambda c: isinstance(c, RobotClass))),
     "horizon_ticks": INT(">= 1", lambda v: v >= 1),
-    "num_obstacles": Rule("None or an int", lambda v: v is None or is_int(v),
-                          ">= 0", lambda v: v is None or v >= 0),
+    "num_obstacles": Rule(
+        "None or an int", lambda v: v is None or is_int(v), ">= 0", lambda v: v is None or v >= 0
+    ),
     "wall_prob": NUMBER("in [0, 1]", _probability),
-    "comm_sigma": Rule("None (full communication) or a finite number", lambda v: v is None or is_number(v),
-                       f">= {MIN_COMM_SIGMA} (cells)", _is_comm_range),
-    "comm_sigma_choices": Rule(f"a list of finite numbers >= {MIN_COMM_SIGMA} (cells) or null (full "
-                               "communication)", _list_of(_is_comm_range)),
+    "comm_sigma": Rule(
+        "None (full communication) or a finite number",
+        lambda v: v is None or is_number(v),
+        f">= {MIN_COMM_SIGMA} (cells)",
+        _is_comm_range,
+    ),
+    "comm_sigma_choices": Rule(
+        f"a list of finite numbers >= {MIN_COMM_SIGMA} (cells) or null (full communication)",
+        _list_of(_is_comm_range),
+    ),
     "slam_noise": NUMBER("in [0, 1]", _probability),
     "teammate_memory": BOOL,
     "teammate_heading": BOOL,
@@ -244,11 +257,17 @@ _RULES: dict[str, Rule] = {
     "rescue_reward": NUMBER(">= 0", lambda v: v >= 0),
     "max_ma_ticks": INT(">= 1", lambda v: v >= 1),
     "synchronous": BOOL,
-    "activation": Rule("a list of two ints", _list_of(is_int, 2), "[t_min, t_max] with 0 <= t_min <= t_max",
-                       lambda a: 0 <= a[0] <= a[1]),
-    "layout": Rule("None or one string holding the ASCII map (rows separated by newlines)",
-                   lambda v: v is None or isinstance(v, str)),
-}  # fmt: skip
+    "activation": Rule(
+        "a list of two ints",
+        _list_of(is_int, 2),
+        "[t_min, t_max] with 0 <= t_min <= t_max",
+        lambda a: 0 <= a[0] <= a[1],
+    ),
+    "layout": Rule(
+        "None or one string holding the ASCII map (rows separated by newlines)",
+        lambda v: v is None or isinstance(v, str),
+    ),
+}
 
 
 def _validate(cfg: EnvConfig) -> None:

@@ -54,8 +54,14 @@ def evaluate(planner: str, preset: str, episodes: int, seed: int) -> dict:
     metrics = episode_metrics(play(eng, policy, on_event=progress), cfg.horizon_ticks)
     if bar is not None:
         bar.close()
-    keys = ("success_rate", "success_by_100", "mean_rescue_tick", "mean_target_found_tick",
-            "mean_explored_fraction", "decisions")  # fmt: skip
+    keys = (
+        "success_rate",
+        "success_by_100",
+        "mean_rescue_tick",
+        "mean_target_found_tick",
+        "mean_explored_fraction",
+        "decisions",
+    )
     row = {"planner": planner, "preset": preset, "episodes": episodes, "seed": seed}
     return row | {k: metrics[k] for k in keys} | {"seconds": time.perf_counter() - t0}
 

@@ -27,9 +27,15 @@ from catmip_env.config import EnvConfig
 from catmip_env.events import EventEngine
 
 __all__ = [
-    "EpisodeRecords", "episode_records", "success_curve", "episode_metrics", "decision_metrics",
-    "DecisionTracker", "decision_summary", "training_stats",
-]  # fmt: skip
+    "EpisodeRecords",
+    "episode_records",
+    "success_curve",
+    "episode_metrics",
+    "decision_metrics",
+    "DecisionTracker",
+    "decision_summary",
+    "training_stats",
+]
 
 
 @dataclass(frozen=True)

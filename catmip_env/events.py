@@ -170,14 +170,28 @@ class EventEngine:
 
         def step_chunk(w: slice) -> None:  # the worlds of one thread (threads=): goals, ticks, observations
             assign_goals(
-                live[w], self._goal_cells[w], st.goal[w], self.mstate[w], self._ma_rewards[w], st.comp[w],
+                live[w],
+                self._goal_cells[w],
+                st.goal[w],
+                self.mstate[w],
+                self._ma_rewards[w],
+                st.comp[w],
                 st.heard_goal[w],
-            )  # fmt: skip
+            )
             advance(
-                live[w], st.kernel_chunk(w), self.rules, limit, self.mstate[w], self._prim[w],
-                self._tick_rewards[w], self._event_rewards[w], self._ma_rewards[w], self._event_ticks[w],
-                self._terminated[w], self._truncated[w],
-            )  # fmt: skip
+                live[w],
+                st.kernel_chunk(w),
+                self.rules,
+                limit,
+                self.mstate[w],
+                self._prim[w],
+                self._tick_rewards[w],
+                self._event_rewards[w],
+                self._ma_rewards[w],
+                self._event_ticks[w],
+                self._terminated[w],
+                self._truncated[w],
+            )
             self.world.observe_chunk(live, w)
             self._masks_chunk(live, w)
 
@@ -209,9 +223,16 @@ class EventEngine:
     def _masks_chunk(self, worlds: np.ndarray, w: slice) -> None:
         st = self.state
         action_masks(
-            worlds[w], self.goal_mode == "cell", self.cfg.window, st.belief[w], st.pos[w], st.comp[w],
-            st.goal[w], self.mstate[w], self.masks[w],
-        )  # fmt: skip
+            worlds[w],
+            self.goal_mode == "cell",
+            self.cfg.window,
+            st.belief[w],
+            st.pos[w],
+            st.comp[w],
+            st.goal[w],
+            self.mstate[w],
+            self.masks[w],
+        )
 
     def action_to_cell(self, b: int, i: int, action: int) -> tuple[int, int]:
         """Goal cell of robot i of world b for ``action`` (no validity check)."""
@@ -231,9 +252,17 @@ class EventEngine:
             raise ValueError(f"goal actions must be integers, got dtype {actions.dtype}")
         decides = self.active & live[:, None]
         refused = goal_cells(
-            actions.astype(np.int64), decides, self.masks, self.goal_mode == "cell", self.shape[1],
-            self.cfg.window, self.stay_action, self.state.pos, self._goal_cells, self._refused,
-        )  # fmt: skip
+            actions.astype(np.int64),
+            decides,
+            self.masks,
+            self.goal_mode == "cell",
+            self.shape[1],
+            self.cfg.window,
+            self.stay_action,
+            self.state.pos,
+            self._goal_cells,
+            self._refused,
+        )
         if refused and self.invalid_action == "raise":
             b, i = (int(x) for x in np.argwhere(self._refused)[0])
             v = int(actions[b, i])

@@ -39,9 +39,18 @@ from catmip_env.files import atomic_path
 from catmip_env.world import BatchedWorld
 
 __all__ = [
-    "FROZEN_SEEDS", "VALIDATION_SEED", "TEST_SEED", "SPLITS", "MANIFEST_EPISODES", "MapSetMismatch",
-    "MapSetReport", "check_maps", "manifest", "map_hash", "map_hashes",
-]  # fmt: skip
+    "FROZEN_SEEDS",
+    "VALIDATION_SEED",
+    "TEST_SEED",
+    "SPLITS",
+    "MANIFEST_EPISODES",
+    "MapSetMismatch",
+    "MapSetReport",
+    "check_maps",
+    "manifest",
+    "map_hash",
+    "map_hashes",
+]
 
 VALIDATION_SEED = 1000
 """The suite's validation maps: public, for tuning, gates and every choice (the project chose on them)."""

@@ -23,8 +23,14 @@ import numpy as np
 from catmip_env.episode_stats import DecisionTracker, EpisodeRecords, episode_records
 from catmip_env.events import EventEngine
 
-__all__ = ["Policy", "MESSAGE_COLUMNS", "plays_one_world_at_a_time", "episode_columns", "WorldNotSupported",
-           "play"]  # fmt: skip
+__all__ = [
+    "Policy",
+    "MESSAGE_COLUMNS",
+    "plays_one_world_at_a_time",
+    "episode_columns",
+    "WorldNotSupported",
+    "play",
+]
 
 
 class Policy(Protocol):

@@ -24,9 +24,17 @@ from catmip_env.files import atomic_path
 from catmip_env.play import Policy, play
 
 __all__ = [
-    "render_world", "render_ansi", "episode_status", "add_caption", "save_gif", "episode_frames",
-    "render_episode", "LiveWindow", "CLASS_COLOURS", "RENDER_FPS",
-]  # fmt: skip
+    "render_world",
+    "render_ansi",
+    "episode_status",
+    "add_caption",
+    "save_gif",
+    "episode_frames",
+    "render_episode",
+    "LiveWindow",
+    "CLASS_COLOURS",
+    "RENDER_FPS",
+]
 
 RENDER_FPS = 8
 """Frames (ticks) per second of a rendered episode: the env's ``metadata["render_fps"]`` and the GIFs'."""
@@ -145,9 +153,13 @@ def _legend(engine, b: int) -> list[tuple[str, str, tuple[int, int, int]]]:
     """(shape, label, colour) of each legend entry: the classes in world ``b``, then the cell kinds."""
     classes = sorted(set(engine.state.cls[b].tolist()))
     robots = [("robot", engine.cfg.classes[c].name, CLASS_COLOURS[c % len(CLASS_COLOURS)]) for c in classes]
-    cells = [("ring", "goal", (90, 90, 90)), ("cell", "target", _COLOURS[TARGET]),
-             ("cell", "clue", _COLOURS[CLUE]), ("cell", "unexplored", (140, 140, 140)),
-             ("line", "radio link", (150, 150, 150))]  # fmt: skip
+    cells = [
+        ("ring", "goal", (90, 90, 90)),
+        ("cell", "target", _COLOURS[TARGET]),
+        ("cell", "clue", _COLOURS[CLUE]),
+        ("cell", "unexplored", (140, 140, 140)),
+        ("line", "radio link", (150, 150, 150)),
+    ]
     return [(shape, label, tuple(int(v) for v in colour)) for shape, label, colour in robots + cells]
 
 

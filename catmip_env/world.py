@@ -228,8 +228,15 @@ class BatchedWorld:
         live = ~self.state.done
 
         def step_chunk(w: slice) -> None:
-            tick(live[w], actions[w], self.state.kernel_chunk(w), self.rules, self._rewards[w],
-                 self._terminated[w], self._truncated[w])  # fmt: skip
+            tick(
+                live[w],
+                actions[w],
+                self.state.kernel_chunk(w),
+                self.rules,
+                self._rewards[w],
+                self._terminated[w],
+                self._truncated[w],
+            )
             self.observe_chunk(live, w)
 
         self.chunks.run(step_chunk)
@@ -265,9 +272,22 @@ class BatchedWorld:
         if self.heading:
             shown = estimated_cells(k.heard_tick, k.heard_pos, k.heard_goal, k.ticks, k.speed)
         build_observations(
-            worlds[w], k.belief, k.used_occ, self.noisy, k.pos, k.cls, k.comp, k.goal, k.target,
-            self.obs_global[w], self.obs_local[w], self.memory, k.heard_tick, shown, k.heard_knows,
-        )  # fmt: skip
+            worlds[w],
+            k.belief,
+            k.used_occ,
+            self.noisy,
+            k.pos,
+            k.cls,
+            k.comp,
+            k.goal,
+            k.target,
+            self.obs_global[w],
+            self.obs_local[w],
+            self.memory,
+            k.heard_tick,
+            shown,
+            k.heard_knows,
+        )
 
     # -- read-outs -----------------------------------------------------------------------------
     def knows_target(self) -> np.ndarray:

@@ -256,9 +256,20 @@ def perceive(
     draw_neighbourhoods(b, pos, comm_sigma, rng, comp)
     merge_beliefs(b, comp, belief)
     success = mission_update(
-        b, tick_1b, horizon, target, pos, can_rescue, belief, found_tick, informed_tick, rescue_tick,
-        find_reward, rescue_reward, rewards,
-    )  # fmt: skip
+        b,
+        tick_1b,
+        horizon,
+        target,
+        pos,
+        can_rescue,
+        belief,
+        found_tick,
+        informed_tick,
+        rescue_tick,
+        find_reward,
+        rescue_reward,
+        rewards,
+    )
     draw_used_occupancy(b, belief, pos, noise, rng, used_occ)
     return success
 
@@ -277,10 +288,30 @@ def perceive_at_reset(worlds: np.ndarray, s: KernelState, rules: Rules) -> None:
     for b in range(worlds.shape[0]):
         if worlds[b]:
             perceive(
-                b, 0, grid, target, pos, heading, can_rescue, belief, comp, rng, used_occ, found_tick,
-                informed_tick, rescue_tick, pending, horizon, comm_sigma[b], noise, find_reward,
-                rescue_reward, view_offsets, view_blockers, ray_nblock,
-            )  # fmt: skip
+                b,
+                0,
+                grid,
+                target,
+                pos,
+                heading,
+                can_rescue,
+                belief,
+                comp,
+                rng,
+                used_occ,
+                found_tick,
+                informed_tick,
+                rescue_tick,
+                pending,
+                horizon,
+                comm_sigma[b],
+                noise,
+                find_reward,
+                rescue_reward,
+                view_offsets,
+                view_blockers,
+                ray_nblock,
+            )
             remember(b, 0, pos, comp, belief, target, heard_tick, heard_pos, heard_knows, s.goal, heard_goal)
 
 
@@ -323,14 +354,44 @@ def tick(
             pending[b, i] = 0.0
         t0 = ticks[b]
         move_robots(
-            b, t0, grid, pos, heading, speed, actions, step_reward, collision_penalty, rewards, moves,
+            b,
+            t0,
+            grid,
+            pos,
+            heading,
+            speed,
+            actions,
+            step_reward,
+            collision_penalty,
+            rewards,
+            moves,
             collisions,
-        )  # fmt: skip
+        )
         success = perceive(
-            b, t0 + 1, grid, target, pos, heading, can_rescue, belief, comp, rng, used_occ, found_tick,
-            informed_tick, rescue_tick, rewards, horizon, comm_sigma[b], noise, find_reward, rescue_reward,
-            view_offsets, view_blockers, ray_nblock,
-        )  # fmt: skip
+            b,
+            t0 + 1,
+            grid,
+            target,
+            pos,
+            heading,
+            can_rescue,
+            belief,
+            comp,
+            rng,
+            used_occ,
+            found_tick,
+            informed_tick,
+            rescue_tick,
+            rewards,
+            horizon,
+            comm_sigma[b],
+            noise,
+            find_reward,
+            rescue_reward,
+            view_offsets,
+            view_blockers,
+            ray_nblock,
+        )
         remember(b, t0 + 1, pos, comp, belief, target, heard_tick, heard_pos, heard_knows, goal, heard_goal)
         ticks[b] = t0 + 1
         terminated[b] = success

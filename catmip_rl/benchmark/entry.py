@@ -32,10 +32,26 @@ from catmip_rl.evaluation.stats import CONFIDENCE, runs_and_maps_ci
 from catmip_rl.evaluation.user_policy import parse_policy_source
 
 __all__ = [
-    "SUITE", "SPLITS", "EPISODES", "SETTINGS", "ENTRY_FORMAT", "CLASSES", "FLOORS", "BY_TICK", "make_entry",
-    "setting_numbers", "iqm_interval", "maps_digest", "split_digest", "check_split", "entry_json",
-    "rescued_by_100", "entry_actions", "method_class", "method_spec",
-]  # fmt: skip
+    "SUITE",
+    "SPLITS",
+    "EPISODES",
+    "SETTINGS",
+    "ENTRY_FORMAT",
+    "CLASSES",
+    "FLOORS",
+    "BY_TICK",
+    "make_entry",
+    "setting_numbers",
+    "iqm_interval",
+    "maps_digest",
+    "split_digest",
+    "check_split",
+    "entry_json",
+    "rescued_by_100",
+    "entry_actions",
+    "method_class",
+    "method_spec",
+]
 
 SUITE = "v2"
 EPISODES = MANIFEST_EPISODES
@@ -238,9 +254,17 @@ def method_class(name: str, runs: list[Method], stated: str | None = None) -> st
     return derived
 
 
-def make_entry(name: str, runs: list[Method], results: dict[str, list[dict[str, Any]]], episodes: int,
-               code: str = "", notes: str = "", split: str = "validation", cls: str | None = None,
-               chosen_on: str = "") -> dict[str, Any]:  # fmt: skip
+def make_entry(
+    name: str,
+    runs: list[Method],
+    results: dict[str, list[dict[str, Any]]],
+    episodes: int,
+    code: str = "",
+    notes: str = "",
+    split: str = "validation",
+    cls: str | None = None,
+    chosen_on: str = "",
+) -> dict[str, Any]:
     """The suite entry of method ``name`` (its training ``runs``, of class ``cls`` or the one they
     give, :func:`method_class`; ``chosen_on``: what its choices were made on) on ``split`` from its
     :func:`~catmip_rl.benchmark.jobs.run_one` results per setting label (one per run, in order); each
@@ -254,10 +278,15 @@ def make_entry(name: str, runs: list[Method], results: dict[str, list[dict[str, 
             raise ValueError(f"the runs of {name} played different maps in {st.label}")
         ticks = np.array([[-1 if np.isnan(t) else int(t) for t in r["ticks"]["rescue_tick"]] for r in res])
         settings[st.label] = {
-            "task": st.task, "comm": st.comm, "noise": st.noise, "max_ma_ticks": st.max_ma_ticks,
-            "horizon": horizon, "maps_sha256": played.pop(),
-            **setting_numbers(ticks, horizon), "rescue_tick": ticks.tolist(),
-        }  # fmt: skip
+            "task": st.task,
+            "comm": st.comm,
+            "noise": st.noise,
+            "max_ma_ticks": st.max_ma_ticks,
+            "horizon": horizon,
+            "maps_sha256": played.pop(),
+            **setting_numbers(ticks, horizon),
+            "rescue_tick": ticks.tolist(),
+        }
         success.append(rescued_by_100(ticks, horizon))
     iqm, low, high = iqm_interval(success)
     first = results[SETTINGS[0].label][0]["summary"]
@@ -278,7 +307,7 @@ def make_entry(name: str, runs: list[Method], results: dict[str, list[dict[str, 
                 "training": _training(m),
             }
             for k, m in enumerate(runs)
-        ],  # fmt: skip
+        ],
         "split": split,
         "seed": check_split(split),
         "episodes": episodes,

@@ -43,9 +43,24 @@ MAX_RUNS = 10
 MAX_FILES = 50  # files a run names
 TEXT_LIMITS = {"method": 64, "chosen_on": 300, "code": 300, "notes": 1_000, "actions": 80, "spec": 500}
 KEYS = {
-    "format", "suite", "method", "class", "chosen_on", "actions", "runs", "split", "seed", "episodes",
-    "aggregate", "settings", "code", "notes", "versions", "machine", "created",
-}  # fmt: skip
+    "format",
+    "suite",
+    "method",
+    "class",
+    "chosen_on",
+    "actions",
+    "runs",
+    "split",
+    "seed",
+    "episodes",
+    "aggregate",
+    "settings",
+    "code",
+    "notes",
+    "versions",
+    "machine",
+    "created",
+}
 _CONTROL = re.compile(r"[\x00-\x1f\x7f-\x9f\u2028\u2029]")
 _SHA256 = re.compile(r"[0-9a-f]{64}")
 _PATH = re.compile(r"[A-Za-z0-9._~/+-]+")

@@ -54,9 +54,16 @@ def _done(job: Job) -> dict[str, Any] | None:
     if not job.resume or not path.is_file():
         return None
     summary = json.loads(path.read_text())
-    want = {"method": job.method.name, "method_kind": job.method.kind, "target": job.method.target,
-            "synchronous": job.method.synchronous, "label": job.setting.label, "seed": job.seed,
-            "episodes": job.episodes, "source": method_source(job.method)}  # fmt: skip
+    want = {
+        "method": job.method.name,
+        "method_kind": job.method.kind,
+        "target": job.method.target,
+        "synchronous": job.method.synchronous,
+        "label": job.setting.label,
+        "seed": job.seed,
+        "episodes": job.episodes,
+        "source": method_source(job.method),
+    }
     want |= {key: getattr(job.method, key) for key, _ in PLAY_OPTIONS}  # how an AMAT played
     found = {key: False for key, _ in PLAY_OPTIONS} | summary  # an older summary lacks newer options
     differs = [k for k, v in want.items() if found.get(k) != v]
@@ -106,9 +113,13 @@ def run_one(job: Job) -> dict[str, Any]:
     else:
         torch_threads(job.threads)
         result = evaluate(
-            job.method, job.setting, job.episodes, job.seed, sampled_too=job.sampled,
+            job.method,
+            job.setting,
+            job.episodes,
+            job.seed,
+            sampled_too=job.sampled,
             allow_other_maps=job.allow_other_maps,
-        )  # fmt: skip
+        )
         result.write(job.out)
         summary, episodes, curve = result.summary, result.episodes, result.curve.tolist()
         sampled = None if result.sampled_curve is None else result.sampled_curve.tolist()
@@ -118,8 +129,14 @@ def run_one(job: Job) -> dict[str, Any]:
         if key in episodes[0]
     }
     maps = [e["map_hash"] for e in episodes]  # the maps played, in order (an entry's digest)
-    return {"out": job.out, "summary": summary, "curve": curve, "sampled_curve": sampled, "ticks": ticks,
-            "maps": maps}  # fmt: skip
+    return {
+        "out": job.out,
+        "summary": summary,
+        "curve": curve,
+        "sampled_curve": sampled,
+        "ticks": ticks,
+        "maps": maps,
+    }
 
 
 def _no_link(folder: Path) -> None:
@@ -148,9 +165,11 @@ def map_jobs(tasks: list[Job], jobs: int, progress: bool, desc: str) -> list[dic
             runs = map(run_one, tasks)
         else:
             spawn = multiprocessing.get_context("spawn")
-            pool = stack.enter_context(ProcessPoolExecutor(
-                max_workers=jobs, mp_context=spawn, initializer=die_with_parent, initargs=(os.getpid(),)
-            ))  # fmt: skip
+            pool = stack.enter_context(
+                ProcessPoolExecutor(
+                    max_workers=jobs, mp_context=spawn, initializer=die_with_parent, initargs=(os.getpid(),)
+                )
+            )
             futures = [pool.submit(run_one, t) for t in tasks]  # not pool.map: its iterator cancels them
             runs = (f.result() for f in futures)  # on its way out, which a broken pool then trips over
         try:

@@ -31,9 +31,15 @@ from catmip_rl.evaluation.stats import CONFIDENCE, shared_maps_cis
 from catmip_rl.store.files import atomic_savefig, atomic_write_text
 
 __all__ = [
-    "EntryError", "load_entries", "leaderboard_rows", "level_with", "paired_rows", "paired_names",
-    "render_leaderboard", "md_text",
-]  # fmt: skip
+    "EntryError",
+    "load_entries",
+    "leaderboard_rows",
+    "level_with",
+    "paired_rows",
+    "paired_names",
+    "render_leaderboard",
+    "md_text",
+]
 
 SHORT = {"full": "full", "4": "σ4", "2": "σ2"}  # column headings: T2 σ2 +n
 CLASS_COLOURS = {"planner": "tab:blue", "learned": "tab:green", "hybrid": "tab:purple", "floor": "tab:gray"}
@@ -82,10 +88,18 @@ def leaderboard_rows(entries: list[dict[str, Any]]) -> list[dict[str, Any]]:
     for e in sorted(entries, key=lambda e: -e["checked"]["iqm"]):
         checked = e["checked"]
         low, high = checked["iqm_ci"]
-        row = {"method": e["method"], "class": e["class"], "runs": len(e["runs"]),
-               "actions": e.get("actions") or "", "iqm": checked["iqm"], "iqm_ci_low": low,
-               "iqm_ci_high": high, "verified": e.get("replayed", 0), "chosen_on": e.get("chosen_on") or "",
-               "success": checked["success"]}  # fmt: skip
+        row = {
+            "method": e["method"],
+            "class": e["class"],
+            "runs": len(e["runs"]),
+            "actions": e.get("actions") or "",
+            "iqm": checked["iqm"],
+            "iqm_ci_low": low,
+            "iqm_ci_high": high,
+            "verified": e.get("replayed", 0),
+            "chosen_on": e.get("chosen_on") or "",
+            "success": checked["success"],
+        }
         row |= {st.label: checked["settings"][st.label]["success_by_100"] for st in SETTINGS}
         rows.append(row | {"code": e.get("code") or "", "notes": e.get("notes") or ""})
     for k, row in enumerate(rows):
@@ -111,8 +125,9 @@ def paired_rows(entries: list[dict[str, Any]], vs: str) -> list[dict[str, Any]]:
     others = leaderboard_rows([e for e in entries if e["method"] != vs])
     diffs = [
         by_name[row["method"]]["checked"]["success"][st.label] - reference[st.label]
-        for row in others for st in SETTINGS
-    ]  # fmt: skip
+        for row in others
+        for st in SETTINGS
+    ]
     intervals = iter(zip(diffs, shared_maps_cis(diffs)))  # every entry played the same maps
     rows = []
     for row in others:
@@ -162,8 +177,9 @@ def _paired_csv(rows: list[dict[str, Any]], vs: str) -> str:
     for r in rows:
         for st in SETTINGS:
             diff, low, high = r[st.label]
-            writer.writerow([r["method"], r["class"], vs, r["runs"], st.label, f"{diff:.6f}", f"{low:.6f}",
-                             f"{high:.6f}"])  # fmt: skip
+            writer.writerow(
+                [r["method"], r["class"], vs, r["runs"], st.label, f"{diff:.6f}", f"{low:.6f}", f"{high:.6f}"]
+            )
     return out.getvalue()
 
 
@@ -190,9 +206,16 @@ def _markdown(rows: list[dict[str, Any]], episodes: int, split: str) -> str:
         method = md_text(r["method"])
         if r["code"]:
             method = f"[{method}](<{r['code']}>)"
-        cells = [str(r["rank"]), method, r["class"], str(r["runs"]), md_text(r["actions"]),
-                 f"**{r['iqm']:.3f}** [{r['iqm_ci_low']:.3f}, {r['iqm_ci_high']:.3f}]",
-                 *(f"{r[s.label]:.2f}" for s in SETTINGS), _verified(r)]  # fmt: skip
+        cells = [
+            str(r["rank"]),
+            method,
+            r["class"],
+            str(r["runs"]),
+            md_text(r["actions"]),
+            f"**{r['iqm']:.3f}** [{r['iqm_ci_low']:.3f}, {r['iqm_ci_high']:.3f}]",
+            *(f"{r[s.label]:.2f}" for s in SETTINGS),
+            _verified(r),
+        ]
         lines.append("| " + " | ".join(cells) + " |")
     about = []
     for r in rows:
@@ -216,8 +239,17 @@ def _figure(rows: list[dict[str, Any]], path: Path, episodes: int, split: str) -
     for yk, r in zip(y, rows):
         colour = CLASS_COLOURS[r["class"]]
         err = [[r["iqm"] - r["iqm_ci_low"]], [r["iqm_ci_high"] - r["iqm"]]]
-        left.errorbar(r["iqm"], yk, xerr=err, fmt="o", color=colour, markersize=3.5, elinewidth=2.5,
-                      capsize=5, capthick=1.5)  # fmt: skip
+        left.errorbar(
+            r["iqm"],
+            yk,
+            xerr=err,
+            fmt="o",
+            color=colour,
+            markersize=3.5,
+            elinewidth=2.5,
+            capsize=5,
+            capthick=1.5,
+        )
     labels = [f"{r['rank']}. {r['method'][:28]}" + (" ✓" if r["verified"] else "") for r in rows]
     left.set_yticks(y, labels)
     for tick, r in zip(left.get_yticklabels(), rows):
@@ -228,11 +260,18 @@ def _figure(rows: list[dict[str, Any]], path: Path, episodes: int, split: str) -
     left.set_xlabel("IQM, rescued by tick 100 (95 % CI)")
     left.grid(axis="x", alpha=0.3)
     used = [c for c in CLASSES if any(r["class"] == c for r in rows)]
-    left.legend([Line2D([], [], color=CLASS_COLOURS[c], marker="o", lw=2.5) for c in used], used,
-                loc="best", fontsize=8, title="class", title_fontsize=8)  # fmt: skip
+    left.legend(
+        [Line2D([], [], color=CLASS_COLOURS[c], marker="o", lw=2.5) for c in used],
+        used,
+        loc="best",
+        fontsize=8,
+        title="class",
+        title_fontsize=8,
+    )
     grid = np.array([[r[s.label] for s in SETTINGS] for r in rows])
-    image = right.imshow(grid, aspect="auto", cmap="viridis", vmin=0, vmax=1,
-                         extent=(-0.5, len(SETTINGS) - 0.5, -0.5, n - 0.5))  # fmt: skip
+    image = right.imshow(
+        grid, aspect="auto", cmap="viridis", vmin=0, vmax=1, extent=(-0.5, len(SETTINGS) - 0.5, -0.5, n - 0.5)
+    )
     for i, row in enumerate(grid):
         for j, v in enumerate(row):
             colour = "white" if v < 0.6 else "black"

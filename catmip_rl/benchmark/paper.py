@@ -30,15 +30,28 @@ from catmip_rl.evaluation.stats import curve_band, success_interval
 from catmip_rl.store.files import atomic_write_csv, atomic_write_text
 
 __all__ = [
-    "FIGURES", "DEFAULT_METHODS", "figure_settings", "run_figure", "marl_eval_json",
-    "summary_markdown", "summary_table", "summary_cell",
-]  # fmt: skip
+    "FIGURES",
+    "DEFAULT_METHODS",
+    "figure_settings",
+    "run_figure",
+    "marl_eval_json",
+    "summary_markdown",
+    "summary_table",
+    "summary_cell",
+]
 
 DEFAULT_METHODS = ("nearest", "utility", "rrt", "apf")
 SUMMARY_KEYS = (
-    "episodes", "success_rate", "success_by_100", "mean_rescue_tick", "mean_target_found_tick",
-    "mean_explored_fraction", "bytes_per_decision_embedding", "bytes_per_decision_raw", "seconds",
-)  # fmt: skip
+    "episodes",
+    "success_rate",
+    "success_by_100",
+    "mean_rescue_tick",
+    "mean_target_found_tick",
+    "mean_explored_fraction",
+    "bytes_per_decision_embedding",
+    "bytes_per_decision_raw",
+    "seconds",
+)
 SAMPLED_KEYS = ("success_rate", "success_by_100", "mean_rescue_tick")  # what the sampled pass reports
 
 
@@ -112,11 +125,21 @@ def run_figure(
     plays, not_played = check_methods(groups, panels, seed)  # a broken checkpoint or policy fails here
     fig_dir = Path(out) / f"fig{figure}"
     tasks = [
-        Job(m, st, episodes, seed, str(run_dir(fig_dir / st.label / m.name, k, len(runs))), threads,
-            allow_other_maps, resume=resume)
-        for panel, st in panels for name in names for runs in [plays.get((panel, name), [])]
+        Job(
+            m,
+            st,
+            episodes,
+            seed,
+            str(run_dir(fig_dir / st.label / m.name, k, len(runs))),
+            threads,
+            allow_other_maps,
+            resume=resume,
+        )
+        for panel, st in panels
+        for name in names
+        for runs in [plays.get((panel, name), [])]
         for k, m in enumerate(runs)
-    ]  # fmt: skip
+    ]
     results = iter(map_jobs(tasks, jobs, progress, f"figure {figure}"))
     curve_rows, summary_rows, runs_written = [], [], []
     for panel, _setting in panels:
@@ -168,8 +191,12 @@ def _summary(res: list[dict[str, Any]], tick_key: str, prefix: str) -> dict[str,
             row[key] = None
         else:
             row[key] = float(np.mean(values))
-    return row | {"runs": len(res), "success_by_100_ci_low": low, "success_by_100_ci_high": high,
-                  "ci_over": over}  # fmt: skip
+    return row | {
+        "runs": len(res),
+        "success_by_100_ci_low": low,
+        "success_by_100_ci_high": high,
+        "ci_over": over,
+    }
 
 
 def _number(value: Any) -> float | None:

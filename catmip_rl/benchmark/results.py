@@ -55,8 +55,10 @@ class PlayedOn:
 
         split = next((f" ({name} split)" for name, s in SPLITS.items() if s == self.seed), "")
         horizon = "" if self.horizon is None else f", horizon {self.horizon}"
-        return (f"{self.setting}, seed {self.seed}{split}{horizon}, {self.episodes} maps "
-                f"sha256 {self.maps_sha256[:12]}")  # fmt: skip
+        return (
+            f"{self.setting}, seed {self.seed}{split}{horizon}, {self.episodes} maps "
+            f"sha256 {self.maps_sha256[:12]}"
+        )
 
 
 def played_on(result: Result) -> PlayedOn:
@@ -75,13 +77,17 @@ ADVICE = (
 def _unlike(a: Result, pa: PlayedOn, b: Result, pb: PlayedOn | None) -> str:
     """One line: ``a`` played ``pa`` and ``b`` played ``pb`` (None: ``b``'s method has nothing there)."""
     if pb is None:
-        return (f"{a.path} ({a.method}: {pa.describe()}) and {b.path} ({b.method}) were not played alike "
-                f"({b.method} has no result in {pa.setting} on those maps)")  # fmt: skip
+        return (
+            f"{a.path} ({a.method}: {pa.describe()}) and {b.path} ({b.method}) were not played alike "
+            f"({b.method} has no result in {pa.setting} on those maps)"
+        )
     keys = ("setting", "seed", "horizon", "maps_sha256")
     fields = [k.removesuffix("_sha256") for k in keys if getattr(pa, k) != getattr(pb, k)]
     differ = ", ".join(fields[:-1]) + (" and " if len(fields) > 1 else "") + fields[-1]
-    return (f"{a.path} ({a.method}: {pa.describe()}) and {b.path} ({b.method}: {pb.describe()}) were not "
-            f"played alike (they differ in {differ})")  # fmt: skip
+    return (
+        f"{a.path} ({a.method}: {pa.describe()}) and {b.path} ({b.method}: {pb.describe()}) were not "
+        f"played alike (they differ in {differ})"
+    )
 
 
 def check_alike(results: list[Result], unpaired: bool = False) -> None:

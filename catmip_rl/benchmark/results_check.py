@@ -129,8 +129,10 @@ def check_counts(folder: Path, summary: dict[str, Any], ticks: np.ndarray, horiz
         raise ValueError(f"{folder}: summary.json says {said!r} episodes but episodes.json holds {n}")
     by = min(100, horizon)
     with np.errstate(invalid="ignore"):
-        counts = {"success_rate": ("", int((~np.isnan(ticks)).sum())),
-                  "success_by_100": (f" by tick {by}", int((ticks <= by).sum()))}  # fmt: skip
+        counts = {
+            "success_rate": ("", int((~np.isnan(ticks)).sum())),
+            "success_by_100": (f" by tick {by}", int((ticks <= by).sum())),
+        }
     for key, (when, count) in counts.items():
         if key not in summary:
             continue
@@ -244,5 +246,7 @@ def check_resumed(folder: Path, task: str, seed: int, episodes: int) -> None:
         if report.status != "verified" and maps != map_hashes(task, seed, episodes):
             raise ValueError("differs")
     except ValueError:
-        raise ValueError(f"{folder} holds episodes on other maps than maps 0 .. {episodes - 1} of {task}, "
-                         f"seed {seed}: play it again") from None  # fmt: skip
+        raise ValueError(
+            f"{folder} holds episodes on other maps than maps 0 .. {episodes - 1} of {task}, "
+            f"seed {seed}: play it again"
+        ) from None

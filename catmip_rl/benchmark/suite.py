@@ -73,11 +73,22 @@ def run_suite(
         (label, name), why = next(iter(not_played.items()))
         raise ValueError(f"method {name} cannot play {label} ({why}): a suite entry needs every setting")
     threads = default_threads(jobs, threads)
+    # sampled=False: an entry is the argmax (or the policy's own) actions, one pass
     tasks = [
-        Job(m, st, episodes, seed, str(run_dir(out / "runs" / st.label / m.name, k, len(runs))), threads,
-            resume=True, sampled=False)  # an entry is the argmax (or the policy's own) actions: one pass
-        for runs in groups for k, m in enumerate(runs) for st in SETTINGS
-    ]  # fmt: skip
+        Job(
+            m,
+            st,
+            episodes,
+            seed,
+            str(run_dir(out / "runs" / st.label / m.name, k, len(runs))),
+            threads,
+            resume=True,
+            sampled=False,
+        )
+        for runs in groups
+        for k, m in enumerate(runs)
+        for st in SETTINGS
+    ]
     try:
         results = iter(map_jobs(tasks, jobs, progress, f"suite {SUITE}"))
     except PolicyError as err:  # a policy that broke mid-suite: what was played is kept
@@ -95,15 +106,30 @@ def run_suite(
         name = runs[0].name
         path = out / "entries" / f"{_file_name(name)}.json"
         given = {key: about[key].get(name) or kept[name][key] for key in about}  # or as resumed
-        entry = make_entry(name, runs, per_setting, episodes, given["code"], given["notes"], split,
-                           given["class"] or None, given["chosen_on"])  # fmt: skip
+        entry = make_entry(
+            name,
+            runs,
+            per_setting,
+            episodes,
+            given["code"],
+            given["notes"],
+            split,
+            given["class"] or None,
+            given["chosen_on"],
+        )
         atomic_write_text(path, entry_json(entry))
         paths.append(path)
     return paths
 
 
-def _check_request(groups: list[list[Method]], names: list[str], about: dict[str, dict[str, str]],
-                   kept: dict[str, dict[str, str]], split: str, episodes: int) -> None:  # fmt: skip
+def _check_request(
+    groups: list[list[Method]],
+    names: list[str],
+    about: dict[str, dict[str, str]],
+    kept: dict[str, dict[str, str]],
+    split: str,
+    episodes: int,
+) -> None:
     """ValueError, before anything is played, for a suite request that cannot give entries: methods
     without unique names, a training run listed twice (one run), ``about`` (code, notes, class,
     chosen-on) for a method not played, an episode count past the split's, a method without a class or,

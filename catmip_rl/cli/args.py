@@ -13,10 +13,25 @@ __all__ = [
     "Parser",
     "Formatter",
     "add_allow_other_maps",
-    "POSITIVE_INT", "NON_NEGATIVE_INT", "PROBABILITY", "CPUS", "UP_TO_CPUS", "checked", "check_comm",
-    "check_method", "check_methods", "check_runs", "parse_set", "set_item", "USER_ERRORS", "number_type",
-    "name_value", "pair_list", "explain", "missing_extra",
-]  # fmt: skip
+    "POSITIVE_INT",
+    "NON_NEGATIVE_INT",
+    "PROBABILITY",
+    "CPUS",
+    "UP_TO_CPUS",
+    "checked",
+    "check_comm",
+    "check_method",
+    "check_methods",
+    "check_runs",
+    "parse_set",
+    "set_item",
+    "USER_ERRORS",
+    "number_type",
+    "name_value",
+    "pair_list",
+    "explain",
+    "missing_extra",
+]
 
 USER_ERRORS = (ValueError, OSError, ImportError)
 """What bad input raises (a bad value, path, or missing extra): one line and exit code 2."""
@@ -188,7 +203,8 @@ class Formatter(argparse.ArgumentDefaultsHelpFormatter):
 
 def add_allow_other_maps(p: argparse.ArgumentParser) -> None:
     p.add_argument(
-        "--allow-other-maps", action="store_true",
+        "--allow-other-maps",
+        action="store_true",
         help="evaluate even if this installation generates maps other than the frozen map sets' "
         "(catmip_env/frozen_maps; the summary records it); without it such a run is refused",
-    )  # fmt: skip
+    )

@@ -18,7 +18,7 @@ from catmip_rl.cli.args import (
     name_value,
     number_type,
     pair_list,
-)  # fmt: skip
+)
 
 __all__ = ["add_parallel_flags", "add_suite", "add_leaderboard", "add_bench", "add_export", "add_compare"]
 
@@ -26,8 +26,12 @@ __all__ = ["add_parallel_flags", "add_suite", "add_leaderboard", "add_bench", "a
 def add_parallel_flags(p: argparse.ArgumentParser) -> None:
     """--jobs and --threads of a command that plays a grid of evaluations (bench suite, bench paper)."""
     p.add_argument("--jobs", type=UP_TO_CPUS, default=min(2, CPUS), help="parallel processes")
-    p.add_argument("--threads", type=UP_TO_CPUS, default=None,
-                   help="torch CPU threads of each process (default: 2 with one job, else 1)")  # fmt: skip
+    p.add_argument(
+        "--threads",
+        type=UP_TO_CPUS,
+        default=None,
+        help="torch CPU threads of each process (default: 2 with one job, else 1)",
+    )
 
 
 def add_suite(suites) -> None:
@@ -35,7 +39,8 @@ def add_suite(suites) -> None:
     from catmip_rl.benchmark.entry import EPISODES, SETTINGS, SUITE
 
     su = suites.add_parser(
-        "suite", help=f"the benchmark suite ({SUITE}): one leaderboard entry per method",
+        "suite",
+        help=f"the benchmark suite ({SUITE}): one leaderboard entry per method",
         formatter_class=Formatter,
         description=f"Play each method on the {len(SETTINGS)} settings of suite {SUITE} (Tasks 2 and 3 x "
         "communication full / sigma 4 / sigma 2 x SLAM noise 0 / 5 %) on the frozen maps of --split "
@@ -43,29 +48,64 @@ def add_suite(suites) -> None:
         "once per entry after every choice is frozen) and write OUT/entries/NAME.json for catmip "
         "leaderboard; per-run results in OUT/runs/. An interrupted suite continues with --resume "
         "(complete runs are read back, not played again).",
-    )  # fmt: skip
+    )
     su.add_argument(
-        "--method", action="append", required=True, type=checked(check_runs),
+        "--method",
+        action="append",
+        required=True,
+        type=checked(check_runs),
         help="a method (repeatable; NAME=METHOD; NAME=SPEC,SPEC,...: its training runs)",
-    )  # fmt: skip
-    su.add_argument("--split", choices=sorted(SPLITS), default="validation",
-                    help="the maps: validation (tuning, gates, every choice) or test (the leaderboard's; "
-                    "play it once, after every choice is frozen)")  # fmt: skip
-    su.add_argument("--episodes", type=number_type(int, 1, below=EPISODES + 1, bound=f"from 1 to {EPISODES}"),
-                    default=EPISODES, help="maps per setting (an entry of fewer is a preview: the "
-                    "leaderboard takes the suite's count)")  # fmt: skip
+    )
+    su.add_argument(
+        "--split",
+        choices=sorted(SPLITS),
+        default="validation",
+        help="the maps: validation (tuning, gates, every choice) or test (the leaderboard's; "
+        "play it once, after every choice is frozen)",
+    )
+    su.add_argument(
+        "--episodes",
+        type=number_type(int, 1, below=EPISODES + 1, bound=f"from 1 to {EPISODES}"),
+        default=EPISODES,
+        help="maps per setting (an entry of fewer is a preview: the leaderboard takes the suite's count)",
+    )
     add_parallel_flags(su)
-    su.add_argument("--code", action="append", default=[], type=name_value, metavar="NAME=URL",
-                    help="a link to a method's code, shown on the leaderboard (repeatable)")  # fmt: skip
-    su.add_argument("--notes", action="append", default=[], type=name_value, metavar="NAME=TEXT",
-                    help="what a method is: its training compute and seeds (repeatable)")  # fmt: skip
-    su.add_argument("--class", dest="classes", action="append", default=[], type=name_value,
-                    metavar="NAME=CLASS", help="your py: policy's class: learned (plays from its own "
-                    "observations), hybrid (reads a planner at play time), planner or floor; the "
-                    "project's methods have theirs (repeatable)")  # fmt: skip
-    su.add_argument("--chosen-on", action="append", default=[], type=name_value, metavar="NAME=TEXT",
-                    help="what a method's choices (hyperparameters, snapshot, variant) were made on, e.g. "
-                    "'validation split'; needed on the test split (repeatable)")  # fmt: skip
+    su.add_argument(
+        "--code",
+        action="append",
+        default=[],
+        type=name_value,
+        metavar="NAME=URL",
+        help="a link to a method's code, shown on the leaderboard (repeatable)",
+    )
+    su.add_argument(
+        "--notes",
+        action="append",
+        default=[],
+        type=name_value,
+        metavar="NAME=TEXT",
+        help="what a method is: its training compute and seeds (repeatable)",
+    )
+    su.add_argument(
+        "--class",
+        dest="classes",
+        action="append",
+        default=[],
+        type=name_value,
+        metavar="NAME=CLASS",
+        help="your py: policy's class: learned (plays from its own "
+        "observations), hybrid (reads a planner at play time), planner or floor; the "
+        "project's methods have theirs (repeatable)",
+    )
+    su.add_argument(
+        "--chosen-on",
+        action="append",
+        default=[],
+        type=name_value,
+        metavar="NAME=TEXT",
+        help="what a method's choices (hyperparameters, snapshot, variant) were made on, e.g. "
+        "'validation split'; needed on the test split (repeatable)",
+    )
     su.add_argument("--out", default="out/suite", help="new or empty folder (or the suite to --resume)")
     su.add_argument("--resume", action="store_true", help="continue the suite in a non-empty --out")
     su.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -76,24 +116,39 @@ def add_leaderboard(sub) -> None:
     from catmip_rl.benchmark.entry import EPISODES
 
     lb = sub.add_parser(
-        "leaderboard", help="check suite entries and rank them (Markdown + PNG)", formatter_class=Formatter,
+        "leaderboard",
+        help="check suite entries and rank them (Markdown + PNG)",
+        formatter_class=Formatter,
         description="Check every entry (*.json) in --entries against the suite (format, every setting, the "
         "frozen maps, numbers recomputed from its rescue ticks) and write OUT/leaderboard.md and "
         "OUT/leaderboard.png; a refused entry is one line naming its file. --vs METHOD also writes "
         "OUT/vs_METHOD.md / .csv: every other entry against METHOD, setting by setting, paired on the "
         "same maps with 95 % CIs.",
-    )  # fmt: skip
+    )
     lb.add_argument("--entries", default="leaderboard/entries", help="folder of entry files")
-    lb.add_argument("--episodes", type=POSITIVE_INT, default=EPISODES,
-                    help="maps per setting of every entry (the suite's; fewer: previews)")  # fmt: skip
+    lb.add_argument(
+        "--episodes",
+        type=POSITIVE_INT,
+        default=EPISODES,
+        help="maps per setting of every entry (the suite's; fewer: previews)",
+    )
     lb.add_argument("--out", default="out/leaderboard", help="folder for leaderboard.md and leaderboard.png")
     lb.add_argument("--force", action="store_true", help="replace the files it would write in --out")
     lb.add_argument("--vs", metavar="METHOD", help="an entry's method: pair every other entry with it")
-    lb.add_argument("--split", choices=("test", "validation"), default="test",
-                    help="the split whose entries are ranked (the leaderboard's: test)")  # fmt: skip
-    lb.add_argument("--replay", type=NON_NEGATIVE_INT, default=0, metavar="K",
-                    help="play the first K maps of every setting and run of every entry again from its "
-                    "files and refuse an entry whose ticks differ (0: check the numbers only)")  # fmt: skip
+    lb.add_argument(
+        "--split",
+        choices=("test", "validation"),
+        default="test",
+        help="the split whose entries are ranked (the leaderboard's: test)",
+    )
+    lb.add_argument(
+        "--replay",
+        type=NON_NEGATIVE_INT,
+        default=0,
+        metavar="K",
+        help="play the first K maps of every setting and run of every entry again from its "
+        "files and refuse an entry whose ticks differ (0: check the numbers only)",
+    )
     lb.add_argument("--no-progress", action="store_true", help="no progress bar")
     lb.set_defaults(name="leaderboard")
 
@@ -101,24 +156,38 @@ def add_leaderboard(sub) -> None:
 def add_bench(sub) -> None:
     from catmip_rl.benchmark.paper import DEFAULT_METHODS, FIGURES
 
-    be = sub.add_parser("bench", help="the benchmark suite, the paper's figures or the speed benchmarks",
-                        description="catmip bench suite: the benchmark's fixed grid, one leaderboard entry "
-                        "per method; catmip bench paper: the paper's figures; catmip bench perf: the "
-                        "performance benchmarks of benchmarks/.")  # fmt: skip
+    be = sub.add_parser(
+        "bench",
+        help="the benchmark suite, the paper's figures or the speed benchmarks",
+        description="catmip bench suite: the benchmark's fixed grid, one leaderboard entry "
+        "per method; catmip bench paper: the paper's figures; catmip bench perf: the "
+        "performance benchmarks of benchmarks/.",
+    )
     suites = be.add_subparsers(dest="suite", required=True, metavar="{suite,paper,perf}")
     add_suite(suites)
     pa = suites.add_parser(
-        "paper", help="the paper's figures: success rate vs mission time", formatter_class=Formatter,
+        "paper",
+        help="the paper's figures: success rate vs mission time",
+        formatter_class=Formatter,
         description="Evaluate methods on the settings of a paper figure (--figure N) or of all of them "
         "(--all) and draw success vs mission time into OUT/fig{N}/.",
-    )  # fmt: skip
+    )
     pa.add_argument("--figure", type=int, choices=sorted(FIGURES), help="paper figure")
     pa.add_argument("--all", action="store_true", help="every paper figure")
-    pa.add_argument("--methods", default=",".join(DEFAULT_METHODS), type=checked(check_methods),
-                    help="comma list of methods (NAME=METHOD allowed; see catmip eval -h)")  # fmt: skip
-    pa.add_argument("--method", action="append", default=[], type=checked(check_runs),
-                    help="one more method (repeatable); NAME=SPEC,SPEC,... the training runs of one method, "
-                         "summarised as their mean with a CI over runs and maps")  # fmt: skip
+    pa.add_argument(
+        "--methods",
+        default=",".join(DEFAULT_METHODS),
+        type=checked(check_methods),
+        help="comma list of methods (NAME=METHOD allowed; see catmip eval -h)",
+    )
+    pa.add_argument(
+        "--method",
+        action="append",
+        default=[],
+        type=checked(check_runs),
+        help="one more method (repeatable); NAME=SPEC,SPEC,... the training runs of one method, "
+        "summarised as their mean with a CI over runs and maps",
+    )
     pa.add_argument("--episodes", type=POSITIVE_INT, default=100, help="maps per (panel, method)")
     pa.add_argument("--seed", type=NON_NEGATIVE_INT, default=0, help="map set")
     add_parallel_flags(pa)
@@ -126,29 +195,34 @@ def add_bench(sub) -> None:
     again = pa.add_mutually_exclusive_group()
     again.add_argument("--force", action="store_true", help="write into non-empty OUT/fig{N}/ folders")
     again.add_argument(
-        "--resume", action="store_true",
+        "--resume",
+        action="store_true",
         help="continue OUT/fig{N}/: its complete runs (same method, files, panel, seed and maps) are read "
         "back, not played again, and an interrupted figure keeps its complete runs",
-    )  # fmt: skip
+    )
     pa.add_argument("--no-progress", action="store_true", help="no progress bar")
     add_allow_other_maps(pa)
     pa.set_defaults(name="bench")
     pe = suites.add_parser(
-        "perf", help="the performance benchmarks (benchmarks/run_all.py)", formatter_class=Formatter,
+        "perf",
+        help="the performance benchmarks (benchmarks/run_all.py)",
+        formatter_class=Formatter,
         description="Run benchmarks/run_all.py (from the repository root): JSON/CSV results and plots of "
         "the env, collection and training speed.",
-    )  # fmt: skip
+    )
     pe.add_argument("--quick", action="store_true", help="short settings")
     pe.set_defaults(name="bench")
 
 
 def add_export(sub) -> None:
     ex = sub.add_parser(
-        "export", help="a training run's model as a model file", formatter_class=Formatter,
+        "export",
+        help="a training run's model as a model file",
+        formatter_class=Formatter,
         description="Write the model of a training run (its checkpoints/latest.pt) or of one training "
         "checkpoint as a model file (what catmip_rl/models/ ships, loadable with amat:PATH), with the run's "
         "config, iteration, training minutes and origin in the file.",
-    )  # fmt: skip
+    )
     ex.add_argument("source", help="a training run dir, its checkpoints/ folder or a checkpoint file")
     ex.add_argument("--out", required=True, help="the model file to write (ending in .pt)")
     ex.add_argument("--force", action="store_true", help="overwrite an existing --out (and its .json)")
@@ -160,7 +234,8 @@ def add_export(sub) -> None:
 
 def add_compare(sub) -> None:
     co = sub.add_parser(
-        "compare", help="paired differences and across-seed statistics of eval results",
+        "compare",
+        help="paired differences and across-seed statistics of eval results",
         formatter_class=Formatter,
         description="Compare catmip eval results: per setting each method's success by tick 100 with a 95 % "
         "CI (over the maps, or over training runs and maps); for every pair of methods on the same maps the "
@@ -171,12 +246,14 @@ def add_compare(sub) -> None:
         "maps (else one line names two folders and what differs; --unpaired shows them marked). Writes "
         "compare.md, by_setting.csv, curves.csv, paired.csv, aggregate.csv, improvement.csv and PNGs into "
         "--out (each where there is something to show).",
-    )  # fmt: skip
+    )
     co.add_argument(
-        "results", nargs="+", metavar="RESULT",
+        "results",
+        nargs="+",
+        metavar="RESULT",
         help="a folder of catmip eval results (searched recursively: a bench paper figure folder works), or "
         "NAME=DIR[,DIR...]: every result under those folders as runs of the method NAME (its training seeds)",
-    )  # fmt: skip
+    )
     co.add_argument("--out", default="out/compare", help="new or empty folder for the tables and plots")
     co.add_argument("--force", action="store_true", help="write into a non-empty --out")
     co.add_argument("--seed", type=NON_NEGATIVE_INT, default=0, help="seed of the bootstrap resampling")
@@ -190,8 +267,9 @@ def add_compare(sub) -> None:
         help="only these pairs (A - B); repeat the flag or separate pairs by commas",
     )
     co.add_argument(
-        "--unpaired", action="store_true",
+        "--unpaired",
+        action="store_true",
         help="compare methods that did not all play the same settings, seeds, horizons and maps (refused "
         "without it): side by side, each row marked paired or unpaired, pairs only where the maps agree",
-    )  # fmt: skip
+    )
     co.set_defaults(name="compare")

@@ -30,9 +30,17 @@ from catmip_rl.store.files import atomic_write_csv, atomic_write_text
 from catmip_rl.store.shipped import resolve_model
 
 PLANNERS = ("nearest", "utility", "rrt", "apf", "random-frontier", "random-rescue", "random-uniform")
-COLUMNS = ("success_rate", "success_by_100", "sampled_success_by_100", "mean_rescue_tick",
-           "mean_target_found_tick", "mean_explored_fraction", "stalls_per_episode",
-           "bytes_per_decision_embedding", "seconds")  # fmt: skip
+COLUMNS = (
+    "success_rate",
+    "success_by_100",
+    "sampled_success_by_100",
+    "mean_rescue_tick",
+    "mean_target_found_tick",
+    "mean_explored_fraction",
+    "stalls_per_episode",
+    "bytes_per_decision_embedding",
+    "seconds",
+)
 
 
 def _fmt(v) -> str:
@@ -69,9 +77,15 @@ def main(argv: list[str] | None = None) -> list[dict]:
     # the warm start of task1-warm with 256 episodes a DAgger round (not 64) and the teacher's "stay" labels
     # unscored: the short run's imitation then generalises instead of fitting its buffer
     # (docs/notes/training-experiments.md)
-    cfg = make_train_config("task1-warm", iterations=args.iterations, threads=args.threads, eval_every=0,
-                            checkpoint_every=args.iterations, warm_start_worlds=args.worlds or 256,
-                            warm_start_stay=False)  # fmt: skip
+    cfg = make_train_config(
+        "task1-warm",
+        iterations=args.iterations,
+        threads=args.threads,
+        eval_every=0,
+        checkpoint_every=args.iterations,
+        warm_start_worlds=args.worlds or 256,
+        warm_start_stay=False,
+    )
     if args.warm_start_rounds is not None:
         cfg = cfg.replace(warm_start_rounds=args.warm_start_rounds)
     if args.worlds is not None:
@@ -94,8 +108,16 @@ def main(argv: list[str] | None = None) -> list[dict]:
         res = evaluate(spec, setting, episodes=args.episodes, seed=args.seed, progress=True)
         res.write(out / "eval" / re.sub(r"[^A-Za-z0-9_.-]+", "_", res.method).strip("_"))
         rows.append({"method": res.method} | {k: res.summary.get(k) for k in COLUMNS})
-        curves += [{"figure": "demo", "panel": "Task 1, full communication", "method": res.method, "tick": t,
-                    "success_rate": float(v)} for t, v in enumerate(res.curve)]  # fmt: skip
+        curves += [
+            {
+                "figure": "demo",
+                "panel": "Task 1, full communication",
+                "method": res.method,
+                "tick": t,
+                "success_rate": float(v),
+            }
+            for t, v in enumerate(res.curve)
+        ]
 
     # 3. table, plot, GIF
     atomic_write_csv(out / "results.csv", rows)
@@ -108,8 +130,10 @@ def main(argv: list[str] | None = None) -> list[dict]:
     gif = render_episode(f"amat:{shipped}", setting, out / "episode.gif", episode=0, seed=args.seed)
 
     print(f"\n{args.episodes} Task-1 maps, same maps for every method:")
-    print(f"{'method':>28} {'success':>8} {'by t=100':>9} {'sampled':>8} {'rescue t':>9} {'found t':>8} "
-          f"{'explored':>9} {'stalls':>7}")  # fmt: skip
+    print(
+        f"{'method':>28} {'success':>8} {'by t=100':>9} {'sampled':>8} {'rescue t':>9} {'found t':>8} "
+        f"{'explored':>9} {'stalls':>7}"
+    )
     for r in rows:
         print(
             f"{r['method']:>28} {r['success_rate']:>8.2f} {r['success_by_100']:>9.2f} "

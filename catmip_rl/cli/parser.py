@@ -23,7 +23,7 @@ from catmip_rl.cli.args import (
     check_method,
     checked,
     set_item,
-)  # fmt: skip
+)
 from catmip_rl.cli.bench_parser import add_bench, add_compare, add_export, add_leaderboard
 from catmip_rl.training.config import TrainConfig, check_field, field_docs
 from catmip_rl.training.presets import TRAIN_PRESETS
@@ -34,14 +34,39 @@ __all__ = ["DEFAULT_PRESET", "TRAIN_FLAGS", "build_parser", "version"]
 #: docstring and its check the field's own; every other field: ``--set FIELD=VALUE``
 TRAIN_FLAGS = {
     name: {"budget_minutes": "--minutes"}.get(name, "--" + name.replace("_", "-"))
-    for name in ("iterations", "num_worlds", "epochs", "minibatches", "micro_batch", "lr", "seed", "device",
-                 "threads", "update_processes", "warm_start", "init_from", "target_kl", "precision",
-                 "budget_minutes", "eval_every", "eval_episodes", "checkpoint_every", "collector",
-                 "ray_workers", "ray_address")
-}  # fmt: skip
-METAVARS = {"warm_start": "PLANNER", "init_from": "MODEL", "device": "{cpu,cuda,cuda:N}",
-            "precision": "{fp32,bf16,auto}", "collector": "{local,ray}",
-            "ray_address": "ADDRESS", "budget_minutes": "MINUTES"}  # fmt: skip
+    for name in (
+        "iterations",
+        "num_worlds",
+        "epochs",
+        "minibatches",
+        "micro_batch",
+        "lr",
+        "seed",
+        "device",
+        "threads",
+        "update_processes",
+        "warm_start",
+        "init_from",
+        "target_kl",
+        "precision",
+        "budget_minutes",
+        "eval_every",
+        "eval_episodes",
+        "checkpoint_every",
+        "collector",
+        "ray_workers",
+        "ray_address",
+    )
+}
+METAVARS = {
+    "warm_start": "PLANNER",
+    "init_from": "MODEL",
+    "device": "{cpu,cuda,cuda:N}",
+    "precision": "{fp32,bf16,auto}",
+    "collector": "{local,ray}",
+    "ray_address": "ADDRESS",
+    "budget_minutes": "MINUTES",
+}
 
 DEFAULT_PRESET = "task1-warm"
 """``catmip train`` without ``--preset``: the Task-1 recipe (~40 minutes on one CPU thread, as the shipped
@@ -64,11 +89,16 @@ def version() -> str:
 
 
 def add_train(sub) -> None:
-    tr = sub.add_parser("train", help="PPO training of AMAT", formatter_class=Formatter,
-                        description="PPO training of AMAT into --run-dir (config.json, metrics.csv, "
-                        "tensorboard/, checkpoints/). A new run needs a new or empty --run-dir.")  # fmt: skip
+    tr = sub.add_parser(
+        "train",
+        help="PPO training of AMAT",
+        formatter_class=Formatter,
+        description="PPO training of AMAT into --run-dir (config.json, metrics.csv, "
+        "tensorboard/, checkpoints/). A new run needs a new or empty --run-dir.",
+    )
     tr.add_argument(
-        "--preset", choices=sorted(TRAIN_PRESETS),
+        "--preset",
+        choices=sorted(TRAIN_PRESETS),
         help=f"training recipe (training.presets.TRAIN_PRESETS); default {DEFAULT_PRESET} (the Task-1 "
         "world: 12 DAgger rounds, then 2,000 PPO iterations, ~40 min on one CPU thread as the shipped model "
         "was trained; the preset itself runs 2 threads), or with --resume the run's own config. tiny: a "
@@ -76,13 +106,14 @@ def add_train(sub) -> None:
         "iterations: days on a CPU); "
         "paper-warm: the paper's world after a warm start; paper-sharp: a paper-warm model (--init-from) "
         "fine-tuned with a tenth of the entropy bonus",
-    )  # fmt: skip
+    )
     tr.add_argument("--run-dir", required=True, help="where config.json, logs and checkpoints go")
     tr.add_argument(
-        "--resume", action="store_true",
+        "--resume",
+        action="store_true",
         help="continue the run in --run-dir exactly, from checkpoints/latest.pt; if that is unreadable the "
         "error names the newest readable checkpoints/iter_*.pt (copy it over latest.pt to continue from it)",
-    )  # fmt: skip
+    )
     g = tr.add_argument_group(
         f"overrides of the preset (default: the preset's value; {DEFAULT_PRESET}'s shown)"
     )
@@ -92,11 +123,20 @@ def add_train(sub) -> None:
         value = getattr(preset, name)
         shown = "none" if value in (None, "") else value
         g.add_argument(
-            flag, dest=name, metavar=METAVARS.get(name), type=train_value(name, kinds[name]),
+            flag,
+            dest=name,
+            metavar=METAVARS.get(name),
+            type=train_value(name, kinds[name]),
             help=f"{_first_sentence(field_docs()[name])} ({DEFAULT_PRESET}: {shown})",
-        )  # fmt: skip
-    g.add_argument("--set", action="append", default=[], type=set_item, metavar="FIELD=VALUE",
-                   help="any TrainConfig field, value as JSON (repeatable)")  # fmt: skip
+        )
+    g.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        type=set_item,
+        metavar="FIELD=VALUE",
+        help="any TrainConfig field, value as JSON (repeatable)",
+    )
     tr.add_argument("--no-progress", action="store_true", help="no progress bar")
     tr.set_defaults(name="train")
 
@@ -139,65 +179,86 @@ def add_setting_flags(p: argparse.ArgumentParser) -> None:
 
     shipped = ", ".join(shipped_models()) or "none"
     p.add_argument(
-        "--method", required=True, type=checked(check_method),
+        "--method",
+        required=True,
+        type=checked(check_method),
         help=METHOD_HELP + f" (shipped models: {shipped})",
-    )  # fmt: skip
+    )
     p.add_argument("--task", default="task1", choices=TASKS, help="evaluation task")
     p.add_argument(
-        "--comm", default="full", type=checked(check_comm),
+        "--comm",
+        default="full",
+        type=checked(check_comm),
         help="full, or the link range sigma in cells (the paper's: 4, 2; any sigma >= 0.01)",
-    )  # fmt: skip
+    )
     p.add_argument(
         "--noise", type=PROBABILITY, default=0.0, help="SLAM noise: per-tick cell flip probability"
     )
     p.add_argument(
-        "--max-ma-ticks", type=POSITIVE_INT, default=10,
+        "--max-ma-ticks",
+        type=POSITIVE_INT,
+        default=10,
         help="longest macro-action in ticks: a positive int (the paper uses 5, 10, 20)",
-    )  # fmt: skip
+    )
     p.add_argument(
         "--seed", type=NON_NEGATIVE_INT, default=0, help="map set: episode k plays map k of this seed"
     )
-    p.add_argument("--threads", type=UP_TO_CPUS, default=min(2, CPUS),
-                   help="CPU threads of torch and of the env (its worlds split over them)")  # fmt: skip
+    p.add_argument(
+        "--threads",
+        type=UP_TO_CPUS,
+        default=min(2, CPUS),
+        help="CPU threads of torch and of the env (its worlds split over them)",
+    )
 
 
 def add_eval_render(sub) -> None:
     from catmip_env.render import RENDER_FPS
 
     ev = sub.add_parser(
-        "eval", help="evaluate a method on the paper's protocol", formatter_class=Formatter,
+        "eval",
+        help="evaluate a method on the paper's protocol",
+        formatter_class=Formatter,
         description="Evaluate a method on the paper's protocol (maps 0 .. N-1 of --seed, argmax actions for "
         "AMAT) and write episodes.csv/json, curve.csv and summary.json into --out.",
-    )  # fmt: skip
+    )
     add_setting_flags(ev)
     ev.add_argument("--episodes", type=POSITIVE_INT, default=100, help="maps 0 .. N-1 of the seed")
-    ev.add_argument("--out", required=True, help="new or empty folder for episodes.csv/json, curve.csv, "
-                    "summary.json")  # fmt: skip
+    ev.add_argument(
+        "--out", required=True, help="new or empty folder for episodes.csv/json, curve.csv, summary.json"
+    )
     ev.add_argument(
         "--force", action="store_true", help="write into a non-empty --out (overwriting its files)"
     )
     ev.add_argument("--no-progress", action="store_true", help="no progress bar")
     ev.add_argument(
-        "--no-plots", action="store_true",
+        "--no-plots",
+        action="store_true",
         help="write no curve.png (the results only). Without matplotlib (an env-only install) the results "
         "are written all the same and one line says that the plots need the render extra",
-    )  # fmt: skip
+    )
     ev.add_argument(
-        "--argmax-only", action="store_true",
+        "--argmax-only",
+        action="store_true",
         help="play a learned policy's argmax actions only, not the maps again with sampled actions (half the "
         "time; the summary then has no sampled_* numbers)",
-    )  # fmt: skip
+    )
     add_allow_other_maps(ev)
     ev.set_defaults(name="eval")
     rd = sub.add_parser(
-        "render", help="an animated GIF of one evaluation episode", formatter_class=Formatter,
+        "render",
+        help="an animated GIF of one evaluation episode",
+        formatter_class=Formatter,
         description="Play one evaluation episode (map --episode of --seed) with a method and write it as an "
         "animated GIF (one frame per tick).",
-    )  # fmt: skip
+    )
     add_setting_flags(rd)
     rd.add_argument("--episode", type=NON_NEGATIVE_INT, default=0, help="which map of the seed's map set")
-    rd.add_argument("--fps", type=POSITIVE_INT, default=RENDER_FPS,
-                    help="frames (ticks) per second (the env's metadata render_fps)")  # fmt: skip
+    rd.add_argument(
+        "--fps",
+        type=POSITIVE_INT,
+        default=RENDER_FPS,
+        help="frames (ticks) per second (the env's metadata render_fps)",
+    )
     rd.add_argument("--out", required=True, help="path of the GIF to write (ending in .gif)")
     rd.add_argument("--force", action="store_true", help="overwrite an existing --out")
     rd.set_defaults(name="render")

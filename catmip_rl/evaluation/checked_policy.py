@@ -267,9 +267,15 @@ class PettingZooPolicy(WrappedUserPolicy):
             row = np.zeros(engine.num_robots, np.int64)
             try:
                 parse_actions(
-                    actions, agents, _robot_index(agents), engine.active[b], self.goal_mode,
-                    engine.num_actions, True, row,
-                )  # fmt: skip
+                    actions,
+                    agents,
+                    _robot_index(agents),
+                    engine.active[b],
+                    self.goal_mode,
+                    engine.num_actions,
+                    True,
+                    row,
+                )
             except ValueError as exc:
                 where = f"world {b} at tick {int(st.ticks[b])}"
                 raise PolicyError(f"policy {self.name}: {' '.join(str(exc).split())} ({where})") from None

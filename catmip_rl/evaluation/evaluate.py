@@ -218,14 +218,38 @@ def evaluate(
     sync = method.synchronous
     policy, goal_mode, needs = make_policy(method, setting.env_config(None, sync), seed, model, policy)
     try:
-        return _evaluate(method, setting, episodes, seed, policy, goal_mode, needs, progress, engine_hook,
-                         sampled_too, allow_other_maps, threads)  # fmt: skip
+        return _evaluate(
+            method,
+            setting,
+            episodes,
+            seed,
+            policy,
+            goal_mode,
+            needs,
+            progress,
+            engine_hook,
+            sampled_too,
+            allow_other_maps,
+            threads,
+        )
     finally:
         close_policy(policy)
 
 
-def _evaluate(method, setting, episodes, seed, policy, goal_mode, needs, progress, engine_hook, sampled_too,
-              allow_other_maps, threads) -> EvalResult:  # fmt: skip
+def _evaluate(
+    method,
+    setting,
+    episodes,
+    seed,
+    policy,
+    goal_mode,
+    needs,
+    progress,
+    engine_hook,
+    sampled_too,
+    allow_other_maps,
+    threads,
+) -> EvalResult:
     sync = method.synchronous
     cfg = setting.env_config(needs, sync)
     engine = EventEngine(cfg, num_worlds=episodes, seed=seed, goal_mode=goal_mode, threads=threads)

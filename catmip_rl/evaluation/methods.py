@@ -121,8 +121,14 @@ def parse_method(spec: str) -> Method:
             target = resolve_model(path)
             label = amat_label(target) + ("-guard" if guard else "") + ("-clean" if clean else "")
             play = model_play(target)  # the file's own way to play, and what the spec adds
-            return Method(name or label, "amat", str(target), guard or play.loop_guard, play.synchronous,
-                          clean or play.clean_occupancy)  # fmt: skip
+            return Method(
+                name or label,
+                "amat",
+                str(target),
+                guard or play.loop_guard,
+                play.synchronous,
+                clean or play.clean_occupancy,
+            )
     for kind in WINDOW_KINDS:
         if spec.startswith(kind + ":"):
             planner = spec[len(kind) + 1 :]
@@ -135,8 +141,10 @@ def parse_method(spec: str) -> Method:
     if spec not in PLANNERS:
         looks_like_policy = ".py:" in spec or "." in spec.split(":")[0] and ":" in spec
         hint = f" (your policy? write py:{spec})" if looks_like_policy else _did_you_mean(spec)
-        choices = (f"a planner {sorted(PLANNERS)}, window:PLANNER, window-noheading:PLANNER, amat:PATH, "
-                   "amat-guard:PATH, amat-clean:PATH, sync:METHOD or py:FILE.py:FACTORY")  # fmt: skip
+        choices = (
+            f"a planner {sorted(PLANNERS)}, window:PLANNER, window-noheading:PLANNER, amat:PATH, "
+            "amat-guard:PATH, amat-clean:PATH, sync:METHOD or py:FILE.py:FACTORY"
+        )
         raise ValueError(f"unknown method {spec!r}{hint}; choose {choices}")
     return Method(name or spec, "planner", spec)
 
@@ -176,9 +184,10 @@ def policy_files(policy: Any) -> list[dict[str, str]] | None:
 def changed_files(recorded: list[dict[str, str]] | None) -> list[str]:
     """The files of ``recorded`` (:func:`policy_files`) that are missing or hold other contents now."""
     return [
-        r["file"] for r in recorded or []
+        r["file"]
+        for r in recorded or []
         if not Path(r["file"]).is_file() or file_sha256(r["file"]) != r["sha256"]
-    ]  # fmt: skip
+    ]
 
 
 def parse_runs(spec: str) -> list[Method]:

@@ -163,9 +163,13 @@ def plot_profiles(scores: dict[str, np.ndarray], path: Path) -> Path:
     profiles, cis = rly.create_performance_profile(scores, taus, reps=2_000)
     fig, ax = plt.subplots(figsize=(7, 4.5), layout="constrained")
     plot_utils.plot_performance_profiles(
-        profiles, taus, performance_profile_cis=cis, ax=ax, xlabel=r"success by tick 100 ($\tau$)",
+        profiles,
+        taus,
+        performance_profile_cis=cis,
+        ax=ax,
+        xlabel=r"success by tick 100 ($\tau$)",
         ylabel=r"fraction of (run, setting) scores $> \tau$",
-    )  # fmt: skip
+    )
     ax.legend(loc="lower left", fontsize=8)
     return _save(fig, path)
 
@@ -214,9 +218,12 @@ def plot_curves(
     lines = -(-len(panels) // columns)
     legend_rows = -(-len(methods) // min(len(methods), 4))
     fig, axes = plt.subplots(
-        lines, columns, figsize=(max(4.2 * columns, 6.0), 3.4 * lines + 0.5 + 0.22 * legend_rows),
-        squeeze=False, layout="constrained",
-    )  # fmt: skip
+        lines,
+        columns,
+        figsize=(max(4.2 * columns, 6.0), 3.4 * lines + 0.5 + 0.22 * legend_rows),
+        squeeze=False,
+        layout="constrained",
+    )
     runs = {r["method"]: int(r.get("runs") or 1) for r in rows}
     banded = any(r.get("ci_low") not in (None, "") for r in rows)
     handles: dict[str, Any] = {}
@@ -249,9 +256,13 @@ def plot_curves(
         ax.set_xlim(left=0)
         ax.grid(alpha=0.3)
     fig.legend(
-        list(handles.values()), list(handles), loc="outside lower center", ncol=min(len(handles), 4),
-        fontsize=8, frameon=False,
-    )  # fmt: skip
+        list(handles.values()),
+        list(handles),
+        loc="outside lower center",
+        ncol=min(len(handles), 4),
+        fontsize=8,
+        frameon=False,
+    )
     if title:
         fig.suptitle(title)
     return atomic_savefig(fig, png)

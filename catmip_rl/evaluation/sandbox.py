@@ -78,8 +78,9 @@ class IsolatedWorker:
         self.conn = Connection(mine.detach())
         self.proc = subprocess.Popen(
             [sys.executable, "-m", "catmip_rl.evaluation.workers", str(child.fileno())],
-            pass_fds=(child.fileno(),), stdin=subprocess.DEVNULL,
-        )  # fmt: skip
+            pass_fds=(child.fileno(),),
+            stdin=subprocess.DEVNULL,
+        )
         child.close()
         self.conn.send((target, name, env_config, seed, threads, os.getpid(), list(sys.path)))
         self._buffers: dict[int, tuple[tuple, dict[str, np.ndarray]]] = {}  # handle -> (layout key, arrays)
@@ -145,8 +146,13 @@ class IsolatedWorker:
                 )
                 for (key, shape, dtype), off in zip(layout, offsets)
             }
-            meta = {"cfg": view.cfg, "goal_mode": view.goal_mode, "num_actions": view.num_actions,
-                    "stay_action": view.stay_action, "base_seed": view.world.base_seed}  # fmt: skip
+            meta = {
+                "cfg": view.cfg,
+                "goal_mode": view.goal_mode,
+                "num_actions": view.num_actions,
+                "stay_action": view.stay_action,
+                "base_seed": view.world.base_seed,
+            }
             spec = [(key, shape, dtype, off) for (key, shape, dtype), off in zip(layout, offsets)]
             self.request("act(engine)", ("view", handle, path, spec, meta))
         finally:

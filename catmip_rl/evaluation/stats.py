@@ -7,9 +7,14 @@ from __future__ import annotations
 import numpy as np
 
 __all__ = [
-    "CONFIDENCE", "paired_difference", "mcnemar_p", "runs_and_maps_ci", "shared_maps_cis", "success_interval",
+    "CONFIDENCE",
+    "paired_difference",
+    "mcnemar_p",
+    "runs_and_maps_ci",
+    "shared_maps_cis",
+    "success_interval",
     "curve_band",
-]  # fmt: skip
+]
 
 CONFIDENCE = 0.95
 RESAMPLES = 10_000  # paired bootstrap over maps (scipy: vectorised, ~0.2 s a pair)
@@ -23,9 +28,13 @@ def _bootstrap_ci(data: np.ndarray, seed: int = 0) -> tuple[float, float]:
     if len(data) < 2 or np.all(data == data[0]):
         return float(data.mean()), float(data.mean())
     res = bootstrap(
-        (data,), np.mean, confidence_level=CONFIDENCE, n_resamples=RESAMPLES, method="percentile",
+        (data,),
+        np.mean,
+        confidence_level=CONFIDENCE,
+        n_resamples=RESAMPLES,
+        method="percentile",
         rng=np.random.default_rng(seed),
-    )  # fmt: skip
+    )
     return float(res.confidence_interval.low), float(res.confidence_interval.high)
 
 

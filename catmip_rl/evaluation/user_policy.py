@@ -208,14 +208,35 @@ def load_factory(src: PolicySource, name: str | None = None) -> Callable[..., An
 
 # -- what an engine-level policy reads: a read-only view -----------------------------------------------
 VIEW_STATE_FIELDS = (
-    "pos", "heading", "cls", "speed", "can_rescue", "belief", "comp", "goal", "ticks", "done", "episode",
-    "comm_sigma", "heard_tick", "heard_pos", "heard_knows", "heard_goal",
-)  # fmt: skip
+    "pos",
+    "heading",
+    "cls",
+    "speed",
+    "can_rescue",
+    "belief",
+    "comp",
+    "goal",
+    "ticks",
+    "done",
+    "episode",
+    "comm_sigma",
+    "heard_tick",
+    "heard_pos",
+    "heard_knows",
+    "heard_goal",
+)
 """The fields of the engine's ``state`` a policy reads (:class:`EngineView`), plus ``target`` as known."""
 WITHHELD_STATE_FIELDS = (
-    "grid", "rng", "used_occ", "moves", "collisions", "found_tick", "informed_tick", "rescue_tick",
+    "grid",
+    "rng",
+    "used_occ",
+    "moves",
+    "collisions",
+    "found_tick",
+    "informed_tick",
+    "rescue_tick",
     "pending_reward",
-)  # fmt: skip
+)
 """The fields withheld from policies: the true map, the world's random stream, the noise drawn, and the
 episode's counters and outcome (what it is scored on)."""
 VIEW_ARRAYS = ("obs_global", "obs_local", "masks", "mstate", "active")
@@ -251,8 +272,13 @@ def view_arrays(engine: EventEngine) -> dict[str, np.ndarray]:
 
 def view_meta(engine: EventEngine) -> dict[str, Any]:
     """What :class:`EngineView` says of ``engine`` besides its arrays (fixed for the engine's life)."""
-    return {"cfg": engine.cfg, "goal_mode": engine.goal_mode, "num_actions": engine.num_actions,
-            "stay_action": engine.stay_action, "base_seed": int(engine.world.base_seed)}  # fmt: skip
+    return {
+        "cfg": engine.cfg,
+        "goal_mode": engine.goal_mode,
+        "num_actions": engine.num_actions,
+        "stay_action": engine.stay_action,
+        "base_seed": int(engine.world.base_seed),
+    }
 
 
 class ReadOnlyView:
@@ -320,8 +346,22 @@ class EngineView(ReadOnlyView):
     holds the engine (:func:`view_arrays`, no copy) and in a worker that holds none
     (:mod:`~catmip_rl.evaluation.sandbox`)."""
 
-    __slots__ = ("cfg", "goal_mode", "num_actions", "stay_action", "num_worlds", "num_robots", "shape",
-                 "obs_global", "obs_local", "masks", "mstate", "active", "state", "world")  # fmt: skip
+    __slots__ = (
+        "cfg",
+        "goal_mode",
+        "num_actions",
+        "stay_action",
+        "num_worlds",
+        "num_robots",
+        "shape",
+        "obs_global",
+        "obs_local",
+        "masks",
+        "mstate",
+        "active",
+        "state",
+        "world",
+    )
     _what = "the engine a policy is given"
 
     def __init__(self, meta: dict[str, Any], arrays: dict[str, np.ndarray]) -> None:

@@ -12,9 +12,15 @@ from typing import Any
 from catmip_env.files import atomic_path
 
 __all__ = [
-    "atomic_write_text", "atomic_write_csv", "atomic_savefig", "open_csv_log", "write_csv_row",
-    "check_new_dir", "check_new_file", "check_not_dangling",
-]  # fmt: skip
+    "atomic_write_text",
+    "atomic_write_csv",
+    "atomic_savefig",
+    "open_csv_log",
+    "write_csv_row",
+    "check_new_dir",
+    "check_new_file",
+    "check_not_dangling",
+]
 
 
 def atomic_write_text(path: str | Path, text: str) -> Path:

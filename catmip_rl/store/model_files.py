@@ -21,10 +21,21 @@ from catmip_rl.amat.model import AMAT
 from catmip_rl.amat.pointer import make_model
 
 __all__ = [
-    "CheckpointError", "FORMAT", "MAX_ARCHIVE_BYTES", "MAX_PARAMETERS", "read_checkpoint", "model_from",
-    "is_training_checkpoint", "check_archive", "declared_config", "check_training_entries", "check_extra",
-    "check_finite", "check_value_norm", "PLAY_KEYS",
-]  # fmt: skip
+    "CheckpointError",
+    "FORMAT",
+    "MAX_ARCHIVE_BYTES",
+    "MAX_PARAMETERS",
+    "read_checkpoint",
+    "model_from",
+    "is_training_checkpoint",
+    "check_archive",
+    "declared_config",
+    "check_training_entries",
+    "check_extra",
+    "check_finite",
+    "check_value_norm",
+    "PLAY_KEYS",
+]
 
 FORMAT = "catmip-amat-v1"
 """The format tag of a model file (:func:`~catmip_rl.store.checkpoint.save_model`)."""
@@ -86,15 +97,30 @@ def declared_config(fields: Any, path: Path) -> AmatConfig:
 
 
 _TYPES: dict[str, tuple[type, ...]] = {
-    "iteration": (int,), "episodes": (int,), "elapsed_s": (int, float), "bf16": (bool, type(None)),
-    "bf16_machine": (dict, type(None)), "model": (dict,), "amat_config": (dict,), "optimizer": (dict,),
-    "value_norm": (dict,), "generator": (torch.Tensor,), "torch_rng": (torch.Tensor,), "config": (str,),
-}  # fmt: skip
+    "iteration": (int,),
+    "episodes": (int,),
+    "elapsed_s": (int, float),
+    "bf16": (bool, type(None)),
+    "bf16_machine": (dict, type(None)),
+    "model": (dict,),
+    "amat_config": (dict,),
+    "optimizer": (dict,),
+    "value_norm": (dict,),
+    "generator": (torch.Tensor,),
+    "torch_rng": (torch.Tensor,),
+    "config": (str,),
+}
 _EXTRA_TYPES: dict[str, tuple[type, ...]] = {
-    "iteration": (int,), "episodes": (int,), "training_minutes": (int, float),
-    "total_training_minutes": (int, float), "train_config": (dict,), "init_from": (dict,),
-    "value_norm": (dict,), "half": (bool,), "play": (dict,),
-}  # fmt: skip
+    "iteration": (int,),
+    "episodes": (int,),
+    "training_minutes": (int, float),
+    "total_training_minutes": (int, float),
+    "train_config": (dict,),
+    "init_from": (dict,),
+    "value_norm": (dict,),
+    "half": (bool,),
+    "play": (dict,),
+}
 
 
 def check_training_entries(blob: dict, path: Path) -> None:

@@ -28,10 +28,20 @@ from pathlib import Path
 from catmip_rl.store.files import atomic_write_text, check_new_dir, check_new_file
 
 __all__ = [
-    "OutputInUse", "OutputLock", "RECORD", "RUN_ID", "commit_results", "check_record", "remove_results",
-    "remove_debris", "holding", "output_folder", "output_file", "staging_dir",
+    "OutputInUse",
+    "OutputLock",
+    "RECORD",
+    "RUN_ID",
+    "commit_results",
+    "check_record",
+    "remove_results",
+    "remove_debris",
+    "holding",
+    "output_folder",
+    "output_file",
+    "staging_dir",
     "first_missing",
-]  # fmt: skip
+]
 
 RECORD = "run.json"
 """The record a result folder ends with: which run wrote it, and the SHA-256 of each of its files."""
@@ -54,8 +64,13 @@ class OutputLock:
     released (a training run dir); otherwise it is removed, and an acquirer that locked a file since
     removed or replaced tries again, so that two processes never hold two files of one name."""
 
-    def __init__(self, lock_path: str | Path, what: str, advice: str = "wait for it to end or stop it",
-                 keep_file: bool = False) -> None:  # fmt: skip
+    def __init__(
+        self,
+        lock_path: str | Path,
+        what: str,
+        advice: str = "wait for it to end or stop it",
+        keep_file: bool = False,
+    ) -> None:
         self.path = Path(lock_path)
         self.what, self.advice, self.keep_file = what, advice, keep_file
         self._fd: int | None = None
@@ -81,8 +96,8 @@ class OutputLock:
                 break
             os.close(fd)  # the previous holder removed the file we locked: lock the new one
         os.ftruncate(fd, 0)
-        os.pwrite(fd, f"process {os.getpid()} ({_command()}, since {time.strftime('%Y-%m-%d %H:%M:%S')})\n"
-                  .encode(), 0)  # fmt: skip
+        holder = f"process {os.getpid()} ({_command()}, since {time.strftime('%Y-%m-%d %H:%M:%S')})\n"
+        os.pwrite(fd, holder.encode(), 0)
         self._fd = fd
         return self
 
@@ -110,8 +125,14 @@ def holding(out: str | Path, what: str = "--out", is_file: bool = False) -> Outp
 
 
 @contextmanager
-def output_folder(out: str | Path, what: str = "--out", force: bool = False, keep: bool = False,
-                  advice: str = "", replace_results: bool = True) -> Iterator[Path]:  # fmt: skip
+def output_folder(
+    out: str | Path,
+    what: str = "--out",
+    force: bool = False,
+    keep: bool = False,
+    advice: str = "",
+    replace_results: bool = True,
+) -> Iterator[Path]:
     """Hold output folder ``out`` while the block writes in it: refused (one line) if another process
     holds it, or, checked again once held, if it is not empty. ``force``: write into it, its earlier
     result folders removed first (unless not ``replace_results``); ``keep``: what it holds stays (a
@@ -142,8 +163,9 @@ def output_folder(out: str | Path, what: str = "--out", force: bool = False, kee
 
 
 @contextmanager
-def output_file(path: str | Path, what: str = "--out", force: bool = False,
-                suffixes: tuple[str, ...] = ()) -> Iterator[Path]:  # fmt: skip
+def output_file(
+    path: str | Path, what: str = "--out", force: bool = False, suffixes: tuple[str, ...] = ()
+) -> Iterator[Path]:
     """Hold output file ``path`` (a ``.NAME.lock`` beside it) while the block writes it: refused if
     another process holds it or, checked again once held, if it exists (``force``: it is replaced)."""
     check_new_file(path, what, force=force, suffixes=suffixes)
@@ -189,9 +211,15 @@ def commit_results(staging: Path) -> Path:
     Returns the result folder."""
     out = staging.parent
     files = sorted(p.name for p in staging.iterdir() if p.is_file())
-    record = {"format": RECORD_FORMAT, "run_id": RUN_ID, "command": _command(), "process": os.getpid(),
-              "host": socket.gethostname(), "written": time.strftime("%Y-%m-%d %H:%M:%S"),
-              "files": {name: _sha256(staging / name) for name in files}}  # fmt: skip
+    record = {
+        "format": RECORD_FORMAT,
+        "run_id": RUN_ID,
+        "command": _command(),
+        "process": os.getpid(),
+        "host": socket.gethostname(),
+        "written": time.strftime("%Y-%m-%d %H:%M:%S"),
+        "files": {name: _sha256(staging / name) for name in files},
+    }
     (out / RECORD).unlink(missing_ok=True)  # the folder is not one run's until the new record is in
     for name in sorted(files, key=lambda n: n == "summary.json"):  # summary last: a folder with it is whole
         os.replace(staging / name, out / name)
@@ -217,8 +245,11 @@ def check_record(folder: str | Path) -> dict | None:
         ok = False
     if not ok:
         raise ValueError(f"{path} is not a catmip results record; the folder cannot be trusted as one run's")
-    bad = [name for name, digest in files.items()
-           if not (folder / name).is_file() or _sha256(folder / name) != digest]  # fmt: skip
+    bad = [
+        name
+        for name, digest in files.items()
+        if not (folder / name).is_file() or _sha256(folder / name) != digest
+    ]
     if bad:
         raise ValueError(
             f"{folder} does not hold one run's results: {', '.join(sorted(bad))} missing or not written by "
