@@ -2,7 +2,8 @@
 
 ``train`` flags map onto :class:`~catmip_rl.training.config.TrainConfig` fields; ``--set field=value``
 reaches any field (values are JSON: ``--set env_overrides='{"comm_sigma": 4.0}'``). The parser is in
-``parser``, the argument types in ``args``.
+``parser``, the argument types in ``args``; ``train``, ``eval`` and ``render`` run here, the benchmark's
+commands in ``bench_commands``.
 
 Bad input never starts work and never shows a traceback: argparse types check every value (one line
 naming the flag), each command checks its paths before running (checkpoints are read with
@@ -19,10 +20,10 @@ import argparse
 import json
 import os
 import sys
-from pathlib import Path
 from typing import Any
 
 from catmip_rl.cli.args import CPUS, USER_ERRORS, explain
+from catmip_rl.cli.bench_commands import run_bench, run_compare, run_export, run_leaderboard
 from catmip_rl.cli.parser import DEFAULT_PRESET, TRAIN_FLAGS, build_parser
 from catmip_rl.cli.warmup import command_plays_amat, compile_kernels
 from catmip_rl.evaluation.workers import torch_threads
@@ -81,8 +82,10 @@ def _train(args: argparse.Namespace) -> int:
     done = resumed["iteration"] if resumed is not None else 0
     train(cfg, args.run_dir, resume=args.resume, progress=not args.no_progress)  # checks the run first
     if args.resume and done >= cfg.iterations:
-        print(f"{args.run_dir} is complete (iteration {done} of {cfg.iterations}): nothing trained; "
-              "give --iterations N (more than it has) to go on")  # fmt: skip
+        print(
+            f"{args.run_dir} is complete (iteration {done} of {cfg.iterations}): nothing trained; "
+            "give --iterations N (more than it has) to go on"
+        )
         return 0
     print(f"run written to {args.run_dir} (config.json, metrics.csv, tensorboard/, checkpoints/)")
     return 0
@@ -118,9 +121,15 @@ def _eval(args: argparse.Namespace) -> int:
     with output_folder(args.out, "--out", force=args.force) as out:
         torch_threads(args.threads)
         result = evaluate(
-            args.method, _setting(args), args.episodes, args.seed, progress=not args.no_progress,
-            allow_other_maps=args.allow_other_maps, threads=args.threads, sampled_too=not args.argmax_only,
-        )  # fmt: skip
+            args.method,
+            _setting(args),
+            args.episodes,
+            args.seed,
+            progress=not args.no_progress,
+            allow_other_maps=args.allow_other_maps,
+            threads=args.threads,
+            sampled_too=not args.argmax_only,
+        )
         result.write(out, curve_title=f"{args.episodes} maps (seed {args.seed})" if plots else None)
     s = result.summary
     rescue = "-" if s["mean_rescue_tick"] is None else f"{s['mean_rescue_tick']:.1f}"
@@ -147,8 +156,11 @@ def _eval(args: argparse.Namespace) -> int:
             f"  with sampled actions on the same maps: success {s['sampled_success_rate']:.2f}, "
             f"by tick 100 {s['sampled_success_by_100']:.2f}"
         )
-    stalls = ", ".join(f"{k[len('stall_fraction_'):]} {v:.2f}" for k, v in s.items()
-                       if k.startswith("stall_fraction_") and v == v)  # fmt: skip
+    stalls = ", ".join(
+        f"{k[len('stall_fraction_') :]} {v:.2f}"
+        for k, v in s.items()
+        if k.startswith("stall_fraction_") and v == v
+    )
     print(
         f"  decisions per episode {s['decisions_per_episode']:.1f}, stalls per episode "
         f"{s['stalls_per_episode']:.1f} (stalled fraction of ended macro-actions: {stalls})"
@@ -177,135 +189,15 @@ def _render(args: argparse.Namespace) -> int:
     return 0
 
 
-def _bench(args: argparse.Namespace) -> int:
-    if args.suite == "perf":
-        import subprocess
-
-        script = Path.cwd() / "benchmarks" / "run_all.py"
-        if not script.exists():
-            raise FileNotFoundError(
-                "catmip bench perf runs benchmarks/run_all.py: call it from the repository root"
-            )
-        return subprocess.call([sys.executable, str(script), *(["--quick"] if args.quick else [])])
-    if args.suite == "suite":
-        return _suite(args)
-    from contextlib import ExitStack
-
-    from catmip_rl.benchmark.paper import FIGURES, run_figure
-    from catmip_rl.store.outputs import output_folder, remove_results
-
-    if args.all == (args.figure is not None):
-        raise ValueError("give --figure N or --all (one of them)")
-    figures = sorted(FIGURES) if args.all else [args.figure]
-    _check_parallel(args)
-    methods = [m for m in args.methods.split(",") if m.strip()] + list(args.method)
-    folders = [Path(args.out) / f"fig{fig}" for fig in figures]
-    advice = "pick a new folder, pass --force to replace it, or --resume to continue it"
-    with ExitStack() as held:
-        for folder in folders:  # every figure's folder held and checked before the first run starts
-            held.enter_context(
-                output_folder(folder, "--out", force=args.force, keep=args.resume, advice=advice)
-            )
-        for fig, folder in zip(figures, folders):
-            try:
-                out = run_figure(fig, methods, args.episodes, args.seed, args.out, args.jobs,
-                                 progress=not args.no_progress, allow_other_maps=args.allow_other_maps,
-                                 threads=args.threads, resume=args.resume)  # fmt: skip
-            except BaseException:  # a figure's folder holds a whole figure or none, unless --resume
-                if not args.resume:  # keeps its complete runs for the next --resume
-                    remove_results(folder)
-                raise
-            print(f"figure {fig}: {out}/fig{fig}.png, curves.csv, summary.csv, marl_eval.json")
-    return 0
-
-
-def _check_parallel(args: argparse.Namespace) -> None:
-    """--jobs x --threads within the machine's CPUs (each job starts that many torch threads)."""
-    if args.threads is not None and args.threads * args.jobs > CPUS:
-        raise ValueError(
-            f"--jobs {args.jobs} x --threads {args.threads} is more than this machine's {CPUS} CPUs"
-        )
-
-
-def _suite(args: argparse.Namespace) -> int:
-    from catmip_rl.benchmark.entry import EPISODES, SUITE
-    from catmip_rl.benchmark.suite import run_suite
-    from catmip_rl.store.outputs import output_folder
-
-    _check_parallel(args)
-    advice = "pick a new folder, or --resume the suite in it"
-    with output_folder(args.out, "--out", keep=args.resume, advice=advice):
-        paths = run_suite(args.method, args.out, args.episodes, args.jobs, args.threads,
-                          not args.no_progress, dict(args.code), dict(args.notes), args.split,
-                          dict(args.classes), dict(args.chosen_on))  # fmt: skip
-    for path in paths:
-        entry = json.loads(path.read_text())
-        iqm, (low, high) = (
-            entry["aggregate"]["iqm_success_by_100"],
-            entry["aggregate"]["iqm_success_by_100_ci"],
-        )
-        print(f"{entry['method']}: suite {SUITE} ({entry['split']} split) IQM rescued by tick 100 "
-              f"{iqm:.3f} [{low:.3f}, {high:.3f}] "
-              f"over {len(entry['settings'])} settings x {entry['episodes']} maps -> {path}")  # fmt: skip
-    print(f"check and rank them: catmip leaderboard --entries {Path(args.out) / 'entries'}"
-          + ("" if args.episodes == EPISODES else f" --episodes {args.episodes}"))  # fmt: skip
-    return 0
-
-
-def _leaderboard(args: argparse.Namespace) -> int:
-    from catmip_rl.benchmark.leaderboard import paired_names, render_leaderboard
-    from catmip_rl.store.files import check_new_file
-    from catmip_rl.store.outputs import output_folder
-
-    names = ["leaderboard.md", "leaderboard.png", *(paired_names(args.vs) if args.vs else ())]
-    with output_folder(args.out, "--out", keep=True):  # the README and entries beside stay
-        for name in names:  # checked once held: no writer since
-            check_new_file(Path(args.out) / name, "--out", force=args.force)
-        paths = render_leaderboard(args.entries, args.out, args.episodes, args.vs, args.split, args.replay,
-                                   not args.no_progress)  # fmt: skip
-    for path in paths:
-        if path.suffix == ".md":
-            print(path.read_text().split("\n\n", 2)[2].rstrip())  # the table
-    print("wrote " + ", ".join(str(p) for p in paths))
-    return 0
-
-
-def _export(args: argparse.Namespace) -> int:
-    from catmip_rl.store.checkpoint import export_model
-    from catmip_rl.store.files import check_new_file
-    from catmip_rl.store.outputs import output_file
-
-    with output_file(args.out, "--out", force=args.force, suffixes=(".pt",)) as out:
-        check_new_file(out.with_suffix(".json"), "--out's config file", force=args.force)  # written beside it
-        path, extra = export_model(args.source, out, half=args.half)
-    print(
-        f"wrote {path} (+ {path.with_suffix('.json').name}): iteration {extra['iteration']}, "
-        f"{extra['training_minutes']:.1f} training minutes"
-    )
-    return 0
-
-
-def _compare(args: argparse.Namespace) -> int:
-    from catmip_rl.benchmark.compare import compare
-    from catmip_rl.benchmark.results import load_results
-    from catmip_rl.store.outputs import output_folder
-
-    with output_folder(args.out, "--out", force=args.force, replace_results=False):  # it may sit beside them
-        results = load_results(args.results)
-        unrecorded = [str(r.path) for r in results if not r.recorded]
-        if unrecorded:  # said, not hidden: their files could not be checked as one run's
-            print(f"note: {len(unrecorded)} result folder(s) have no run.json (written by an older catmip), "
-                  f"so their files were not checked as one run's: {', '.join(unrecorded[:3])}"
-                  + (", ..." if len(unrecorded) > 3 else ""), file=sys.stderr)  # fmt: skip
-        report = compare(results, seed=args.seed, vs=args.vs, pairs=args.pairs, unpaired=args.unpaired)
-        written = report.write(args.out)  # the files first: a closed pipe on stdout loses nothing
-    print(report.markdown())
-    print(f"wrote {args.out}/: {', '.join(p.name for p in written)}")
-    return 0
-
-
-COMMANDS = {"train": _train, "eval": _eval, "render": _render, "compare": _compare, "bench": _bench,
-            "leaderboard": _leaderboard, "export": _export}  # fmt: skip
+COMMANDS = {
+    "train": _train,
+    "eval": _eval,
+    "render": _render,
+    "compare": run_compare,
+    "bench": run_bench,
+    "leaderboard": run_leaderboard,
+    "export": run_export,
+}
 
 
 def main(argv: list[str] | None = None) -> int:
