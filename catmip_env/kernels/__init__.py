@@ -1,8 +1,10 @@
 """The engine room: the numba kernels every world runs on, and the arrays they share.
 
 * ``state`` — :class:`WorldState`, the worlds' arrays (one row per world), and their kernel views;
-* ``rng`` — each world's random stream (a counter-based generator the kernels draw from);
-* ``mapgen`` — the maps: walls, obstacles, target, clues, the robots' start;
+* ``rng`` — each world's random stream (a counter-based generator the kernels draw from), and the block
+  of uniforms a map is drawn from;
+* ``mapgen`` — the maps: ``generate``, rooms with their walls and doorways;
+* ``placement`` — what a map holds besides its rooms: obstacles, target, clues, the robots' start;
 * ``sensing`` — what a robot sees, and the maps it shares with the robots it is linked to;
 * ``dynamics`` — one primitive tick: moves, collisions, perception, communication, rewards;
 * ``bfs`` — shortest paths on a robot's map (the controller's and the planners');
