@@ -8,7 +8,9 @@
 * ``sensing`` — what a robot sees, and the maps it shares with the robots it is linked to;
 * ``dynamics`` — one primitive tick: moves, collisions, perception, communication, rewards;
 * ``bfs`` — shortest paths on a robot's map (the controller's and the planners');
-* ``macro`` — macro-actions: the controller that walks a robot to its goal, events, activation;
+* ``macro`` — macro-actions: the controller that walks a robot to its goal, the run to the next event,
+  the action masks;
+* ``activation`` — the robots' macro state: macro-action ends, activation, goal assignment;
 * ``observe`` — the observations (global and local maps) built from a robot's belief.
 
 Nothing here is a public API: ``catmip_env``'s world, engine and env are built on it.

@@ -20,7 +20,7 @@ import numpy as np  # noqa: E402
 
 from catmip_env import PRESETS  # noqa: E402
 from catmip_env.events import EventEngine, random_valid_actions  # noqa: E402
-from catmip_env.kernels.macro import M_WAIT  # noqa: E402
+from catmip_env.kernels.activation import M_WAIT  # noqa: E402
 
 
 def trace(seed: int, ticks: int):

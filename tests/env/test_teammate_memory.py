@@ -208,7 +208,7 @@ def test_heading_needs_the_memory():
 
 
 def test_a_neighbourhood_that_decides_together_hears_its_members_new_goals():
-    from catmip_env.kernels.macro import M_ACTIVE, M_FIELDS, assign_goals
+    from catmip_env.kernels.activation import M_ACTIVE, M_FIELDS, assign_goals
 
     n = 3
     goal_cells = np.array([[[2, 3], [4, 5], [6, 7]]])
