@@ -12,6 +12,7 @@ from typing import Any
 __all__ = [
     "Parser",
     "Formatter",
+    "add_command",
     "add_allow_other_maps",
     "POSITIVE_INT",
     "NON_NEGATIVE_INT",
@@ -199,6 +200,12 @@ class Formatter(argparse.ArgumentDefaultsHelpFormatter):
         if default is None or default is False or default == [] or default is argparse.SUPPRESS:
             return action.help or ""
         return super()._get_help_string(action)
+
+
+def add_command(sub, name: str, summary: str, description: str) -> argparse.ArgumentParser:
+    """Subcommand ``name`` of ``sub`` (what ``add_subparsers`` returned): ``summary`` in its parent's list
+    of commands, ``description`` atop its own ``--help``, its defaults shown (:class:`Formatter`)."""
+    return sub.add_parser(name, help=summary, description=description, formatter_class=Formatter)
 
 
 def add_allow_other_maps(p: argparse.ArgumentParser) -> None:

@@ -10,8 +10,8 @@ from catmip_rl.cli.args import (
     NON_NEGATIVE_INT,
     POSITIVE_INT,
     UP_TO_CPUS,
-    Formatter,
     add_allow_other_maps,
+    add_command,
     check_methods,
     check_runs,
     checked,
@@ -34,14 +34,30 @@ def add_parallel_flags(p: argparse.ArgumentParser) -> None:
     )
 
 
+def _add_per_method(
+    p: argparse.ArgumentParser, flag: str, metavar: str, text: str, dest: str | None = None
+) -> None:
+    """A repeatable ``flag NAME=VALUE``: what the suite records of the method ``NAME`` (its list of
+    ``(name, value)`` pairs in ``dest``)."""
+    p.add_argument(
+        flag,
+        dest=dest,
+        action="append",
+        default=[],
+        type=name_value,
+        metavar=metavar,
+        help=f"{text} (repeatable)",
+    )
+
+
 def add_suite(suites) -> None:
     from catmip_env.map_sets import SPLITS
     from catmip_rl.benchmark.entry import EPISODES, SETTINGS, SUITE
 
-    su = suites.add_parser(
+    su = add_command(
+        suites,
         "suite",
-        help=f"the benchmark suite ({SUITE}): one leaderboard entry per method",
-        formatter_class=Formatter,
+        summary=f"the benchmark suite ({SUITE}): one leaderboard entry per method",
         description=f"Play each method on the {len(SETTINGS)} settings of suite {SUITE} (Tasks 2 and 3 x "
         "communication full / sigma 4 / sigma 2 x SLAM noise 0 / 5 %) on the frozen maps of --split "
         f"(validation: seed {SPLITS['validation']}, for every choice; test: seed {SPLITS['test']}, played "
@@ -70,41 +86,22 @@ def add_suite(suites) -> None:
         help="maps per setting (an entry of fewer is a preview: the leaderboard takes the suite's count)",
     )
     add_parallel_flags(su)
-    su.add_argument(
-        "--code",
-        action="append",
-        default=[],
-        type=name_value,
-        metavar="NAME=URL",
-        help="a link to a method's code, shown on the leaderboard (repeatable)",
-    )
-    su.add_argument(
-        "--notes",
-        action="append",
-        default=[],
-        type=name_value,
-        metavar="NAME=TEXT",
-        help="what a method is: its training compute and seeds (repeatable)",
-    )
-    su.add_argument(
+    _add_per_method(su, "--code", "NAME=URL", "a link to a method's code, shown on the leaderboard")
+    _add_per_method(su, "--notes", "NAME=TEXT", "what a method is: its training compute and seeds")
+    _add_per_method(
+        su,
         "--class",
+        "NAME=CLASS",
+        "your py: policy's class: learned (plays from its own observations), hybrid (reads a planner at "
+        "play time), planner or floor; the project's methods have theirs",
         dest="classes",
-        action="append",
-        default=[],
-        type=name_value,
-        metavar="NAME=CLASS",
-        help="your py: policy's class: learned (plays from its own "
-        "observations), hybrid (reads a planner at play time), planner or floor; the "
-        "project's methods have theirs (repeatable)",
     )
-    su.add_argument(
+    _add_per_method(
+        su,
         "--chosen-on",
-        action="append",
-        default=[],
-        type=name_value,
-        metavar="NAME=TEXT",
-        help="what a method's choices (hyperparameters, snapshot, variant) were made on, e.g. "
-        "'validation split'; needed on the test split (repeatable)",
+        "NAME=TEXT",
+        "what a method's choices (hyperparameters, snapshot, variant) were made on, e.g. 'validation "
+        "split'; needed on the test split",
     )
     su.add_argument("--out", default="out/suite", help="new or empty folder (or the suite to --resume)")
     su.add_argument("--resume", action="store_true", help="continue the suite in a non-empty --out")
@@ -115,10 +112,10 @@ def add_suite(suites) -> None:
 def add_leaderboard(sub) -> None:
     from catmip_rl.benchmark.entry import EPISODES
 
-    lb = sub.add_parser(
+    lb = add_command(
+        sub,
         "leaderboard",
-        help="check suite entries and rank them (Markdown + PNG)",
-        formatter_class=Formatter,
+        summary="check suite entries and rank them (Markdown + PNG)",
         description="Check every entry (*.json) in --entries against the suite (format, every setting, the "
         "frozen maps, numbers recomputed from its rescue ticks) and write OUT/leaderboard.md and "
         "OUT/leaderboard.png; a refused entry is one line naming its file. --vs METHOD also writes "
@@ -156,19 +153,20 @@ def add_leaderboard(sub) -> None:
 def add_bench(sub) -> None:
     from catmip_rl.benchmark.paper import DEFAULT_METHODS, FIGURES
 
-    be = sub.add_parser(
+    be = add_command(
+        sub,
         "bench",
-        help="the benchmark suite, the paper's figures or the speed benchmarks",
+        summary="the benchmark suite, the paper's figures or the speed benchmarks",
         description="catmip bench suite: the benchmark's fixed grid, one leaderboard entry "
         "per method; catmip bench paper: the paper's figures; catmip bench perf: the "
         "performance benchmarks of benchmarks/.",
     )
     suites = be.add_subparsers(dest="suite", required=True, metavar="{suite,paper,perf}")
     add_suite(suites)
-    pa = suites.add_parser(
+    pa = add_command(
+        suites,
         "paper",
-        help="the paper's figures: success rate vs mission time",
-        formatter_class=Formatter,
+        summary="the paper's figures: success rate vs mission time",
         description="Evaluate methods on the settings of a paper figure (--figure N) or of all of them "
         "(--all) and draw success vs mission time into OUT/fig{N}/.",
     )
@@ -203,10 +201,10 @@ def add_bench(sub) -> None:
     pa.add_argument("--no-progress", action="store_true", help="no progress bar")
     add_allow_other_maps(pa)
     pa.set_defaults(name="bench")
-    pe = suites.add_parser(
+    pe = add_command(
+        suites,
         "perf",
-        help="the performance benchmarks (benchmarks/run_all.py)",
-        formatter_class=Formatter,
+        summary="the performance benchmarks (benchmarks/run_all.py)",
         description="Run benchmarks/run_all.py (from the repository root): JSON/CSV results and plots of "
         "the env, collection and training speed.",
     )
@@ -215,10 +213,10 @@ def add_bench(sub) -> None:
 
 
 def add_export(sub) -> None:
-    ex = sub.add_parser(
+    ex = add_command(
+        sub,
         "export",
-        help="a training run's model as a model file",
-        formatter_class=Formatter,
+        summary="a training run's model as a model file",
         description="Write the model of a training run (its checkpoints/latest.pt) or of one training "
         "checkpoint as a model file (what catmip_rl/models/ ships, loadable with amat:PATH), with the run's "
         "config, iteration, training minutes and origin in the file.",
@@ -233,10 +231,10 @@ def add_export(sub) -> None:
 
 
 def add_compare(sub) -> None:
-    co = sub.add_parser(
+    co = add_command(
+        sub,
         "compare",
-        help="paired differences and across-seed statistics of eval results",
-        formatter_class=Formatter,
+        summary="paired differences and across-seed statistics of eval results",
         description="Compare catmip eval results: per setting each method's success by tick 100 with a 95 % "
         "CI (over the maps, or over training runs and maps); for every pair of methods on the same maps the "
         "paired difference in success by tick 100 and in mean rescue tick with 95 % CIs; across runs "

@@ -16,9 +16,9 @@ from catmip_rl.cli.args import (
     POSITIVE_INT,
     PROBABILITY,
     UP_TO_CPUS,
-    Formatter,
     Parser,
     add_allow_other_maps,
+    add_command,
     check_comm,
     check_method,
     checked,
@@ -89,10 +89,10 @@ def version() -> str:
 
 
 def add_train(sub) -> None:
-    tr = sub.add_parser(
+    tr = add_command(
+        sub,
         "train",
-        help="PPO training of AMAT",
-        formatter_class=Formatter,
+        summary="PPO training of AMAT",
         description="PPO training of AMAT into --run-dir (config.json, metrics.csv, "
         "tensorboard/, checkpoints/). A new run needs a new or empty --run-dir.",
     )
@@ -214,10 +214,10 @@ def add_setting_flags(p: argparse.ArgumentParser) -> None:
 def add_eval_render(sub) -> None:
     from catmip_env.render import RENDER_FPS
 
-    ev = sub.add_parser(
+    ev = add_command(
+        sub,
         "eval",
-        help="evaluate a method on the paper's protocol",
-        formatter_class=Formatter,
+        summary="evaluate a method on the paper's protocol",
         description="Evaluate a method on the paper's protocol (maps 0 .. N-1 of --seed, argmax actions for "
         "AMAT) and write episodes.csv/json, curve.csv and summary.json into --out.",
     )
@@ -244,10 +244,10 @@ def add_eval_render(sub) -> None:
     )
     add_allow_other_maps(ev)
     ev.set_defaults(name="eval")
-    rd = sub.add_parser(
+    rd = add_command(
+        sub,
         "render",
-        help="an animated GIF of one evaluation episode",
-        formatter_class=Formatter,
+        summary="an animated GIF of one evaluation episode",
         description="Play one evaluation episode (map --episode of --seed) with a method and write it as an "
         "animated GIF (one frame per tick).",
     )
