@@ -12,6 +12,8 @@ LOCAL_MAP = (ROBOTS, "local_map")  # (B, N, 4 + C, L, L) uint8
 AGENT_CLASS = (ROBOTS, "agent_class")  # (B, N, C) float one-hot
 ACTION_MASK = (ROBOTS, "action_mask")  # (B, N, A) bool, True = allowed
 ACTIVE = (ROBOTS, "active")  # (B, N) bool, robots that decide now
+NEIGHBOURHOOD = (ROBOTS, "neighbourhood")  # (B, N) long, communication component (lowest robot id in it)
+HINT = (ROBOTS, "hint")  # (B, N) long, a planner's proposed cell (CatmipEnv(proposals=...)), -1 none
 PADDING = (ROBOTS, "padding")  # (B, N) bool, padding tokens (teams of different size)
 ACTION = (ROBOTS, "action")  # (B, N) long
 LOG_PROB = (ROBOTS, "action_log_prob")  # (B, N) float, 0 for busy robots
@@ -26,4 +28,5 @@ TRUNCATED = (ROBOTS, "truncated")  # (B, N, 1) bool
 STATE = "state"  # (B, 4 + C, S, S) float32 in {0, 1}: ground truth, the centralised critic's input
 EVENT_TICKS = "event_ticks"  # (B, 1) long, ticks the last step ran
 
-OBS_KEYS = (GLOBAL_MAP, LOCAL_MAP, AGENT_CLASS)
+OBS_KEYS = (GLOBAL_MAP, LOCAL_MAP, AGENT_CLASS)  # every robot's observation
+AMAT_KEYS = (*OBS_KEYS, NEIGHBOURHOOD, HINT)  # what AMAT reads (a window model: the first three)

@@ -188,7 +188,8 @@ class RayRolloutCollector:
         ray_init = _ray_init_config(cfg.ray_address, cfg.ray_workers)
         self._mirror = cpu_mirror(model)
         share = cfg.num_worlds // cfg.ray_workers
-        make = functools.partial(Collector, cfg.env_config(), share, cfg.seed, cfg.gamma)
+        goals = model.config.goals  # a cell-goal model plays an engine in cell goal mode
+        make = functools.partial(Collector, cfg.env_config(), share, cfg.seed, cfg.gamma, goal_mode=goals)
         try:
             self._rc = RayCollector(
                 make,
@@ -236,7 +237,6 @@ class RayRolloutCollector:
             label=None,
             label_relay=None,
             state=None,  # a state critic collects locally (TrainConfig refuses it with Ray)
-            hint=None,  # so does a model with a hint
             final_return=td["final_return"].numpy().copy(),
             terminated=td["terminated"].numpy().copy(),
             records=records,

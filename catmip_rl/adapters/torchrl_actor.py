@@ -25,25 +25,14 @@ __all__ = ["AmatActor", "AmatCritic"]
 
 
 def _obs(td: TensorDictBase) -> dict[str, torch.Tensor]:
-    return {
-        "global_map": td.get(K.GLOBAL_MAP),
-        "local_map": td.get(K.LOCAL_MAP),
-        "agent_class": td.get(K.AGENT_CLASS),
-    }
+    """The model's inputs of :data:`~catmip_rl.adapters.keys.AMAT_KEYS` that ``td`` holds (a window
+    model reads the first three; a cell-goal model the neighbourhood too, and the hint if it has one)."""
+    parts = {key[-1]: td.get(key, None) for key in K.AMAT_KEYS}
+    return {name: value for name, value in parts.items() if value is not None}
 
 
 def _padding(td: TensorDictBase) -> torch.Tensor | None:
     return td.get(K.PADDING, None)
-
-
-def _refuse_hint(model: AMAT) -> None:
-    """ValueError for a model that reads a planner's proposals (``AmatConfig.hint``): a TorchRL env
-    carries no planner; such a model plays through ``catmip eval`` and trains with ``catmip train``."""
-    if model.config.hint:
-        raise ValueError(
-            f"this AMAT reads the {model.config.hint!r} planner's proposals, which a TorchRL env does not "
-            "carry: play it with catmip eval, train it with catmip train"
-        )
 
 
 class AmatActor(TensorDictModuleBase):
@@ -51,10 +40,9 @@ class AmatActor(TensorDictModuleBase):
 
     def __init__(self, model: AMAT, deterministic: bool | None = None) -> None:
         super().__init__()
-        _refuse_hint(model)
         self.model = model
         self.deterministic = deterministic
-        self.in_keys = [*K.OBS_KEYS, K.ACTION_MASK, K.ACTIVE]
+        self.in_keys = [*K.AMAT_KEYS, K.ACTION_MASK, K.ACTIVE]
         self.out_keys = [K.ACTION, K.LOG_PROB, K.VALUE, K.ORDER]
 
     def _is_deterministic(self) -> bool:
@@ -99,9 +87,8 @@ class AmatCritic(TensorDictModuleBase):
                 "train's collector), not the encoder's value head: AmatCritic needs a model with critic "
                 "'encoder'"
             )
-        _refuse_hint(model)
         self.model = model
-        self.in_keys = list(K.OBS_KEYS)
+        self.in_keys = list(K.AMAT_KEYS)
         self.out_keys = [K.VALUE]
 
     def forward(self, td: TensorDictBase) -> TensorDictBase:

@@ -17,6 +17,7 @@ from torchrl.envs import ActionMask, Compose, DTypeCastTransform, EnvBase, Obser
 from catmip_env import EnvConfig, make_config
 from catmip_env.constants import OBS_ONE, OBS_SCALE
 from catmip_env.events import EventEngine
+from catmip_env.planners.proposals import Proposals
 from catmip_rl.adapters import keys as K
 from catmip_rl.amat.inputs import one_hot_class
 
@@ -56,6 +57,8 @@ class CatmipEnv(EnvBase):
     ``("robots","agent_class")``  (B, N, C)            float32  class one-hot
     ``("robots","action_mask")``  (B, N, A)            bool     allowed actions
     ``("robots","active")``       (B, N)               bool     robots that choose a goal now
+    ``("robots","neighbourhood")``  (B, N)             int64    communication component (lowest id in it)
+    ``("robots","hint")``         (B, N)               int64    ``proposals``' cell for an active robot, −1
     ``"state"``                   (B, 4 + C, H, W)     float32  ground truth in {0, 1} (below)
     ``"event_ticks"``             (B, 1)               int64    ticks the last step ran (0 at reset)
     ============================  ===================  =======  ============================================
@@ -79,10 +82,14 @@ class CatmipEnv(EnvBase):
     **Arguments**: ``preset`` (a ``catmip_env.PRESETS`` name or an ``EnvConfig``), ``num_worlds`` B,
     ``seed`` (episode ``k`` of a seed always has the same map), ``goal_mode``, ``invalid_action``
     (``"raise"`` or ``"stay"``), ``gamma`` (the engine's per-tick discount of macro-action returns;
-    the per-event reward above is undiscounted), the torch device, and any ``EnvConfig`` field as a keyword.
+    the per-event reward above is undiscounted), the torch device, ``proposals`` (a planner whose cell
+    goal for each active robot ``"hint"`` carries, :class:`~catmip_env.planners.proposals.Proposals`:
+    what a cell-goal AMAT with ``AmatConfig.hint`` reads; "" none: −1 everywhere) and any ``EnvConfig``
+    field as a keyword.
 
-    **Versions**: 1 — group-level done flags, ``"state"``, ``group_map``; 0 — the macro-observations,
-    mask, active flags, per-robot reward, ``event_ticks`` and root done flags (all unchanged since).
+    **Versions**: 2 — ``"neighbourhood"`` and ``"hint"``; 1 — group-level done flags, ``"state"``,
+    ``group_map``; 0 — the macro-observations, mask, active flags, per-robot reward, ``event_ticks`` and
+    root done flags (all unchanged since).
     """
 
     batch_locked = True
@@ -97,6 +104,7 @@ class CatmipEnv(EnvBase):
         gamma: float = 1.0,
         device: str | torch.device = "cpu",
         threads: int = 1,
+        proposals: str = "",
         **overrides,
     ) -> None:
         cfg = make_config(preset, **overrides)
@@ -111,6 +119,7 @@ class CatmipEnv(EnvBase):
             gamma=gamma,
             threads=threads,
         )
+        self.proposals = Proposals(proposals)
         self.group_map = {K.ROBOTS: [f"robot_{i}" for i in range(self.engine.num_robots)]}
         self._make_specs()
 
@@ -134,6 +143,8 @@ class CatmipEnv(EnvBase):
                 agent_class=Bounded(0.0, 1.0, (b, n, c), dtype=torch.float32, device=dev),
                 action_mask=Binary(n=a, shape=(b, n, a), dtype=torch.bool, device=dev),
                 active=Binary(n=n, shape=(b, n), dtype=torch.bool, device=dev),
+                neighbourhood=Bounded(0, n - 1, (b, n), dtype=torch.int64, device=dev),
+                hint=Bounded(-1, h * w - 1, (b, n), dtype=torch.int64, device=dev),
             ),
             state=Bounded(0.0, 1.0, (b, 4 + c, h, w), dtype=torch.float32, device=dev),
             event_ticks=Unbounded((b, 1), dtype=torch.int64, device=dev),
@@ -160,6 +171,7 @@ class CatmipEnv(EnvBase):
     # -- helpers ----------------------------------------------------------------------------------
     def _observation(self) -> TensorDict:
         out = engine_observation(self.engine, self.device)
+        out.set(K.HINT, torch.from_numpy(self.proposals(self.engine)).to(self.device))
         self.action_spec[K.ACTION].update_mask(out.get(K.ACTION_MASK))
         return out
 
@@ -256,6 +268,7 @@ def _robot_rows(engine: EventEngine, rows: np.ndarray | None) -> TensorDict:
             "agent_class": one_hot_class(pick(engine.state.cls), engine.cfg.num_classes),
             "action_mask": torch.from_numpy(pick(engine.masks).astype(np.bool_)),
             "active": torch.from_numpy(pick(engine.active)),
+            "neighbourhood": torch.from_numpy(pick(engine.state.comp).astype(np.int64)),
         },
         batch_size=batch,
     )

@@ -22,8 +22,8 @@ from catmip_env import EnvConfig
 from catmip_env.constants import global_channels, local_channels
 from catmip_env.episode_stats import DecisionTracker, EpisodeRecords, episode_records, training_stats
 from catmip_env.events import EventEngine
-from catmip_env.planners.baselines import Relay, make_planner
-from catmip_env.planners.core import Planner
+from catmip_env.planners.baselines import Relay
+from catmip_env.planners.proposals import Proposals
 from catmip_env.play import Policy
 from catmip_rl.amat.critic import critic_state, state_channels
 from catmip_rl.amat.inputs import macro_observation
@@ -52,7 +52,7 @@ class Rollout:
     label: np.ndarray | None  # (T, B, N) int64 the teacher's actions (collect(labeler=...))
     label_relay: np.ndarray | None  # (T, B, N) bool the labels a relay teacher's relay rule chose
     state: np.ndarray | None  # (T, B, 5+C, H, W) uint8 the true state, for a model with critic "state"
-    hint: np.ndarray | None  # (T, B, N) int64 the hint planner's cells (AmatConfig.hint), -1 none
+    hint: np.ndarray  # (T, B, N) int64 the proposals a model with AmatConfig.hint reads (-1: none)
     final_return: np.ndarray  # (B, N) float64 each robot's last macro-action's return
     terminated: np.ndarray  # (B,) bool the episode ended in a rescue (its last macro-actions are trained)
     records: EpisodeRecords  # the B episodes' records (catmip_env.episode_stats), stalls included
@@ -70,7 +70,7 @@ class Rollout:
 
 _PER_EPISODE = ("final_return", "terminated", "records", "returns", "stats")
 # per step, stored only when asked for: a labeler's actions (and which its relay rule chose), a critic's state
-_OPTIONAL = ("label", "label_relay", "state", "hint")
+_OPTIONAL = ("label", "label_relay", "state")
 # the (T, B, ...) arrays of a Rollout, one row per decision event: the collector's storage
 STEP_FIELDS = tuple(f.name for f in fields(Rollout) if f.name not in _PER_EPISODE + _OPTIONAL)
 
@@ -98,7 +98,6 @@ class Collector:
     ) -> None:
         self.engine = EventEngine(cfg, num_worlds, seed, goal_mode=goal_mode, gamma=gamma)
         self.seed = seed
-        self._hinter: Planner | None = None  # the planner whose proposals a model with a hint reads
         self._mirror: AMAT | None = None  # the CPU copy of a model that lives elsewhere
         eng = self.engine
         b, n, (h, w), c = eng.num_worlds, eng.num_robots, eng.shape, cfg.num_classes
@@ -111,14 +110,13 @@ class Collector:
             "action_mask": ((n, eng.num_actions), np.bool_), "active": ((n,), np.bool_),
             "order": ((n,), np.int64), "action": ((n,), np.int64),
             "log_prob": ((n,), np.float32), "value": ((n,), np.float32), "ma_return": ((n,), np.float64),
-            "ma_ticks": ((n,), np.int64), "valid": ((), np.bool_),
+            "ma_ticks": ((n,), np.int64), "valid": ((), np.bool_), "hint": ((n,), np.int64),
         }  # fmt: skip
         self._store = {k: np.zeros((t, b, *shapes[k][0]), shapes[k][1]) for k in STEP_FIELDS}
         self._final = np.zeros((b, n), np.float64)
         self._terminated = np.zeros(b, np.bool_)
         self._label = np.zeros((t, b, n), np.int64)
         self._relay = np.zeros((t, b, n), np.bool_)
-        self._hint = np.zeros((t, b, n), np.int64)
         self._state = np.zeros((0, b, state_channels(c), h, w), np.uint8)  # grown for a state critic
         self.tracker = DecisionTracker(b, n)
 
@@ -144,8 +142,8 @@ class Collector:
         (``Rollout.label``; a relay planner's also says which labels its relay rule chose,
         ``Rollout.label_relay``); each active robot then executes the label instead of the policy's action
         with probability ``teacher_prob`` (DAgger's mixture; drawn from ``generator``). Log-probs stay
-        the policy's: a rollout with ``teacher_prob > 0`` is for imitation, not for PPO. A model with a
-        hint reads that planner's cells (``Rollout.hint``, :meth:`_hint_source`)."""
+        the policy's: a rollout with ``teacher_prob > 0`` is for imitation, not for PPO. ``Rollout.hint``:
+        the proposals of the model's ``AmatConfig.hint`` planner (:class:`Proposals`; -1 without one)."""
         eng, s = self.engine, self._store
         policy = cpu_mirror(model, self._mirror)
         if policy is not model:  # a CPU copy of a model on another device, refreshed by the next call
@@ -154,7 +152,7 @@ class Collector:
         c = eng.cfg.num_classes
         eng.reset(episode_indices=np.arange(first_episode, first_episode + b_all))
         critic = policy.state_critic
-        hinter, shared = self._hint_source(policy.config.hint, labeler)
+        proposals = Proposals(policy.config.hint)
         if critic is not None and not len(self._state):
             self._state = np.zeros((len(s["valid"]), *self._state.shape[1:]), np.uint8)
         self.tracker.reset(eng)
@@ -175,14 +173,15 @@ class Collector:
             s["action_mask"][t, idx] = eng.masks[idx]
             s["active"][t, idx] = eng.active[idx]
             s["valid"][t, idx] = True
-            self._label_and_hint(t, idx, labeler, hinter, shared)
+            self._label_step(t, idx, labeler)
+            s["hint"][t, idx] = proposals(eng)[idx]
             obs = macro_observation(
                 s["global_map"][t, idx],
                 s["local_map"][t, idx],
                 st.cls[idx],
                 c,
                 s["neighbourhood"][t, idx],
-                hint=self._hint[t, idx] if hinter is not None else None,
+                hint=s["hint"][t, idx],
             )
             active = torch.from_numpy(s["active"][t, idx])
             mask = torch.from_numpy(s["action_mask"][t, idx])
@@ -222,39 +221,16 @@ class Collector:
             label=self._label[:t].copy() if labeler is not None else None,
             label_relay=self._relay[:t].copy() if isinstance(labeler, Relay) else None,
             state=self._state[:t] if critic is not None else None,
-            hint=self._hint[:t].copy() if hinter is not None else None,
             terminated=self._terminated.copy(),
             records=records,
             returns=returns,
             stats=training_stats(records, returns, eng.cfg),
         )
 
-    def _label_and_hint(
-        self, t: int, idx: np.ndarray, labeler: Policy | None, hinter: Planner | None, shared: bool
-    ) -> None:
-        """Row ``t`` of the labels (and which a relay teacher's relay rule chose) and of the hint
-        planner's cells for the live worlds ``idx``, from the engine as it stands at that event."""
-        eng, active = self.engine, self._store["active"][t, idx]
+    def _label_step(self, t: int, idx: np.ndarray, labeler: Policy | None) -> None:
+        """Row ``t`` of the labels (and which a relay teacher's relay rule chose) for the live worlds
+        ``idx``, from the engine as it stands at that event."""
         if labeler is not None:
-            self._label[t, idx] = labeler.act(eng)[idx]
+            self._label[t, idx] = labeler.act(self.engine)[idx]
             if isinstance(labeler, Relay):
-                self._relay[t, idx] = labeler.relayed[idx] & active
-        if hinter is not None:
-            cells = self._label[t, idx] if shared else np.asarray(hinter.act(eng))[idx]
-            self._hint[t, idx] = np.where(active, cells, -1)
-
-    def _hint_source(self, hint: str, labeler: Policy | None) -> tuple[Planner | None, bool]:
-        """(the planner whose cells a model with ``hint`` (``AmatConfig.hint``) reads for its active robots,
-        whether they are the labeler's labels, so that a sampling planner's label and proposal are one draw):
-        the labeler where it is that planner labelling every active robot (the planner itself, or an
-        anchor's :class:`~catmip_rl.training.imitation.PlannerLabeler` of it not restricted to its relay
-        rule), else this collector's own copy, seeded by the collector's seed; (None, False) without."""
-        if not hint:
-            return None, False
-        planner = getattr(labeler, "teacher", labeler)  # an anchor's PlannerLabeler holds its planner
-        every_robot = not getattr(labeler, "relay_only", False)
-        if isinstance(planner, Planner) and planner.name == hint and every_robot:
-            return planner, True
-        if self._hinter is None or self._hinter.name != hint:
-            self._hinter = make_planner(hint, seed=self.seed)
-        return self._hinter, False
+                self._relay[t, idx] = labeler.relayed[idx] & self._store["active"][t, idx]

@@ -291,7 +291,7 @@ class TrainConfig:
 
     def _check_collection(self, amat: AmatConfig) -> None:
         """What only the local collector does (labels from a planner in this process, a mixture of worlds,
-        the state critic's state, a hint planner's proposals) refused with Ray, and Ray's share of the
+        the state critic's state) refused with Ray, and Ray's share of the
         worlds."""
         if self.collector == "local":
             return
@@ -315,10 +315,6 @@ class TrainConfig:
             raise ValueError("TrainConfig.worlds (a mixture of worlds) needs collector 'local'")
         if amat.critic == "state":
             raise ValueError("amat critic 'state' needs collector 'local' (it collects the true state)")
-        if amat.hint:
-            raise ValueError(
-                f"amat hint {amat.hint!r} needs collector 'local' (the planner proposes in this process)"
-            )
 
     def env_config(self) -> EnvConfig:
         return self._for_model(make_config(self.env_preset, **self.env_overrides))

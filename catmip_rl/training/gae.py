@@ -135,7 +135,7 @@ class SampleBatch:
     label: torch.Tensor | None = None  # (M, N) long: the rescue rule's or anchor's action, -1 = none
     neighbourhood: torch.Tensor | None = None  # (M, N) long communication component (the cell-goal model's)
     state: torch.Tensor | None = None  # (M, 5+C, H, W) uint8 the true state (a model with critic "state")
-    hint: torch.Tensor | None = None  # (M, N) long: the hint planner's cells (AmatConfig.hint), -1 none
+    hint: torch.Tensor | None = None  # (M, N) long: the proposals (AmatConfig.hint), -1 none
 
     def __len__(self) -> int:
         return self.action.shape[0]
@@ -193,7 +193,7 @@ def build_batch(r: Rollout, value_norm: ValueNorm, gamma: float, lam: float, n_c
         trainable=train_t,
         label=None if r.label is None else torch.from_numpy(r.label[rows]),
         state=None if r.state is None else torch.from_numpy(r.state[rows]),
-        hint=None if r.hint is None else torch.from_numpy(r.hint[rows]),
+        hint=torch.from_numpy(r.hint[rows]),
     ).to(device)
     return batch, {"samples": float(train_t.sum()), "ppo/explained_variance": explained}
 

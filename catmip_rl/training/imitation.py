@@ -83,8 +83,7 @@ class DemoBuffer:
         new = {k: np.ascontiguousarray((label if k == "label" else getattr(r, k))[rows]) for k in _KEYS}
         # the labels a relay teacher's relay rule chose (none for another teacher)
         new["relay"] = r.label_relay[rows] if r.label_relay is not None else np.zeros_like(new["active"])
-        if r.hint is not None:  # the hint planner's cells (AmatConfig.hint)
-            new["hint"] = r.hint[rows]
+        new["hint"] = r.hint[rows]  # the proposals of the model's AmatConfig.hint planner (-1: none)
         zeros = np.zeros(r.active.shape)
         _, ret, trainable = async_gae(
             r.active, r.valid, zeros, r.ma_return, r.ma_ticks.astype(np.int64), r.final_return, r.terminated,

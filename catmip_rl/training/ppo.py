@@ -68,11 +68,8 @@ def ppo_loss(
     ``count`` replaces the number of trainable robots as the denominator: with the count of a whole
     minibatch, the losses (and parts) of its micro-batches add up to the minibatch's.
     """
-    obs = {"global_map": batch.global_map, "local_map": batch.local_map, "agent_class": batch.agent_class}
-    if batch.neighbourhood is not None:
-        obs["neighbourhood"] = batch.neighbourhood
-    if batch.hint is not None:
-        obs["hint"] = batch.hint
+    parts = ("global_map", "local_map", "agent_class", "neighbourhood", "hint")
+    obs = {k: getattr(batch, k) for k in parts if getattr(batch, k) is not None}  # the window model's: 3
     sel = batch.trainable.bool()  # the loss reads these robots only: logits and values of them alone
     logits, values = model.score(
         model.embed(obs), batch.action, batch.order, batch.agent_class, sel, batch.action_mask

@@ -17,7 +17,7 @@ import torch
 
 from catmip_env.events import EventEngine
 from catmip_env.kernels.state import WorldState
-from catmip_env.planners.baselines import make_planner
+from catmip_env.planners.proposals import Proposals
 from catmip_env.play import MESSAGE_COLUMNS
 from catmip_rl.amat.config import AmatConfig
 from catmip_rl.amat.inputs import clean_occupancy, macro_observation
@@ -330,15 +330,15 @@ class CellGoalExecutor(AmatExecutor):
     neighbourhood only (its ``neighbourhood`` input), which is each neighbourhood deciding on its own.
     ``clean_occupancy``: the active robots read occupancy from their masks
     (:func:`~catmip_rl.amat.inputs.clean_occupancy`): under SLAM noise, the map the planners choose on.
-    A model with a hint (``AmatConfig.hint``) reads that planner's proposal for each active robot, the
-    planner (seeded 0) choosing from the robot's own view as it would when it plays.
+    A model with a hint (``AmatConfig.hint``) reads that planner's proposal for each active robot
+    (:class:`~catmip_env.planners.proposals.Proposals`, as the collector and the TorchRL env give it).
     """
 
     def __init__(self, model: AMAT, deterministic: bool = True, generator: torch.Generator | None = None,
                  loop_guard: bool = False, clean_occupancy: bool = False) -> None:  # fmt: skip
         super().__init__(model, deterministic, generator, loop_guard, fast=False)
         self.clean_occupancy = clean_occupancy
-        self.hinter = make_planner(model.config.hint, seed=0) if model.config.hint else None
+        self.proposals = Proposals(model.config.hint)
 
     def _play_options(self) -> dict[str, bool]:
         return super()._play_options() | {"clean_occupancy": self.clean_occupancy}
@@ -360,9 +360,7 @@ class CellGoalExecutor(AmatExecutor):
             global_map, local_map = clean_occupancy(
                 global_map, local_map, engine.masks[w], st.pos[w], st.comp[w], active[w]
             )
-        hint = None
-        if self.hinter is not None:  # the planner's proposals for the active robots (-1: none)
-            hint = np.where(active, np.asarray(self.hinter.act(engine)), -1)[w]
+        hint = self.proposals(engine)[w]  # the active robots' proposals (-1 elsewhere, and without a hint)
         obs = macro_observation(
             global_map, local_map, st.cls[w], self.model.config.n_classes, st.comp[w], hint=hint
         )

@@ -73,6 +73,31 @@ def test_ray_rollout_equals_local_rollout(ray_cluster):
 
 
 @pytest.mark.ray
+def test_a_model_reading_a_planners_proposals_collects_and_trains_on_ray(ray_cluster, tmp_path):
+    """The proposal is an observation part each worker's collector makes (catmip_env.planners.proposals):
+    a Ray rollout of a model with AmatConfig.hint carries the local collector's proposals, and it trains."""
+    from catmip_rl.adapters.ray_collect import RayRolloutCollector
+    from catmip_rl.amat.pointer import make_model
+
+    amat = {"goals": "cell", "embed_dim": 32, "hint": "nearest"}
+    cfg = make_train_config("tiny", collector="ray", ray_workers=2, amat=amat, iterations=2, eval_every=0)
+    torch.manual_seed(1)
+    model = make_model(cfg.amat_config())
+    remote = RayRolloutCollector(cfg, model)
+    try:
+        a = remote.collect(model, first_episode=8, deterministic=True)
+    finally:
+        remote.close()
+    local = Collector(cfg.env_config(), cfg.num_worlds, cfg.seed, cfg.gamma, goal_mode="cell")
+    b = local.collect(model, first_episode=8, deterministic=True)
+    v = b.valid
+    assert np.array_equal(a.valid, v) and np.array_equal(a.hint[v], b.hint[v])
+    assert (a.hint[a.active & v[..., None]] >= 0).all()
+    trained = train(cfg, tmp_path / "run", progress=False)
+    assert trained.config.hint == "nearest" and trained.hint_bias.detach().abs().item() > 0
+
+
+@pytest.mark.ray
 def test_cli_ray_training_and_exact_resume(ray_cluster, tmp_path):
     run = tmp_path / "run"
     args = ["train", "--preset", "tiny", "--collector", "ray", "--ray-workers", "2", "--no-progress"]

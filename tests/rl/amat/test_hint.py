@@ -1,7 +1,7 @@
 """A cell-goal AMAT that reads a planner's proposals (``AmatConfig.hint``): the proposed cell enters as
 one more per-cell input and a logit bonus; a model without a hint starts a run with one as the same
-function; collection, PPO, imitation and play give the model the planner's cells, one draw with the
-labels where the labeler is that planner; the refusals."""
+function; collection, PPO, imitation, play and the TorchRL actor give the model the same proposals
+(``catmip_env.planners.proposals``)."""
 
 from dataclasses import replace
 
@@ -12,6 +12,7 @@ import torch
 from catmip_env.config import make_config
 from catmip_env.events import EventEngine
 from catmip_env.planners.baselines import make_planner
+from catmip_env.planners.proposals import NO_PROPOSAL, Proposals
 from catmip_rl.amat.config import AmatConfig
 from catmip_rl.amat.model import decision_order
 from catmip_rl.amat.onboard.execution import CellGoalExecutor
@@ -118,30 +119,34 @@ def test_play_gives_the_model_the_planners_proposals():
     assert ours.state.done.sum() == theirs.state.done.sum()
 
 
-def test_the_hint_is_the_labelers_own_draw_where_the_labeler_is_that_planner():
+def test_collection_gives_the_proposals_play_gives():
+    """One producer, one seeding rule (catmip_env.planners.proposals): the collector's hint is what the
+    planner seeded 0 proposes on the same maps, whatever the collector's seed or its labeler."""
     model = shaken_model(HINTED, scale=0.3)
     cfg = make_config("task2", comm_sigma=2.0)
-    col = Collector(cfg, 4, seed=3, goal_mode="cell")
-    # the anchor's labels: one draw of RRT per decision, read by the model and scored by the loss
-    r = col.collect(model, 0, labeler=PlannerLabeler(make_planner("rrt-relay", seed=7)))
-    assert r.hint is not None and r.label is not None
-    np.testing.assert_array_equal(r.hint[r.valid], r.label[r.valid])
-    on = r.active & r.valid[..., None]
-    assert (r.hint[on] >= 0).all() and (r.hint[r.valid[..., None] & ~r.active] == -1).all()
-    # without a labeler of that planner the collector's own copy proposes (seeded by the collector)
-    again = Collector(cfg, 4, seed=3, goal_mode="cell").collect(model, 0, deterministic=True)
-    assert again.label is None and (again.hint[again.active & again.valid[..., None]] >= 0).all()
-    relay_only = Collector(cfg, 4, seed=3, goal_mode="cell").collect(
-        model, 0, labeler=PlannerLabeler(make_planner("rrt-relay", seed=7), relay_only=True)
+    r = Collector(cfg, 4, seed=3, goal_mode="cell").collect(
+        model, 0, deterministic=True, labeler=PlannerLabeler(make_planner("rrt-relay", seed=7))
     )
-    on = relay_only.active & relay_only.valid[..., None]
-    assert (relay_only.hint[on] >= 0).all() and (relay_only.label[on] == -1).any()
+    on = r.active & r.valid[..., None]
+    assert (r.hint[on] >= 0).all() and (r.hint[r.valid[..., None] & ~r.active] == NO_PROPOSAL).all()
+    # replay the collected actions on a fresh engine of the same maps beside a fresh Proposals
+    eng, proposals = EventEngine(cfg, 4, seed=3, goal_mode="cell"), Proposals("rrt-relay")
+    eng.reset(episode_indices=np.arange(4))
+    for t in range(r.steps):
+        live = r.valid[t][:, None]
+        np.testing.assert_array_equal(np.where(live, proposals(eng), -1), np.where(live, r.hint[t], -1))
+        eng.step(r.action[t])
+    # a model without a hint reads none
+    plain = Collector(cfg, 4, seed=3, goal_mode="cell").collect(shaken_model(PLAIN, scale=0.3), 0)
+    assert (plain.hint[plain.valid] == NO_PROPOSAL).all()
 
 
 def test_imitation_and_ppo_read_the_hint(tmp_path):
     model = shaken_model(HINTED, scale=0.3)
     col = Collector(make_config("task2", comm_sigma=2.0), 4, seed=3, goal_mode="cell")
-    r = col.collect(model, 0, labeler=make_planner("rrt-relay", seed=1))
+    # a labeler seeded as the proposals are (0) draws what they draw: its labels are the proposals
+    r = col.collect(model, 0, labeler=make_planner("rrt-relay", seed=0))
+    assert np.array_equal(r.label[r.active & r.valid[..., None]], r.hint[r.active & r.valid[..., None]])
     buf = DemoBuffer(10_000)
     buf.add(r)
     batch = buf.batch(np.arange(min(64, len(buf))), 2, "cpu")
@@ -163,12 +168,34 @@ def test_imitation_and_ppo_read_the_hint(tmp_path):
     assert rollout.hint is not None and not torch.equal(bias, run.model.hint_bias.detach())
 
 
-def test_a_model_with_a_hint_is_refused_where_no_planner_proposes():
-    from catmip_rl.adapters.torchrl_actor import AmatActor, AmatCritic
+def test_the_torchrl_actor_plays_a_model_with_a_hint_as_the_executor_does():
+    """CatmipEnv(proposals=...) carries the proposals and the neighbourhoods: AmatActor, argmax, chooses
+    the cells CellGoalExecutor chooses on the same maps, event by event."""
+    from tensordict.nn import InteractionType, set_interaction_type
 
-    model = make_model(HINTED)
-    for adapter in (AmatActor, AmatCritic):
-        with pytest.raises(ValueError, match="which a TorchRL env does not carry"):
-            adapter(model)
-    with pytest.raises(ValueError, match="amat hint 'nearest' needs collector 'local'"):
-        make_train_config("tiny", amat={"goals": "cell", "hint": "nearest"}, collector="ray")
+    from catmip_rl.adapters import keys as K
+    from catmip_rl.adapters.torchrl_actor import AmatActor
+    from catmip_rl.adapters.torchrl_env import CatmipEnv
+
+    model = shaken_model(HINTED, scale=0.3)
+    env = CatmipEnv("task2", num_worlds=3, seed=4, goal_mode="cell", proposals="rrt-relay", comm_sigma=2.0)
+    executor, eng = CellGoalExecutor(model), EventEngine(env.cfg, 3, seed=4, goal_mode="cell")
+    actor = AmatActor(model)
+    td = env.reset()
+    eng.reset()
+    with set_interaction_type(InteractionType.DETERMINISTIC):
+        for _ in range(25):
+            if eng.state.done.all():
+                break
+            active = eng.active & ~eng.state.done[:, None]
+            ours = actor(td).get(K.ACTION).numpy()
+            theirs = executor.act(eng)
+            np.testing.assert_array_equal(ours[active], theirs[active])
+            assert (td.get(K.HINT).numpy()[active] >= 0).all()
+            td = env.step(td)["next"]
+            eng.step(theirs)
+
+
+def test_a_model_with_a_hint_trains_with_the_ray_collector_config():
+    cfg = make_train_config("tiny", amat={"goals": "cell", "hint": "nearest"}, collector="ray")
+    assert cfg.amat["hint"] == "nearest"
