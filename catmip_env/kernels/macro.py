@@ -106,6 +106,25 @@ def controller(
 
 
 @njit(cache=True, inline="always")
+def _open_event(
+    b: int,
+    mstate: np.ndarray,
+    pending: np.ndarray,
+    tick_rewards: np.ndarray,
+    event_rewards: np.ndarray,
+    ma_rewards: np.ndarray,
+) -> None:
+    """World b's event begins: no robot decides yet, and the reward pending since the world's reset rides
+    on it (paid into the event's and the macro-actions' rewards, and cleared)."""
+    for i in range(mstate.shape[1]):
+        mstate[b, i, M_ACTIVE] = 0
+        event_rewards[b, i] = pending[b, i]
+        ma_rewards[b, i] += pending[b, i]
+        pending[b, i] = 0.0
+        tick_rewards[b, i] = 0.0
+
+
+@njit(cache=True, inline="always")
 def _credit_tick(
     b: int,
     tick_rewards: np.ndarray,
@@ -114,12 +133,13 @@ def _credit_tick(
     event_rewards: np.ndarray,
     ma_rewards: np.ndarray,
 ) -> None:
-    """Add world b's rewards of this tick to the event's and, discounted by the ticks since each robot's
-    activation, to its macro-action's."""
+    """Move world b's rewards of this tick into the event's and, discounted by the ticks since each
+    robot's activation, into its macro-action's (``tick_rewards`` is zero again for the next tick)."""
     for i in range(tick_rewards.shape[1]):
         r = tick_rewards[b, i]
         event_rewards[b, i] += r
         ma_rewards[b, i] += r * gamma ** mstate[b, i, M_ELAPSED]
+        tick_rewards[b, i] = 0.0
 
 
 @njit(cache=True, nogil=True)  # threads=: chunks of worlds run at once
@@ -151,26 +171,20 @@ def advance(
     step_r, coll_r = rules.step_reward, rules.collision_penalty
     find_r, rescue_r = rules.find_reward, rules.rescue_reward
     view_offsets, view_blockers, ray_nblock = rules.view_offsets, rules.view_blockers, rules.ray_nblock
-    noisy = noise > 0.0
-    n, h, w = pos.shape[1], belief.shape[2], belief.shape[3]
-    blocked = np.zeros((h, w), np.bool_)
-    dist = np.empty(h * w, np.int64)
-    queue = np.empty(h * w, np.int64)
+    blocked = np.zeros(belief.shape[2:], np.bool_)  # the controller's scratch: its map, BFS distances, queue
+    dist = np.empty(blocked.size, np.int64)
+    queue = np.empty(blocked.size, np.int64)
     for b in range(live.shape[0]):
         terminated[b] = False
         truncated[b] = False
         event_ticks[b] = 0
         if not live[b]:
-            for i in range(n):
-                event_rewards[b, i] = 0.0
+            event_rewards[b, :] = 0.0
             continue
-        for i in range(n):
-            mstate[b, i, M_ACTIVE] = 0
-            event_rewards[b, i] = pending[b, i]  # the reset reward rides on the first step
-            ma_rewards[b, i] += pending[b, i]
-            pending[b, i] = 0.0
+        _open_event(b, mstate, pending, tick_rewards, event_rewards, ma_rewards)
         while True:
             t0 = ticks[b]
+            t1 = t0 + 1  # the tick this step reaches
             controller(
                 b,
                 t0,
@@ -179,7 +193,7 @@ def advance(
                 speed,
                 belief,
                 used_occ,
-                noisy,
+                noise > 0.0,
                 goal,
                 mstate,
                 rng,
@@ -188,14 +202,12 @@ def advance(
                 dist,
                 queue,
             )
-            for i in range(n):
-                tick_rewards[b, i] = 0.0
             move_robots(
                 b, t0, grid, pos, heading, speed, actions, step_r, coll_r, tick_rewards, moves, collisions
             )
             success = perceive(
                 b,
-                t0 + 1,
+                t1,
                 grid,
                 target,
                 pos,
@@ -218,25 +230,18 @@ def advance(
                 view_blockers,
                 ray_nblock,
             )
-            remember(
-                b, t0 + 1, pos, comp, belief, target, heard_tick, heard_pos, heard_knows, goal, heard_goal
-            )
-            ticks[b] = t0 + 1
+            remember(b, t1, pos, comp, belief, target, heard_tick, heard_pos, heard_knows, goal, heard_goal)
+            ticks[b] = t1
             event_ticks[b] += 1
             _credit_tick(b, tick_rewards, gamma, mstate, event_rewards, ma_rewards)
             end_macro_actions(b, pos, goal, target, belief, mstate, rng, max_ma, t_min, t_max)
-            if success:
-                terminated[b] = True
-                break
-            if t0 + 1 >= horizon:
-                truncated[b] = True
-                break
-            if activate(b, t0 + 1, comp, mstate, t_min, sync, max_ma):
-                break
+            terminated[b] = success
+            truncated[b] = not success and t1 >= horizon
+            done[b] = success or truncated[b]  # live worlds are those not done
+            if done[b] or activate(b, t1, comp, mstate, t_min, sync, max_ma):
+                break  # the episode ended, or some robot decides: a decision event
             if limit > 0 and event_ticks[b] >= limit:
                 break  # paused between events (rendering, tick-level inspection)
-        if terminated[b] or truncated[b]:
-            done[b] = True
 
 
 @njit(cache=True, inline="always")
