@@ -115,8 +115,16 @@ class RRT(Planner):
         h, w = ctx.explored.shape
         targets = np.empty((RRT_TARGETS, 2), np.int64)
         u = self.rng.random((RRT_ITERATIONS, 2))
-        n = grow_rrt(ctx.explored, ctx.occupied, float(ctx.own[0]), float(ctx.own[1]), u, RRT_STEP,
-                      RRT_TARGETS, targets)  # fmt: skip
+        n = grow_rrt(
+            ctx.explored,
+            ctx.occupied,
+            float(ctx.own[0]),
+            float(ctx.own[1]),
+            u,
+            RRT_STEP,
+            RRT_TARGETS,
+            targets,
+        )
         if n == 0:
             return None
         cells = np.zeros((h, w), bool)

@@ -213,9 +213,13 @@ class RayRolloutCollector:
         self._iter = iter(self._rc)
 
     def collect(
-        self, model: AMAT, first_episode: int, generator: torch.Generator | None = None,
-        deterministic: bool = False, labeler: None = None,
-    ) -> Rollout:  # fmt: skip
+        self,
+        model: AMAT,
+        first_episode: int,
+        generator: torch.Generator | None = None,
+        deterministic: bool = False,
+        labeler: None = None,
+    ) -> Rollout:
         """One episode per world (indices ``first_episode + b``) with ``model``'s current weights
         (``generator`` is unused: each worker seeds its own; no ``labeler``: TrainConfig refuses labels
         with Ray, the workers would need the planner)."""

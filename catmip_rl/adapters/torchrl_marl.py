@@ -54,8 +54,12 @@ def conv_trunk(channels: int, size: int | None, pool: int = 0) -> tuple[nn.Modul
     """(M, channels, S, S) -> (M, features): two stride-2 convolutions, then either flattened (``pool``
     0: the features depend on the map side ``size``, so the network plays that size only) or max-pooled
     to ``pool x pool`` (any map size: the size-agnostic baselines); returns (trunk, features)."""
-    layers = [nn.Conv2d(channels, 16, 3, stride=2, padding=1), nn.ReLU(),
-              nn.Conv2d(16, 32, 3, stride=2, padding=1), nn.ReLU()]  # fmt: skip
+    layers = [
+        nn.Conv2d(channels, 16, 3, stride=2, padding=1),
+        nn.ReLU(),
+        nn.Conv2d(16, 32, 3, stride=2, padding=1),
+        nn.ReLU(),
+    ]
     if pool:
         return nn.Sequential(*layers, nn.AdaptiveMaxPool2d(pool), nn.Flatten()), 32 * pool * pool
     return nn.Sequential(*layers, nn.Flatten()), 32 * math.ceil(math.ceil(size / 2) / 2) ** 2
@@ -77,8 +81,15 @@ class PolicyNet(nn.Module):
     """Per-robot action logits (..., A) from the robot's float global map (..., 5 + C, S, S), local map
     (..., 4 + C, L, L) and class one-hot (..., C)."""
 
-    def __init__(self, classes: int, local: int, actions: int, size: int | None = None, pool: int = 0,
-                 hidden: int = 128) -> None:  # fmt: skip
+    def __init__(
+        self,
+        classes: int,
+        local: int,
+        actions: int,
+        size: int | None = None,
+        pool: int = 0,
+        hidden: int = 128,
+    ) -> None:
         super().__init__()
         self.global_trunk, features = conv_trunk(5 + classes, size, pool)
         inputs = features + (4 + classes) * local * local + classes
@@ -99,8 +110,15 @@ class Critic(nn.Module):
     """Per-robot value (..., 1). ``centralised`` (MAPPO): from the ground-truth ``state`` (..., 4 + C, S, S)
     stacked on the robot's own global map; otherwise (IPPO) from the robot's own global and local maps."""
 
-    def __init__(self, classes: int, local: int, centralised: bool, size: int | None = None, pool: int = 0,
-                 hidden: int = 128) -> None:  # fmt: skip
+    def __init__(
+        self,
+        classes: int,
+        local: int,
+        centralised: bool,
+        size: int | None = None,
+        pool: int = 0,
+        hidden: int = 128,
+    ) -> None:
         super().__init__()
         self.centralised = centralised
         channels = (5 + classes) + ((4 + classes) if centralised else 0)

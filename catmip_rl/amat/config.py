@@ -15,8 +15,17 @@ __all__ = ["AmatConfig", "GOAL_KINDS", "CELL_MASKS", "CRITICS"]
 GOAL_KINDS = ("window", "cell")
 CELL_MASKS = ("known", "reachable")
 CRITICS = ("encoder", "state")
-LIMITS = {"window": 99, "local_size": 99, "pool": 64, "embed_dim": 8192, "n_heads": 128, "n_blocks": 64,
-          "n_classes": 64, "cell_channels": 4096, "cell_layers": 64}  # fmt: skip
+LIMITS = {
+    "window": 99,
+    "local_size": 99,
+    "pool": 64,
+    "embed_dim": 8192,
+    "n_heads": 128,
+    "n_blocks": 64,
+    "n_classes": 64,
+    "cell_channels": 4096,
+    "cell_layers": 64,
+}
 """The largest value of each size field (far above any trained model's)."""
 
 
@@ -69,8 +78,10 @@ class AmatConfig:
     def __post_init__(self) -> None:
         for name, most in LIMITS.items():  # bounded: a file cannot declare a model too large to count
             odd = name in ("window", "local_size")
-            rule = INT(f"{'that is odd and ' if odd else ''}from 1 to {most}",
-                       lambda v, most=most, odd=odd: 1 <= v <= most and (v % 2 or not odd))  # fmt: skip
+            rule = INT(
+                f"{'that is odd and ' if odd else ''}from 1 to {most}",
+                lambda v, most=most, odd=odd: 1 <= v <= most and (v % 2 or not odd),
+            )
             check("AmatConfig", name, getattr(self, name), rule)
         if self.embed_dim % self.n_heads:
             raise ValueError(f"embed_dim {self.embed_dim} is not divisible by n_heads {self.n_heads}")

@@ -16,9 +16,16 @@ from catmip_env.constants import OBS_SCALE  # uint8 macro-observations: float = 
 from catmip_rl.amat.kernels.small_attention import small_attention
 
 __all__ = [
-    "Attention", "MLP", "EncoderBlock", "DecoderBlock", "BlockCache", "linear", "layer_norm",
-    "stacked_linear", "as_float",
-]  # fmt: skip
+    "Attention",
+    "MLP",
+    "EncoderBlock",
+    "DecoderBlock",
+    "BlockCache",
+    "linear",
+    "layer_norm",
+    "stacked_linear",
+    "as_float",
+]
 
 
 def stacked_linear(layers: tuple[nn.Linear, ...]) -> tuple[torch.Tensor, torch.Tensor]:

@@ -99,9 +99,17 @@ class AMAT(nn.Module):
     def _activated_layers(self) -> set[nn.Module]:
         """Layers followed by an activation (directly or after a LayerNorm): initialised with gain sqrt(2)."""
         return {
-            self.global_conv, self.local_conv1, self.local_conv2, self.obs_fc1, self.obs_fc2, self.class_enc,
-            self.value_head[0], self.action_enc, self.dec_class_enc, self.policy_head[0],
-        }  # fmt: skip
+            self.global_conv,
+            self.local_conv1,
+            self.local_conv2,
+            self.obs_fc1,
+            self.obs_fc2,
+            self.class_enc,
+            self.value_head[0],
+            self.action_enc,
+            self.dec_class_enc,
+            self.policy_head[0],
+        }
 
     def _init_weights(self) -> None:
         """Orthogonal weights, zero biases; gain sqrt(2) for layers followed by an activation (directly

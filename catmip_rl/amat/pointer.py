@@ -105,10 +105,19 @@ class PointerAMAT(AMAT):
 
     def _activated_layers(self) -> set[nn.Module]:
         return {
-            self.global_conv, self.local_conv1, self.local_conv2, self.obs_fc1, self.obs_fc2, self.class_enc,
-            self.value_head[0], self.prev_enc, self.dec_class_enc, self.query[0], self.cell_in,
+            self.global_conv,
+            self.local_conv1,
+            self.local_conv2,
+            self.obs_fc1,
+            self.obs_fc2,
+            self.class_enc,
+            self.value_head[0],
+            self.prev_enc,
+            self.dec_class_enc,
+            self.query[0],
+            self.cell_in,
             *self.cell_convs,
-        }  # fmt: skip
+        }
 
     # -- embedder and encoder ---------------------------------------------------------------------
     def embed(self, obs: dict[str, torch.Tensor]) -> Embedded:
@@ -127,9 +136,12 @@ class PointerAMAT(AMAT):
             )
         device = gmap.device
         cells = CellContext(
-            gmap, torch.from_numpy(pos).to(device), torch.from_numpy(dist).to(device), groups.long(),
+            gmap,
+            torch.from_numpy(pos).to(device),
+            torch.from_numpy(dist).to(device),
+            groups.long(),
             None if hint is None or not self.config.hint else hint.long(),
-        )  # fmt: skip
+        )
         return Embedded(super().embed(obs), cells)
 
     def encode(

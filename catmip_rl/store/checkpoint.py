@@ -32,10 +32,20 @@ from catmip_rl.store.model_files import (
 from catmip_rl.store.shipped import SHIPPED_DIR, model_file, resolve_model, shipped_models
 
 __all__ = [
-    "save_model", "load_model", "atomic_torch_save", "resolve_model", "shipped_models", "SHIPPED_DIR",
-    "resume_checkpoint", "initial_weights", "load_initial_weights", "export_model", "model_record",
-    "ModelPlay", "model_play",
-]  # fmt: skip
+    "save_model",
+    "load_model",
+    "atomic_torch_save",
+    "resolve_model",
+    "shipped_models",
+    "SHIPPED_DIR",
+    "resume_checkpoint",
+    "initial_weights",
+    "load_initial_weights",
+    "export_model",
+    "model_record",
+    "ModelPlay",
+    "model_play",
+]
 
 
 def atomic_torch_save(obj: Any, path: str | Path) -> Path:
@@ -116,8 +126,11 @@ def model_record(spec: str | Path) -> dict[str, Any]:
     blob = read_checkpoint(model_file(resolve_model(spec)))
     if is_training_checkpoint(blob):
         config = json.loads(blob["config"])
-        state = {"iteration": blob["iteration"], "episodes": blob["episodes"],
-                 "training_minutes": blob.get("elapsed_s", 0.0) / 60.0}  # fmt: skip
+        state = {
+            "iteration": blob["iteration"],
+            "episodes": blob["episodes"],
+            "training_minutes": blob.get("elapsed_s", 0.0) / 60.0,
+        }
     else:
         state = (blob.get("extra") if isinstance(blob, dict) else None) or {}
         config = state.get("train_config") or {}
@@ -128,8 +141,16 @@ def model_record(spec: str | Path) -> dict[str, Any]:
 
 
 # what a training checkpoint must hold to be resumed (save_training_checkpoint writes them all)
-_RESUME_KEYS = ("iteration", "episodes", "model", "optimizer", "value_norm", "generator", "torch_rng",
-                "config")  # fmt: skip
+_RESUME_KEYS = (
+    "iteration",
+    "episodes",
+    "model",
+    "optimizer",
+    "value_norm",
+    "generator",
+    "torch_rng",
+    "config",
+)
 
 
 def save_training_checkpoint(
@@ -286,8 +307,12 @@ def initial_weights(spec: str, config: AmatConfig) -> dict[str, Any]:
             "match, or start from another model"
         )
     if is_training_checkpoint(blob):
-        state = {"iteration": blob["iteration"], "training_minutes": blob.get("elapsed_s", 0.0) / 60.0,
-                 "init_from": _origin(path), "value_norm": blob["value_norm"]}  # fmt: skip
+        state = {
+            "iteration": blob["iteration"],
+            "training_minutes": blob.get("elapsed_s", 0.0) / 60.0,
+            "init_from": _origin(path),
+            "value_norm": blob["value_norm"],
+        }
     else:  # a model file; export_model's carry their run's state in extra
         state = blob.get("extra") or {}
     own = state.get("training_minutes")

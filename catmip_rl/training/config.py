@@ -39,20 +39,48 @@ PRECISIONS = ("fp32", "bf16", "auto")  # TrainConfig.precision (training.ppo res
 RELAY_PLANNERS = sorted(name for name, planner in PLANNERS.items() if issubclass(planner, Relay))
 # and each numeric field's range (seeds: torch's generators take 64-bit seeds)
 _RANGES: dict[str, tuple[str, Callable[[Any], bool]]] = {
-    **dict.fromkeys(("num_worlds", "iterations", "epochs", "minibatches", "threads", "update_processes",
-                     "eval_episodes", "warm_start_rounds", "warm_start_steps", "warm_start_batch",
-                     "ray_workers"), (">= 1", lambda v: v >= 1)),
+    **dict.fromkeys(
+        (
+            "num_worlds",
+            "iterations",
+            "epochs",
+            "minibatches",
+            "threads",
+            "update_processes",
+            "eval_episodes",
+            "warm_start_rounds",
+            "warm_start_steps",
+            "warm_start_batch",
+            "ray_workers",
+        ),
+        (">= 1", lambda v: v >= 1),
+    ),
     "warm_start_worlds": (">= 0", lambda v: v >= 0),
-    **dict.fromkeys(("micro_batch", "eval_every", "checkpoint_every", "value_warmup_iterations",
-                     "budget_minutes", "target_kl", "entropy_coef", "value_coef", "rescue_coef",
-                     "anchor_coef", "critic_lr", "warm_start_relay"),
-                    (">= 0", lambda v: v >= 0)),
-    **dict.fromkeys(("lr", "adam_eps", "clip", "value_clip", "huber_delta", "max_grad_norm", "warm_start_lr"),
-                    ("> 0", lambda v: v > 0)),
+    **dict.fromkeys(
+        (
+            "micro_batch",
+            "eval_every",
+            "checkpoint_every",
+            "value_warmup_iterations",
+            "budget_minutes",
+            "target_kl",
+            "entropy_coef",
+            "value_coef",
+            "rescue_coef",
+            "anchor_coef",
+            "critic_lr",
+            "warm_start_relay",
+        ),
+        (">= 0", lambda v: v >= 0),
+    ),
+    **dict.fromkeys(
+        ("lr", "adam_eps", "clip", "value_clip", "huber_delta", "max_grad_norm", "warm_start_lr"),
+        ("> 0", lambda v: v > 0),
+    ),
     **dict.fromkeys(("seed", "eval_seed"), (">= 0 and < 2**64", lambda v: 0 <= v < 2**64)),
     "gamma": ("in (0, 1]", lambda v: 0 < v <= 1),
     "lam": ("in [0, 1]", lambda v: 0 <= v <= 1),
-}  # fmt: skip
+}
 # and the string fields that take a few values only
 _VALUES: dict[str, Rule] = {
     "device": Rule("cpu, cuda or cuda:N", lambda v: is_str(v) and re.fullmatch(r"cpu|cuda(:\d+)?", v)),
@@ -153,7 +181,7 @@ class TrainConfig:
     """Weight of the value loss."""
     rescue_coef: float = 0.0
     """Weight of an auxiliary cross-entropy toward the planners' rescue rule (projected into the window)
-    for active rescuers that know the target (catmip_rl.training.imitation.RescueLabeler); 0 = the
+    for active rescuers that know the target (catmip_rl.training.labelers.RescueLabeler); 0 = the
     paper's loss. Collection then also labels those decisions."""
     rescue_heading: bool = True
     """Whether the rescue loss's label projects the way to the target into the window along the

@@ -151,8 +151,9 @@ class SampleBatch:
         return self.map(lambda v: v.to(device))
 
 
-def build_batch(r: Rollout, value_norm: ValueNorm, gamma: float, lam: float, n_classes: int,
-                device: torch.device) -> tuple[SampleBatch, dict[str, float]]:  # fmt: skip
+def build_batch(
+    r: Rollout, value_norm: ValueNorm, gamma: float, lam: float, n_classes: int, device: torch.device
+) -> tuple[SampleBatch, dict[str, float]]:
     """Async GAE on a rollout and the flat sample batch (rows = valid events), with ``samples`` (trainable
     robot decisions) and ``ppo/explained_variance`` (of the returns by the values that predicted them,
     1 - Var(R - V) / Var(R) over the trainable decisions; NaN with fewer than two)."""

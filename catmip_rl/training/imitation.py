@@ -25,25 +25,17 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
-from catmip_env.constants import TARGET_BIT
-from catmip_env.events import EventEngine
-from catmip_env.planners.baselines import Relay, make_planner
-from catmip_env.planners.core import Planner
-from catmip_env.planners.window import WindowPlanner, make_window_planner
+from catmip_env.planners.baselines import Relay
 from catmip_env.play import Policy
 from catmip_rl.amat.inputs import one_hot_class
 from catmip_rl.amat.model import AMAT, INVALID_LOGIT
 from catmip_rl.store.files import open_csv_log, write_csv_row
 from catmip_rl.training.collect import Collector, Rollout
-from catmip_rl.training.config import TrainConfig
 from catmip_rl.training.gae import ValueNorm, async_gae
+from catmip_rl.training.labelers import make_teacher
 
 __all__ = [
     "DemoBuffer",
-    "RescueLabeler",
-    "PlannerLabeler",
-    "auxiliary_labeler",
-    "make_teacher",
     "imitation_loss",
     "dagger",
     "warm_start",
@@ -51,12 +43,26 @@ __all__ = [
 ]
 
 WARM_START_METRICS = [
-    "round", "episodes", "beta", "buffer_events", "rollout/success_rate", "rollout/success_by_100",
-    "imitation/loss", "imitation/accuracy", "imitation/outside_mask", "imitation/value_loss",
-    "imitation/relay_loss", "imitation/relay_accuracy",
-    "eval/success_rate", "eval/success_by_100", "eval/sampled_success_rate", "eval/sampled_success_by_100",
-    "time/collect_s", "time/update_s", "time/elapsed_min",
-]  # fmt: skip
+    "round",
+    "episodes",
+    "beta",
+    "buffer_events",
+    "rollout/success_rate",
+    "rollout/success_by_100",
+    "imitation/loss",
+    "imitation/accuracy",
+    "imitation/outside_mask",
+    "imitation/value_loss",
+    "imitation/relay_loss",
+    "imitation/relay_accuracy",
+    "eval/success_rate",
+    "eval/success_by_100",
+    "eval/sampled_success_rate",
+    "eval/sampled_success_by_100",
+    "time/collect_s",
+    "time/update_s",
+    "time/elapsed_min",
+]
 _KEYS = ("global_map", "local_map", "agent_class", "neighbourhood", "action_mask", "active", "order", "label")
 
 
@@ -86,9 +92,16 @@ class DemoBuffer:
         new["hint"] = r.hint[rows]  # the proposals of the model's AmatConfig.hint planner (-1: none)
         zeros = np.zeros(r.active.shape)
         _, ret, trainable = async_gae(
-            r.active, r.valid, zeros, r.ma_return, r.ma_ticks.astype(np.int64), r.final_return, r.terminated,
-            gamma, 1.0,
-        )  # fmt: skip
+            r.active,
+            r.valid,
+            zeros,
+            r.ma_return,
+            r.ma_ticks.astype(np.int64),
+            r.final_return,
+            r.terminated,
+            gamma,
+            1.0,
+        )
         new["value_target"], new["value_trainable"] = ret[rows].astype(np.float32), trainable[rows]
         if self.arrays is not None:
             new = {k: np.concatenate([self.arrays[k], v]) for k, v in new.items()}
@@ -101,68 +114,6 @@ class DemoBuffer:
         out = {k: torch.from_numpy(a[k][idx]) for k in a if k != "agent_class"}
         out["agent_class"] = one_hot_class(a["agent_class"][idx], n_classes)
         return {k: v.to(device) for k, v in out.items()}
-
-
-def make_teacher(
-    name: str, goals: str, seed: int = 0, follow_heading: bool = True
-) -> Planner | WindowPlanner:
-    """The teacher planner ``name`` for a model whose goals are ``goals`` (``AmatConfig.goals``): its goals
-    projected into the goal window ("window"; ``follow_heading=False``: along a heading-free path, see
-    :class:`~catmip_env.planners.window.WindowPlanner`), or the planner itself ("cell": the same action
-    space, nothing projected)."""
-    if goals == "window":
-        return make_window_planner(name, seed=seed, follow_heading=follow_heading)
-    return make_planner(name, seed=seed)
-
-
-@dataclass
-class RescueLabeler:
-    """``act(engine)`` -> (B, N) labels for PPO's auxiliary rescue loss (``TrainConfig.rescue_coef``):
-    the rescue rule's window action (the planners' shared rule, as ``teacher`` projects it:
-    :func:`auxiliary_labeler` gives ``window:nearest``, or ``window-noheading:nearest``) for every active
-    robot of a live world that can rescue and knows where the target is; -1 for every other robot. The
-    teacher runs only on events where such a robot decides."""
-
-    teacher: WindowPlanner
-
-    def act(self, engine: EventEngine) -> np.ndarray:
-        st = engine.state
-        b, n = np.nonzero(engine.active & ~st.done[:, None] & st.can_rescue)
-        knows = (st.belief[b, n, st.target[b, 0], st.target[b, 1]] & TARGET_BIT) != 0
-        out = np.full(engine.active.shape, -1, np.int64)
-        if knows.any():
-            b, n = b[knows], n[knows]
-            out[b, n] = self.teacher.act(engine)[b, n]
-        return out
-
-
-@dataclass
-class PlannerLabeler:
-    """``act(engine)`` -> (B, N) labels for PPO's anchor loss (``TrainConfig.anchor``): the planner's
-    (``teacher``'s) own cell goal for every active robot of a live world, -1 for every other robot; with
-    ``relay_only`` (``anchor_on="relay"``) only where the teacher's relay rule chose (``planners.Relay``)."""
-
-    teacher: Planner
-    relay_only: bool = False
-
-    def act(self, engine: EventEngine) -> np.ndarray:
-        out = np.asarray(self.teacher.act(engine), np.int64).copy()
-        labelled = engine.active & ~engine.state.done[:, None]
-        if self.relay_only:
-            labelled &= self.teacher.relayed
-        out[~labelled] = -1
-        return out
-
-
-def auxiliary_labeler(cfg: TrainConfig) -> RescueLabeler | PlannerLabeler | None:
-    """The labeler of PPO's auxiliary loss of ``cfg``: the rescue rule as ``window:nearest`` projects it
-    (``rescue_coef`` > 0; ``window-noheading:nearest`` without ``rescue_heading``), or the planner
-    ``anchor`` itself (seeded by the run's seed); None without either."""
-    if cfg.rescue_coef > 0:
-        return RescueLabeler(make_window_planner("nearest", follow_heading=cfg.rescue_heading))
-    if cfg.anchor:
-        return PlannerLabeler(make_planner(cfg.anchor, seed=cfg.seed), relay_only=cfg.anchor_on == "relay")
-    return None
 
 
 def imitation_loss(
@@ -278,10 +229,19 @@ def dagger(
         t1 = time.perf_counter()
         model.train()
         steps = [
-            _imitation_step(model, opt, buffers[k % len(buffers)], rng, batch_events, skip, value_norm,
-                            relay_weight, max_grad_norm)
+            _imitation_step(
+                model,
+                opt,
+                buffers[k % len(buffers)],
+                rng,
+                batch_events,
+                skip,
+                value_norm,
+                relay_weight,
+                max_grad_norm,
+            )
             for k in range(steps_per_round)
-        ]  # fmt: skip
+        ]
         keys = ["imitation/loss", "imitation/accuracy", "imitation/outside_mask"]
         keys += ["imitation/value_loss"] if value_norm is not None else []
         means = {k: sum(st.get(k, 0.0) for st in steps) / steps_per_round for k in keys}
@@ -371,8 +331,10 @@ def warm_start(
         row["time/elapsed_min"] = elapsed / 60.0
         if evaluate is not None:
             ev = evaluate()
-            row |= {f"eval/{k}": ev[k] for k in ("success_rate", "success_by_100", "sampled_success_rate",
-                                                 "sampled_success_by_100")}  # fmt: skip
+            row |= {
+                f"eval/{k}": ev[k]
+                for k in ("success_rate", "success_by_100", "sampled_success_rate", "sampled_success_by_100")
+            }
         write_csv_row(writer, file, row)
         if log_scalars is not None:
             log_scalars({f"warm_start/{k}": v for k, v in row.items()}, row["round"], "warm_start/round")
@@ -383,12 +345,22 @@ def warm_start(
 
     try:
         dagger(
-            model, collector, teacher, cfg.warm_start_rounds, cfg.warm_start_steps,
-            batch_events=cfg.warm_start_batch, lr=cfg.warm_start_lr, generator=gen, seed=cfg.seed,
-            max_grad_norm=cfg.max_grad_norm, on_round=on_round, imitate_stay=cfg.warm_start_stay,
-            value_norm=value_norm if cfg.warm_start_value else None, gamma=cfg.gamma,
+            model,
+            collector,
+            teacher,
+            cfg.warm_start_rounds,
+            cfg.warm_start_steps,
+            batch_events=cfg.warm_start_batch,
+            lr=cfg.warm_start_lr,
+            generator=gen,
+            seed=cfg.seed,
+            max_grad_norm=cfg.max_grad_norm,
+            on_round=on_round,
+            imitate_stay=cfg.warm_start_stay,
+            value_norm=value_norm if cfg.warm_start_value else None,
+            gamma=cfg.gamma,
             relay_weight=cfg.warm_start_relay,
-        )  # fmt: skip
+        )
     finally:
         file.close()
         if bar is not None:

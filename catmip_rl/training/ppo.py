@@ -37,10 +37,20 @@ from catmip_rl.training.config import PRECISIONS, TrainConfig
 from catmip_rl.training.gae import SampleBatch
 
 __all__ = [
-    "ppo_loss", "accumulate_gradients", "make_optimizer", "set_lr", "critic_prefix", "loss_kwargs",
-    "ppo_update", "lr_factor",
-    "measure_bf16", "choose_bf16", "native_bf16", "precision_machine", "use_bf16",
-]  # fmt: skip
+    "ppo_loss",
+    "accumulate_gradients",
+    "make_optimizer",
+    "set_lr",
+    "critic_prefix",
+    "loss_kwargs",
+    "ppo_update",
+    "lr_factor",
+    "measure_bf16",
+    "choose_bf16",
+    "native_bf16",
+    "precision_machine",
+    "use_bf16",
+]
 
 
 def huber(x: torch.Tensor, delta: float) -> torch.Tensor:
@@ -157,11 +167,14 @@ def loss_kwargs(cfg: TrainConfig, bf16: bool | None = None) -> dict[str, float |
     """The config's ``accumulate_gradients`` arguments: ``ppo_loss`` coefficients and bf16 autocast
     (``bf16``, or ``cfg.precision`` resolved by the CPU's flags; ``train`` measures "auto")."""
     return {
-        "clip": cfg.clip, "value_clip": cfg.value_clip, "huber_delta": cfg.huber_delta,
-        "entropy_coef": cfg.entropy_coef, "value_coef": cfg.value_coef,
+        "clip": cfg.clip,
+        "value_clip": cfg.value_clip,
+        "huber_delta": cfg.huber_delta,
+        "entropy_coef": cfg.entropy_coef,
+        "value_coef": cfg.value_coef,
         "label_coef": cfg.rescue_coef or cfg.anchor_coef,  # the auxiliary label loss: rescue or anchor
         "bf16": use_bf16(cfg.precision, cfg.device) if bf16 is None else bf16,
-    }  # fmt: skip
+    }
 
 
 def ppo_update(

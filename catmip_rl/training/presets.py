@@ -13,8 +13,12 @@ __all__ = ["TRAIN_PRESETS", "FINE_TUNING_PRESETS", "make_train_config"]
 # "Step control"); ~2 s an iteration on one thread (~1 s once a warm start makes the KL target stop it)
 # what the Task-1 experiments found (docs/notes/training-experiments.md): step control, and the warm start
 _STEP_CONTROL = {"epochs": 6, "minibatches": 4, "clip": 0.1, "target_kl": 0.01}
-_WARM_START = {"warm_start": "nearest", "warm_start_rounds": 12, "warm_start_steps": 300,
-               "value_warmup_iterations": 5}  # fmt: skip
+_WARM_START = {
+    "warm_start": "nearest",
+    "warm_start_rounds": 12,
+    "warm_start_steps": 300,
+    "value_warmup_iterations": 5,
+}
 _EVAL_64 = {"eval_episodes": 64, "eval_seed": 2025}
 _COMMS = [None, 4, 2]  # communication drawn per episode: full, sigma = 4, sigma = 2
 

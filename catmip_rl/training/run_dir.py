@@ -22,9 +22,15 @@ from catmip_rl.store.outputs import OutputInUse, OutputLock, first_missing, remo
 from catmip_rl.training.config import TrainConfig
 
 __all__ = [
-    "RunDirInUse", "RunDirLock", "LOCK_NAME", "check_run", "first_missing", "remove_run_files",
-    "stopped_note", "tensorboard_writer",
-]  # fmt: skip
+    "RunDirInUse",
+    "RunDirLock",
+    "LOCK_NAME",
+    "check_run",
+    "first_missing",
+    "remove_run_files",
+    "stopped_note",
+    "tensorboard_writer",
+]
 
 LOCK_NAME = ".lock"
 """The file in a run dir that its live run holds locked (and names itself in)."""
@@ -41,9 +47,12 @@ class RunDirLock(OutputLock):
     if the run dir existed), and ``release(undo=True)`` removes what acquiring added."""
 
     def __init__(self, run_dir: str | Path) -> None:
-        super().__init__(Path(run_dir) / LOCK_NAME, f"run dir {run_dir}",
-                         "wait for that run to end or stop it (its checkpoints resume with --resume)",
-                         keep_file=True)  # fmt: skip
+        super().__init__(
+            Path(run_dir) / LOCK_NAME,
+            f"run dir {run_dir}",
+            "wait for that run to end or stop it (its checkpoints resume with --resume)",
+            keep_file=True,
+        )
         self.created: Path | None = None
         self._new_file = False
 
@@ -150,9 +159,15 @@ def _check_own_checkpoint(run_dir: Path, saved: TrainConfig) -> None:
     except (OSError, ValueError, TypeError, KeyError) as err:
         why = " ".join(str(err).split())
         raise ValueError(f"--resume: {path} is not a training config ({why})") from None
-    differs = [what for what, a, b in (("model", own.amat_config(), saved.amat_config()),
-                                       ("task", own.env_config(), saved.env_config()),
-                                       ("seed", own.seed, saved.seed)) if a != b]  # fmt: skip
+    differs = [
+        what
+        for what, a, b in (
+            ("model", own.amat_config(), saved.amat_config()),
+            ("task", own.env_config(), saved.env_config()),
+            ("seed", own.seed, saved.seed),
+        )
+        if a != b
+    ]
     if differs:
         raise ValueError(
             f"--resume: checkpoints/latest.pt in {run_dir} is another run's (its {' and '.join(differs)} "

@@ -18,7 +18,6 @@ metrics go to ``RUN_DIR/metrics.csv`` (per-epoch PPO statistics to ``ppo_epochs.
 from __future__ import annotations
 
 import json
-import math
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -30,12 +29,13 @@ from catmip_env.config import EnvConfig
 from catmip_rl.amat.model import AMAT
 from catmip_rl.amat.pointer import make_model
 from catmip_rl.store.checkpoint import load_initial_weights, restore_training, save_training_checkpoint
-from catmip_rl.store.files import atomic_write_text, open_csv_log, write_csv_row
+from catmip_rl.store.files import atomic_write_text
 from catmip_rl.training.allocator import keep_freed_memory
 from catmip_rl.training.collect import Collector, Rollout
 from catmip_rl.training.config import TrainConfig
 from catmip_rl.training.gae import ValueNorm, build_batch
-from catmip_rl.training.imitation import PlannerLabeler, RescueLabeler, auxiliary_labeler, warm_start
+from catmip_rl.training.imitation import warm_start
+from catmip_rl.training.labelers import PlannerLabeler, RescueLabeler, auxiliary_labeler
 from catmip_rl.training.parallel_update import ParallelGradients
 from catmip_rl.training.ppo import (
     choose_bf16,
@@ -51,33 +51,17 @@ from catmip_rl.training.run_dir import (
     check_run,
     remove_run_files,
     stopped_note,
-    tensorboard_writer,
 )
+from catmip_rl.training.run_logs import METRICS, RunLogs, progress_bar, show_progress
 
 __all__ = [
-    "train", "evaluate_policy", "Run", "build_run", "make_collectors", "ppo_iteration",
-    "METRICS", "EPOCH_METRICS",
-]  # fmt: skip
-
-METRICS = [
-    "iteration", "episodes", "samples",
-    "rollout/success_rate", "rollout/success_by_100", "rollout/mean_rescue_tick", "rollout/target_found_rate",
-    "rollout/mean_target_found_tick",
-    "rollout/mean_explored_fraction", "rollout/mean_episode_ticks", "rollout/return_rescuer",
-    "rollout/return_explorer",
-    "rollout/decisions_per_episode", "rollout/stalls_per_episode", "rollout/stall_fraction_rescuer",
-    "rollout/stall_fraction_explorer", "rollout/world",
-    "loss/policy", "loss/value", "loss/entropy", "loss/rescue",
-    "ppo/approx_kl", "ppo/clip_fraction", "ppo/grad_norm", "ppo/lr", "ppo/epochs", "ppo/early_stop",
-    "ppo/bf16", "ppo/explained_variance",
-    "eval/success_rate", "eval/success_by_100", "eval/mean_rescue_tick", "eval/mean_target_found_tick",
-    "eval/mean_explored_fraction", "eval/decisions_per_episode", "eval/stalls_per_episode",
-    "eval/stall_fraction_rescuer", "eval/stall_fraction_explorer",
-    "eval/sampled_success_rate", "eval/sampled_success_by_100",
-    "time/collect_s", "time/advantage_s", "time/update_s", "time/iteration_s", "time/elapsed_min",
-]  # fmt: skip
-EPOCH_METRICS = ["iteration", "epoch", "loss/policy", "loss/value", "loss/entropy", "ppo/approx_kl",
-                 "ppo/clip_fraction"]  # fmt: skip
+    "train",
+    "evaluate_policy",
+    "Run",
+    "build_run",
+    "make_collectors",
+    "ppo_iteration",
+]
 
 
 @torch.no_grad()
@@ -143,10 +127,18 @@ class Run:
     def save(self, path: Path) -> None:
         machine = None if self.bf16 is None else precision_machine(self.cfg.device)  # where bf16 was chosen
         save_training_checkpoint(
-            path, iteration=self.iteration, episodes=self.episodes, elapsed_s=self.elapsed, bf16=self.bf16,
-            bf16_machine=machine, model=self.model, optimizer=self.opt, value_norm=self.value_norm,
-            generator=self.gen, config=self.cfg,
-        )  # fmt: skip
+            path,
+            iteration=self.iteration,
+            episodes=self.episodes,
+            elapsed_s=self.elapsed,
+            bf16=self.bf16,
+            bf16_machine=machine,
+            model=self.model,
+            optimizer=self.opt,
+            value_norm=self.value_norm,
+            generator=self.gen,
+            config=self.cfg,
+        )
 
     def out_of_time(self) -> bool:
         """Whether the time budget (``cfg.budget_minutes`` of training, evaluation excluded) is spent."""
@@ -234,9 +226,16 @@ def ppo_iteration(run: Run, run_dir: Path) -> tuple[dict[str, float], list[dict[
     epochs: list[dict[str, float]] = []
     value_only = it <= cfg.value_warmup_iterations
     stats = ppo_update(
-        run.model, run.opt, batch, cfg, run.gen,
-        parallel=run.parallel, epoch_log=epochs, value_only=value_only, bf16=run.bf16,
-    )  # fmt: skip
+        run.model,
+        run.opt,
+        batch,
+        cfg,
+        run.gen,
+        parallel=run.parallel,
+        epoch_log=epochs,
+        value_only=value_only,
+        bf16=run.bf16,
+    )
     stats["ppo/lr"] = run.opt.param_groups[0]["lr"]
     stats["ppo/bf16"] = float(run.bf16)
     t3 = time.perf_counter()
@@ -249,39 +248,6 @@ def ppo_iteration(run: Run, run_dir: Path) -> tuple[dict[str, float], list[dict[
     row |= {"time/collect_s": t1 - t0, "time/advantage_s": t2 - t1, "time/update_s": t3 - t2}
     row["time/elapsed_min"] = run.elapsed / 60.0
     return row, epochs, rollout
-
-
-class _RunLogs:
-    """A run's logs: metrics.csv and ppo_epochs.csv (continued from the checkpoint on resume) and
-    TensorBoard (None without it), each opened by :meth:`open` in turn; :meth:`close` closes those open."""
-
-    def __init__(self) -> None:
-        self.csv_file = self.epoch_file = self.tb = None
-        self.csv_writer = self.epoch_writer = None
-
-    def open(self, run_dir: Path, start: int | None) -> None:
-        self.csv_file, self.csv_writer = open_csv_log(run_dir / "metrics.csv", METRICS, start)
-        self.epoch_file, self.epoch_writer = open_csv_log(run_dir / "ppo_epochs.csv", EPOCH_METRICS, start)
-        self.tb = tensorboard_writer(run_dir)
-
-    def scalars(self, row: dict, step: int, skip: str) -> None:
-        """The numbers of ``row`` (not NaN, not the column ``skip``) to TensorBoard at ``step``."""
-        if self.tb is not None:
-            for k, v in row.items():
-                if k != skip and isinstance(v, (int, float)) and not math.isnan(v):
-                    self.tb.add_scalar(k, v, step)
-
-    def write(self, it: int, row: dict, epochs: list[dict[str, float]]) -> None:
-        """PPO iteration ``it``'s metrics row and its epochs' statistics, to TensorBoard and the CSVs."""
-        self.scalars(row, it, "iteration")
-        write_csv_row(self.csv_writer, self.csv_file, row)
-        for e in epochs:
-            write_csv_row(self.epoch_writer, self.epoch_file, {"iteration": it} | e)
-
-    def close(self) -> None:
-        for log in (self.csv_file, self.epoch_file, self.tb):
-            if log is not None:
-                log.close()
 
 
 def _write_run_files(run: Run, run_dir: Path) -> None:
@@ -304,23 +270,6 @@ def _warm_start(run: Run, run_dir: Path, progress: bool, log_scalars) -> None:
     run.episodes = cfg.warm_start_rounds * per_round  # PPO's episodes follow the warm start's maps
 
 
-def _progress_bar(run: Run, progress: bool):
-    """A tqdm bar over the run's PPO iterations, from where it stands (None without ``progress``)."""
-    if not progress:
-        return None
-    from tqdm import tqdm
-
-    return tqdm(total=run.cfg.iterations, initial=run.iteration, desc="train", unit="it")
-
-
-def _show_progress(bar, row: dict) -> None:
-    bar.update(1)
-    bar.set_postfix(
-        success=f"{row.get('rollout/success_rate', 0):.2f}", kl=f"{row['ppo/approx_kl']:.4f}",
-        t=f"{row['time/iteration_s']:.1f}s",
-    )  # fmt: skip
-
-
 def train(cfg: TrainConfig, run_dir: str | Path, resume: bool = False, progress: bool = True) -> AMAT:
     """Run (or continue, with ``resume``) a training run in ``run_dir``; returns the model. The run holds
     ``run_dir`` while it lives (``run_dir.RunDirLock``: a second writer is refused); refusals
@@ -335,7 +284,7 @@ def train(cfg: TrainConfig, run_dir: str | Path, resume: bool = False, progress:
         lock.release(undo=True)  # a refused run leaves nothing behind
         raise
     created = lock.created  # a new run stopped before its first checkpoint removes its files
-    logs = _RunLogs()
+    logs = RunLogs()
     finished = False
 
     try:
@@ -349,7 +298,7 @@ def train(cfg: TrainConfig, run_dir: str | Path, resume: bool = False, progress:
         if cfg.warm_start and not resume:
             _warm_start(run, run_dir, progress, logs.scalars)
             run.checkpoint(ckpt_dir)
-        bar = _progress_bar(run, progress)
+        bar = progress_bar(cfg.iterations, run.iteration, progress)
 
         # -- the loop ------------------------------------------------------------------------------------
         while run.iteration < cfg.iterations:
@@ -363,7 +312,7 @@ def train(cfg: TrainConfig, run_dir: str | Path, resume: bool = False, progress:
                 row |= {f"eval/{k}": v for k, v in run.evaluate().items() if f"eval/{k}" in METRICS}
             row["time/iteration_s"] = time.perf_counter() - t0
             if bar is not None:
-                _show_progress(bar, row)
+                show_progress(bar, row)
             logs.write(it, row, epochs)
             if cfg.checkpoint_every and (it % cfg.checkpoint_every == 0 or last):
                 run.checkpoint(ckpt_dir)

@@ -22,9 +22,17 @@ import numpy as np
 from catmip_rl.amat.kernels.numba_ops import copy, fill, kernel
 
 __all__ = [
-    "RUN_MAX", "ConvWeights", "conv_weights", "ones_conv", "add_planes", "shared_base", "robot_conv",
-    "global_conv_all", "conv_rows", "max_pool",
-]  # fmt: skip
+    "RUN_MAX",
+    "ConvWeights",
+    "conv_weights",
+    "ones_conv",
+    "add_planes",
+    "shared_base",
+    "robot_conv",
+    "global_conv_all",
+    "conv_rows",
+    "max_pool",
+]
 
 _SHARED = 3  # global-map channels that robots with merged beliefs share: explored, occupied, target
 

@@ -16,9 +16,21 @@ import numpy as np
 from numba import njit
 
 __all__ = [
-    "kernel", "LN_EPS", "matvec", "linear", "layer_norm", "dot", "fill", "relu", "copy", "gelu", "add_ln",
-    "attend", "one_hot", "class_token",
-]  # fmt: skip
+    "kernel",
+    "LN_EPS",
+    "matvec",
+    "linear",
+    "layer_norm",
+    "dot",
+    "fill",
+    "relu",
+    "copy",
+    "gelu",
+    "add_ln",
+    "attend",
+    "one_hot",
+    "class_token",
+]
 
 kernel = njit(cache=True, error_model="numpy", fastmath={"reassoc", "contract", "nsz"})
 """The decorator of every FastAmat kernel. Reassociation lets LLVM vectorise reductions (no finite-math
@@ -125,10 +137,22 @@ def copy(out, x):
 
 # erf(z) ~ z P(z^2) / Q(z^2) on [-4, 4] (Eigen's single-precision rational; in float64 the error is
 # below 7e-8, less than torch's own float32 erf): branch-free, so the GELU loop vectorises.
-_ERF_P = (-1.60960333262415e-02, -2.95459980854025e-03, -7.34990630326855e-04, -5.69250639462346e-05,
-          -2.10102402082508e-06, 2.77068142495902e-08, -2.72614225801306e-10)  # fmt: skip
-_ERF_Q = (-1.42647390514189e-02, -7.37332916720468e-03, -1.68282697438203e-03, -2.13374055278905e-04,
-          -1.45660718464996e-05)  # fmt: skip
+_ERF_P = (
+    -1.60960333262415e-02,
+    -2.95459980854025e-03,
+    -7.34990630326855e-04,
+    -5.69250639462346e-05,
+    -2.10102402082508e-06,
+    2.77068142495902e-08,
+    -2.72614225801306e-10,
+)
+_ERF_Q = (
+    -1.42647390514189e-02,
+    -7.37332916720468e-03,
+    -1.68282697438203e-03,
+    -2.13374055278905e-04,
+    -1.45660718464996e-05,
+)
 
 
 @kernel

@@ -12,7 +12,7 @@ from catmip_rl.adapters import keys as K
 from catmip_rl.adapters.torchrl_actor import AmatActor, AmatCritic
 from catmip_rl.amat.config import AmatConfig
 from catmip_rl.amat.model import AMAT
-from catmip_rl.amat.onboard.execution import decide_by_neighbourhood, message_bytes
+from catmip_rl.amat.onboard.neighbourhoods import decide_by_neighbourhood, message_bytes
 from catmip_rl.store.checkpoint import load_model, save_model
 from tests.rl.helpers import shaken_model
 

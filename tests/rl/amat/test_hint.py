@@ -20,7 +20,8 @@ from catmip_rl.amat.pointer import make_model
 from catmip_rl.amat.weights import with_hint
 from catmip_rl.store.checkpoint import initial_weights, save_model
 from catmip_rl.training.collect import Collector
-from catmip_rl.training.imitation import DemoBuffer, PlannerLabeler, imitation_loss
+from catmip_rl.training.imitation import DemoBuffer, imitation_loss
+from catmip_rl.training.labelers import PlannerLabeler
 from catmip_rl.training.presets import make_train_config
 from catmip_rl.training.train import build_run, ppo_iteration
 from tests.rl.amat.test_pointer import CFG, engine_midway, observation

@@ -14,7 +14,8 @@ from catmip_env.events import EventEngine
 from catmip_env.map_sets import map_hash
 from catmip_rl import AMAT, AmatConfig, save_model
 from catmip_rl.amat.model import decision_order
-from catmip_rl.amat.onboard.execution import GOAL_BYTES, AmatExecutor, message_bytes
+from catmip_rl.amat.onboard.execution import AmatExecutor
+from catmip_rl.amat.onboard.neighbourhoods import GOAL_BYTES, message_bytes
 from catmip_rl.benchmark.paper import FIGURES, run_figure, summary_cell
 from catmip_rl.cli.main import main as cli
 from catmip_rl.cli.render import render_episode

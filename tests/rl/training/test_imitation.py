@@ -13,7 +13,8 @@ from catmip_env.planners.window import make_window_planner
 from catmip_rl.amat.config import AmatConfig
 from catmip_rl.amat.model import AMAT
 from catmip_rl.training.collect import Collector
-from catmip_rl.training.imitation import DemoBuffer, RescueLabeler, dagger, imitation_loss
+from catmip_rl.training.imitation import DemoBuffer, dagger, imitation_loss
+from catmip_rl.training.labelers import RescueLabeler
 from catmip_rl.training.presets import make_train_config
 from catmip_rl.training.train import build_run, train
 
@@ -114,7 +115,7 @@ def test_stay_labels_can_be_left_unscored():
 
 
 def test_the_heading_free_teacher_labels_the_warm_start(tmp_path, monkeypatch):
-    import catmip_rl.training.imitation as imitation
+    import catmip_rl.training.labelers as labelers
 
     made = []
 
@@ -122,7 +123,7 @@ def test_the_heading_free_teacher_labels_the_warm_start(tmp_path, monkeypatch):
         made.append((name, follow_heading))
         return make_window_planner(name, seed=seed, follow_heading=follow_heading)
 
-    monkeypatch.setattr(imitation, "make_window_planner", recording)
+    monkeypatch.setattr(labelers, "make_window_planner", recording)
     for follow in (True, False):
         cfg = make_train_config("tiny", warm_start="rrt", warm_start_heading=follow, warm_start_rounds=1,
                                 warm_start_steps=1, iterations=1, eval_every=0)  # fmt: skip

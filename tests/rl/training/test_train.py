@@ -11,7 +11,8 @@ from catmip_rl.cli.main import main as cli
 from catmip_rl.store.checkpoint import load_model
 from catmip_rl.training.config import TrainConfig
 from catmip_rl.training.presets import make_train_config
-from catmip_rl.training.train import METRICS, train
+from catmip_rl.training.run_logs import METRICS
+from catmip_rl.training.train import train
 
 RECORDS = Path(__file__).parents[3] / "run-records"
 RETIRED = Path(__file__).parents[3] / "docs" / "notes" / "retired-presets.json"
@@ -431,7 +432,7 @@ def test_the_anchor_labels_every_decision_with_the_planners_cell_and_trains(tmp_
 def test_an_anchor_on_the_relay_labels_only_the_decisions_its_relay_rule_made():
     """``anchor_on="relay"``: only an explorer that carries the news to a rescuer is labelled; the config
     refuses it with a planner that has no relay rule."""
-    from catmip_rl.training.imitation import auxiliary_labeler
+    from catmip_rl.training.labelers import auxiliary_labeler
     from tests.env.test_teammate_memory import _corridor
 
     amat = {"embed_dim": 16, "goals": "cell", "cell_channels": 8, "cell_layers": 2, "teammate_memory": True}
