@@ -165,10 +165,11 @@ def _did_you_mean(spec: str) -> str:
 def method_source(method: Method) -> dict[str, str] | None:
     """The file a method plays from and its SHA-256 (``{"file", "sha256"}``): an AMAT model file (a run
     dir's latest checkpoint) or a ``py:`` policy file; None for a planner, a module or an object."""
-    if method.kind == "amat":
+    source = parse_policy_source(method.target) if method.kind == "py" else None
+    if source is not None and source.is_file:
+        path = Path(source.source).expanduser()
+    elif method.kind == "amat":
         path = model_file(Path(method.target))
-    elif method.kind == "py" and parse_policy_source(method.target).is_file:
-        path = Path(parse_policy_source(method.target).source).expanduser()
     else:
         return None
     return {"file": str(path), "sha256": file_sha256(path)}
