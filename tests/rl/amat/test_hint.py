@@ -169,7 +169,7 @@ def test_imitation_and_ppo_read_the_hint(tmp_path):
     assert rollout.hint is not None and not torch.equal(bias, run.model.hint_bias.detach())
 
 
-def test_the_torchrl_actor_plays_a_model_with_a_hint_as_the_executor_does():
+def _actor_plays_as_the_executor(model, events=25, **env):
     """CatmipEnv(proposals=...) carries the proposals and the neighbourhoods: AmatActor, argmax, chooses
     the cells CellGoalExecutor chooses on the same maps, event by event."""
     from tensordict.nn import InteractionType, set_interaction_type
@@ -178,14 +178,13 @@ def test_the_torchrl_actor_plays_a_model_with_a_hint_as_the_executor_does():
     from catmip_rl.adapters.torchrl_actor import AmatActor
     from catmip_rl.adapters.torchrl_env import CatmipEnv
 
-    model = shaken_model(HINTED, scale=0.3)
-    env = CatmipEnv("task2", num_worlds=3, seed=4, goal_mode="cell", proposals="rrt-relay", comm_sigma=2.0)
+    env = CatmipEnv("task2", num_worlds=3, seed=4, goal_mode="cell", proposals=model.config.hint, **env)
     executor, eng = CellGoalExecutor(model), EventEngine(env.cfg, 3, seed=4, goal_mode="cell")
     actor = AmatActor(model)
     td = env.reset()
     eng.reset()
     with set_interaction_type(InteractionType.DETERMINISTIC):
-        for _ in range(25):
+        for _ in range(events):
             if eng.state.done.all():
                 break
             active = eng.active & ~eng.state.done[:, None]
@@ -195,6 +194,17 @@ def test_the_torchrl_actor_plays_a_model_with_a_hint_as_the_executor_does():
             assert (td.get(K.HINT).numpy()[active] >= 0).all()
             td = env.step(td)["next"]
             eng.step(theirs)
+
+
+def test_the_torchrl_actor_plays_a_model_with_a_hint_as_the_executor_does():
+    _actor_plays_as_the_executor(shaken_model(HINTED, scale=0.3), comm_sigma=2.0)
+
+
+def test_the_torchrl_actor_plays_the_shipped_amat_general():
+    from catmip_rl.store.checkpoint import load_model
+
+    model = load_model("general")  # reads rrt-relay-coord's proposals and the teammate memory
+    _actor_plays_as_the_executor(model, events=15, comm_sigma=2.0, **model.config.env_overrides())
 
 
 def test_a_model_with_a_hint_trains_with_the_ray_collector_config():
