@@ -98,6 +98,33 @@ def test_a_model_reading_a_planners_proposals_collects_and_trains_on_ray(ray_clu
 
 
 @pytest.mark.ray
+def test_the_shipped_amat_general_trains_on_ray(ray_cluster, tmp_path):
+    """amat:general's own recipe (general-coord: cell goals, teammate memory, rrt-relay-coord's
+    proposals) continues from the shipped weights on Ray workers, one small PPO iteration on Task 2."""
+    cfg = make_train_config(
+        "general-coord",
+        collector="ray",
+        ray_workers=2,
+        num_worlds=2,
+        iterations=1,
+        eval_every=0,
+        warm_start="",
+        anchor="",
+        anchor_coef=0.0,
+        worlds=[],
+        env_preset="task2",
+        env_overrides={"comm_sigma": 2.0},
+        init_from="general",
+        minibatches=1,
+        epochs=1,
+    )
+    model = train(cfg, tmp_path / "run", progress=False)
+    assert model.config.hint == "rrt-relay-coord" and model.config.teammate_memory
+    rows = list(csv.DictReader((tmp_path / "run" / "metrics.csv").open()))
+    assert len(rows) == 1 and float(rows[0]["samples"]) > 0
+
+
+@pytest.mark.ray
 def test_cli_ray_training_and_exact_resume(ray_cluster, tmp_path):
     run = tmp_path / "run"
     args = ["train", "--preset", "tiny", "--collector", "ray", "--ray-workers", "2", "--no-progress"]
