@@ -5,16 +5,15 @@ and play the best by the benchmark's objective (rescued by tick 100, then the re
     planner = RolloutPlanner(seed=0, candidates=4, samples=4, horizon=40, when="news")
     evaluate("rollout-coord", EvalSetting("task2", "2", 0.05), 100, seed, policy=planner)
 
-What a continuation knows: only what an engine-level policy is given (the team's beliefs, positions, goals,
-memories and macro state: ``catmip_rl.evaluation.user_policy.EngineView``), never the world's unseen truth.
-Its world is rebuilt from the union of the team's beliefs: explored cells as they were seen (occupied,
-clue, target); unexplored cells free (the planners' paths assume the same; the map generator's rooms and
-doors cannot be drawn conditioned on the part already seen, and i.i.d. obstacles would make maps the
-generator never makes); the target, unless some robot's belief holds it, resampled per sample among the
-unexplored interior cells that fit the clues (every known clue 8-adjacent to it, no explored free non-clue
-cell 8-adjacent to it), its free unexplored neighbours made clues. The dynamics (links, SLAM noise) draw
-from fresh streams. ``K`` candidates x ``S`` samples are the worlds of one :class:`EventEngine`; sample
-``s`` shares its target, dynamics stream and planner streams across the candidates (common random numbers).
+What a continuation knows: only what the deciding robot knows (its belief, which its neighbourhood
+shares; where it last heard of each other teammate and of its goal), never the world's unseen truth.
+Its world is rebuilt from that belief: explored cells as seen (occupied, clue, target); unexplored cells
+free (as the planners' paths assume; the generator's rooms cannot be drawn conditioned on the part seen);
+the target, unless the robot knows it, resampled per sample among the unexplored interior cells that fit
+the clues (every known clue 8-adjacent to it, no explored free non-clue cell 8-adjacent to it), its free
+unexplored neighbours made clues. The dynamics (links, SLAM noise) draw from fresh streams. ``K``
+candidates x ``S`` samples are the worlds of one :class:`EventEngine`; sample ``s`` shares its target,
+dynamics stream and planner streams across the candidates (common random numbers).
 
 When it searches (``when``): ``news`` (a teammate knows the target, no rescuer does: the news-to-rescuer
 phase), ``late`` (tick >= ``late_tick``, no rescuer knows it), ``both``, ``always`` (no rescuer knows it)
@@ -208,12 +207,12 @@ class RolloutPlanner(BASE):
         engine, b, i = ctx.engine, ctx.b, ctx.i
         k, s = len(cands), self.samples
         rng = self.search_rng(engine, b)
-        world = known_world(engine, b)
+        world = known_world(engine, b, i)
         sim = self._sim(engine.cfg, k * s)
         st, w = sim.state, engine.shape[1]
         seeds = rng.integers(2**63, size=s + 1)
         for m in range(k * s):  # sample m % s, candidate m // s
-            load(sim, m, engine, b, world, np.random.default_rng([seeds[m % s], 1]), m % s, seeds[m % s])
+            load(sim, m, engine, b, i, world, np.random.default_rng([seeds[m % s], 1]), m % s, seeds[m % s])
         sim.refresh()
         self.stats["sim_worlds"] += k * s
         base = BASE(seed=int(seeds[-1]) % 2**32)
@@ -256,19 +255,19 @@ def _knows(st, b: int) -> np.ndarray:
     return (st.belief[b, :, tr, tc] & TARGET_BIT) != 0
 
 
-def known_world(engine, b: int) -> dict:
-    """World ``b`` as the team knows it: the grid rebuilt from the union of its beliefs (unexplored cells
-    free, the outer ring wall), the target if a robot knows it, else the cells it may be in."""
+def known_world(engine, b: int, i: int) -> dict:
+    """World ``b`` as its robot ``i`` knows it: the grid rebuilt from its belief (what its neighbourhood
+    shares; unexplored cells free, the outer ring wall), the target if it knows it, else the cells it
+    may be in."""
     st = engine.state
-    bel = np.bitwise_or.reduce(np.asarray(st.belief[b]), axis=0)
+    bel = np.asarray(st.belief[b, i])
     explored = (bel & EXPLORED) != 0
     grid = np.zeros(bel.shape, np.uint8)
     grid[explored & ((bel & CLUE_BIT) != 0)] = CLUE
     grid[explored & ((bel & OCCUPIED) != 0)] = OBSTACLE
     grid[[0, -1], :] = WALL
     grid[:, [0, -1]] = WALL
-    knows = _knows(st, b)
-    target = (int(st.target[b, 0]), int(st.target[b, 1])) if knows.any() else None
+    target = (int(st.target[b, 0]), int(st.target[b, 1])) if _knows(st, b)[i] else None
     if target is not None:
         grid[target] = TARGET
         return {"grid": grid, "target": target, "cells": None}
@@ -281,16 +280,19 @@ def known_world(engine, b: int) -> dict:
         near = np.zeros_like(ok)
         near[r - 1 : r + 2, c - 1 : c + 2] = True
         ok &= near
-    ok[st.pos[b, :, 0], st.pos[b, :, 1]] = False
+    ok[st.pos[b, i, 0], st.pos[b, i, 1]] = False
     cells = np.argwhere(ok)
     if len(cells) == 0:  # beliefs that fit no cell (should not happen): any unexplored interior cell
         cells = np.argwhere(inner & ~explored)
     return {"grid": grid, "target": None, "cells": cells}
 
 
-def load(sim: EventEngine, m: int, engine, b: int, world: dict, rng, episode: int, dyn_seed: int) -> None:
-    """Write world ``b`` of ``engine`` (what its view shows) into world ``m`` of ``sim``, its target drawn
-    from ``rng`` unless known; ``episode`` keys the base planner's streams there."""
+def load(
+    sim: EventEngine, m: int, engine, b: int, i: int, world: dict, rng, episode: int, dyn_seed: int
+) -> None:
+    """World ``b`` of ``engine`` as its robot ``i`` knows it, into world ``m`` of ``sim`` (module docstring;
+    a teammate never heard of keeps its state: the team starts together); ``episode`` keys the base
+    planner's streams there."""
     st, src = sim.state, engine.state
     grid = world["grid"].copy()
     target = world["target"]
@@ -304,7 +306,12 @@ def load(sim: EventEngine, m: int, engine, b: int, world: dict, rng, episode: in
     st.target[m] = target
     for name in COPIED:
         getattr(st, name)[m] = getattr(src, name)[b]
-    known = _knows(src, b)
+    away = (np.asarray(src.comp[b]) != src.comp[b, i]) & (np.asarray(src.heard_tick[b, i]) >= 0)
+    st.pos[m, away], st.belief[m, away] = src.heard_pos[b, i, away], src.belief[b, i]
+    heard = src.heard_goal[b, i, away]  # the goal i heard each was heading for (none: where it was)
+    st.goal[m, away] = np.where(heard[:, :1] >= 0, heard, src.heard_pos[b, i, away])
+    mates = np.asarray(src.comp[b]) == src.comp[b, i]
+    known = _knows(src, b) & mates if _knows(src, b)[i] else np.zeros(mates.shape, bool)  # i's knowledge
     st.rng[m] = seed_state(np.random.SeedSequence([int(dyn_seed), 2]))
     st.used_occ[m if st.used_occ.shape[0] > 1 else 0] = 0
     st.moves[m] = st.collisions[m] = 0

@@ -8,7 +8,7 @@ from catmip_env import make_config
 from catmip_env.constants import CLUE, EXPLORED, FREE, TARGET
 from catmip_env.events import EventEngine
 from catmip_env.planners import make_planner
-from catmip_env.planners.rollout import RolloutPlanner, known_world
+from catmip_env.planners.rollout import RolloutPlanner, known_world, load
 
 SMALL = {"candidates": 3, "samples": 2, "horizon": 20}
 SIGMA2_NOISE = {"comm_sigma": 2.0, "slam_noise": 0.05}  # the setting of the pilot
@@ -94,12 +94,38 @@ def test_the_continuations_never_read_the_true_target():
         _moved_target(b, w)
     assert (a.state.target[unseen] != b.state.target[unseen]).any(axis=1).all()
     for w in unseen:
-        ka, kb = known_world(a, w), known_world(b, w)
-        assert (ka["grid"] == kb["grid"]).all() and (ka["cells"] == kb["cells"]).all()
+        for i in range(a.num_robots):
+            ka, kb = known_world(a, w, i), known_world(b, w, i)
+            assert (ka["grid"] == kb["grid"]).all() and (ka["cells"] == kb["cells"]).all()
     pa, pb = RolloutPlanner(seed=9, when="always", **SMALL), RolloutPlanner(seed=9, when="always", **SMALL)
     assert (pa.act(a) == pb.act(b)).all()
     assert pa.stats["searches"] == pb.stats["searches"] > 0
     assert pa.stats["changed"] == pb.stats["changed"]
+
+
+def test_a_continuation_reads_only_what_the_deciding_robot_knows():
+    """A robot's world is its own belief: what a teammate outside its neighbourhood saw since they last
+    talked does not enter it, and that teammate stands where the robot last heard of it."""
+    eng = _engine(worlds=4, comm_sigma=1.0)  # links rarely hold: neighbourhoods split early
+    eng.reset()
+    walker = make_planner("rrt-relay-coord", seed=3)
+    for _ in range(12):
+        eng.step(walker.act(eng))
+    st = eng.state
+    b, i, j = next(
+        (b, i, j)
+        for b in range(4)
+        for i in range(eng.num_robots)
+        for j in range(eng.num_robots)
+        if st.comp[b, i] != st.comp[b, j] and st.heard_tick[b, i, j] >= 0
+    )
+    world = known_world(eng, b, i)
+    seen_by_i = (st.belief[b, i] & EXPLORED) != 0
+    assert (world["grid"][1:-1, 1:-1][~seen_by_i[1:-1, 1:-1]] == FREE).all()  # the rest: unknown, free
+    sim = EventEngine(eng.cfg, 1, seed=0, goal_mode="cell", invalid_action="stay")
+    load(sim, 0, eng, b, i, world, np.random.default_rng(0), 0, 1)
+    assert (sim.state.pos[0, j] == st.heard_pos[b, i, j]).all()
+    assert (sim.state.belief[0, j] == st.belief[b, i]).all()
 
 
 def test_deterministic_per_seed_and_batch_invariant():
