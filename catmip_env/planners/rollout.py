@@ -310,8 +310,8 @@ def load(
     st.pos[m, away], st.belief[m, away] = src.heard_pos[b, i, away], src.belief[b, i]
     heard = src.heard_goal[b, i, away]  # the goal i heard each was heading for (none: where it was)
     st.goal[m, away] = np.where(heard[:, :1] >= 0, heard, src.heard_pos[b, i, away])
-    mates = np.asarray(src.comp[b]) == src.comp[b, i]
-    known = _knows(src, b) & mates if _knows(src, b)[i] else np.zeros(mates.shape, bool)  # i's knowledge
+    knows, mates = _knows(src, b), np.asarray(src.comp[b]) == src.comp[b, i]
+    known = knows & mates if knows[i] else np.zeros_like(knows)  # who knows it, as far as i knows
     st.rng[m] = seed_state(np.random.SeedSequence([int(dyn_seed), 2]))
     st.used_occ[m if st.used_occ.shape[0] > 1 else 0] = 0
     st.moves[m] = st.collisions[m] = 0

@@ -84,8 +84,9 @@ class CatmipEnv(EnvBase):
     (``"raise"`` or ``"stay"``), ``gamma`` (the engine's per-tick discount of macro-action returns;
     the per-event reward above is undiscounted), the torch device, ``proposals`` (a planner whose cell
     goal for each active robot ``"hint"`` carries, :class:`~catmip_env.planners.proposals.Proposals`:
-    what a cell-goal AMAT with ``AmatConfig.hint`` reads; "" none: −1 everywhere) and any ``EnvConfig``
-    field as a keyword.
+    what a cell-goal AMAT with ``AmatConfig.hint`` reads; "" none: −1 everywhere; a partial reset asks
+    the planner again for every world, so under auto-reset a world's later proposals may differ from
+    ``catmip eval``'s) and any ``EnvConfig`` field as a keyword.
 
     **Versions**: 2 — ``"neighbourhood"`` and ``"hint"``; 1 — group-level done flags, ``"state"``,
     ``group_map``; 0 — the macro-observations, mask, active flags, per-robot reward, ``event_ticks`` and
