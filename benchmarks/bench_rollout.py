@@ -70,6 +70,7 @@ def main() -> None:
             "s_per_episode": base_s / args.maps,
             "by_100": float(base_hit.mean()),
             "mean_rescue_tick": float(base_tick.mean()),
+            "ticks": base_tick.astype(int).tolist(),
         }
     ]
     print(f"base: {base_s / args.maps:.3f} s/episode, by tick 100 {base_hit.mean():.3f}", flush=True)
@@ -93,6 +94,9 @@ def main() -> None:
             "sim_worlds_per_search": st["sim_worlds"] / max(st["searches"], 1),
             "by_100": float(hit.mean()),
             "mean_rescue_tick": float(tick.mean()),
+            "rescuer_search_share": st["rescuer_searches"] / max(st["searches"], 1),
+            "rescuer_changed_share": st["rescuer_changed"] / max(st["changed"], 1),
+            "ticks": tick.astype(int).tolist(),  # per map: the paired differences can be pooled later
         }
         if args.paired:
             from catmip_rl.evaluation.stats import mcnemar_p, paired_difference

@@ -80,7 +80,8 @@ class RolloutPlanner(BASE):
             raise ValueError("candidates, samples and horizon must be >= 1")
         self.candidates, self.samples, self.horizon = int(candidates), int(samples), int(horizon)
         self.when, self.late_tick = when, int(late_tick)
-        self.stats = {"searches": 0, "changed": 0, "search_s": 0.0, "sim_worlds": 0}
+        counts = ("searches", "changed", "sim_worlds", "rescuer_searches", "rescuer_changed")
+        self.stats = {**dict.fromkeys(counts, 0), "search_s": 0.0}
         self._search_streams: dict[int, tuple[tuple[int, int], np.random.Generator]] = {}
         self._sims: dict[int, EventEngine] = {}
         self._decided: dict[int, np.ndarray] = {}
@@ -192,14 +193,12 @@ class RolloutPlanner(BASE):
     def _search(self, ctx, goal):
         t0 = time.perf_counter()
         cands = self.candidate_goals(ctx, goal, getattr(self, "_rrt_state", None))
-        if len(cands) > 1:
-            scores = self.score(ctx, cands)
-            best = int(np.argmax(scores))  # the first best: the base's goal on a tie
-            self.stats["changed"] += best != 0
-            goal = cands[best]
-        self.stats["searches"] += 1
+        best = int(np.argmax(self.score(ctx, cands))) if len(cands) > 1 else 0  # the first: base's on a tie
+        for kind in ("", "rescuer_") if ctx.can_rescue else ("",):  # rescuer_: a rescuer's decisions
+            self.stats[kind + "searches"] += 1
+            self.stats[kind + "changed"] += best != 0
         self.stats["search_s"] += time.perf_counter() - t0
-        return goal
+        return cands[best]
 
     def score(self, ctx, cands: list) -> np.ndarray:
         """(K,) the candidates' value: the share of samples rescued by tick 100, then (TIE_WEIGHT) the
