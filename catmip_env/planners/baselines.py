@@ -46,7 +46,7 @@ from catmip_env.constants import STEPS
 from catmip_env.events import EventEngine
 from catmip_env.kernels.comms import estimated_cells
 from catmip_env.planners.core import SQUARE, DecisionContext, Planner, distance_field
-from catmip_env.planners.rrt import grow_rrt
+from catmip_env.planners.rrt import cluster_goals, grow_rrt, label8
 
 __all__ = ["PLANNERS", "RRT", "RRTRelay", "RRTRelayCoord", "RRTRelayHeading", "Relay", "make_planner"]
 
@@ -112,43 +112,29 @@ class RRT(Planner):
     name = "rrt"
 
     def choose(self, ctx):
+        goals = self.cluster_goals(ctx, self.rng)
+        if len(goals) == 0:
+            return None
+        best = goals[int(np.argmax(goals[:, 2]))]  # the first best cluster
+        return int(best[0]), int(best[1])
+
+    def cluster_goals(self, ctx: DecisionContext, rng: np.random.Generator) -> np.ndarray:
+        """(K, 3) the goal (row, column) and score of each cluster of exploration targets of a tree grown
+        from ``rng``'s draws (``rrt.cluster_goals``; empty if none)."""
         h, w = ctx.explored.shape
         targets = np.empty((RRT_TARGETS, 2), np.int64)
-        u = self.rng.random((RRT_ITERATIONS, 2))
-        n = grow_rrt(
-            ctx.explored,
-            ctx.occupied,
-            float(ctx.own[0]),
-            float(ctx.own[1]),
-            u,
-            RRT_STEP,
-            RRT_TARGETS,
-            targets,
-        )
+        u = rng.random((RRT_ITERATIONS, 2))
+        own = float(ctx.own[0]), float(ctx.own[1])
+        n = grow_rrt(ctx.explored, ctx.occupied, *own, u, RRT_STEP, RRT_TARGETS, targets)
         if n == 0:
-            return None
+            return np.empty((0, 3))
         cells = np.zeros((h, w), bool)
         cells[targets[:n, 0], targets[:n, 1]] = True
-        labels, n_clusters = _label8(cells)
         counts = ctx.unexplored_counts() / float(SQUARE * SQUARE)
         crowding = self.crowding(ctx)
         if crowding is not None:
             counts = counts - crowding
-        reach = ctx.dist[ctx.dist >= 0]
-        far = max(int(reach.max()), 1)
-        best, best_score = None, -np.inf
-        for k in range(1, n_clusters + 1):
-            members = np.argwhere(labels == k)
-            ok = (ctx.dist[members[:, 0], members[:, 1]] >= 0) & ctx.valid[members[:, 0], members[:, 1]]
-            members = members[ok]
-            if len(members) == 0:
-                continue
-            centre = members.mean(axis=0)
-            m = members[np.argmin(((members - centre) ** 2).sum(axis=1))]
-            score = counts[m[0], m[1]] - ctx.dist[m[0], m[1]] / far
-            if score > best_score:
-                best, best_score = (int(m[0]), int(m[1])), score
-        return best
+        return cluster_goals(cells, counts, ctx.dist, ctx.valid)
 
     def crowding(self, ctx: DecisionContext) -> np.ndarray | None:
         """(H, W) what a cluster there loses to the robot's teammates (none: RRT ignores them)."""
@@ -252,32 +238,6 @@ class RRTRelayCoord(RRTRelayHeading):
         return CROWDING * out
 
 
-def _label8(mask: np.ndarray) -> tuple[np.ndarray, int]:
-    """8-connected component labels (1..K) of a bool mask."""
-    labels = np.zeros(mask.shape, np.int64)
-    k = 0
-    for r, c in np.argwhere(mask):
-        if labels[r, c]:
-            continue
-        k += 1
-        stack = [(r, c)]
-        labels[r, c] = k
-        while stack:
-            y, x = stack.pop()
-            for dy in (-1, 0, 1):
-                for dx in (-1, 0, 1):
-                    yy, xx = y + dy, x + dx
-                    if (
-                        0 <= yy < mask.shape[0]
-                        and 0 <= xx < mask.shape[1]
-                        and mask[yy, xx]
-                        and not labels[yy, xx]
-                    ):
-                        labels[yy, xx] = k
-                        stack.append((yy, xx))
-    return labels, k
-
-
 # -- APF --------------------------------------------------------------------------------------------
 
 
@@ -296,7 +256,7 @@ class APF(Planner):
         h, w = ctx.explored.shape
         cells = np.zeros((h, w), bool)
         cells[f[:, 0], f[:, 1]] = True
-        labels, n_clusters = _label8(cells)
+        labels, n_clusters = label8(cells)
         potential = np.zeros((h, w))
         for k in range(1, n_clusters + 1):
             members = np.argwhere(labels == k)

@@ -37,7 +37,6 @@ from catmip_env.kernels.bfs import bfs_from
 from catmip_env.kernels.comms import estimated_cells
 from catmip_env.kernels.rng import seed_state
 from catmip_env.planners.baselines import PLANNERS
-from catmip_env.planners.rrt import grow_rrt
 
 __all__ = ["RolloutPlanner", "WHEN", "rollout_coord", "known_world"]
 
@@ -46,8 +45,6 @@ WHEN = ("off", "news", "late", "both", "always")
 DEADLINE = 100  # the benchmark's tick: rescued by it first, then the rescue tick
 TIE_WEIGHT = 0.1  # weight of the mean rescue tick (/ horizon): below 1 / samples for samples <= 9
 REST_TICKS = 40  # a continuation's estimate of news + rescue after the target is found
-# RRT's parameters, as rrt-relay-coord grows its tree (tests check the ranking's head is its goal)
-RRT_STEP, RRT_ITERATIONS, RRT_TARGETS, SQUARE = 0.5, 10_000, 500, 15
 #: the state a continuation copies from the team's (the engine view's fields; the rest is rebuilt or drawn)
 COPIED = tuple(
     "pos heading cls speed can_rescue belief comp goal ticks comm_sigma heard_tick heard_pos heard_knows "
@@ -136,37 +133,9 @@ class RolloutPlanner(BASE):
         """RRT's cluster goals best first (the base's tree, from the same draws, and its scores)."""
         rng = np.random.Generator(type(self.rng.bit_generator)())
         rng.bit_generator.state = rrt_state
-        h, w = ctx.explored.shape
-        targets = np.empty((RRT_TARGETS, 2), np.int64)
-        u = rng.random((RRT_ITERATIONS, 2))
-        n = grow_rrt(
-            ctx.explored,
-            ctx.occupied,
-            float(ctx.own[0]),
-            float(ctx.own[1]),
-            u,
-            RRT_STEP,
-            RRT_TARGETS,
-            targets,
-        )
-        if n == 0:
-            return []
-        cells = np.zeros((h, w), bool)
-        cells[targets[:n, 0], targets[:n, 1]] = True
-        counts = ctx.unexplored_counts() / float(SQUARE * SQUARE)
-        crowding = self.crowding(ctx)
-        if crowding is not None:
-            counts = counts - crowding
-        far = max(int(ctx.dist[ctx.dist >= 0].max()), 1)
-        scored = []
-        for members in _clusters8(cells):
-            ok = (ctx.dist[members[:, 0], members[:, 1]] >= 0) & ctx.valid[members[:, 0], members[:, 1]]
-            members = members[ok]
-            if len(members):
-                m = members[np.argmin(((members - members.mean(axis=0)) ** 2).sum(axis=1))]
-                scored.append((counts[m[0], m[1]] - ctx.dist[m[0], m[1]] / far, (int(m[0]), int(m[1]))))
-        order = sorted(range(len(scored)), key=lambda k: -scored[k][0])  # stable: the first best, as RRT
-        return [scored[k][1] for k in order]
+        goals = self.cluster_goals(ctx, rng)
+        order = sorted(range(len(goals)), key=lambda k: -goals[k, 2])  # stable: the first best, as RRT
+        return [(int(goals[k, 0]), int(goals[k, 1])) for k in order]
 
     def meeting_goals(self, ctx) -> list:
         """The valid goal nearest to where each teammate of the other kind (rescuer for an explorer and
@@ -371,27 +340,6 @@ def _dilate8(mask: np.ndarray) -> np.ndarray:
     grown[:, 1:] |= out[:, :-1]
     grown[:, :-1] |= out[:, 1:]
     return grown
-
-
-def _clusters8(mask: np.ndarray) -> list[np.ndarray]:
-    """8-connected components of ``mask``, each (M, 2) cells in raster order, ordered by their first cell
-    in raster order (the labels of rrt-relay-coord's clustering)."""
-    seen = np.zeros(mask.shape, bool)
-    out = []
-    for r, c in np.argwhere(mask):
-        if seen[r, c]:
-            continue
-        seen[r, c], stack, members = True, [(r, c)], []
-        while stack:
-            y, x = stack.pop()
-            members.append((y, x))
-            for yy in range(max(y - 1, 0), min(y + 2, mask.shape[0])):
-                for xx in range(max(x - 1, 0), min(x + 2, mask.shape[1])):
-                    if mask[yy, xx] and not seen[yy, xx]:
-                        seen[yy, xx] = True
-                        stack.append((yy, xx))
-        out.append(np.array(sorted(members), np.int64))
-    return out
 
 
 def rollout_coord(cfg=None, seed: int = 0, **knobs) -> RolloutPlanner:

@@ -1,5 +1,6 @@
-"""The RRT planner's tree (``catmip_env.planners.RRT``): grown over a robot's known free space, it
-returns the cells of unexplored space that it reached (exploration targets)."""
+"""The RRT planner's kernels (``catmip_env.planners.RRT``): its tree, grown over a robot's known free space,
+returns the cells of unexplored space that it reached (exploration targets); those cells' 8-connected
+clusters (:func:`label8`, APF's too) and each cluster's goal and score (:func:`cluster_goals`)."""
 
 from __future__ import annotations
 
@@ -8,7 +9,7 @@ import math
 import numpy as np
 from numba import njit
 
-__all__ = ["grow_rrt"]
+__all__ = ["grow_rrt", "label8", "cluster_goals"]
 
 
 @njit(cache=True)
@@ -95,3 +96,66 @@ def _nearest_node(nodes, head, nxt, box, w, sr, sc):
             break
         ring += 1
     return best, best_d2
+
+
+@njit(cache=True)
+def label8(mask: np.ndarray) -> tuple[np.ndarray, int]:
+    """8-connected component labels (H, W) int64 (1..K, 0 outside ``mask``) and K, numbered in the raster
+    order of each component's first cell."""
+    h, w = mask.shape
+    labels = np.zeros((h, w), np.int64)
+    stack = np.empty(h * w, np.int64)
+    k = 0
+    for r in range(h):
+        for c in range(w):
+            if not mask[r, c] or labels[r, c]:
+                continue
+            k += 1
+            labels[r, c] = k
+            stack[0], top = r * w + c, 1
+            while top:
+                top -= 1
+                y, x = divmod(stack[top], w)
+                for yy in range(max(y - 1, 0), min(y + 2, h)):
+                    for xx in range(max(x - 1, 0), min(x + 2, w)):
+                        if mask[yy, xx] and not labels[yy, xx]:
+                            labels[yy, xx] = k
+                            stack[top] = yy * w + xx
+                            top += 1
+    return labels, k
+
+
+@njit(cache=True)
+def cluster_goals(cells: np.ndarray, counts: np.ndarray, dist: np.ndarray, valid: np.ndarray) -> np.ndarray:
+    """(K, 3) float64 (row, column, score) of the clusters of ``cells`` (:func:`label8`'s order) that hold a
+    reachable valid cell: of those cells, the one nearest their mean (the first in raster order on a tie),
+    scored ``counts`` there minus its path distance ``dist`` over the farthest reachable one's."""
+    h, w = cells.shape
+    labels, k = label8(cells)
+    far = 1
+    for r in range(h):
+        for c in range(w):
+            far = max(far, dist[r, c])
+    n, sr, sc = np.zeros(k + 1, np.int64), np.zeros(k + 1), np.zeros(k + 1)
+    for r in range(h):
+        for c in range(w):
+            if labels[r, c] and dist[r, c] >= 0 and valid[r, c]:
+                n[labels[r, c]] += 1
+                sr[labels[r, c]] += r
+                sc[labels[r, c]] += c
+    best, best_d2 = np.full(k + 1, -1, np.int64), np.full(k + 1, np.inf)
+    for r in range(h):
+        for c in range(w):
+            j = labels[r, c]
+            if j and dist[r, c] >= 0 and valid[r, c]:
+                d2 = (r - sr[j] / n[j]) ** 2 + (c - sc[j] / n[j]) ** 2
+                if d2 < best_d2[j]:
+                    best[j], best_d2[j] = r * w + c, d2
+    out = np.empty((k, 3))
+    m = 0
+    for j in range(1, k + 1):
+        if n[j]:
+            r, c = divmod(best[j], w)
+            out[m, 0], out[m, 1], out[m, 2] = r, c, counts[r, c] - dist[r, c] / far
+            m += 1
+    return out[:m]
