@@ -134,8 +134,8 @@ class RolloutPlanner(BASE):
         rng = np.random.Generator(type(self.rng.bit_generator)())
         rng.bit_generator.state = rrt_state
         goals = self.cluster_goals(ctx, rng)
-        order = sorted(range(len(goals)), key=lambda k: -goals[k, 2])  # stable: the first best, as RRT
-        return [(int(goals[k, 0]), int(goals[k, 1])) for k in order]
+        order = np.argsort(-goals[:, 2], kind="stable")  # stable: the first best, as RRT
+        return [(int(r), int(c)) for r, c in goals[order, :2]]
 
     def meeting_goals(self, ctx) -> list:
         """The valid goal nearest to where each teammate of the other kind (rescuer for an explorer and
