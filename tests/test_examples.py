@@ -207,6 +207,7 @@ def test_the_marl_baselines_factories_play_each_world_with_its_map_sizes_run():
     played = policies.mappo_s0(make_config("task2"), 0)
     saved = torch.load(ROOT / "run-records/marl-pool4/mappo-task2-s0/policy.pt", weights_only=True)
     weights = played.module.module[0].module.state_dict()  # the committed Task-2 run of seed 0
-    assert all(torch.equal(weights[k], v) for k, v in saved.items())
+    assert {str(v.dtype) for v in saved.values()} == {"torch.float16"}  # committed in half precision
+    assert all(torch.equal(weights[k], v.float()) for k, v in saved.items())  # played as float32
     with pytest.raises(WorldNotSupported, match="no ippo run is trained for 24x24 maps"):
         policies.ippo_s0(make_config("task1", map_size=24), 0)

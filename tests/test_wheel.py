@@ -83,7 +83,7 @@ def _check_archives(sdist: Path, wheel: Path) -> None:
     assert not any("__pycache__" in n or n.endswith((".nbi", ".nbc")) for n in files)
     assert f"Version: {version}\n" in metadata and "Classifier: Development Status :: 5" in metadata
     assert "Requires-Dist: torch" in metadata and "extra == " in metadata  # torch only with an extra
-    assert wheel.stat().st_size < 25e6  # 16.7 MB in 1.0.0, 16.2 MB of it the models
+    assert wheel.stat().st_size < 25e6  # 12.3 MB in 1.0.0, 11.9 MB of it the models
 
 
 @pytest.mark.slow
