@@ -23,15 +23,18 @@ from catmip_rl.evaluation.evaluate import evaluate, progress_bar
 from catmip_rl.evaluation.methods import parse_method
 from catmip_rl.store.shipped import file_sha256
 
-__all__ = ["replay_entry", "check_files"]
+__all__ = ["replay_entry", "check_files", "run_files"]
+
+
+def run_files(run: dict[str, Any]) -> list[dict[str, str]]:
+    """The files one training run of an entry plays, each ``{"file", "sha256"}``: its ``source`` (the model
+    or the policy file) and the ``files`` its policy names (its weights); a planner's run plays none."""
+    return [f for f in [run.get("source"), *(run.get("files") or [])] if f is not None]
 
 
 def check_files(entry: dict[str, Any], k: int) -> None:
     """EntryError unless every file run ``k`` of ``entry`` names is here with its recorded SHA-256."""
-    run = entry["runs"][k]
-    for f in [run.get("source"), *(run.get("files") or [])]:
-        if f is None:
-            continue
+    for f in run_files(entry["runs"][k]):
         path = Path(f["file"])
         where = f"entry {entry['path']}: run {k} plays {path}"
         if not path.is_file():

@@ -234,13 +234,14 @@ def test_a_committed_entry_that_names_a_file_in_the_clone_was_played_from_that_f
     a model moved or replaced (amat_general.pt) takes its entry along, not someone else's results."""
     from pathlib import Path
 
+    from catmip_rl.benchmark.replay import run_files
     from catmip_rl.store.shipped import file_sha256
 
     clone = Path(__file__).resolve().parents[3]
     checked = 0
     for entry in load_entries(clone / "leaderboard" / "entries"):
         for run in entry["runs"]:
-            for f in [run["source"], *(run.get("files") or [])] if run["source"] else run.get("files") or []:
+            for f in run_files(run):
                 if not Path(f["file"]).is_absolute():
                     assert (clone / f["file"]).is_file(), f"{entry['method']}: {f['file']}"
                     assert file_sha256(clone / f["file"]) == f["sha256"], f"{entry['method']}: {f['file']}"
