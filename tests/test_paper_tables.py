@@ -1,6 +1,7 @@
 """The figure tables of docs/notes/reproducing-figures.md and docs/tasks/ are the committed summaries
 (docs/figures/paper/figN_summary.csv), as ``docs/figures/paper_tables.py --update`` writes them, and the
-splice replaces only the figure's table."""
+splice replaces only the figure's table; the task pages' test-split tables are the leaderboard's
+entries, as ``docs/figures/test_tables.py --update`` writes them."""
 
 from __future__ import annotations
 
@@ -12,9 +13,9 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def _tables_module():
-    path = ROOT / "docs" / "figures" / "paper_tables.py"
-    spec = importlib.util.spec_from_file_location("paper_tables", path)
+def _tables_module(name: str = "paper_tables"):
+    path = ROOT / "docs" / "figures" / f"{name}.py"
+    spec = importlib.util.spec_from_file_location(name, path)
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     return module
@@ -51,3 +52,25 @@ def test_replace_table_changes_only_that_figures_table():
         tables.replace_table(text, 8, "| x |")
     with pytest.raises(ValueError, match="no table under"):
         tables.replace_table("### Figure 6\n\nno table\n\n### Figure 7\n\n| c |\n|---|\n", 6, "| x |")
+
+
+def test_the_task_pages_show_the_leaderboards_test_split():
+    """Every committed test-split entry is a row of Task 2's and Task 3's table, in the leaderboard's
+    order, with the numbers its rescue ticks give."""
+    tables = _tables_module("test_tables")
+    made = tables.tables()
+    for task in tables.TASKS:
+        text = (ROOT / "docs" / "tasks" / f"{task}.md").read_text()
+        assert tables.replace_test_table(text, made[task]) == text, f"{task}.md's test-split table is stale"
+        rows = made[task].splitlines()[2:]
+        assert len(rows) == len(list((ROOT / "leaderboard" / "entries").glob("*.json")))
+
+
+def test_replace_test_table_changes_only_the_test_splits_table():
+    tables = _tables_module("test_tables")
+    text = "**Test split** (maps):\n\n| a |\n|---|\n| 1 |\n\n**Validation split**\n\n| b |\n|---|\n"
+    assert tables.replace_test_table(text, "| a |\n|---|\n| 5 |") == text.replace("| 1 |", "| 5 |")
+    with pytest.raises(ValueError, match="no paragraph"):
+        tables.replace_test_table("| a |\n|---|\n| 1 |\n", "| x |")
+    with pytest.raises(ValueError, match="no table under"):
+        tables.replace_test_table("**Test split** none\n\n**Validation split**\n\n| b |\n|---|\n", "| x |")

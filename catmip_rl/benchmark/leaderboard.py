@@ -39,9 +39,11 @@ __all__ = [
     "paired_names",
     "render_leaderboard",
     "md_text",
+    "task_table",
 ]
 
 SHORT = {"full": "full", "4": "σ4", "2": "σ2"}  # column headings: T2 σ2 +n
+LONG = {"full": "full", "4": "σ = 4", "2": "σ = 2"}  # a task's table: σ = 2 + noise
 CLASS_COLOURS = {"planner": "tab:blue", "learned": "tab:green", "hybrid": "tab:purple", "floor": "tab:gray"}
 LEVEL_RESAMPLES = 4_000
 
@@ -224,6 +226,23 @@ def _markdown(rows: list[dict[str, Any]], episodes: int, split: str) -> str:
         if said:
             about.append(f"- **{md_text(r['method'])}** ({r['class']}): " + "; ".join(said))
     return "\n".join(lines + ([""] + about if about else [])) + "\n"
+
+
+def task_table(rows: list[dict[str, Any]], task: str) -> str:
+    """One task's Markdown table (``task2`` / ``task3``): a row per entry of :func:`leaderboard_rows`, in
+    its order, with the class, the method and success by tick 100 in each of the task's settings (the
+    test-split tables of the task pages, ``docs/figures/test_tables.py``)."""
+    settings = [st for st in SETTINGS if st.task == task]
+    if not settings:
+        tasks = sorted({st.task for st in SETTINGS})
+        raise ValueError(f"the suite has no {task!r} settings (its tasks: {', '.join(tasks)})")
+    head = ["class", "method", *(LONG[st.comm] + (" + noise" if st.noise else "") for st in settings)]
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for r in rows:
+        plain = re.fullmatch(r"[A-Za-z0-9_.:+-]+", r["method"])  # as code; any other name as plain text
+        name = f"`{r['method']}`" if plain else md_text(r["method"])
+        lines.append("| " + " | ".join([r["class"], name, *(f"{r[st.label]:.2f}" for st in settings)]) + " |")
+    return "\n".join(lines)
 
 
 def _figure(rows: list[dict[str, Any]], path: Path, episodes: int, split: str) -> Path:
