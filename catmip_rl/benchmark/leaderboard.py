@@ -7,6 +7,7 @@ of every setting and training run are played again from the files the entry name
 (:mod:`~catmip_rl.benchmark.replay`) and an entry whose ticks differ is refused. The table ranks the
 test split's entries by the IQM of success by tick 100; an entry level with the one above it (their
 paired difference over the settings has a 95 % CI that holds 0, :func:`level_with`) shares its rank.
+A validation table (``--split validation``, for choosing) orders its entries the same way but ranks none.
 Each row shows its class (planner, learned, hybrid, floor) and whether it was verified by replay.
 
 Every entry played the same maps, so any two compare map by map: :func:`paired_rows` (``catmip
@@ -46,6 +47,7 @@ SHORT = {"full": "full", "4": "σ4", "2": "σ2"}  # column headings: T2 σ2 +n
 LONG = {"full": "full", "4": "σ = 4", "2": "σ = 2"}  # a task's table: σ = 2 + noise
 CLASS_COLOURS = {"planner": "tab:blue", "learned": "tab:green", "hybrid": "tab:purple", "floor": "tab:gray"}
 LEVEL_RESAMPLES = 4_000
+RANKED_SPLIT = "test"  # a validation table orders its entries for choosing; only the test split ranks
 
 
 def _short(label: str) -> str:
@@ -189,14 +191,25 @@ def _verified(row: dict[str, Any]) -> str:
     return f"✓ {row['verified']} maps" if row["verified"] else "not replayed"
 
 
+def _rank(row: dict[str, Any], split: str) -> str:
+    """A row's rank on the test split; on the validation split "–" (its entries are not ranked)."""
+    return str(row["rank"]) if split == RANKED_SPLIT else "–"
+
+
 def _markdown(rows: list[dict[str, Any]], episodes: int, split: str) -> str:
     head = ["rank", "method", "class", "runs", "actions", "IQM by tick 100 [95 % CI]"]
     head += [_short(s.label) for s in SETTINGS] + ["verified"]
+    ranking = (
+        "A rank shared with the row above: the two are level (their paired difference over the settings "
+        "has a 95 % CI that holds 0)."
+        if split == RANKED_SPLIT
+        else f"Not ranked (–): the {split} split is for choosing; the leaderboard ranks the "
+        f"{RANKED_SPLIT} split's entries, each played once after every choice is frozen."
+    )
     lines = _page_head(
         f"CATMiP leaderboard, suite {SUITE} ({split} split)",
         f"Success by tick 100 on {_maps(episodes, split)}; the aggregate is the IQM over (training runs "
-        "× settings) with a 95 % CI over runs and maps. A rank shared with the row above: the two are "
-        "level (their paired difference over the settings has a 95 % CI that holds 0). Class: planner; "
+        f"× settings) with a 95 % CI over runs and maps. {ranking} Class: planner; "
         "learned (plays from its own observations); hybrid (reads a planner at play time); floor (no "
         "skill). T2/T3: Task 2 (20×20, 3 robots) / Task 3 (32×32, 6 robots); full / σ4 / σ2: "
         "communication; +n: 5 % SLAM noise. Every number is recomputed from the entry's rescue ticks; "
@@ -209,7 +222,7 @@ def _markdown(rows: list[dict[str, Any]], episodes: int, split: str) -> str:
         if r["code"]:
             method = f"[{method}](<{r['code']}>)"
         cells = [
-            str(r["rank"]),
+            _rank(r, split),
             method,
             r["class"],
             str(r["runs"]),
@@ -269,7 +282,11 @@ def _figure(rows: list[dict[str, Any]], path: Path, episodes: int, split: str) -
             capsize=5,
             capthick=1.5,
         )
-    labels = [f"{r['rank']}. {r['method'][:28]}" + (" ✓" if r["verified"] else "") for r in rows]
+    ranked = split == RANKED_SPLIT
+    labels = [
+        (f"{r['rank']}. " if ranked else "") + r["method"][:28] + (" ✓" if r["verified"] else "")
+        for r in rows
+    ]
     left.set_yticks(y, labels)
     for tick, r in zip(left.get_yticklabels(), rows):
         tick.set_color(CLASS_COLOURS[r["class"]])
@@ -298,7 +315,8 @@ def _figure(rows: list[dict[str, Any]], path: Path, episodes: int, split: str) -
     right.set_xticks(range(len(SETTINGS)), [_short(s.label) for s in SETTINGS], rotation=45, ha="right")
     fig.colorbar(image, ax=right, label="rescued by tick 100")
     verified = "; ✓ verified by replay" if any(r["verified"] for r in rows) else ""
-    fig.suptitle(f"CATMiP suite {SUITE}, {split} split: {episodes} maps per setting{verified}")
+    unranked = "" if ranked else " (not ranked: for choosing)"
+    fig.suptitle(f"CATMiP suite {SUITE}, {split} split{unranked}: {episodes} maps per setting{verified}")
     fig.tight_layout()
     return atomic_savefig(fig, path, dpi=150)
 

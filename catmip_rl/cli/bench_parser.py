@@ -136,7 +136,8 @@ def add_leaderboard(sub) -> None:
         "--split",
         choices=("test", "validation"),
         default="test",
-        help="the split whose entries are ranked (the leaderboard's: test)",
+        help="the split whose entries are checked: test (ranked: the leaderboard's) or validation "
+        "(ordered, not ranked: for choosing)",
     )
     lb.add_argument(
         "--replay",

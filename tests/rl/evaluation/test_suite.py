@@ -79,11 +79,9 @@ def test_a_users_policy_file_gives_an_entry_the_leaderboard_accepts(suite, capsy
     assert "is on the validation split; this leaderboard ranks the test split's" in capsys.readouterr().err
     assert main([*board, "--split", "validation", "--out", str(out / "lb")]) == 0
     md = (out / "lb" / "leaderboard.md").read_text()
-    assert (
-        "| 1 | [mine](<https://example.org/mine>) | learned |" in md
-        or "[mine](<https://example.org/mine>) | learned" in md
-    )
-    assert "| nearest | planner |" in md and "first allowed goal" in md and "(validation split)" in md
+    assert "| – | [mine](<https://example.org/mine>) | learned |" in md  # validation: ordered, not ranked
+    assert "| – | nearest | planner |" in md and "first allowed goal" in md and "(validation split)" in md
+    assert "Not ranked (–): the validation split is for choosing" in md
     assert md.count("not replayed") == 2
     assert (out / "lb" / "leaderboard.png").stat().st_size > 5000
     printed = capsys.readouterr().out
