@@ -71,8 +71,7 @@ def _train(args: argparse.Namespace) -> int:
     if not args.resume and args.preset in FINE_TUNING_PRESETS and not cfg.init_from:
         raise ValueError(
             f"preset {args.preset} fine-tunes a trained model: give --init-from MODEL (a run dir, training "
-            "checkpoint or model file of the same AMAT: a paper-warm run for paper-sharp, the memory model "
-            "for general-coord)"
+            "checkpoint or model file of the same AMAT: the memory model for general-coord)"
         )
     for name in ("threads", "update_processes"):  # asked for here (a preset's or resumed run's value is kept)
         if name in overrides and getattr(cfg, name) > CPUS:

@@ -107,21 +107,6 @@ TRAIN_PRESETS: dict[str, TrainConfig] = {
         **_WARM_START,
         **_EVAL_64,
     ),
-    # paper-warm's model sharpened: fine-tuned (--init-from a paper-warm run) by the same PPO with lr 1e-4 and
-    # a tenth of the entropy bonus, so that the argmax the protocol evaluates is the policy's clear choice;
-    # its first 5 iterations train the value head alone (the warm_start_* fields are paper-warm's, unused)
-    "paper-sharp": TrainConfig(
-        precision="auto",
-        num_worlds=64,
-        iterations=3000,
-        lr=1e-4,
-        entropy_coef=0.001,
-        eval_every=25,
-        checkpoint_every=10,
-        **_STEP_CONTROL,
-        **(_WARM_START | {"warm_start": ""}),
-        **_EVAL_64,
-    ),
     # one model for every team and map size (amat_general.pt): cell goals with a pointer head
     # (amat.pointer), DAgger of Nearest in the same action space over the mixture (16 rounds, ~4,000
     # episodes), then PPO on it with communication drawn per episode and SLAM noise in one world
@@ -203,7 +188,7 @@ TRAIN_PRESETS["general-coord"] = TRAIN_PRESETS["general-relay-noise"].replace(
 
 #: presets that fine-tune a trained model: a new run of one needs ``init_from`` (``catmip train`` refuses it
 #: without; from fresh weights they would be a slow, unwarmed paper run)
-FINE_TUNING_PRESETS = ("paper-sharp", "general-rrt", "general-relay", "general-relay-noise", "general-coord")
+FINE_TUNING_PRESETS = ("general-rrt", "general-relay", "general-relay-noise", "general-coord")
 
 
 def make_train_config(preset: str = "paper", **overrides: Any) -> TrainConfig:
