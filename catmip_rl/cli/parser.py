@@ -104,8 +104,8 @@ def add_train(sub) -> None:
         "was trained; the preset itself runs 2 threads), or with --resume the run's own config. tiny: a "
         "smoke run (seconds); small: minutes; paper, paper-sync, paper-smallma: the paper's recipe (62,500 "
         "iterations: days on a CPU); "
-        "paper-warm: the paper's world after a warm start; general-*: amat_general.pt's stages (each "
-        "--init-from the one before)",
+        "paper-warm: the paper's world after a warm start; general: amat_general.pt's first stage; "
+        "general-rrt, -relay, -relay-noise, -coord: its later stages, each --init-from the one before",
     )
     tr.add_argument("--run-dir", required=True, help="where config.json, logs and checkpoints go")
     tr.add_argument(

@@ -187,7 +187,7 @@ TRAIN_PRESETS["general-coord"] = TRAIN_PRESETS["general-relay-noise"].replace(
 )
 
 #: presets that fine-tune a trained model: a new run of one needs ``init_from`` (``catmip train`` refuses it
-#: without; from fresh weights they would be a slow, unwarmed paper run)
+#: without; from fresh weights they would run one stage of amat_general.pt's chain, skipping those before)
 FINE_TUNING_PRESETS = ("general-rrt", "general-relay", "general-relay-noise", "general-coord")
 
 
