@@ -191,18 +191,14 @@ def _verified(row: dict[str, Any]) -> str:
     return f"✓ {row['verified']} maps" if row["verified"] else "not replayed"
 
 
-def _rank(row: dict[str, Any], split: str) -> str:
-    """A row's rank on the test split; on the validation split "–" (its entries are not ranked)."""
-    return str(row["rank"]) if split == RANKED_SPLIT else "–"
-
-
 def _markdown(rows: list[dict[str, Any]], episodes: int, split: str) -> str:
     head = ["rank", "method", "class", "runs", "actions", "IQM by tick 100 [95 % CI]"]
     head += [_short(s.label) for s in SETTINGS] + ["verified"]
+    ranked = split == RANKED_SPLIT  # a validation table shows "–" for every rank
     ranking = (
         "A rank shared with the row above: the two are level (their paired difference over the settings "
         "has a 95 % CI that holds 0)."
-        if split == RANKED_SPLIT
+        if ranked
         else f"Not ranked (–): the {split} split is for choosing; the leaderboard ranks the "
         f"{RANKED_SPLIT} split's entries, each played once after every choice is frozen."
     )
@@ -222,7 +218,7 @@ def _markdown(rows: list[dict[str, Any]], episodes: int, split: str) -> str:
         if r["code"]:
             method = f"[{method}](<{r['code']}>)"
         cells = [
-            _rank(r, split),
+            str(r["rank"]) if ranked else "–",
             method,
             r["class"],
             str(r["runs"]),
