@@ -31,6 +31,7 @@ import zlib
 from dataclasses import dataclass
 from functools import cache
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -143,8 +144,11 @@ def _manifest_problem(data: dict) -> str:
     return ""
 
 
-def check_maps(task: str, seed: int, hashes: list[str], allow_other: bool = False) -> MapSetReport:
-    """Compare the hashes of maps 0 .. len(hashes)-1 of ``seed`` with the frozen set of ``task``.
+def check_maps(
+    task: str, seed: int, hashes: list[str], allow_other: bool = False, indices: Any = None
+) -> MapSetReport:
+    """Compare the hashes of maps 0 .. len(hashes)-1 of ``seed`` (or of the episode ``indices``, in their
+    order) with the frozen set of ``task``.
 
     Raises :class:`MapSetMismatch` (one line: where, and what it means) when a map differs, unless
     ``allow_other`` (the report then says "differs"). Seeds without a manifest are "not frozen"; maps
@@ -155,15 +159,18 @@ def check_maps(task: str, seed: int, hashes: list[str], allow_other: bool = Fals
     frozen = manifest(task)["seeds"].get(str(seed))
     if frozen is None:
         return MapSetReport(name, "not frozen", 0)
-    n = min(len(hashes), len(frozen))
+    episodes = range(len(hashes)) if indices is None else [int(k) for k in indices]
+    pairs = [(j, k) for j, k in enumerate(episodes) if k < len(frozen)]
+    n = len(pairs)
     if n == 0:  # nothing compared: never "verified"
         return MapSetReport(name, "not frozen", 0)
-    diff = next((e for e in range(n) if hashes[e] != frozen[e]), None)
+    first = next(((j, k) for j, k in pairs if hashes[j] != frozen[k]), None)
+    diff = None if first is None else first[1]
     if diff is None:
         return MapSetReport(name, "verified", n)
     if not allow_other:
         raise MapSetMismatch(
-            f"map {diff} of {name} differs from the frozen map set (hash {hashes[diff]}, frozen "
+            f"map {diff} of {name} differs from the frozen map set (hash {hashes[first[0]]}, frozen "
             f"{frozen[diff]}): this installation (catmip, numpy or numba version) generates other maps, so "
             "its numbers are not comparable with results on the frozen set; pass --allow-other-maps "
             "(allow_other_maps=True) to evaluate anyway, recorded as such in the summary"

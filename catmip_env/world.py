@@ -13,6 +13,10 @@ episode ``k`` of seed ``s`` always has the same map, team and spawn poses (and c
 when ``EnvConfig.comm_sigma_choices`` offers several), drawn from ``SeedSequence(s, spawn_key=(k,))``;
 its dynamics (communication links, SLAM noise) draw from a sibling stream, so a world's trajectory
 depends only on ``(s, k)`` and its actions — not on B or on other worlds.
+
+Each world also has a **key** (``world_keys[b]``, a 63-bit int drawn from a third sibling stream of its
+episode): what a policy reads of the world's identity (per-world random streams keyed by it reproduce a
+map played alone), which names neither the seed nor the episode index.
 """
 
 from __future__ import annotations
@@ -42,7 +46,14 @@ from catmip_env.kernels.observe import observe as build_observations
 from catmip_env.kernels.rng import seed_state
 from catmip_env.kernels.state import WorldState
 
-__all__ = ["BatchedWorld", "StepResult", "WorldChunks", "EPISODE_INDEX_LIMIT", "episode_index_array"]
+__all__ = [
+    "BatchedWorld",
+    "StepResult",
+    "WorldChunks",
+    "EPISODE_INDEX_LIMIT",
+    "episode_index_array",
+    "world_key",
+]
 
 #: Episode indices are below this: they are stored as int64 (``WorldState.episode``), and the numbering
 #: goes on after the largest one used.
@@ -107,6 +118,7 @@ class BatchedWorld:
         self._rescue_of = np.array([k.can_rescue for k in cfg.classes], np.bool_)
         self._comm_of = np.array([0.0 if c is None else float(c) for c in cfg.comm_ranges], np.float64)
         self.rules = Rules.of(cfg)
+        self.world_keys = np.zeros(self.num_worlds, np.int64)  # each world's key (world_key)
         self.seed(seed)
 
     # -- seeding and reset ---------------------------------------------------------------------
@@ -183,6 +195,7 @@ class BatchedWorld:
         st.heard_tick[b] = -1
         st.done[b] = False
         st.episode[b] = episode
+        self.world_keys[b] = world_key(self.base_seed, episode)
         # drawn after the map, and only if there is a choice: the maps never depend on it
         pick = int(map_rng.integers(len(self._comm_of))) if len(self._comm_of) > 1 else 0
         st.comm_sigma[b] = self._comm_of[pick]
@@ -315,3 +328,10 @@ class BatchedWorld:
         out[:, 3] = (st.belief[worlds] & EXPLORED).any(axis=1)
         out[np.arange(len(g))[:, None], 4 + cls, pos[..., 0], pos[..., 1]] = 1.0
         return out if b is None else out[0]
+
+
+def world_key(seed: int, episode: int) -> int:
+    """The key of episode ``episode`` of ``seed`` (:attr:`BatchedWorld.world_keys`): 63 bits of a sibling
+    of the episode's map and dynamics streams, a one-way function of ``(seed, episode)``."""
+    seq = np.random.SeedSequence(int(seed), spawn_key=(int(episode), 2))
+    return int(seq.generate_state(1, np.uint64)[0] >> np.uint64(1))

@@ -15,7 +15,7 @@ from catmip_env.constants import EXPLORED, OCCUPIED, TARGET_BIT
 from catmip_env.events import EventEngine
 from catmip_env.kernels.bfs import bfs_from
 
-__all__ = ["Planner", "DecisionContext", "distance_field", "SQUARE"]
+__all__ = ["Planner", "DecisionContext", "distance_field", "stream_key", "SQUARE"]
 
 SQUARE = 15  # side of the square whose unexplored cells measure a goal's utility
 
@@ -24,9 +24,9 @@ class Planner:
     """Base class: ``act(engine)`` returns (B, N) cell-mode actions (only active robots' matter).
 
     Its random draws come from one stream per world and episode (:meth:`world_rng`: the planner's
-    seed, the engine's seed and the world's episode index), so a world's episode depends on its own
-    map and decisions only, never on the batch it is played in: maps 0 .. K-1 played alone give the
-    same episodes as in a batch of 1,000 (what a leaderboard replay checks)."""
+    seed and the world's :func:`stream_key`), so a world's episode depends on its own map and decisions
+    only, never on the batch it is played in: any maps played alone give the same episodes as in a
+    batch of 1,000 (what a leaderboard replay checks)."""
 
     name = "planner"
     rescue_rule = True  # a rescuer that knows the target heads for it
@@ -39,7 +39,7 @@ class Planner:
     def world_rng(self, engine: EventEngine, b: int) -> np.random.Generator:
         """The random stream of world ``b``'s current episode (a new one when the world's episode or
         the engine's seed changes)."""
-        key = (int(engine.world.base_seed), int(engine.state.episode[b]))
+        key = stream_key(engine, b)
         held = self._streams.get(b)
         if held is None or held[0] != key:
             held = (key, np.random.default_rng([self.seed, *key]))
@@ -73,6 +73,18 @@ class Planner:
             return None
         r, c = cells[self.rng.integers(len(cells))]
         return int(r), int(c)
+
+
+def stream_key(engine, b: int) -> tuple[int, ...]:
+    """What keys world ``b``'s random streams: on an :class:`~catmip_env.events.EventEngine`, its seed and
+    the world's episode index (the streams every committed result was played with); on the view a
+    policy is given, which names neither, the world's key (``engine.world.keys[b]``,
+    :func:`~catmip_env.world.world_key`). Either way one stream per map, whatever the batch."""
+    world = engine.world
+    seed = getattr(world, "base_seed", None)
+    if seed is not None:
+        return (int(seed), int(engine.state.episode[b]))
+    return (int(world.keys[b]),)
 
 
 class DecisionContext:

@@ -37,6 +37,7 @@ from catmip_env.kernels.bfs import bfs_from
 from catmip_env.kernels.comms import estimated_cells
 from catmip_env.kernels.rng import seed_state
 from catmip_env.planners.baselines import PLANNERS
+from catmip_env.planners.core import stream_key
 
 __all__ = ["RolloutPlanner", "WHEN", "rollout_coord", "known_world"]
 
@@ -109,7 +110,7 @@ class RolloutPlanner(BASE):
 
     def search_rng(self, engine, b: int) -> np.random.Generator:
         """The search's own stream of world ``b``'s episode (the base planner's stays untouched)."""
-        key = (int(engine.world.base_seed), int(engine.state.episode[b]))
+        key = stream_key(engine, b)
         held = self._search_streams.get(b)
         if held is None or held[0] != key:
             held = (key, np.random.default_rng([self.seed, *key, 69]))

@@ -6,7 +6,8 @@ N episodes.
     result.summary["success_by_100"], result.curve  # success rate vs mission time
     result.write("out/eval")                         # episodes.csv/json, curve.csv, summary.json
 
-Every method plays the maps of episode indices ``0 .. episodes-1`` of ``seed`` (a map depends only on
+Every method plays the maps of episode indices ``0 .. episodes-1`` of ``seed`` (or the indices it is
+given: ``episode_indices``, what a leaderboard replay plays; a map depends only on
 the task, the seed and the episode index), with evaluation activation (0, 0). Planners choose cells
 on their own robot's belief. AMAT acts deterministically (argmax) and is executed as it would be on the
 robots (:class:`AmatExecutor`): in every neighbourhood with an active robot the coordinator (lowest
@@ -33,7 +34,16 @@ from catmip_env.episode_stats import EpisodeRecords, decision_metrics, episode_m
 from catmip_env.events import EventEngine
 from catmip_env.map_sets import check_maps, map_hash
 from catmip_env.play import episode_columns, play, plays_one_world_at_a_time
-from catmip_rl.evaluation.methods import Method, make_policy, method_source, parse_method, policy_files
+from catmip_env.world import episode_index_array
+from catmip_rl.evaluation.methods import (
+    POLICY_SEED,
+    USER_KINDS,
+    Method,
+    make_policy,
+    method_source,
+    parse_method,
+    policy_files,
+)
 from catmip_rl.evaluation.sandbox import close_policy
 from catmip_rl.store.files import atomic_write_csv, atomic_write_text
 
@@ -185,8 +195,10 @@ def evaluate(
     allow_other_maps: bool = False,
     threads: int = 1,
     isolated: bool | None = None,
+    episode_indices: Any = None,
 ) -> EvalResult:
-    """Play ``episodes`` maps of ``setting`` (episode indices 0.. of ``seed``) with ``method``.
+    """Play ``episodes`` maps of ``setting`` (episode indices 0.. of ``seed``, or the maps
+    ``episode_indices`` names, any indices, in that order) with ``method``.
 
     ``model`` overrides loading the AMAT checkpoint; ``engine_hook(engine)`` is called after every
     event (for rendering or inspection). AMAT plays argmax actions (the paper's protocol: the curve and
@@ -207,8 +219,11 @@ def evaluate(
             raise ValueError(f"with policy=..., method is the policy's name (a plain word), got {method!r}")
         method = Method(method.strip(), "policy", type(policy).__name__)
     method = parse_method(method) if isinstance(method, str) else method
+    if episode_indices is not None:
+        episodes = len(episode_indices)
     if not isinstance(episodes, int) or episodes < 1:
         raise ValueError(f"episodes must be an int >= 1, got {episodes!r}")
+    indices = np.arange(episodes) if episode_indices is None else episode_index_array(episode_indices)
     if isolated is not None and method.kind in ("py", "policy"):
         if isolated and method.kind == "policy":
             raise ValueError(
@@ -221,7 +236,7 @@ def evaluate(
         return _evaluate(
             method,
             setting,
-            episodes,
+            indices,
             seed,
             policy,
             goal_mode,
@@ -239,7 +254,7 @@ def evaluate(
 def _evaluate(
     method,
     setting,
-    episodes,
+    indices,
     seed,
     policy,
     goal_mode,
@@ -252,10 +267,11 @@ def _evaluate(
 ) -> EvalResult:
     sync = method.synchronous
     cfg = setting.env_config(needs, sync)
+    episodes = len(indices)
     engine = EventEngine(cfg, num_worlds=episodes, seed=seed, goal_mode=goal_mode, threads=threads)
-    engine.reset(episode_indices=np.arange(episodes))
+    engine.reset(episode_indices=indices)
     maps = [map_hash(engine, e) for e in range(episodes)]
-    map_set = check_maps(setting.task, seed, maps, allow_other_maps)
+    map_set = check_maps(setting.task, seed, maps, allow_other_maps, indices)
     sampled_variant = getattr(policy, "sampled", None) if sampled_too else None  # the Policy protocol's hook
     passes = 2 if sampled_variant is not None else 1
     both = " (argmax + sampled)" if passes > 1 else ""  # the bar counts the episodes of both passes
@@ -265,15 +281,15 @@ def _evaluate(
     seconds = time.perf_counter() - t0
     sampled = None
     if sampled_variant is not None:  # the same maps with sampled actions
-        engine.reset(episode_indices=np.arange(episodes))
-        sampled = _play_maps(sampled_variant(seed), engine, bar, None)
+        engine.reset(episode_indices=indices)
+        sampled = _play_maps(sampled_variant(_sampled_seed(method, seed)), engine, bar, None)
     if bar is not None:
         bar.close()
     try:
         columns = episode_columns(policy, episodes)
     except ValueError as err:
         raise ValueError(f"policy {method.name}: {err}") from None
-    rows = episode_rows(method, setting, seed, maps, records, sampled, columns)
+    rows = episode_rows(method, setting, seed, maps, records, sampled, columns, indices)
     horizon = cfg.horizon_ticks
     result = EvalResult(method.name, setting, seed, rows, success_curve(records.rescue_tick, horizon))
     decisions = max(int(records.decisions.sum()), 1)
@@ -310,6 +326,12 @@ def _evaluate(
     return result
 
 
+def _sampled_seed(method: Method, seed: int) -> int:
+    """The seed of a policy's sampled pass: the map set's for the project's models, :data:`POLICY_SEED`
+    for a user's policy (told nothing of the maps)."""
+    return POLICY_SEED if method.kind in USER_KINDS else seed
+
+
 def action_choice(policy: Any) -> str:
     """How the evaluated policy chose its actions (the summary's ``actions``): "argmax" or "sampled" for
     a policy that says (its ``deterministic`` attribute: AMAT, ``TorchRLPolicy``), else "its own" (a
@@ -326,6 +348,7 @@ def episode_rows(
     records: EpisodeRecords,
     sampled: EpisodeRecords | None,
     columns: dict[str, np.ndarray],
+    indices: np.ndarray | None = None,
 ) -> list[dict[str, Any]]:
     """One row per episode (episodes.csv / episodes.json): the setting, the map hash, the outcome,
     the decision counts, then the policy's own ``columns`` (:func:`catmip_env.play.episode_columns`:
@@ -343,7 +366,7 @@ def episode_rows(
             "noise": setting.noise,
             "max_ma_ticks": setting.max_ma_ticks,
             "seed": seed,
-            "episode": e,
+            "episode": e if indices is None else int(indices[e]),
             "map_hash": maps[e],
             "rescued": bool(records.rescued[e]),
             "rescue_tick": tick(records.rescue_tick[e]),
@@ -392,7 +415,7 @@ def _play_maps(policy, engine: EventEngine, bar, engine_hook) -> EpisodeRecords:
     one = EventEngine(engine.cfg, num_worlds=1, seed=engine.world.base_seed, goal_mode=engine.goal_mode)
     records = []
     for e in range(engine.num_worlds):
-        one.reset(episode_indices=[e])
+        one.reset(episode_indices=engine.state.episode[e : e + 1])
         policy.reset()
         records.append(play(one, policy, on_event=lambda eng, e=e: on_event(eng, e)))
     return EpisodeRecords.concat(records)

@@ -40,9 +40,15 @@ __all__ = [
     "changed_files",
     "METHOD_HELP",
     "PLAY_OPTIONS",
+    "POLICY_SEED",
+    "USER_KINDS",
 ]
 
 PLAY_OPTIONS = (("loop_guard", "loop guard"), ("clean_occupancy", "clean occupancy"))
+USER_KINDS = ("py", "policy")  # a user's policy: a py: factory's, or an object given to evaluate()
+POLICY_SEED = 0
+"""The seed a user's policy factory (and its ``sampled(seed)``) is given on every map set: a seed for its
+own random stream that says nothing of the maps (per-world streams key on ``engine.world.keys``)."""
 """An AMAT's play options (the :class:`Method` fields a result's summary records) and their words."""
 
 _PLANNER_NOTES = {
@@ -212,12 +218,16 @@ def make_policy(
     config is ``env_config``. ``model`` overrides loading an AMAT checkpoint; ``policy``
     is the object of a "policy" method (what a ``py:`` factory returns: a policy at either level). An
     isolated ``py:`` policy (:attr:`Method.isolated`) holds a worker process: end it with
-    :func:`~catmip_rl.evaluation.sandbox.close_policy` when done."""
+    :func:`~catmip_rl.evaluation.sandbox.close_policy` when done. A planner is seeded ``seed``; a
+    user's policy (``py:``, an object) gets :data:`POLICY_SEED` whatever the maps: its factory learns
+    nothing of which maps it plays."""
     if method.kind == "planner":
         return make_planner(method.target, seed=seed), "cell", None
     if method.kind in WINDOW_KINDS:
         teacher = make_window_planner(method.target, seed=seed, follow_heading=WINDOW_KINDS[method.kind])
         return teacher, "window", None
+    if method.kind in USER_KINDS:  # told nothing of the maps: a seed for its own stream only
+        seed = POLICY_SEED
     if method.kind == "py" and method.isolated:  # in a worker process that holds no engine
         from catmip_rl.evaluation.sandbox import isolated_policy
 

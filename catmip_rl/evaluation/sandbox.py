@@ -54,14 +54,15 @@ from catmip_rl.evaluation.workers import ARRAY_KINDS
 
 __all__ = ["isolated_policy", "close_policy", "IsolatedWorker"]
 
-_KEYS = (*VIEW_ARRAYS, *(f"state.{f}" for f in VIEW_STATE_FIELDS), "state.target")
+_KEYS = (*VIEW_ARRAYS, *(f"state.{f}" for f in VIEW_STATE_FIELDS), "state.target", "world.keys")
 _MAX_HEADER = 1 << 24
 _MAX_PAYLOAD = 1 << 31
 _MAX_ELEMENTS = 1 << 28
 
 
 def _view_array(view: EngineView, key: str) -> np.ndarray:
-    return getattr(view.state, key[len("state.") :]) if key.startswith("state.") else getattr(view, key)
+    owner, _, name = key.rpartition(".")
+    return getattr({"": view, "state": view.state, "world": view.world}[owner], name)
 
 
 # -- the parent's side --------------------------------------------------------------------------------------
@@ -151,7 +152,6 @@ class IsolatedWorker:
                 "goal_mode": view.goal_mode,
                 "num_actions": view.num_actions,
                 "stay_action": view.stay_action,
-                "base_seed": view.world.base_seed,
             }
             spec = [(key, shape, dtype, off) for (key, shape, dtype), off in zip(layout, offsets)]
             self.request("act(engine)", ("view", handle, path, spec, meta))

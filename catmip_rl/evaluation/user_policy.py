@@ -218,7 +218,6 @@ VIEW_STATE_FIELDS = (
     "goal",
     "ticks",
     "done",
-    "episode",
     "comm_sigma",
     "heard_tick",
     "heard_pos",
@@ -236,9 +235,11 @@ WITHHELD_STATE_FIELDS = (
     "informed_tick",
     "rescue_tick",
     "pending_reward",
+    "episode",
 )
-"""The fields withheld from policies: the true map, the world's random stream, the noise drawn, and the
-episode's counters and outcome (what it is scored on)."""
+"""The fields withheld from policies: the true map, the world's random stream, the noise drawn, the
+episode's counters and outcome (what it is scored on), and its episode index (with the map set's seed,
+which a policy is not told either, it would name the map)."""
 VIEW_ARRAYS = ("obs_global", "obs_local", "masks", "mstate", "active")
 """The engine's arrays a policy reads besides ``state``'s (``active`` computed at each event)."""
 VIEW_DOC = "docs/benchmark-your-algorithm.md#what-a-policy-may-read"
@@ -267,6 +268,7 @@ def view_arrays(engine: EventEngine) -> dict[str, np.ndarray]:
     arrays = {name: read_only(getattr(engine, name)) for name in VIEW_ARRAYS}
     arrays |= {f"state.{name}": read_only(getattr(st, name)) for name in VIEW_STATE_FIELDS}
     arrays["state.target"] = read_only(known_target(st))
+    arrays["world.keys"] = read_only(engine.world.world_keys)
     return arrays
 
 
@@ -277,7 +279,6 @@ def view_meta(engine: EventEngine) -> dict[str, Any]:
         "goal_mode": engine.goal_mode,
         "num_actions": engine.num_actions,
         "stay_action": engine.stay_action,
-        "base_seed": int(engine.world.base_seed),
     }
 
 
@@ -321,16 +322,16 @@ class StateView(ReadOnlyView):
 
 
 class _WorldView(ReadOnlyView):
-    __slots__ = ("base_seed",)
+    __slots__ = ("keys",)
     _what = "engine.world"
 
-    def __init__(self, base_seed: int) -> None:
-        object.__setattr__(self, "base_seed", base_seed)
+    def __init__(self, keys: np.ndarray) -> None:
+        object.__setattr__(self, "keys", keys)
 
     def __getattr__(self, name: str) -> Any:
         raise AttributeError(
-            f"engine.world.{name} is withheld from policies: of the world a policy reads only its seed "
-            f"(engine.world.base_seed) ({VIEW_DOC})"
+            f"engine.world.{name} is withheld from policies: of the world a policy reads only each "
+            f"world's key (engine.world.keys, to key a random stream per world) ({VIEW_DOC})"
         )
 
 
@@ -339,8 +340,10 @@ class EngineView(ReadOnlyView):
     observations at the current event, every array read-only (writing one raises), and nothing that
     steps, resets or edits the world. It has ``cfg``, ``num_worlds``, ``num_robots``, ``shape``,
     ``num_actions``, ``goal_mode``, ``stay_action``, ``obs_global``, ``obs_local``, ``masks``, ``active``,
-    ``mstate``, ``world.base_seed``, ``action_to_cell`` and a ``state`` (:class:`StateView`) without the
-    ground truth (the true map; the target's cell only where a robot knows it).
+    ``mstate``, ``world.keys`` (each world's key: :func:`~catmip_env.world.world_key`, to key a random
+    stream per world; neither the map set's seed nor the episode index), ``action_to_cell`` and a
+    ``state`` (:class:`StateView`) without the ground truth (the true map; the target's cell only where
+    a robot knows it).
 
     Built from arrays and plain values, not from an engine: the same view is built in the process that
     holds the engine (:func:`view_arrays`, no copy) and in a worker that holds none
@@ -375,7 +378,7 @@ class EngineView(ReadOnlyView):
         put("num_robots", n)
         put("shape", tuple(arrays["state.belief"].shape[2:]))
         put("state", StateView({k[len("state.") :]: v for k, v in arrays.items() if k.startswith("state.")}))
-        put("world", _WorldView(meta["base_seed"]))
+        put("world", _WorldView(arrays["world.keys"]))
 
     action_to_cell = EventEngine.action_to_cell  # it reads goal_mode, shape, cfg, state.pos: all here
 

@@ -10,6 +10,7 @@ import textwrap
 import numpy as np
 import pytest
 
+from catmip_env.world import world_key
 from catmip_rl.cli.main import main
 from catmip_rl.evaluation.evaluate import EvalSetting, evaluate
 from catmip_rl.evaluation.user_policy import PolicyError
@@ -124,15 +125,18 @@ def test_the_view_holds_what_a_policy_reads_and_the_target_only_where_known():
     class Looks:
         def act(self, engine):
             st = engine.state
-            seen.append((st.target.copy(), st.belief.copy(), engine.world.base_seed))
-            for name in ("grid", "rescue_tick", "rng"):
+            seen.append((st.target.copy(), st.belief.copy(), engine.world.keys.copy()))
+            for name in ("grid", "rescue_tick", "rng", "episode"):
                 with pytest.raises(AttributeError, match="withheld"):
                     getattr(st, name)
+            with pytest.raises(AttributeError, match="withheld"):
+                engine.world.base_seed  # noqa: B018 - the map set's seed names the maps
             with pytest.raises(AttributeError, match="may not call engine.step"):
                 engine.step  # noqa: B018 - reading the attribute is what fails
             return engine.masks.argmax(-1)
 
-    evaluate("looks", SETTING, episodes=2, seed=0, policy=Looks())
+    evaluate("looks", SETTING, episodes=2, seed=0, policy=Looks(), episode_indices=[1, 0])
+    assert all(k.tolist() == [world_key(0, 1), world_key(0, 0)] for _, _, k in seen)  # keys, not indices
     unknown = [t for t, _, _ in seen if (t == -1).all()]
     known = [(t, bel) for t, bel, _ in seen if (t >= 0).all()]
     assert unknown and known  # every robot's target unknown at first, known to someone later
