@@ -31,6 +31,7 @@ __all__ = [
     "WrappedUserPolicy",
     "CheckedEnginePolicy",
     "PettingZooPolicy",
+    "pettingzoo_inputs",
     "policy_failure",
 ]
 
@@ -253,12 +254,9 @@ class PettingZooPolicy(WrappedUserPolicy):
             tick = int(st.ticks[b])
             if tick < self._last_tick[b]:  # a new episode in this world
                 self._last_tick[b] = 0
-            obs, _ = macro_observations(engine, int(b), agents)
-            infos = macro_infos(engine, int(b), agents, tick - int(self._last_tick[b]))
-            for info in infos.values():  # strict mode: an invalid action is an error, never replaced
-                info["invalid_action"] = info["invalid_actions"] = 0
+            event_ticks = tick - int(self._last_tick[b])
             self._last_tick[b] = tick
-            actions = self._call(self._act, "act(observations, infos)", obs, infos)
+            actions = self.ask(engine, int(b), agents, event_ticks)
             if not isinstance(actions, Mapping):
                 raise PolicyError(
                     f"policy {self.name}: act(observations, infos) returned {type(actions).__name__}, "
@@ -283,6 +281,22 @@ class PettingZooPolicy(WrappedUserPolicy):
             out[b, active] = row[active]
             _check_allowed(out, engine, np.array([b]), self.name)
         return out
+
+    def ask(self, engine: EventEngine, b: int, agents: list[str], event_ticks: int) -> Any:
+        """The policy's answer for world ``b`` (its ``act`` on :func:`pettingzoo_inputs`)."""
+        obs, infos = pettingzoo_inputs(engine, b, agents, event_ticks)
+        return self._call(self._act, "act(observations, infos)", obs, infos)
+
+
+def pettingzoo_inputs(engine: Any, b: int, agents: list[str], event_ticks: int) -> tuple[dict, dict]:
+    """World ``b``'s ``(observations, infos)`` as ``search_rescue_v0`` gives them (the same functions), in
+    strict mode (an invalid action is an error, never replaced: the counters are 0). ``engine``: an
+    :class:`EventEngine`, or what a sandbox worker builds of one world's arrays."""
+    obs, _ = macro_observations(engine, b, agents)
+    infos = macro_infos(engine, b, agents, event_ticks)
+    for info in infos.values():
+        info["invalid_action"] = info["invalid_actions"] = 0
+    return obs, infos
 
 
 def _robot_index(agents: list[str]) -> Callable[[str], int]:

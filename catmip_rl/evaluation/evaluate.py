@@ -212,7 +212,8 @@ def evaluate(
     ``allow_other_maps`` (the summary's ``map_set_*`` keys say what was found). ``threads``: the env's
     worlds stepped on that many threads (the same results). ``isolated``: a ``py:`` policy plays in a
     worker process that holds no engine (:mod:`~catmip_rl.evaluation.sandbox`; None: as the
-    :class:`Method` says; the project's planners and models always play here).
+    :class:`Method` says, isolated unless it says otherwise); ``isolated=False`` plays it in this
+    process, for tests and debugging. The project's planners and models, and ``policy``, play here.
     """
     if policy is not None:
         if not isinstance(method, str) or not method.strip() or ":" in method or "=" in method:

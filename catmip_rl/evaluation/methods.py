@@ -76,8 +76,10 @@ class Method:
     robot decides together every ``max_ma_ticks`` ticks), a ``sync:`` spec or a model trained in it;
     ``clean_occupancy`` (cell-goal AMAT): its active robots read occupancy from their action masks
     (:func:`~catmip_rl.amat.inputs.clean_occupancy`), an ``amat-clean:`` spec or a file that asks;
-    ``isolated`` (``py:``): the policy plays in a worker process that holds no engine
-    (:mod:`~catmip_rl.evaluation.sandbox`: the same results for an honest policy, what a replay plays)."""
+    ``isolated``: a ``py:`` policy plays in a worker process that holds no engine
+    (:mod:`~catmip_rl.evaluation.sandbox`: the same results for an honest policy), always unless
+    ``isolated=False`` asks for this process (tests, a debugger); False for every other kind (the
+    project's planners and models, and an object, play in this process)."""
 
     name: str
     kind: str
@@ -85,7 +87,10 @@ class Method:
     loop_guard: bool = False
     synchronous: bool = False
     clean_occupancy: bool = False
-    isolated: bool = False
+    isolated: bool = True
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "isolated", bool(self.isolated) and self.kind == "py")
 
 
 def amat_label(path: str | Path) -> str:

@@ -95,13 +95,14 @@ def no_exit() -> Iterator[None]:
     """While a policy's code runs in this process: ``os._exit`` (and ``posix._exit``) called from this
     thread raises instead of ending the process without a word (an ``os._exit(0)`` would end ``catmip``
     with exit code 0 and no results), so that it is reported as the policy's failure. Other threads
-    exit as before. A policy played in a worker process (:mod:`~catmip_rl.evaluation.sandbox`) needs no
-    guard: its process's end is observed."""
-    real, caller = os._exit, threading.get_ident()
+    exit as before, and so does a child the policy forked (``os.fork()``, then ``os._exit`` in the
+    child: a double fork). A policy played in a worker process (:mod:`~catmip_rl.evaluation.sandbox`)
+    needs no guard: its process's end is observed."""
+    real, caller, pid = os._exit, threading.get_ident(), os.getpid()
     modules = [m for m in (os, sys.modules.get("posix"), sys.modules.get("nt")) if m is not None]
 
     def guarded(code: int) -> None:
-        if threading.get_ident() != caller:
+        if threading.get_ident() != caller or os.getpid() != pid:
             real(code)
         raise _ExitCalled(code)
 

@@ -1,26 +1,33 @@
-"""Worker processes: what every worker does first (end with its parent, torch's threads), and the
-sandbox's worker, which plays one ``py:`` policy and holds no engine (the parent's side:
-:mod:`catmip_rl.evaluation.sandbox`). Nothing the worker sends is pickled: JSON and raw array bytes."""
+"""Worker processes: what every worker does first (end with its parent, torch's threads), the sandbox's
+pipe (one message: a head and raw bytes), and the sandbox's worker, which plays one ``py:`` policy and
+holds no engine (the parent's side: :mod:`catmip_rl.evaluation.sandbox`; its bounds:
+:mod:`catmip_rl.evaluation.bounds`). The parent's messages are pickled (the parent is trusted); nothing
+the worker sends is: JSON and raw array bytes."""
 
 from __future__ import annotations
 
 import json
 import os
+import pickle
+import socket
+import struct
 import sys
 import time
-from collections.abc import Mapping
-from multiprocessing.connection import Connection
+from collections.abc import Callable, Mapping, Sequence
+from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
 
 from catmip_env.play import WorldNotSupported
 from catmip_env.spaces import integer_action
+from catmip_rl.evaluation.bounds import become_subreaper, end_descendants
 from catmip_rl.evaluation.checked_policy import (
     CheckedEnginePolicy,
     PettingZooPolicy,
     WrappedUserPolicy,
     make_user_policy,
+    pettingzoo_inputs,
 )
 from catmip_rl.evaluation.user_policy import (
     EngineView,
@@ -30,9 +37,10 @@ from catmip_rl.evaluation.user_policy import (
     parse_policy_source,
 )
 
-__all__ = ["torch_threads", "die_with_parent", "SandboxWorker", "ARRAY_KINDS"]
+__all__ = ["torch_threads", "die_with_parent", "SandboxWorker", "ARRAY_KINDS", "send_frame", "recv_frame"]
 
 ARRAY_KINDS = "biufc"  # what an answer's array may hold (never objects)
+FRAME = struct.Struct("<II")  # a message: its head's and its payload's lengths, then the head, the payload
 
 
 def torch_threads(n: int) -> None:
@@ -68,6 +76,83 @@ def die_with_parent(parent: int) -> None:
     threading.Thread(target=watch, daemon=True, name="die-with-parent").start()
 
 
+# -- the pipe ------------------------------------------------------------------------------------------------
+def _raw(part: Any) -> memoryview:
+    if isinstance(part, np.ndarray):
+        part = np.ascontiguousarray(part).reshape(-1).view(np.uint8)
+    return memoryview(part).cast("B")
+
+
+def send_frame(
+    sock: socket.socket, head: bytes, parts: Sequence[Any] = (), on_wait: Callable[[], None] | None = None
+) -> None:
+    """Send one message: ``head`` and, as its payload, the raw bytes of ``parts`` (arrays, bytes), in one
+    system call where the socket takes it all. ``on_wait()`` is called whenever a socket with a timeout
+    times out (it may raise)."""
+    views = [_raw(p) for p in parts]
+    views = [memoryview(FRAME.pack(len(head), sum(v.nbytes for v in views))), memoryview(head), *views]
+    while views:
+        try:
+            sent = sock.sendmsg(views)
+        except TimeoutError:
+            if on_wait is None:
+                raise
+            on_wait()
+            continue
+        while sent:
+            if sent >= views[0].nbytes:
+                sent -= views.pop(0).nbytes
+            else:
+                views[0], sent = views[0][sent:], 0
+        while views and not views[0].nbytes:
+            views.pop(0)
+
+
+def _recv_exact(sock: socket.socket, n: int, on_wait: Callable[[], None] | None) -> bytearray:
+    buf = bytearray(n)
+    view, got = memoryview(buf), 0
+    while got < n:
+        try:
+            k = sock.recv_into(view[got:], n - got)
+        except TimeoutError:
+            if on_wait is None:
+                raise
+            on_wait()
+            continue
+        if k == 0:
+            raise EOFError("the other end closed the pipe")
+        got += k
+    return buf
+
+
+def recv_frame(
+    sock: socket.socket,
+    on_wait: Callable[[], None] | None = None,
+    max_head: int = 1 << 24,
+    max_payload: int = 1 << 31,
+) -> tuple[bytearray, bytearray]:
+    """(head, payload) of the next message (new buffers: arrays made on the payload are the receiver's
+    own); ValueError for one longer than the limits, EOFError when the other end is gone."""
+    n_head, n_payload = FRAME.unpack(_recv_exact(sock, FRAME.size, on_wait))
+    if n_head > max_head or n_payload > max_payload:
+        raise ValueError(f"a message of {n_head} + {n_payload} bytes")
+    return _recv_exact(sock, n_head, on_wait), _recv_exact(sock, n_payload, on_wait)
+
+
+def split_payload(payload: bytearray, layout: Sequence[tuple[tuple[int, ...], str]]) -> list[np.ndarray]:
+    """The arrays (shape, dtype string) laid end to end in ``payload``, as views of it."""
+    arrays, offset = [], 0
+    for shape, dtype in layout:
+        dt = np.dtype(dtype)
+        count = int(np.prod(shape, dtype=np.int64))
+        arrays.append(np.frombuffer(payload, dt, count, offset).reshape(shape))
+        offset += count * dt.itemsize
+    if offset != len(payload):
+        raise ValueError(f"a payload of {len(payload)} bytes for arrays of {offset}")
+    return arrays
+
+
+# -- the sandbox's worker ------------------------------------------------------------------------------------
 def _info(policy: WrappedUserPolicy) -> dict[str, Any]:
     hooks = [h for h in ("start_episodes", "episode_columns", "sampled") if hasattr(policy, h)]
     if isinstance(policy, PettingZooPolicy) and policy._reset is not None:
@@ -86,32 +171,60 @@ def _json(value: Any) -> Any:
     return value if value is None or isinstance(value, (str, int, float)) else repr(value)
 
 
+def _one_world(arrays: list[np.ndarray], tick: int, num_classes: int) -> SimpleNamespace:
+    """What :func:`~catmip_rl.evaluation.checked_policy.pettingzoo_inputs` reads of an engine, for one
+    world, from the arrays the parent sent (its ``obs_global``, ``obs_local``, ``cls``, ``masks``,
+    ``active``, ``comp`` rows)."""
+    og, ol, cls, masks, active, comp = (a[None] for a in arrays)
+    state = SimpleNamespace(cls=cls, comp=comp, ticks=np.array([tick], np.int64))
+    world = SimpleNamespace(obs_global=og, obs_local=ol, state=state)
+    cfg = SimpleNamespace(num_classes=num_classes)
+    return SimpleNamespace(cfg=cfg, world=world, state=state, masks=masks, active=active)
+
+
 class SandboxWorker:
     """The worker's end of the pipe: the policies it built (by handle), their views, one handler per
-    request."""
+    request. It is a child subreaper (every process the policy starts stays its descendant, and is ended
+    with it)."""
 
-    def __init__(self, conn: Connection) -> None:
-        target, name, env_config, seed, threads, parent, path = conn.recv()
+    def __init__(self, sock: socket.socket) -> None:
+        head, _ = recv_frame(sock)
+        target, name, env_config, seed, threads, parent, path = pickle.loads(head)
         die_with_parent(parent)
-        sys.path[:] = path  # the caller's: a module policy imports as it would there
+        become_subreaper()
+        sys.path[:] = path  # the caller's, absolute: a module policy imports as it would there
         if threads is not None:
             torch_threads(int(threads))
-        self.conn, self.target, self.name, self.env_config, self.seed = conn, target, name, env_config, seed
+        self.sock, self.target, self.name, self.env_config, self.seed = sock, target, name, env_config, seed
         self.policies: dict[int, WrappedUserPolicy] = {}
         self.views: dict[int, EngineView] = {}
+        self.layouts: dict[int, tuple] = {}  # PettingZoo-level handle -> (its arrays' layout, classes)
         self.maps: list[Any] = []
+        self.payload = bytearray()
 
-    def send(self, reply: dict[str, Any], payload: bytes | None = None) -> None:
-        self.conn.send_bytes(json.dumps(reply | ({"bytes": True} if payload is not None else {})).encode())
-        if payload is not None:
-            self.conn.send_bytes(payload)
+    def send(self, reply: dict[str, Any], parts: Sequence[Any] = ()) -> None:
+        send_frame(self.sock, json.dumps(reply).encode(), parts)
 
     def serve(self) -> None:
-        """Answer requests until the parent closes the pipe or asks to close."""
+        """Answer requests until the parent closes the pipe or asks to close; then end every process the
+        policy started, and this one (no exit handler of the policy's runs)."""
+        try:
+            self._serve()
+        finally:
+            end_descendants()
+            for stream in (sys.stdout, sys.stderr):
+                try:
+                    stream.flush()
+                except Exception:
+                    pass
+            os._exit(0)
+
+    def _serve(self) -> None:
         while True:
             try:
-                message = self.conn.recv()
-            except (EOFError, OSError):
+                head, self.payload = recv_frame(self.sock)
+                message = pickle.loads(head)
+            except (EOFError, OSError, ValueError, KeyboardInterrupt):
                 return
             kind, args = message[0], message[1:]
             if kind == "close":
@@ -148,15 +261,10 @@ class SandboxWorker:
         self.views[handle] = EngineView(meta, arrays)
         self.send({})
 
-    def on_act(self, handle: int, *dicts: dict) -> None:
+    def on_act(self, handle: int) -> None:
+        """An engine-level decision on the view the parent has just filled."""
         policy = self.policies[handle]
-        if isinstance(policy, CheckedEnginePolicy):
-            self.engine_act(policy, self.views[handle])
-        else:
-            self.pettingzoo_act(policy, *dicts)
-
-    def engine_act(self, policy: CheckedEnginePolicy, view: EngineView) -> None:
-        out = policy._call(policy._act, "act(engine)", view)
+        out = policy._call(policy._act, "act(engine)", self.views[handle])
         try:
             actions = np.asarray(out)
         except Exception as exc:
@@ -165,10 +273,19 @@ class SandboxWorker:
         if actions.dtype.kind not in ARRAY_KINDS:
             self.send({"dtype": "object", "shape": list(actions.shape)})
         else:
-            actions = np.ascontiguousarray(actions)
-            self.send({"dtype": actions.dtype.str, "shape": list(actions.shape)}, actions.tobytes())
+            self.send({"dtype": actions.dtype.str, "shape": list(actions.shape)}, [actions])
 
-    def pettingzoo_act(self, policy: PettingZooPolicy, observations: dict, infos: dict) -> None:
+    def on_pz(self, handle: int, tick: int, event_ticks: int, layout: tuple | None) -> None:
+        """A PettingZoo-level decision of one world: its arrays in the payload (laid out as ``layout``
+        says, or as last time), its ``(observations, infos)`` built from them as the parent builds
+        them in-process (:func:`~catmip_rl.evaluation.checked_policy.pettingzoo_inputs`)."""
+        if layout is not None:
+            self.layouts[handle] = layout
+        arrays, num_classes = self.layouts[handle]
+        engine = _one_world(split_payload(self.payload, arrays), tick, num_classes)
+        agents = [f"robot_{i}" for i in range(engine.active.shape[1])]
+        observations, infos = pettingzoo_inputs(engine, 0, agents, event_ticks)
+        policy = self.policies[handle]
         out = policy._call(policy._act, "act(observations, infos)", observations, infos)
         if not isinstance(out, Mapping):
             raise PolicyError(
@@ -211,4 +328,4 @@ class SandboxWorker:
 
 
 if __name__ == "__main__":  # the sandbox's worker: python -m catmip_rl.evaluation.workers FD
-    SandboxWorker(Connection(int(sys.argv[1]))).serve()
+    SandboxWorker(socket.socket(fileno=int(sys.argv[1]))).serve()

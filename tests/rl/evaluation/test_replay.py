@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import textwrap
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -90,7 +91,10 @@ def test_an_entry_whose_weights_changed_is_refused(entries, capsys):
 WALKER = textwrap.dedent(
     """
     import gc
+    import warnings
     import numpy as np
+
+    warnings.simplefilter("ignore", FutureWarning)  # the walk touches torch's deprecated names
 
     class Walker:
         '''PettingZoo level: finds the engine through the garbage collector and puts the rescuer next to
@@ -109,7 +113,15 @@ WALKER = textwrap.dedent(
 
 
 @pytest.mark.filterwarnings("ignore::FutureWarning")  # the walk touches torch's deprecated names
-def test_a_policy_that_reached_the_world_in_its_suite_is_refused_by_the_isolated_replay(tmp_path, capsys):
+def test_a_policy_that_reached_the_world_in_its_suite_is_refused_by_the_isolated_replay(
+    tmp_path, capsys, monkeypatch
+):
+    from catmip_rl.benchmark import suite
+    from catmip_rl.evaluation.methods import parse_runs
+
+    # its suite played in-process (isolated=False), as no suite plays a py: policy now: a forged entry
+    in_process = lambda spec: [replace(m, isolated=False) for m in parse_runs(spec)]  # noqa: E731
+    monkeypatch.setattr(suite, "parse_runs", in_process)
     (tmp_path / "walker.py").write_text(WALKER)
     spec = f"cheat=py:{tmp_path / 'walker.py'}:make_policy"
     run_suite([spec], tmp_path / "s", episodes=2, progress=False, split="test",
