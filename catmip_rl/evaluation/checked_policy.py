@@ -148,6 +148,11 @@ class WrappedUserPolicy:
 
     name: str
 
+    def calls(self) -> dict[str, int] | None:
+        """The project's entry points the policy has called (worlds built, map sets read, planners run:
+        :mod:`~catmip_rl.evaluation.call_counts`), counted where it plays isolated; None in-process."""
+        return None
+
     def _call(self, fn: Callable, what: str, *args):
         try:
             with no_exit():

@@ -20,6 +20,8 @@ them against its own engine exactly as it checks an in-process policy's
 in-process and isolated. The worker is bounded (:mod:`~catmip_rl.evaluation.bounds`: time per call,
 memory, the processes it starts, its folder); a worker that ends (``os._exit``, a crash, a signal) or
 passes a bound is a :class:`~catmip_rl.evaluation.user_policy.PolicyError` in one line naming the policy.
+``policy.calls()`` says which of the project's entry points it called
+(:mod:`~catmip_rl.evaluation.call_counts`).
 
     from catmip_rl.evaluation.evaluate import evaluate
     result = evaluate("py:FILE.py:FACTORY", setting, episodes=1000, seed=1000)  # isolated
@@ -360,9 +362,18 @@ def _proxy(
             return _proxy(worker, int(reply["handle"]), reply["info"])
 
         policy.sampled = sampled
+    policy.calls = lambda: _calls(worker)
     policy.isolated = True
     policy.close = worker.close
     return policy
+
+
+def _calls(worker: IsolatedWorker) -> dict[str, int]:
+    reply, _ = worker.request("calls()", ("calls",))
+    try:
+        return {str(k): int(v) for k, v in reply["calls"].items()}
+    except (AttributeError, KeyError, TypeError, ValueError) as err:
+        raise PolicyError(f"policy {worker.name}: its process sent malformed counts ({err})") from None
 
 
 def _columns(worker: IsolatedWorker, handle: int) -> Any:
@@ -391,7 +402,7 @@ def isolated_policy(
     """The ``py:`` policy ``target`` (``py:FILE.py:FACTORY``) built in a new worker process for
     ``env_config`` and ``seed``: the same wrapper
     :func:`~catmip_rl.evaluation.checked_policy.make_user_policy`
-    gives (its ``act``, ``goal_mode``, optional members), whose policy runs in the worker.
+    gives (its ``act``, ``goal_mode``, optional members, and ``calls()``), whose policy runs in the worker.
     ``threads``: torch's threads there (default: this process's, where torch is imported); ``limits``: its
     bounds (default: :meth:`Limits.current`). Call its ``close()`` (or :func:`close_policy`) when done.
     PolicyError / WorldNotSupported as in-process."""

@@ -22,6 +22,7 @@ import numpy as np
 from catmip_env.play import WorldNotSupported
 from catmip_env.spaces import integer_action
 from catmip_rl.evaluation.bounds import become_subreaper, end_descendants
+from catmip_rl.evaluation.call_counts import install_counters
 from catmip_rl.evaluation.checked_policy import (
     CheckedEnginePolicy,
     PettingZooPolicy,
@@ -185,7 +186,8 @@ def _one_world(arrays: list[np.ndarray], tick: int, num_classes: int) -> SimpleN
 class SandboxWorker:
     """The worker's end of the pipe: the policies it built (by handle), their views, one handler per
     request. It is a child subreaper (every process the policy starts stays its descendant, and is ended
-    with it)."""
+    with it), and it counts the project's entry points the policy calls
+    (:mod:`~catmip_rl.evaluation.call_counts`, installed before the factory is imported)."""
 
     def __init__(self, sock: socket.socket) -> None:
         head, _ = recv_frame(sock)
@@ -195,6 +197,7 @@ class SandboxWorker:
         sys.path[:] = path  # the caller's, absolute: a module policy imports as it would there
         if threads is not None:
             torch_threads(int(threads))
+        self.calls = install_counters()
         self.sock, self.target, self.name, self.env_config, self.seed = sock, target, name, env_config, seed
         self.policies: dict[int, WrappedUserPolicy] = {}
         self.views: dict[int, EngineView] = {}
@@ -230,6 +233,7 @@ class SandboxWorker:
             if kind == "close":
                 return
             try:
+                self.calls.check()
                 handler = getattr(self, f"on_{kind}", None)
                 if handler is None:
                     self.send({"error": f"policy {self.name}: unknown request {kind!r}"})
@@ -250,6 +254,9 @@ class SandboxWorker:
         factory = load_factory(parse_policy_source(self.target), self.name)
         self.policies[0] = make_user_policy(factory, self.env_config, self.seed, self.name)
         self.send({"info": _info(self.policies[0])})
+
+    def on_calls(self) -> None:
+        self.send({"calls": self.calls()})
 
     def on_view(self, handle: int, path: str, spec: list, meta: dict) -> None:
         mm = np.memmap(path, np.uint8, mode="r")  # read-only: a write raises (or faults) here
