@@ -102,6 +102,7 @@ class _Counters:
         self.places: list[tuple[str, str | None, str, str]] = [*_METHODS, *_planner_acts()]
         for module, name, kind in _FUNCTIONS:
             self.places += _aliases(module, name, kind)
+        self.installed: list[tuple[str, Any, str | None, Any, str, Callable]] = []
 
     def counting(self, fn: Callable, kind: str) -> Callable:
         counts, depth = self.counts, self.depth
@@ -126,16 +127,27 @@ class _Counters:
         return wrapper
 
     def check(self, first: bool = False) -> None:
-        """Put a wrapper wherever one is missing (all of them the first time)."""
+        """Put a wrapper wherever one is missing (all of them the first time). Fast while nothing moved:
+        each wrapper, its owner and its module are where they were put."""
+        if not first and all(
+            sys.modules.get(module) is mod
+            and (cls is None or getattr(mod, cls, None) is owner)
+            and getattr(owner, attr, None) is wrapper
+            for module, mod, cls, owner, attr, wrapper in self.installed
+        ):
+            return
+        self.installed = []
         for module, cls, attr, kind in self.places:
-            owner: Any = sys.modules.get(module) or importlib.import_module(module)
-            if cls is not None:
-                owner = getattr(owner, cls, None)
+            mod = sys.modules.get(module) or importlib.import_module(module)
+            owner = mod if cls is None else getattr(mod, cls, None)
             current = None if owner is None else vars(owner).get(attr) if cls else getattr(owner, attr, None)
-            if current is None or self.ours.get(id(current)) is current:
+            if current is None:
                 continue
-            setattr(owner, attr, self.counting(current, kind))
-            self.counts["restored"] += 0 if first else 1
+            if self.ours.get(id(current)) is not current:
+                current = self.counting(current, kind)
+                setattr(owner, attr, current)
+                self.counts["restored"] += 0 if first else 1
+            self.installed.append((module, mod, cls, owner, attr, current))
 
 
 def install_counters() -> Callable[[], dict[str, int]]:

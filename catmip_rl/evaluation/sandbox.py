@@ -63,6 +63,15 @@ from catmip_rl.evaluation.checked_policy import (
     PettingZooPolicy,
     WrappedUserPolicy,
 )
+from catmip_rl.evaluation.pipe import (
+    FrameReader,
+    answer_array,
+    columns_of,
+    counts_of,
+    modules_of,
+    send_frame,
+    wait_in_slices,
+)
 from catmip_rl.evaluation.user_policy import (
     VIEW_ARRAYS,
     VIEW_STATE_FIELDS,
@@ -70,14 +79,12 @@ from catmip_rl.evaluation.user_policy import (
     PolicyError,
     parse_policy_source,
 )
-from catmip_rl.evaluation.workers import ARRAY_KINDS, recv_frame, send_frame
 
 __all__ = ["isolated_policy", "close_policy", "IsolatedWorker"]
 
 _KEYS = (*VIEW_ARRAYS, *(f"state.{f}" for f in VIEW_STATE_FIELDS), "state.target", "world.keys")
 _MAX_HEADER = 1 << 24
 _MAX_PAYLOAD = 1 << 31
-_MAX_ELEMENTS = 1 << 28
 _SLICE_S = 0.1  # the parent's wait on the pipe: the bounds are checked this often
 _CLOSE_WAIT_S = 5.0  # a worker asked to close has this long before it is killed
 
@@ -126,8 +133,8 @@ class IsolatedWorker:
             raise
         finally:
             child.close()
-        mine.settimeout(_SLICE_S)
-        self.sock = mine
+        wait_in_slices(mine, _SLICE_S)
+        self.sock, self.reader = mine, FrameReader(mine)
         self.processes = PolicyProcesses(self.proc.pid, token)
         self._buffers: dict[int, tuple[tuple, dict[str, np.ndarray]]] = {}  # handle -> (layout key, arrays)
         self._closed = False
@@ -161,7 +168,7 @@ class IsolatedWorker:
 
         try:
             send_frame(self.sock, pickle.dumps(message), parts, waiting)
-            head, payload = recv_frame(self.sock, waiting, _MAX_HEADER, _MAX_PAYLOAD)
+            head, payload = self.reader.frame(waiting, _MAX_HEADER, _MAX_PAYLOAD)
             reply = json.loads(head)
         except PolicyError:
             raise
@@ -274,32 +281,13 @@ def _stop(sock: socket.socket, proc: subprocess.Popen, processes: PolicyProcesse
     remove_folder(folder)
 
 
-def _answer_array(reply: dict[str, Any], payload: bytes | None, name: str) -> np.ndarray:
-    """The array an engine-level answer's reply describes (dtype and shape checked, never objects)."""
-    try:
-        shape = tuple(int(x) for x in reply["shape"])
-        dtype = np.dtype(str(reply["dtype"])) if reply.get("dtype") != "object" else np.dtype(object)
-        count = int(np.prod(shape, dtype=np.int64))
-        if count > _MAX_ELEMENTS or any(x < 0 for x in shape):
-            raise ValueError(f"shape {shape}")
-        if dtype.kind == "O":  # what np.asarray made of it: refused by the checks, as in-process
-            return np.empty(shape, dtype)
-        if dtype.kind not in ARRAY_KINDS or payload is None:
-            raise ValueError(f"dtype {dtype}")
-        return np.frombuffer(payload, dtype, count).reshape(shape)
-    except (KeyError, TypeError, ValueError) as err:
-        raise PolicyError(
-            f"policy {name}: its process sent a malformed answer to act(engine) ({err})"
-        ) from None
-
-
 def _engine_act(worker: IsolatedWorker, handle: int):
     def act(view: EngineView) -> np.ndarray:
         for key, shared in worker.share(handle, view).items():
             np.copyto(shared, _view_array(view, key))
         robots = int(np.count_nonzero(view.active & ~view.state.done[:, None]))
         reply, payload = worker.request("act(engine)", ("act", handle), (), worker.limits.decision(robots))
-        return _answer_array(reply, payload, worker.name)
+        return answer_array(reply, payload, worker.name)
 
     return act
 
@@ -353,7 +341,9 @@ def _proxy(
             and None
         )
     if "episode_columns" in hooks:
-        policy.episode_columns = lambda: _columns(worker, handle)
+        policy.episode_columns = lambda: columns_of(
+            worker.request("episode_columns()", ("episode_columns", handle))[0]
+        )
     if "sampled" in hooks:
 
         def sampled(seed: int):
@@ -362,33 +352,11 @@ def _proxy(
             return _proxy(worker, int(reply["handle"]), reply["info"])
 
         policy.sampled = sampled
-    policy.calls = lambda: _calls(worker)
+    policy.calls = lambda: counts_of(worker.request("calls()", ("calls",))[0], name)
+    policy.modules = lambda: modules_of(worker.request("modules()", ("modules",))[0], name)
     policy.isolated = True
     policy.close = worker.close
     return policy
-
-
-def _calls(worker: IsolatedWorker) -> dict[str, int]:
-    reply, _ = worker.request("calls()", ("calls",))
-    try:
-        return {str(k): int(v) for k, v in reply["calls"].items()}
-    except (AttributeError, KeyError, TypeError, ValueError) as err:
-        raise PolicyError(f"policy {worker.name}: its process sent malformed counts ({err})") from None
-
-
-def _columns(worker: IsolatedWorker, handle: int) -> Any:
-    reply, _ = worker.request("episode_columns()", ("episode_columns", handle))
-    if "not_a_dict" in reply:
-        return type(str(reply["not_a_dict"]), (), {})()  # refused by episode_columns(), named by its type
-    columns = {}
-    for name, dtype, values in reply["columns"]:  # values of other kinds: their reprs, refused as such
-        dt = np.dtype(str(dtype)) if dtype != "str" else None
-        columns[name] = (
-            np.asarray(values, dt)
-            if dt is not None and dt.kind in ARRAY_KINDS
-            else np.asarray([str(v) for v in values])
-        )
-    return columns
 
 
 def isolated_policy(

@@ -1,8 +1,8 @@
-"""Worker processes: what every worker does first (end with its parent, torch's threads), the sandbox's
-pipe (one message: a head and raw bytes), and the sandbox's worker, which plays one ``py:`` policy and
-holds no engine (the parent's side: :mod:`catmip_rl.evaluation.sandbox`; its bounds:
-:mod:`catmip_rl.evaluation.bounds`). The parent's messages are pickled (the parent is trusted); nothing
-the worker sends is: JSON and raw array bytes."""
+"""Worker processes: what every worker does first (end with its parent, torch's threads), and the
+sandbox's worker, which plays one ``py:`` policy and holds no engine (the parent's side:
+:mod:`catmip_rl.evaluation.sandbox`; the pipe between them: :mod:`catmip_rl.evaluation.pipe`; its
+bounds: :mod:`catmip_rl.evaluation.bounds`). The parent's messages are pickled (the parent is trusted);
+nothing the worker sends is: JSON and raw array bytes."""
 
 from __future__ import annotations
 
@@ -10,10 +10,9 @@ import json
 import os
 import pickle
 import socket
-import struct
 import sys
 import time
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from types import SimpleNamespace
 from typing import Any
 
@@ -30,6 +29,7 @@ from catmip_rl.evaluation.checked_policy import (
     make_user_policy,
     pettingzoo_inputs,
 )
+from catmip_rl.evaluation.pipe import ARRAY_KINDS, FrameReader, send_frame, split_payload
 from catmip_rl.evaluation.user_policy import (
     EngineView,
     PolicyError,
@@ -38,10 +38,7 @@ from catmip_rl.evaluation.user_policy import (
     parse_policy_source,
 )
 
-__all__ = ["torch_threads", "die_with_parent", "SandboxWorker", "ARRAY_KINDS", "send_frame", "recv_frame"]
-
-ARRAY_KINDS = "biufc"  # what an answer's array may hold (never objects)
-FRAME = struct.Struct("<II")  # a message: its head's and its payload's lengths, then the head, the payload
+__all__ = ["torch_threads", "die_with_parent", "SandboxWorker"]
 
 
 def torch_threads(n: int) -> None:
@@ -75,82 +72,6 @@ def die_with_parent(parent: int) -> None:
         os._exit(1)
 
     threading.Thread(target=watch, daemon=True, name="die-with-parent").start()
-
-
-# -- the pipe ------------------------------------------------------------------------------------------------
-def _raw(part: Any) -> memoryview:
-    if isinstance(part, np.ndarray):
-        part = np.ascontiguousarray(part).reshape(-1).view(np.uint8)
-    return memoryview(part).cast("B")
-
-
-def send_frame(
-    sock: socket.socket, head: bytes, parts: Sequence[Any] = (), on_wait: Callable[[], None] | None = None
-) -> None:
-    """Send one message: ``head`` and, as its payload, the raw bytes of ``parts`` (arrays, bytes), in one
-    system call where the socket takes it all. ``on_wait()`` is called whenever a socket with a timeout
-    times out (it may raise)."""
-    views = [_raw(p) for p in parts]
-    views = [memoryview(FRAME.pack(len(head), sum(v.nbytes for v in views))), memoryview(head), *views]
-    while views:
-        try:
-            sent = sock.sendmsg(views)
-        except TimeoutError:
-            if on_wait is None:
-                raise
-            on_wait()
-            continue
-        while sent:
-            if sent >= views[0].nbytes:
-                sent -= views.pop(0).nbytes
-            else:
-                views[0], sent = views[0][sent:], 0
-        while views and not views[0].nbytes:
-            views.pop(0)
-
-
-def _recv_exact(sock: socket.socket, n: int, on_wait: Callable[[], None] | None) -> bytearray:
-    buf = bytearray(n)
-    view, got = memoryview(buf), 0
-    while got < n:
-        try:
-            k = sock.recv_into(view[got:], n - got)
-        except TimeoutError:
-            if on_wait is None:
-                raise
-            on_wait()
-            continue
-        if k == 0:
-            raise EOFError("the other end closed the pipe")
-        got += k
-    return buf
-
-
-def recv_frame(
-    sock: socket.socket,
-    on_wait: Callable[[], None] | None = None,
-    max_head: int = 1 << 24,
-    max_payload: int = 1 << 31,
-) -> tuple[bytearray, bytearray]:
-    """(head, payload) of the next message (new buffers: arrays made on the payload are the receiver's
-    own); ValueError for one longer than the limits, EOFError when the other end is gone."""
-    n_head, n_payload = FRAME.unpack(_recv_exact(sock, FRAME.size, on_wait))
-    if n_head > max_head or n_payload > max_payload:
-        raise ValueError(f"a message of {n_head} + {n_payload} bytes")
-    return _recv_exact(sock, n_head, on_wait), _recv_exact(sock, n_payload, on_wait)
-
-
-def split_payload(payload: bytearray, layout: Sequence[tuple[tuple[int, ...], str]]) -> list[np.ndarray]:
-    """The arrays (shape, dtype string) laid end to end in ``payload``, as views of it."""
-    arrays, offset = [], 0
-    for shape, dtype in layout:
-        dt = np.dtype(dtype)
-        count = int(np.prod(shape, dtype=np.int64))
-        arrays.append(np.frombuffer(payload, dt, count, offset).reshape(shape))
-        offset += count * dt.itemsize
-    if offset != len(payload):
-        raise ValueError(f"a payload of {len(payload)} bytes for arrays of {offset}")
-    return arrays
 
 
 # -- the sandbox's worker ------------------------------------------------------------------------------------
@@ -190,7 +111,8 @@ class SandboxWorker:
     (:mod:`~catmip_rl.evaluation.call_counts`, installed before the factory is imported)."""
 
     def __init__(self, sock: socket.socket) -> None:
-        head, _ = recv_frame(sock)
+        self.reader = FrameReader(sock)
+        head, _ = self.reader.frame()
         target, name, env_config, seed, threads, parent, path = pickle.loads(head)
         die_with_parent(parent)
         become_subreaper()
@@ -225,7 +147,7 @@ class SandboxWorker:
     def _serve(self) -> None:
         while True:
             try:
-                head, self.payload = recv_frame(self.sock)
+                head, self.payload = self.reader.frame()
                 message = pickle.loads(head)
             except (EOFError, OSError, ValueError, KeyboardInterrupt):
                 return
@@ -257,6 +179,11 @@ class SandboxWorker:
 
     def on_calls(self) -> None:
         self.send({"calls": self.calls()})
+
+    def on_modules(self) -> None:
+        from catmip_rl.evaluation.methods import own_modules  # the policy's imports: this process's
+
+        self.send({"modules": own_modules(self.target)})
 
     def on_view(self, handle: int, path: str, spec: list, meta: dict) -> None:
         mm = np.memmap(path, np.uint8, mode="r")  # read-only: a write raises (or faults) here
