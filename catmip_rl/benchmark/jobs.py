@@ -19,7 +19,7 @@ import numpy as np
 
 from catmip_env.events import EventEngine
 from catmip_env.play import WorldNotSupported
-from catmip_rl.benchmark.results_check import check_resumed
+from catmip_rl.benchmark.resume_check import check_resumed, read_summary
 from catmip_rl.evaluation.evaluate import EvalSetting, evaluate, progress_bar
 from catmip_rl.evaluation.methods import PLAY_OPTIONS, Method, changed_files, make_policy, method_source
 from catmip_rl.evaluation.workers import die_with_parent, torch_threads
@@ -50,10 +50,9 @@ class Job:
 def _done(job: Job) -> dict[str, Any] | None:
     """The summary of ``job``'s results already in its folder, or None if it has none; ValueError if the
     folder holds another run's (``summary.json`` is written last: a folder with one is complete)."""
-    path = Path(job.out) / "summary.json"
-    if not job.resume or not path.is_file():
+    if not job.resume or not (Path(job.out) / "summary.json").is_file():
         return None
-    summary = json.loads(path.read_text())
+    summary = read_summary(Path(job.out))
     want = {
         "method": job.method.name,
         "method_kind": job.method.kind,
@@ -85,7 +84,7 @@ def _done(job: Job) -> dict[str, Any] | None:
             f"{job.out} holds results played before {changed[0]} changed (its SHA-256 differs): "
             "give a new output folder"
         )
-    check_resumed(Path(job.out), job.setting.task, job.seed, job.episodes)  # as strictly as a fresh run
+    check_resumed(Path(job.out), job.setting, job.seed, job.episodes, job.method.name)  # all it can recompute
     return summary
 
 

@@ -455,3 +455,84 @@ def test_a_run_folder_replaced_by_a_link_is_not_written_through(tmp_path):
     (tmp_path / "link").symlink_to(tmp_path / "s", target_is_directory=True)
     assert main(["bench", "suite", "--method", "nearest", "--episodes", "1", "--resume", "--no-progress",
                  "--out", str(tmp_path / "link")]) == 2  # fmt: skip
+
+
+def _reseal(folder):
+    """Rewrite a run's record (run.json) so that every file's SHA-256 fits again, as a forger would."""
+    from catmip_rl.store.outputs import RECORD, _sha256
+
+    record = json.loads((folder / RECORD).read_text())
+    record["files"] = {n: _sha256(folder / n) for n in record["files"] if (folder / n).is_file()}
+    (folder / RECORD).write_text(json.dumps(record))
+
+
+@pytest.mark.parametrize("command", ["suite", "paper"])
+@pytest.mark.parametrize(
+    ("text", "problem"), [("[1, 2]", "holds a JSON list"), ("{'x':", "is not readable JSON")]
+)
+def test_a_resumed_run_whose_summary_is_no_json_object_is_named_in_one_line(
+    tmp_path, capsys, command, text, problem
+):
+    """``--resume`` meets a run folder whose summary.json is a JSON list or no JSON: exit code 2 and one
+    line naming the file, never a traceback."""
+    folder = tmp_path / "s" / ("runs" if command == "suite" else "fig7") / SETTINGS[0].label / "nearest"
+    folder.mkdir(parents=True)
+    (folder / "summary.json").write_text(text)
+    argv = ["bench", command, "--method" if command == "suite" else "--methods", "nearest", "--episodes", "1"]
+    argv += ["--figure", "7", "--jobs", "1"] if command == "paper" else ["--jobs", "1"]
+    assert main([*argv, "--resume", "--no-progress", "--out", str(tmp_path / "s")]) == 2
+    err = capsys.readouterr().err
+    assert "Traceback" not in err and len(err.strip().splitlines()) == 1, err
+    assert f"{folder / 'summary.json'} {problem}" in err
+
+
+@pytest.mark.parametrize(
+    ("forge", "problem"),
+    [
+        (lambda f: _relabel(f, SETTINGS[1], SETTINGS[0]), "episode 0 has noise 0.05, not this run's 0.0"),
+        (lambda f: _edit_json(f / "summary.json", mean_rescue_tick=1.0), "mean_rescue_tick 1.0"),
+        (lambda f: _edit_json(f / "summary.json", horizon=500), "horizon 500 is not"),
+        (lambda f: _edit_json(f / "summary.json", decisions_per_episode=3.0), "decisions_per_episode 3.0"),
+        (
+            lambda f: (f / "curve.csv").write_text("tick,success_rate\n0,1.0\n"),
+            "curve.csv is not the success",
+        ),
+        (lambda f: _edit_json(f / "episodes.json", episode=0), "episode 1 has episode 0"),
+    ],
+)
+def test_a_resumed_suite_refuses_results_that_are_not_this_runs_or_not_what_they_give(
+    suite, tmp_path, forge, problem
+):
+    """A finished run's folder filled with another setting's results and relabelled (summary.json's label
+    and setting), or holding a number its episodes do not give, its record made to fit, is refused by
+    --resume in one line naming the file."""
+    import shutil
+
+    out, _paths = suite
+    for st in SETTINGS:  # the suite's finished runs of nearest, to resume
+        shutil.copytree(
+            out / "s" / "runs" / st.label / "nearest", tmp_path / "s" / "runs" / st.label / "nearest"
+        )
+    target = tmp_path / "s" / "runs" / SETTINGS[0].label / "nearest"  # task2, full communication, no noise
+    forge(target)
+    _reseal(target)
+    with pytest.raises(ValueError, match=re.escape(problem)) as err:
+        run_suite(["nearest"], tmp_path / "s", episodes=2, progress=False)
+    assert str(target) in str(err.value) and "\n" not in str(err.value)
+
+
+def _edit_json(path, **values):
+    """Set ``values`` in a JSON object, or in the last episode of a list of them."""
+    value = json.loads(path.read_text())
+    (value[-1] if isinstance(value, list) else value).update(values)
+    path.write_text(json.dumps(value))
+
+
+def _relabel(folder, source, setting):
+    """``folder`` filled with the run of ``source`` beside it, its summary.json saying ``setting`` (its
+    label and its setting): the same maps, another setting's results."""
+    from dataclasses import asdict
+
+    for path in (folder.parent.parent / source.label / "nearest").iterdir():
+        (folder / path.name).write_bytes(path.read_bytes())
+    _edit_json(folder / "summary.json", label=setting.label, setting=asdict(setting))
