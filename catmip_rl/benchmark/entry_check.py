@@ -246,13 +246,14 @@ def _no_constant(name: str) -> None:
 
 def load_entries(folder: str | Path, episodes: int = EPISODES, split: str = "test") -> list[dict[str, Any]]:
     """Every ``*.json`` entry in ``folder``, checked (:func:`check_entry`), with the leaderboard's numbers
-    under ``"checked"``; all on ``split`` (the leaderboard ranks the test split's). :class:`EntryError`
-    naming the first bad file, an entry of another split, two entries of one method, or an empty or
-    missing folder."""
+    under ``"checked"``; all on ``split`` (the leaderboard ranks the test split's). Hidden files (a name
+    starting with ".": what a writer killed mid-write left, ``.NAME.PID-RANDOM.tmp.json``) are no
+    entries. :class:`EntryError` naming the first bad file, an entry of another split, two entries of one
+    method, or an empty or missing folder."""
     folder = Path(folder)
     if not folder.is_dir():
         raise EntryError(f"no such folder of entries: {folder}")
-    paths = sorted(folder.glob("*.json"))
+    paths = sorted(p for p in folder.glob("*.json") if not p.name.startswith("."))
     if not paths:
         raise EntryError(f"no entries (*.json) in {folder}")
     if len(paths) > MAX_ENTRIES:

@@ -536,3 +536,19 @@ def _relabel(folder, source, setting):
     for path in (folder.parent.parent / source.label / "nearest").iterdir():
         (folder / path.name).write_bytes(path.read_bytes())
     _edit_json(folder / "summary.json", label=setting.label, setting=asdict(setting))
+
+
+def test_the_leaderboard_reads_no_hidden_file_a_killed_writer_left(suite, tmp_path):
+    """An atomic write killed before its rename leaves ``.NAME.PID-RANDOM.tmp.json`` beside the entries:
+    no entry (half written, or a second copy of one), never read."""
+    _out, paths = suite
+    for path in paths:
+        (tmp_path / path.name).write_text(path.read_text())
+    (tmp_path / ".nearest.123-0a1b2c3d.tmp.json").write_text(paths[0].read_text()[:100])  # half written
+    (tmp_path / ".mine.456-0a1b2c3d.tmp.json").write_text(paths[1].read_text())  # whole, not yet renamed
+    entries = load_entries(tmp_path, episodes=2, split="validation")
+    assert sorted(e["file"] for e in entries) == ["mine.json", "nearest.json"]
+    for path in paths:
+        (tmp_path / path.name).unlink()
+    with pytest.raises(EntryError, match=r"no entries \(\*\.json\) in "):
+        load_entries(tmp_path, episodes=2, split="validation")
