@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 
 from catmip_env.events import EventEngine
-from catmip_env.play import WorldNotSupported
+from catmip_env.play import WorldNotSupported, plays_one_world_at_a_time
 from catmip_rl.benchmark.resume_check import check_resumed, read_summary
 from catmip_rl.evaluation.evaluate import EvalSetting, evaluate, progress_bar
 from catmip_rl.evaluation.methods import PLAY_OPTIONS, Method, changed_files, make_policy, method_source
@@ -229,8 +229,10 @@ def check_methods(
 
 
 def _first_decision(method: Method, env_config, seed: int) -> None:
-    """Build a ``py:`` policy and let it decide once in a fresh world of the setting: a factory or an
-    ``act`` that fails (a :class:`~catmip_rl.evaluation.user_policy.PolicyError`) fails here, before
+    """Build a ``py:`` policy and let it decide once in a fresh world of the setting, called as an
+    evaluation calls it (the :class:`~catmip_env.play.Policy` protocol: ``start_episodes`` first where
+    it has one, ``reset()`` before the episode of a policy that plays one world at a time): a factory or
+    an ``act`` that fails (a :class:`~catmip_rl.evaluation.user_policy.PolicyError`) fails here, before
     any run is played, not after the baselines."""
     from catmip_rl.evaluation.sandbox import close_policy
 
@@ -238,6 +240,10 @@ def _first_decision(method: Method, env_config, seed: int) -> None:
     try:
         engine = EventEngine(env_config, num_worlds=1, seed=seed, goal_mode=goal_mode)
         engine.reset()
+        if hasattr(policy, "start_episodes"):
+            policy.start_episodes(engine.num_worlds, engine.num_robots)
+        if plays_one_world_at_a_time(policy):
+            policy.reset()
         policy.act(engine)
     finally:
         close_policy(policy)

@@ -552,3 +552,35 @@ def test_the_leaderboard_reads_no_hidden_file_a_killed_writer_left(suite, tmp_pa
         (tmp_path / path.name).unlink()
     with pytest.raises(EntryError, match=r"no entries \(\*\.json\) in "):
         load_entries(tmp_path, episodes=2, split="validation")
+
+
+NEEDS_RESET = textwrap.dedent(
+    """
+    import numpy as np
+
+    class NeedsReset:  # PettingZoo level: reset() is called before each episode
+        episode = None
+
+        def reset(self):
+            self.episode = 0 if self.episode is None else self.episode + 1
+
+        def act(self, observations, infos):
+            if self.episode is None:
+                raise RuntimeError("act() before reset()")
+            active = [r for r in observations if infos[r]["active"]]
+            return {r: int(np.argmax(observations[r]["action_mask"])) for r in active}
+
+    def make_policy(env_config, seed):
+        return NeedsReset()
+    """
+)
+
+
+def test_the_suites_first_decision_resets_a_pettingzoo_policy_as_an_evaluation_does(tmp_path):
+    """The check before any run calls a PettingZoo-level policy as the protocol says: reset(), then act."""
+    from catmip_rl.evaluation.methods import parse_method
+
+    (tmp_path / "p.py").write_text(NEEDS_RESET)
+    method = parse_method(f"needs=py:{tmp_path / 'p.py'}:make_policy")
+    plays, not_played = jobs.check_methods([[method]], [(SETTINGS[0].label, SETTINGS[0])], 1000)
+    assert plays == {(SETTINGS[0].label, "needs"): [method]} and not not_played
