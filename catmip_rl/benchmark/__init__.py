@@ -1,6 +1,7 @@
 """The benchmark product: the suite, its entries and leaderboard, the paper's figures, and comparisons.
 
 * ``suite`` — ``catmip bench suite``: every method on every setting of a split, written as an entry;
+  ``estimate`` — how long it will take, each method timed on a few maps first;
 * ``entry`` — what a suite entry is (its runs, class, maps); ``entry_check`` — what the leaderboard accepts;
 * ``leaderboard`` — the ranked page of the committed entries; ``replay`` — an entry's maps played again;
 * ``paper`` — the paper's figures: every method on every panel, tables and plots;

@@ -33,6 +33,7 @@ from catmip_rl.benchmark.entry import (
     method_class,
     method_spec,
 )
+from catmip_rl.benchmark.estimate import estimate_line
 from catmip_rl.benchmark.jobs import Job, check_methods, default_threads, map_jobs, run_dir
 from catmip_rl.evaluation.methods import Method, parse_runs
 from catmip_rl.evaluation.user_policy import PolicyError
@@ -59,7 +60,9 @@ def run_suite(
     link, ``notes``, class (``classes``: a ``py:`` policy's) and ``chosen_on`` (by method name; needed
     on the test split) where given, else those of the entry already in ``out``; returns their paths.
     Resumes an interrupted suite in the same ``out``. A method that cannot play a setting
-    (``WorldNotSupported``), an unreadable model or a broken policy raises before anything is played."""
+    (``WorldNotSupported``), an unreadable model or a broken policy raises before anything is played.
+    Before the first run it prints how long the runs left will take on this machine, each method timed
+    on a few maps of each task (:func:`~catmip_rl.benchmark.estimate.estimate_line`)."""
     seed = check_split(split)
     groups = [parse_runs(m) for m in methods]
     names = [runs[0].name for runs in groups]
@@ -89,6 +92,9 @@ def run_suite(
         for k, m in enumerate(runs)
         for st in SETTINGS
     ]
+    line = estimate_line(tasks, jobs)  # before the first run: how long the runs left take here
+    if line is not None:
+        print(line, flush=True)
     try:
         results = iter(map_jobs(tasks, jobs, progress, f"suite {SUITE}"))
     except PolicyError as err:  # a policy that broke mid-suite: what was played is kept

@@ -335,13 +335,16 @@ def test_a_policy_that_breaks_mid_suite_says_what_is_kept_and_how_to_go_on(tmp_p
         textwrap.dedent(
             """
             class BreaksOnTask3:
+                def __init__(self, env_config):  # Task 3 with full communication: not the estimate's σ = 4
+                    self.breaks = env_config.map_size >= 32 and env_config.comm_sigma is None
+
                 def act(self, engine):
-                    if engine.shape[0] >= 32 and engine.state.ticks.max() > 20:  # past the suite's checks
+                    if self.breaks and engine.state.ticks.max() > 20:  # past the suite's checks
                         raise RuntimeError("no memory left")
                     return engine.masks.argmax(-1)
 
             def make_policy(env_config, seed):
-                return BreaksOnTask3()
+                return BreaksOnTask3(env_config)
             """
         )
     )
@@ -584,3 +587,31 @@ def test_the_suites_first_decision_resets_a_pettingzoo_policy_as_an_evaluation_d
     method = parse_method(f"needs=py:{tmp_path / 'p.py'}:make_policy")
     plays, not_played = jobs.check_methods([[method]], [(SETTINGS[0].label, SETTINGS[0])], 1000)
     assert plays == {(SETTINGS[0].label, "needs"): [method]} and not not_played
+
+
+def test_the_suite_prints_its_own_estimate_before_playing(tmp_path, capsys):
+    """``catmip bench suite`` times the methods on a few maps of each task and prints how long the runs
+    left take, before the first run; a suite with every run played prints none."""
+    from catmip_rl.benchmark.estimate import duration_text
+
+    argv = [
+        "bench",
+        "suite",
+        "--method",
+        "nearest",
+        "--episodes",
+        "2",
+        "--jobs",
+        "1",
+        "--no-progress",
+        "--out",
+        str(tmp_path / "s"),
+    ]
+    assert main(argv) == 0
+    printed = capsys.readouterr().out
+    assert re.search(r"^estimate: .+ for 12 runs on 1 job \(timed on 2 maps of each task\)$", printed, re.M)
+    assert printed.index("estimate: ") < printed.index("IQM rescued")
+    assert main([*argv, "--resume"]) == 0
+    assert "estimate: " not in capsys.readouterr().out
+    assert duration_text(30) == "under a minute" and duration_text(125) == "3 min"
+    assert duration_text(2 * 3600 + 9 * 60) == "2 h 10 min" and duration_text(3 * 3600) == "3 h"
