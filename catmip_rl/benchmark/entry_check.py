@@ -35,13 +35,25 @@ from catmip_rl.benchmark.entry import (
 )
 from catmip_rl.evaluation.evaluate import EvalSetting
 
-__all__ = ["EntryError", "check_entry", "load_entries", "read_entry", "MAX_ENTRY_BYTES", "MAX_RUNS"]
+__all__ = [
+    "EntryError",
+    "check_entry",
+    "check_stated",
+    "load_entries",
+    "read_entry",
+    "STATED",
+    "MAX_ENTRY_BYTES",
+    "MAX_RUNS",
+]
+
 
 MAX_ENTRY_BYTES = 4 * 2**20  # 10 runs x 12 settings x 1,000 ticks is under 1 MB
 MAX_ENTRIES = 500
 MAX_RUNS = 10
 MAX_FILES = 50  # files a run names
 TEXT_LIMITS = {"method": 64, "chosen_on": 300, "code": 300, "notes": 1_000, "actions": 80, "spec": 500}
+STATED = ("method", "code", "notes", "chosen_on")
+"""What an entry states of its method as the suite was told it (:func:`check_stated`)."""
 KEYS = {
     "format",
     "suite",
@@ -82,13 +94,17 @@ def _text(value: Any, what: str, limit: int, empty: bool = True) -> str:
     return value
 
 
-def _code(value: Any) -> None:
-    """An entry's code link: empty, an http(s) address, or a relative path (no other scheme)."""
-    code = _text(value, "code", TEXT_LIMITS["code"])
-    if not code or re.fullmatch(r"https?://[^\s<>\"'|\\`]+", code):
-        return
-    if ":" in code or code.startswith("/") or not _PATH.fullmatch(code):
-        raise ValueError(f"code {code!r} is neither an http(s) address nor a relative path")
+def check_stated(key: str, value: Any, empty: bool = True) -> str:
+    """``value`` as an entry may state its ``key`` (:data:`STATED`: what a suite is told of a method): a
+    string of at most ``TEXT_LIMITS[key]`` characters without control characters, not blank unless
+    ``empty``; a ``code`` link is empty, an http(s) address or a relative path (no other scheme).
+    ValueError naming the key: the leaderboard refuses such an entry, the suite such a request."""
+    text = _text(value, key, TEXT_LIMITS[key], empty)
+    if key != "code" or not text or re.fullmatch(r"https?://[^\s<>\"'|\\`]+", text):
+        return text
+    if ":" in text or text.startswith("/") or not _PATH.fullmatch(text):
+        raise ValueError(f"code {text!r} is neither an http(s) address nor a relative path")
+    return text
 
 
 def _number(value: Any) -> bool:
@@ -175,13 +191,13 @@ def _check_header(entry: Any, episodes: int) -> None:
     for key, want in (("suite", SUITE), ("seed", SPLITS[split]), ("episodes", episodes)):
         if entry.get(key) != want or type(entry.get(key)) is bool:
             raise ValueError(f"{key} is {entry.get(key)!r}, the leaderboard's is {want!r}")
-    _text(entry.get("method"), "method", TEXT_LIMITS["method"], empty=False)
+    check_stated("method", entry.get("method"), empty=False)
     if entry.get("class") not in CLASSES:
         raise ValueError(f"class is {entry.get('class')!r}, not one of {', '.join(CLASSES)}")
-    _text(entry.get("chosen_on"), "chosen_on", TEXT_LIMITS["chosen_on"], empty=split != "test")
-    _text(entry.get("notes", ""), "notes", TEXT_LIMITS["notes"])
+    check_stated("chosen_on", entry.get("chosen_on"), empty=split != "test")
+    check_stated("notes", entry.get("notes", ""))
     _text(entry.get("actions") or "", "actions", TEXT_LIMITS["actions"])
-    _code(entry.get("code", ""))
+    check_stated("code", entry.get("code", ""))
     _check_runs(entry.get("runs"))
     settings = entry.get("settings")
     labels = [st.label for st in SETTINGS]

@@ -33,6 +33,7 @@ from catmip_rl.benchmark.entry import (
     method_class,
     method_spec,
 )
+from catmip_rl.benchmark.entry_check import STATED, check_stated
 from catmip_rl.benchmark.estimate import estimate_line
 from catmip_rl.benchmark.jobs import Job, check_methods, default_threads, map_jobs, run_dir
 from catmip_rl.evaluation.methods import Method, parse_runs
@@ -138,8 +139,9 @@ def _check_request(
 ) -> None:
     """ValueError, before anything is played, for a suite request that cannot give entries: methods
     without unique names, a training run listed twice (one run), ``about`` (code, notes, class,
-    chosen-on) for a method not played, an episode count past the split's, a method without a class or,
-    on the test split, without what it was chosen on (given now or in its entry in ``out``, ``kept``)."""
+    chosen-on) for a method not played, an episode count past the split's, a name, code link, notes or
+    chosen-on the leaderboard would refuse, a method without a class or, on the test split, without what
+    it was chosen on (given now or in its entry in ``out``, ``kept``)."""
     if not groups or len(set(names)) != len(names):
         raise ValueError(f"the suite needs methods with unique names (use NAME=METHOD), got {names}")
     for runs in groups:
@@ -156,12 +158,25 @@ def _check_request(
     if not 1 <= episodes <= EPISODES:
         raise ValueError(f"episodes must be from 1 to the {EPISODES} frozen maps of a split, got {episodes}")
     for runs, name in zip(groups, names):
+        _check_stated(name, about, kept[name])
         method_class(name, runs, about["class"].get(name) or kept[name]["class"] or None)
         if split == "test" and not (about["chosen_on"].get(name) or kept[name]["chosen_on"]):
             raise ValueError(
                 f"an entry on the test split states what {name} was chosen on: --chosen-on "
                 f"{name}=TEXT (e.g. 'validation split', or 'nothing: a published planner')"
             )
+
+
+def _check_stated(name: str, about: dict[str, dict[str, str]], kept: dict[str, str]) -> None:
+    """ValueError naming the flag for a method name, code link, notes or chosen-on text the leaderboard
+    would refuse in the entry (:func:`~catmip_rl.benchmark.entry_check.check_stated`, its own rule)."""
+    for key in STATED:
+        value = name if key == "method" else about[key].get(name) or kept[key]
+        try:
+            check_stated(key, value, empty=key != "method")
+        except ValueError as err:
+            flag = "--method NAME" if key == "method" else f"--{key.replace('_', '-')} {name}=..."
+            raise ValueError(f"{flag}: {err}: the leaderboard would refuse the entry") from None
 
 
 def _recorded(path: Path) -> dict[str, str]:

@@ -150,6 +150,7 @@ EVAL = ["eval", "--method", "nearest", "--episodes", "1"]
 RENDER = ["render", "--method", "nearest"]
 BENCH = ["bench", "paper", "--figure", "6", "--methods", "nearest", "--episodes", "1", "--jobs", "1"]
 TRAIN = ["train", "--preset", "tiny"]
+SUITE = ["bench", "suite", "--method", "nearest", "--episodes", "1", "--jobs", "1"]
 
 
 def _set(item: str) -> list[str]:
@@ -204,6 +205,15 @@ CASES = {
     "bench perf --figure": (["bench", "perf", "--figure", "6"], ["bench perf: error", "--figure"]),
     "bench perf --episodes": (["bench", "perf", "--episodes", "1"], ["bench perf: error", "--episodes"]),
     "bench fig dir not empty": ([*BENCH, "--out", "{figs}"], ["fig6 is not empty", "--force"]),
+    # what the leaderboard would refuse in the entry is refused before the suite plays
+    "bench suite --notes control": ([*SUITE, "--notes", "nearest=a\x1b[2Jb", "--out", "{out}"],
+                                    ["--notes nearest=...: notes holds a control character", "would refuse"]),
+    "bench suite --code scheme": ([*SUITE, "--code", "nearest=javascript:alert(1)", "--out", "{out}"],
+                                  ["--code nearest=...", "neither an http(s) address nor a relative path"]),
+    "bench suite --notes long": ([*SUITE, "--notes", "nearest=" + "x" * 1001, "--out", "{out}"],
+                                 ["notes is 1,001 characters, at most 1,000"]),
+    "bench suite long name": (["bench", "suite", "--method", "n" * 65 + "=nearest", "--out", "{out}"],
+                              ["--method NAME: method is 65 characters, at most 64"]),
     "train --iterations 0": ([*TRAIN, "--iterations", "0", "--run-dir", "{out}"], ["--iterations"]),
     "train --lr -1": ([*TRAIN, "--lr", "-1", "--run-dir", "{out}"], ["--lr", "> 0"]),
     "train --lr inf": ([*TRAIN, "--lr", "inf", "--run-dir", "{out}"], ["--lr"]),
