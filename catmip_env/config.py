@@ -23,6 +23,7 @@ __all__ = [
     "RESCUER",
     "make_config",
     "MAX_MAP_SIZE",
+    "MAX_TICKS",
     "MIN_COMM_SIGMA",
 ]
 
@@ -35,6 +36,9 @@ VIEW_SIZE = 7
 #: Largest generated map side: beliefs, observations and planner buffers grow as S^2 per robot and
 #: world (a 512 x 512 world's observations are ~2 MB per robot), so larger maps only exhaust memory.
 MAX_MAP_SIZE = 512
+#: Longest episode and macro-action in ticks (a paper task's horizon is 300 to 500 ticks): a run's curve
+#: holds a value per tick, and a count past int64 fails inside the compiled kernels, not in one line.
+MAX_TICKS = 1_000_000
 #: Smallest communication range sigma (cells). Robots stand >= 1 cell apart, so below ~0.037 a link's
 #: probability exp(-d^2/sigma^2) is exactly 0.0 in float64 anyway; a tinier sigma only breaks the maths
 #: (1/sigma^2 overflows below ~1e-154, and sigma^2 is 0.0 below ~1e-162: a ZeroDivisionError in the kernels).
@@ -231,7 +235,7 @@ _RULES: dict[str, Rule] = {
     "team": Rule("a list of class names", _list_of(is_str)),
     "random_classes": Rule("a list of class names", _list_of(is_str)),
     "classes": Rule("a list of robot classes", _list_of(lambda c: isinstance(c, RobotClass))),
-    "horizon_ticks": INT(">= 1", lambda v: v >= 1),
+    "horizon_ticks": INT(f"in [1, {MAX_TICKS}]", lambda v: 1 <= v <= MAX_TICKS),
     "num_obstacles": Rule(
         "None or an int", lambda v: v is None or is_int(v), ">= 0", lambda v: v is None or v >= 0
     ),
@@ -255,7 +259,7 @@ _RULES: dict[str, Rule] = {
     "collision_penalty": NUMBER,
     "find_reward": NUMBER(">= 0", lambda v: v >= 0),
     "rescue_reward": NUMBER(">= 0", lambda v: v >= 0),
-    "max_ma_ticks": INT(">= 1", lambda v: v >= 1),
+    "max_ma_ticks": INT(f"in [1, {MAX_TICKS}]", lambda v: 1 <= v <= MAX_TICKS),
     "synchronous": BOOL,
     "activation": Rule(
         "a list of two ints",

@@ -91,9 +91,16 @@ def _train(args: argparse.Namespace) -> int:
 
 
 def _setting(args: argparse.Namespace):
+    """The flags' setting; ValueError naming ``--max-ma-ticks`` for a macro-action longer than the task's
+    horizon (the flags' types check the rest)."""
     from catmip_rl.evaluation.evaluate import EvalSetting
 
-    return EvalSetting(args.task, args.comm, args.noise, args.max_ma_ticks)
+    try:
+        return EvalSetting(args.task, args.comm, args.noise, args.max_ma_ticks)
+    except ValueError as err:
+        if "max_ma_ticks" not in str(err):
+            raise
+        raise ValueError(f"--max-ma-ticks {args.max_ma_ticks}: {err}") from None
 
 
 def _no_plots_note(no_plots: bool) -> str:
@@ -117,11 +124,12 @@ def _eval(args: argparse.Namespace) -> int:
 
     note = _no_plots_note(args.no_plots)  # decided before the work
     plots = not (args.no_plots or note)
+    setting = _setting(args)
     with output_folder(args.out, "--out", force=args.force) as out:
         torch_threads(args.threads)
         result = evaluate(
             args.method,
-            _setting(args),
+            setting,
             args.episodes,
             args.seed,
             progress=not args.no_progress,
@@ -181,9 +189,10 @@ def _render(args: argparse.Namespace) -> int:
     from catmip_rl.cli.render import render_episode
     from catmip_rl.store.outputs import output_file
 
+    setting = _setting(args)
     with output_file(args.out, "--out", force=args.force, suffixes=(".gif",)):
         torch_threads(args.threads)
-        path = render_episode(args.method, _setting(args), args.out, args.episode, args.seed, args.fps)
+        path = render_episode(args.method, setting, args.out, args.episode, args.seed, args.fps)
     print(f"wrote {path}")
     return 0
 

@@ -72,8 +72,9 @@ class EvalSetting:
         comm_sigma(self.comm)
         if not 0.0 <= self.noise < 1.0:
             raise ValueError(f"noise must be in [0, 1), got {self.noise!r}")
-        if not isinstance(self.max_ma_ticks, int) or self.max_ma_ticks < 1:
-            raise ValueError(f"max_ma_ticks must be an int >= 1, got {self.max_ma_ticks!r}")
+        h, ma = make_config(self.task).horizon_ticks, self.max_ma_ticks  # longer is the whole episode
+        if type(ma) is not int or not 1 <= ma <= h:
+            raise ValueError(f"max_ma_ticks must be an int in [1, {h}] ({self.task}'s horizon), got {ma!r}")
 
     def env_config(self, needs: dict | None = None, synchronous: bool = False) -> EnvConfig:
         """The task's evaluation config (activation (0, 0)); ``needs``: what the policy sets of it (an

@@ -46,6 +46,9 @@ def test_default_classes():
         # values of the wrong type (JSON from the CLI's --set) are named, never a TypeError
         ({"map_size": 100_000}, r"map_size must be an int in \[10, 512\]"),
         ({"map_size": 15.0}, "map_size must be an int"),
+        # a count past int64 would fail in the compiled kernels, not in one line
+        ({"max_ma_ticks": 10**20}, r"max_ma_ticks must be an int in \[1, 1000000\]"),
+        ({"horizon_ticks": 10**10}, r"horizon_ticks must be an int in \[1, 1000000\]"),
         ({"window": True}, "window must be an int"),
         ({"team": "rescuer"}, "team must be a list of class names, got 'rescuer'"),
         ({"team": [1, 2]}, "team must be a list of class names"),
