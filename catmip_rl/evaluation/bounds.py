@@ -8,15 +8,17 @@ call, its memory, the processes it starts and the folder it writes in.
   raises :class:`~catmip_rl.evaluation.user_policy.PolicyError` ("took longer than N s at act(engine)").
 * **Memory.** The resident memory of the worker and the processes it started (``VmRSS``, read from
   ``/proc/PID/statm``: no address-space limit, which torch and numba do not survive), read while the
-  parent waits and at least every half second of play, may not pass :data:`MEMORY_LIMIT_BYTES`. Where
-  there is no ``/proc`` (macOS, Windows) memory is not watched; the time limit still holds.
+  parent waits and after each reply (at most every 0.1 s; the processes re-listed each second), may not
+  pass :data:`MEMORY_LIMIT_BYTES`. Where there is no ``/proc`` (macOS, Windows) memory is not watched;
+  the time limit still holds.
 * **Processes.** The worker is a child subreaper (Linux ``PR_SET_CHILD_SUBREAPER``, no privilege
   needed): whatever the policy starts, detached ones included (a double fork, ``setsid``), stays one of
   its descendants while it lives. Every process it starts also inherits the marker :data:`MARKER` in its
   environment. At the end the parent stops, then kills, the worker, its descendants, the descendants it
   saw while waiting and every process whose environment holds the worker's marker (so a worker that died
   first leaves none of them behind, unless a process both left its tree and cleared its environment).
-  Elsewhere the worker's own session (process group) is killed.
+  Elsewhere the worker's own session (process group) is killed. A ``catmip`` that is itself killed takes
+  its worker along (``PR_SET_PDEATHSIG``), not the processes the worker started.
 * **Folder.** The worker runs in a fresh temporary folder (its working directory, ``HOME`` and
   ``TMPDIR`` inside it), removed at the end: relative writes land there. The policy's own files are found
   by absolute paths (the ``py:`` file resolved, ``sys.path`` passed as absolute paths).

@@ -137,7 +137,7 @@ class IsolatedWorker:
         self.sock, self.reader = mine, FrameReader(mine)
         self.processes = PolicyProcesses(self.proc.pid, token)
         self._buffers: dict[int, tuple[tuple, dict[str, np.ndarray]]] = {}  # handle -> (layout key, arrays)
-        self._closed = False
+        self._closed = self._pending = False
         self._finalizer = weakref.finalize(self, _stop, mine, self.proc, self.processes, self.folder)
         try:  # a few bytes into an empty pipe: never waits
             send_frame(mine, pickle.dumps((target, name, env_config, seed, threads, os.getpid(), path)))
@@ -166,9 +166,11 @@ class IsolatedWorker:
                 )
             self._watch_memory(what)
 
+        self._pending = True  # until its reply is read: a request interrupted here leaves the pipe mid-way
         try:
             send_frame(self.sock, pickle.dumps(message), parts, waiting)
             head, payload = self.reader.frame(waiting, _MAX_HEADER, _MAX_PAYLOAD)
+            self._pending = False
             reply = json.loads(head)
         except PolicyError:
             raise
@@ -256,8 +258,11 @@ class IsolatedWorker:
         return arrays
 
     def close(self) -> None:
-        """End the worker (asked, then killed after a few seconds), every process it started, and remove
-        its folder."""
+        """End the worker (asked, then killed after a few seconds; at once if a request was interrupted,
+        e.g. by Ctrl-C: it may be deep in the policy's call), every process it started, and remove its
+        folder."""
+        if self._pending and not self._closed:
+            self.processes.end()
         self._closed = True
         self._buffers.clear()
         self._finalizer()
