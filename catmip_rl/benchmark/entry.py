@@ -51,6 +51,7 @@ __all__ = [
     "entry_actions",
     "method_class",
     "method_spec",
+    "package_versions",
 ]
 
 SUITE = "v2"
@@ -152,7 +153,7 @@ def iqm_interval(success: list[np.ndarray], seed: int = 0) -> tuple[float, float
     return point, float(low), float(high)
 
 
-def _versions() -> dict[str, str | None]:
+def package_versions() -> dict[str, str | None]:
     found = {}
     for name in PACKAGES:
         try:
@@ -173,16 +174,30 @@ def _training(method: Method) -> dict[str, Any] | None:
 
 def _files(results: dict[str, list[dict[str, Any]]], k: int) -> list[dict[str, str]] | None:
     """The files training run ``k`` played from over the settings (its policy's ``files`` with their
-    SHA-256, e.g. a ``py:`` policy's weights for each task), None if its policy names none."""
-    found = {f["file"]: f for res in results.values() for f in res[k]["summary"].get("policy_files") or []}
+    SHA-256, e.g. a ``py:`` policy's weights for each task, and the modules it imported from its own
+    folder), None if there are none."""
+    found = {
+        f["file"]: f
+        for res in results.values()
+        for key in ("policy_files", "policy_modules")
+        for f in res[k]["summary"].get(key) or []
+    }
     return [_shown_file(found[name]) for name in sorted(found)] or None
 
 
+def _base() -> Path:
+    """The folder an entry's paths start in: the root of the git repository the working directory is in
+    (a clone replays the entry from its root), else the working directory."""
+    here = Path.cwd().resolve()
+    return next((d for d in (here, *here.parents) if (d / ".git").exists()), here)
+
+
 def _shown(path: str) -> str:
-    """``path`` relative to the working directory where it lies below it (``run-records/x/policy.pt``,
-    as a clone of the entry's repository names it), else as given: an entry names no home folders."""
+    """``path`` relative to the repository (:func:`_base`) where it lies inside it
+    (``run-records/x/policy.pt``, as a clone of the entry's repository names it), else as given: a file
+    outside names an absolute path that only this machine can replay."""
     try:
-        return str(Path(path).relative_to(Path.cwd()))
+        return str(Path(path).resolve().relative_to(_base()))
     except ValueError:
         return path
 
@@ -315,7 +330,7 @@ def make_entry(
         "settings": settings,
         "code": code,
         "notes": notes,
-        "versions": _versions(),
+        "versions": package_versions(),
         "machine": machine_info(),
         "created": datetime.date.today().isoformat(),
     }

@@ -46,7 +46,6 @@ __all__ = [
     "MAX_RUNS",
 ]
 
-
 MAX_ENTRY_BYTES = 4 * 2**20  # 10 runs x 12 settings x 1,000 ticks is under 1 MB
 MAX_ENTRIES = 500
 MAX_RUNS = 10
@@ -260,13 +259,38 @@ def _no_constant(name: str) -> None:
     raise json.JSONDecodeError(f"{name} is not a number an entry may hold", name, 0)
 
 
-def load_entries(folder: str | Path, episodes: int = EPISODES, split: str = "test") -> list[dict[str, Any]]:
-    """Every ``*.json`` entry in ``folder``, checked (:func:`check_entry`), with the leaderboard's numbers
-    under ``"checked"``; all on ``split`` (the leaderboard ranks the test split's). Hidden files (a name
-    starting with ".": what a writer killed mid-write left, ``.NAME.PID-RANDOM.tmp.json``) are no
-    entries. :class:`EntryError` naming the first bad file, an entry of another split, two entries of one
-    method, or an empty or missing folder."""
-    folder = Path(folder)
+def load_board(
+    folder: str | Path, episodes: int = EPISODES, split: str = "test"
+) -> tuple[list[dict[str, Any]], list[dict[str, Any]], list[tuple[str, str]]]:
+    """The entries of ``folder`` as a board sees them: those of ``episodes`` maps a setting, the previews
+    (fewer maps, each checked on its own count), and the refused ones, ``(file, one line)``: a file that
+    is no entry of this suite, of another split, more maps than the board's, or a method an earlier
+    file (by name) already names. :class:`EntryError` only for a folder that is missing, empty or too
+    full."""
+    entries, previews, refused, by_name = [], [], [], {}
+    for path in _entry_paths(Path(folder)):
+        try:
+            entry = read_entry(path)
+            own = entry.get("episodes") if isinstance(entry, dict) else None
+            preview = type(own) is int and 1 <= own < episodes
+            entry["checked"] = check_entry(entry, own if preview else episodes)
+            if entry["split"] != split:
+                raise ValueError(
+                    f"it is on the {entry['split']} split; this leaderboard ranks the {split} split's "
+                    f"entries only (--split {entry['split']} shows those)"
+                )
+            if entry["method"] in by_name:
+                raise ValueError(f"{by_name[entry['method']]} already names the method {entry['method']!r}")
+        except (ValueError, TypeError, KeyError, OverflowError) as err:
+            refused.append((path.name, " ".join(str(err).split())))
+            continue
+        by_name[entry["method"]] = path.name
+        (previews if preview else entries).append(entry | {"file": path.name, "path": str(path)})
+    return entries, previews, refused
+
+
+def _entry_paths(folder: Path) -> list[Path]:
+    """The entry files of ``folder`` (``*.json``, hidden files left out: a writer's temporary files)."""
     if not folder.is_dir():
         raise EntryError(f"no such folder of entries: {folder}")
     paths = sorted(p for p in folder.glob("*.json") if not p.name.startswith("."))
@@ -274,6 +298,16 @@ def load_entries(folder: str | Path, episodes: int = EPISODES, split: str = "tes
         raise EntryError(f"no entries (*.json) in {folder}")
     if len(paths) > MAX_ENTRIES:
         raise EntryError(f"{len(paths)} entries in {folder}, at most {MAX_ENTRIES}")
+    return paths
+
+
+def load_entries(folder: str | Path, episodes: int = EPISODES, split: str = "test") -> list[dict[str, Any]]:
+    """Every ``*.json`` entry in ``folder``, checked (:func:`check_entry`), with the leaderboard's numbers
+    under ``"checked"``; all on ``split`` (the leaderboard ranks the test split's). Hidden files (a name
+    starting with ".": what a writer killed mid-write left, ``.NAME.PID-RANDOM.tmp.json``) are no
+    entries. :class:`EntryError` naming the first bad file, an entry of another split, two entries of one
+    method, or an empty or missing folder."""
+    paths = _entry_paths(Path(folder))
     entries, by_name = [], {}
     for path in paths:
         try:

@@ -1,14 +1,16 @@
-"""The leaderboard (``catmip leaderboard``): suite entries checked, optionally replayed, then ranked in a
-table and a figure.
+"""The leaderboard (``catmip leaderboard``): suite entries checked, verified, then ranked in a table and a
+figure (the page: :mod:`~catmip_rl.benchmark.board_page`).
 
 Every entry is checked first (:mod:`~catmip_rl.benchmark.entry_check`: the suite, the split, the frozen
-maps, every number recomputed from its rescue ticks); with ``replay`` (``--replay K``) the first K maps
-of every setting and training run are played again from the files the entry names
-(:mod:`~catmip_rl.benchmark.replay`) and an entry whose ticks differ is refused. The table ranks the
-test split's entries by the IQM of success by tick 100; an entry level with the one above it (their
-paired difference over the settings has a 95 % CI that holds 0, :func:`level_with`) shares its rank.
-A validation table (``--split validation``, for choosing) orders its entries the same way but ranks none.
-Each row shows its class (planner, learned, hybrid, floor) and whether it was verified by replay.
+maps, every number recomputed from its rescue ticks); a file that fails is refused and listed under the
+table, the others stay on the board, and an entry of fewer maps is a preview, placed against the board on
+the same maps but not ranked. With ``--replay K`` (and ``--fresh M``) every entry is verified
+(:mod:`~catmip_rl.benchmark.verify`: maps replayed from its files, fresh maps against its claim) and the
+record is written beside the page; without, the page renders from that record. The table ranks the test
+split's entries by the IQM of success by tick 100; an entry level with the one above it (their paired
+difference over the settings has a 95 % CI that holds 0, :func:`level_with`) shares its rank. A
+validation table (``--split validation``, for choosing) orders its entries the same way but ranks none.
+Each row shows its class (planner, learned, hybrid, floor) and what its verification found.
 
 Every entry played the same maps, so any two compare map by map: :func:`paired_rows` (``catmip
 leaderboard --vs METHOD``) gives each entry's difference from one reference in every setting.
@@ -16,20 +18,24 @@ leaderboard --vs METHOD``) gives each entry's difference from one reference in e
 
 from __future__ import annotations
 
-import csv
-import io
+import json
 import os
-import re
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from catmip_env.map_sets import SPLITS
-from catmip_rl.benchmark.entry import CLASSES, EPISODES, SETTINGS, SUITE
-from catmip_rl.benchmark.entry_check import EntryError, load_entries
+from catmip_rl.benchmark.board_page import (
+    page_figure,
+    page_markdown,
+    paired_csv,
+    paired_markdown,
+    paired_names,
+)
+from catmip_rl.benchmark.entry import EPISODES, SETTINGS
+from catmip_rl.benchmark.entry_check import EntryError, load_board, load_entries
 from catmip_rl.evaluation.stats import CONFIDENCE, shared_maps_cis
-from catmip_rl.store.files import atomic_savefig, atomic_write_text
+from catmip_rl.store.files import atomic_write_text
 
 __all__ = [
     "EntryError",
@@ -37,30 +43,13 @@ __all__ = [
     "leaderboard_rows",
     "level_with",
     "paired_rows",
-    "paired_names",
     "render_leaderboard",
-    "md_text",
-    "task_table",
+    "preview_rows",
+    "read_record",
+    "Board",
 ]
 
-SHORT = {"full": "full", "4": "σ4", "2": "σ2"}  # column headings: T2 σ2 +n
-LONG = {"full": "full", "4": "σ = 4", "2": "σ = 2"}  # a task's table: σ = 2 + noise
-CLASS_COLOURS = {"planner": "tab:blue", "learned": "tab:green", "hybrid": "tab:purple", "floor": "tab:gray"}
 LEVEL_RESAMPLES = 4_000
-RANKED_SPLIT = "test"  # a validation table orders its entries for choosing; only the test split ranks
-
-
-def _short(label: str) -> str:
-    st = next(s for s in SETTINGS if s.label == label)
-    return f"T{st.task[-1]} {SHORT[st.comm]}" + (" +n" if st.noise else "")
-
-
-def md_text(text: str) -> str:
-    """``text`` as a Markdown table cell shows it and nothing more: no cell break (``|``), link, code,
-    emphasis or HTML (entries hold no control characters: checked). An underscore inside a word stays
-    as it is (``amat_general``: no emphasis there)."""
-    text = re.sub(r"([\\`*\[\]<>|~])", r"\\\1", text)
-    return re.sub(r"(?<![A-Za-z0-9])_|_(?![A-Za-z0-9])", r"\\_", text)
 
 
 def level_with(
@@ -100,7 +89,8 @@ def leaderboard_rows(entries: list[dict[str, Any]]) -> list[dict[str, Any]]:
             "iqm": checked["iqm"],
             "iqm_ci_low": low,
             "iqm_ci_high": high,
-            "verified": e.get("replayed", 0),
+            "verified": e.get("verified"),
+            "class_note": e.get("class_note", ""),
             "chosen_on": e.get("chosen_on") or "",
             "success": checked["success"],
         }
@@ -145,182 +135,27 @@ def paired_rows(entries: list[dict[str, Any]], vs: str) -> list[dict[str, Any]]:
     return rows
 
 
-def _page_head(title: str, text: str, head: list[str]) -> list[str]:
-    """A Markdown page's title, its paragraph and its table's heading rows."""
-    return [f"# {title}", "", text, "", "| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+def preview_rows(entries: list[dict[str, Any]], previews: list[dict[str, Any]]) -> list[list[dict[str, Any]]]:
+    """Per preview (an entry of fewer maps a setting): the board's entries and the preview, each on the
+    first N maps of every setting (the preview's N), in the leaderboard's order; the preview's row
+    marked ``preview`` (N), no rank."""
+    from catmip_rl.benchmark.entry import iqm_interval
 
-
-def _maps(episodes: int, split: str) -> str:
-    return f"{episodes} {split} maps (seed {SPLITS[split]}) per setting"
-
-
-def _paired_markdown(rows: list[dict[str, Any]], vs: str, episodes: int, split: str) -> str:
-    head = ["method", "class", "runs", "ahead / behind", *(_short(s.label) for s in SETTINGS)]
-    lines = _page_head(
-        f"CATMiP suite {SUITE} ({split} split): each method against {md_text(vs)}",
-        f"Success by tick 100 less {md_text(vs)}'s on the same {_maps(episodes, split)}, with a 95 % CI "
-        "over the maps and the method's training runs (the reference's runs averaged per map); bold where "
-        "the interval excludes 0. Ahead / behind: the settings whose interval lies above / below 0. "
-        "Recomputed from the entries' rescue ticks (`catmip leaderboard --vs`).",
-        head,
-    )
-    for r in rows:
-        cells = [md_text(r["method"]), r["class"], str(r["runs"]), f"{r['ahead']} / {r['behind']}"]
-        for st in SETTINGS:
-            diff, low, high = r[st.label]
-            cell = f"{diff:+.3f} [{low:+.3f}, {high:+.3f}]"
-            cells.append(f"**{cell}**" if low > 0 or high < 0 else cell)
-        lines.append("| " + " | ".join(cells) + " |")
-    return "\n".join(lines) + "\n"
-
-
-def _paired_csv(rows: list[dict[str, Any]], vs: str) -> str:
-    out = io.StringIO()
-    writer = csv.writer(out, lineterminator="\n")
-    writer.writerow(["method", "class", "vs", "runs", "setting", "diff_success_by_100", "ci_low", "ci_high"])
-    for r in rows:
-        for st in SETTINGS:
-            diff, low, high = r[st.label]
-            writer.writerow(
-                [r["method"], r["class"], vs, r["runs"], st.label, f"{diff:.6f}", f"{low:.6f}", f"{high:.6f}"]
-            )
-    return out.getvalue()
-
-
-def _verified(row: dict[str, Any]) -> str:
-    return f"✓ {row['verified']} maps" if row["verified"] else "not replayed"
-
-
-def _markdown(rows: list[dict[str, Any]], episodes: int, split: str) -> str:
-    head = ["rank", "method", "class", "runs", "actions", "IQM by tick 100 [95 % CI]"]
-    head += [_short(s.label) for s in SETTINGS] + ["verified"]
-    ranked = split == RANKED_SPLIT  # a validation table shows "–" for every rank
-    ranking = (
-        "A rank shared with the row above: the two are level (their paired difference over the settings "
-        "has a 95 % CI that holds 0)."
-        if ranked
-        else f"Not ranked (–): the {split} split is for choosing; the leaderboard ranks the "
-        f"{RANKED_SPLIT} split's entries, each played once after every choice is frozen."
-    )
-    lines = _page_head(
-        f"CATMiP leaderboard, suite {SUITE} ({split} split)",
-        f"Success by tick 100 on {_maps(episodes, split)}; the aggregate is the IQM over (training runs "
-        f"× settings) with a 95 % CI over runs and maps. {ranking} Class: planner; "
-        "learned (plays from its own observations); hybrid (reads a planner at play time); floor (no "
-        "skill). T2/T3: Task 2 (20×20, 3 robots) / Task 3 (32×32, 6 robots); full / σ4 / σ2: "
-        "communication; +n: 5 % SLAM noise. Every number is recomputed from the entry's rescue ticks; "
-        "verified: the first maps of every setting and run replayed from the entry's files gave its "
-        "ticks (`catmip leaderboard --replay K`).",
-        head,
-    )
-    for r in rows:
-        method = md_text(r["method"])
-        if r["code"]:
-            method = f"[{method}](<{r['code']}>)"
-        cells = [
-            str(r["rank"]) if ranked else "–",
-            method,
-            r["class"],
-            str(r["runs"]),
-            md_text(r["actions"]),
-            f"**{r['iqm']:.3f}** [{r['iqm_ci_low']:.3f}, {r['iqm_ci_high']:.3f}]",
-            *(f"{r[s.label]:.2f}" for s in SETTINGS),
-            _verified(r),
-        ]
-        lines.append("| " + " | ".join(cells) + " |")
-    about = []
-    for r in rows:
-        said = [md_text(r["notes"])] if r["notes"] else []
-        said += [f"chosen on: {md_text(r['chosen_on'])}"] if r["chosen_on"] else []
-        if said:
-            about.append(f"- **{md_text(r['method'])}** ({r['class']}): " + "; ".join(said))
-    return "\n".join(lines + ([""] + about if about else [])) + "\n"
-
-
-def task_table(rows: list[dict[str, Any]], task: str) -> str:
-    """One task's Markdown table (``task2`` / ``task3``): a row per entry of :func:`leaderboard_rows`, in
-    its order, with the class, the method and success by tick 100 in each of the task's settings (the
-    test-split tables of the task pages, ``docs/figures/test_tables.py``)."""
-    settings = [st for st in SETTINGS if st.task == task]
-    if not settings:
-        tasks = sorted({st.task for st in SETTINGS})
-        raise ValueError(f"the suite has no {task!r} settings (its tasks: {', '.join(tasks)})")
-    head = ["class", "method", *(LONG[st.comm] + (" + noise" if st.noise else "") for st in settings)]
-    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
-    for r in rows:
-        plain = re.fullmatch(r"[A-Za-z0-9_.:+-]+", r["method"])  # as code; any other name as plain text
-        name = f"`{r['method']}`" if plain else md_text(r["method"])
-        lines.append("| " + " | ".join([r["class"], name, *(f"{r[st.label]:.2f}" for st in settings)]) + " |")
-    return "\n".join(lines)
-
-
-def _figure(rows: list[dict[str, Any]], path: Path, episodes: int, split: str) -> Path:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    from matplotlib.lines import Line2D
-
-    n = len(rows)
-    fig, (left, right) = plt.subplots(1, 2, figsize=(12, 2.0 + 0.36 * n), width_ratios=[1, 2.2], sharey=True)
-    y = np.arange(n)[::-1]
-    for yk, r in zip(y, rows):
-        colour = CLASS_COLOURS[r["class"]]
-        err = [[r["iqm"] - r["iqm_ci_low"]], [r["iqm_ci_high"] - r["iqm"]]]
-        left.errorbar(
-            r["iqm"],
-            yk,
-            xerr=err,
-            fmt="o",
-            color=colour,
-            markersize=3.5,
-            elinewidth=2.5,
-            capsize=5,
-            capthick=1.5,
-        )
-    ranked = split == RANKED_SPLIT
-    labels = [
-        (f"{r['rank']}. " if ranked else "") + r["method"][:28] + (" ✓" if r["verified"] else "")
-        for r in rows
-    ]
-    left.set_yticks(y, labels)
-    for tick, r in zip(left.get_yticklabels(), rows):
-        tick.set_color(CLASS_COLOURS[r["class"]])
-    lows, highs = [r["iqm_ci_low"] for r in rows], [r["iqm_ci_high"] for r in rows]
-    span = max(max(highs) - min(lows), 0.05)
-    left.set_xlim(max(0.0, min(lows) - 0.06 * span), min(1.0, max(highs) + 0.06 * span))
-    left.set_xlabel("IQM, rescued by tick 100 (95 % CI)")
-    left.grid(axis="x", alpha=0.3)
-    used = [c for c in CLASSES if any(r["class"] == c for r in rows)]
-    left.legend(
-        [Line2D([], [], color=CLASS_COLOURS[c], marker="o", lw=2.5) for c in used],
-        used,
-        loc="best",
-        fontsize=8,
-        title="class",
-        title_fontsize=8,
-    )
-    grid = np.array([[r[s.label] for s in SETTINGS] for r in rows])
-    image = right.imshow(
-        grid, aspect="auto", cmap="viridis", vmin=0, vmax=1, extent=(-0.5, len(SETTINGS) - 0.5, -0.5, n - 0.5)
-    )
-    for i, row in enumerate(grid):
-        for j, v in enumerate(row):
-            colour = "white" if v < 0.6 else "black"
-            right.text(j, y[i], f"{v:.2f}", ha="center", va="center", fontsize=7, color=colour)
-    right.set_xticks(range(len(SETTINGS)), [_short(s.label) for s in SETTINGS], rotation=45, ha="right")
-    fig.colorbar(image, ax=right, label="rescued by tick 100")
-    verified = "; ✓ verified by replay" if any(r["verified"] for r in rows) else ""
-    unranked = "" if ranked else " (not ranked: for choosing)"
-    fig.suptitle(f"CATMiP suite {SUITE}, {split} split{unranked}: {episodes} maps per setting{verified}")
-    fig.tight_layout()
-    return atomic_savefig(fig, path, dpi=150)
-
-
-def paired_names(vs: str) -> tuple[str, str]:
-    """The file names of the comparison with ``vs`` (``vs_NAME.md`` and ``.csv``)."""
-    stem = "vs_" + re.sub(r"[^A-Za-z0-9_.-]+", "_", vs)
-    return f"{stem}.md", f"{stem}.csv"
+    tables = []
+    for p in previews:
+        n = p["episodes"]
+        cut = []
+        for e in entries:
+            success = {label: s[:, :n] for label, s in e["checked"]["success"].items()}
+            iqm, low, high = iqm_interval(list(success.values()))
+            settings = {label: {"success_by_100": float(s.mean())} for label, s in success.items()}
+            checked = {"iqm": iqm, "iqm_ci": [low, high], "settings": settings, "success": success}
+            cut.append(e | {"checked": checked})
+        rows = leaderboard_rows([*cut, p])
+        for r in rows:
+            r["preview"] = n if r["method"] == p["method"] else 0
+        tables.append(rows)
+    return tables
 
 
 def _link(code: str, folder: Path, out: Path) -> str:
@@ -331,36 +166,107 @@ def _link(code: str, folder: Path, out: Path) -> str:
     return Path(os.path.relpath((folder / code).resolve(), out.resolve())).as_posix()
 
 
+class Board(list):
+    """The files :func:`render_leaderboard` wrote (a list of paths), with the entries it ``refused``
+    (``(file, one line)``) and what it says it ``could_not`` verify here."""
+
+    refused: list[tuple[str, str]]
+    could_not: list[tuple[str, str]]
+
+
+def read_record(path: Path) -> dict[str, Any] | None:
+    """A verification record (:mod:`~catmip_rl.benchmark.verify`) at ``path``, None if there is none;
+    EntryError for one that is not a record."""
+    from catmip_rl.benchmark.verify import RECORD_FORMAT
+
+    if not path.exists():
+        return None
+    try:
+        record = json.loads(path.read_text())
+    except (OSError, ValueError) as err:
+        raise EntryError(f"{path} is no verification record ({' '.join(str(err).split())[:120]})") from None
+    if not isinstance(record, dict) or record.get("format") != RECORD_FORMAT:
+        raise EntryError(f"{path} is no {RECORD_FORMAT} file")
+    return record
+
+
+def _apply_record(entries: list[dict[str, Any]], record: dict[str, Any] | None) -> tuple[list, list]:
+    """Mark each entry with what ``record`` says of it (only if the record saw this very file: its
+    SHA-256); returns the entries left on the board and the refusals and 'cannot verify here' notes."""
+    from catmip_rl.store.shipped import file_sha256
+
+    kept, refused, could_not = [], [], []
+    for e in entries:
+        said = (record or {}).get("entries", {}).get(e["method"])
+        if said is None or said.get("sha256") != file_sha256(e["path"]):
+            kept.append(e)
+            continue
+        if said["outcome"] == "refused":
+            refused.append((e["file"], said["reason"]))
+            continue
+        if said["outcome"] != "verified":
+            could_not.append((e["file"], said["reason"]))
+            kept.append(e)
+            continue
+        runs = said["runs"]
+        replayed = min((len(v) for r in runs for v in r.get("replayed", {}).values()), default=0)
+        fresh = [r["pooled"] for r in runs if r.get("pooled")]
+        e["verified"] = {
+            "replayed": replayed,
+            "fresh": record.get("fresh", 0),
+            "played": float(np.mean([p["played"] for p in fresh])) if fresh else None,
+            "claimed": float(np.mean([p["claimed"] for p in fresh])) if fresh else None,
+        }
+        if said.get("class") and said["class"] != e["class"]:
+            e["class"], e["class_note"] = said["class"], said.get("class_note", "")
+        kept.append(e)
+    return kept, refused, could_not
+
+
 def render_leaderboard(
     folder: str | Path,
     out: str | Path,
     episodes: int = EPISODES,
     vs: str | None = None,
     split: str = "test",
-    replay: int = 0,
+    replay: int | None = 0,
     progress: bool = False,
-) -> list[Path]:
-    """Check every entry in ``folder`` (all of ``split``), replay the first ``replay`` maps of each
-    (:func:`~catmip_rl.benchmark.replay.replay_entry`; 0: none), and write ``out/leaderboard.md`` and
-    ``out/leaderboard.png`` and, given ``vs``, every other entry against it (:func:`paired_rows`) to
-    ``out/vs_NAME.md`` / ``.csv``; returns the files' paths. Nothing is written unless every entry is
-    accepted (and replays to its ticks) and ``vs`` is one."""
-    entries = load_entries(folder, episodes, split)
-    if replay:
-        from catmip_rl.benchmark.replay import replay_entry
+    fresh: int = 0,
+    seed: int | None = None,
+    jobs: int = 1,
+    record: str | Path | None = None,
+) -> Board:
+    """Check every entry in ``folder`` (all of ``split``), verify them (``replay`` maps of each setting
+    and run, None: all; ``fresh`` fresh maps a setting; ``seed``: the verification's, drawn now if None;
+    :func:`~catmip_rl.benchmark.verify.verify_board`) and write ``out/verification.json``; or, verifying
+    nothing, read the record at ``record`` (default ``out/verification.json`` where there is one). Then
+    write ``out/leaderboard.md`` and ``out/leaderboard.png`` and, given ``vs``, every other entry
+    against it (:func:`paired_rows`) to ``out/vs_NAME.md`` / ``.csv``; returns the files' paths
+    (:class:`Board`). A refused entry is listed under the table with its reason, never ranked."""
+    from catmip_rl.benchmark.verify import RECORD, verify_board
 
-        for e in entries:
-            e["replayed"] = replay_entry(e, replay, progress=progress)
+    entries, previews, refused = load_board(folder, episodes, split)
     out = Path(out)
+    if replay != 0 or fresh:
+        found = verify_board(entries + previews, replay, fresh, seed, jobs, progress)
+        out.mkdir(parents=True, exist_ok=True)
+        atomic_write_text(out / RECORD, json.dumps(found, indent=1) + "\n")
+    else:
+        found = read_record(Path(record) if record is not None else out / RECORD)
+    entries, gone, could_not = _apply_record(entries, found)
+    previews, gone_too, could_not_too = _apply_record(previews, found)
+    refused += gone + gone_too
     rows = [r | {"code": _link(r["code"], Path(folder), out)} for r in leaderboard_rows(entries)]
     paired = paired_rows(entries, vs) if vs is not None else None
     out.mkdir(parents=True, exist_ok=True)
     md = out / "leaderboard.md"
-    atomic_write_text(md, _markdown(rows, episodes, split))
-    paths = [md, _figure(rows, out / "leaderboard.png", episodes, split)]
+    about = {"refused": refused, "could_not": could_not + could_not_too, "record": found}
+    atomic_write_text(md, page_markdown(rows, episodes, split, about, preview_rows(entries, previews)))
+    paths = Board([md, page_figure(rows, out / "leaderboard.png", episodes, split)])
     if paired is not None:
         md_name, csv_name = paired_names(vs)
-        atomic_write_text(out / md_name, _paired_markdown(paired, vs, episodes, split))
-        atomic_write_text(out / csv_name, _paired_csv(paired, vs))
+        atomic_write_text(out / md_name, paired_markdown(paired, vs, episodes, split))
+        atomic_write_text(out / csv_name, paired_csv(paired, vs))
         paths += [out / md_name, out / csv_name]
+    paths.refused, paths.could_not = refused, about["could_not"]
     return paths

@@ -115,22 +115,42 @@ def _suite(args: argparse.Namespace) -> int:
 def run_leaderboard(args: argparse.Namespace) -> int:
     """``catmip leaderboard``: the entries checked and ranked into leaderboard.md / .png (and the pairs of
     ``--vs``), the table printed."""
-    from catmip_rl.benchmark.leaderboard import paired_names, render_leaderboard
+    from catmip_rl.benchmark.board_page import paired_names
+    from catmip_rl.benchmark.fresh_rule import FRESH_MAPS
+    from catmip_rl.benchmark.leaderboard import render_leaderboard
+    from catmip_rl.benchmark.verify import RECORD, draw_seed
     from catmip_rl.store.files import check_new_file
     from catmip_rl.store.outputs import output_folder
 
     names = ["leaderboard.md", "leaderboard.png", *(paired_names(args.vs) if args.vs else ())]
+    names += [RECORD] if args.replay != 0 or args.fresh else []
     with output_folder(args.out, "--out", keep=True):  # the README and entries beside stay
         for name in names:  # checked once held: no writer since
             check_new_file(Path(args.out) / name, "--out", force=args.force)
+        fresh = args.fresh if args.fresh is not None else (FRESH_MAPS if args.replay != 0 else 0)
+        verify = args.replay != 0 or fresh
+        seed = args.seed if args.seed is not None or not verify else draw_seed()
+        if verify:
+            print(f"verification seed {seed} (repeat this check with --seed {seed})", flush=True)
         paths = render_leaderboard(
-            args.entries, args.out, args.episodes, args.vs, args.split, args.replay, not args.no_progress
+            args.entries,
+            args.out,
+            args.episodes,
+            args.vs,
+            args.split,
+            args.replay,
+            not args.no_progress,
+            fresh,
+            seed,
+            args.jobs,
         )
     for path in paths:
         if path.suffix == ".md":
-            print(path.read_text().split("\n\n", 2)[2].rstrip())  # the table
-    print("wrote " + ", ".join(str(p) for p in paths))
-    return 0
+            print(path.read_text().split("\n\n", 2)[2].rstrip())  # the table and what it says below
+    print("wrote " + ", ".join(str(p) for p in paths) + (f", {Path(args.out) / RECORD}" if verify else ""))
+    for name, reason in paths.refused:
+        print(f"refused: {name}: {reason}", file=sys.stderr)
+    return 2 if paths.refused else 0
 
 
 def run_export(args: argparse.Namespace) -> int:

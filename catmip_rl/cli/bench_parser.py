@@ -109,6 +109,13 @@ def add_suite(suites) -> None:
     su.set_defaults(name="bench")
 
 
+def _replay_maps(text: str) -> int | None:
+    """--replay K: a count of maps, or 'all' (None)."""
+    if text == "all":
+        return None
+    return NON_NEGATIVE_INT(text)
+
+
 def add_leaderboard(sub) -> None:
     from catmip_rl.benchmark.entry import EPISODES
 
@@ -141,12 +148,29 @@ def add_leaderboard(sub) -> None:
     )
     lb.add_argument(
         "--replay",
-        type=NON_NEGATIVE_INT,
+        type=_replay_maps,
         default=0,
         metavar="K",
-        help="play the first K maps of every setting and run of every entry again from its "
-        "files and refuse an entry whose ticks differ (0: check the numbers only)",
+        help="verify: play K maps of every setting and run of every entry again from its files, chosen "
+        "at random by --seed ('all': every map), refuse an entry whose ticks differ, and play --fresh "
+        "maps; writes OUT/verification.json (0: check the numbers only, the page from OUT's record)",
     )
+    lb.add_argument(
+        "--fresh",
+        type=NON_NEGATIVE_INT,
+        default=None,
+        metavar="M",
+        help="verify on M fresh maps a setting (a map set drawn at verification time) against each run's "
+        "claim, by the fresh-map rule (docs/verification.md); default 50 with --replay, else 0",
+    )
+    lb.add_argument(
+        "--seed",
+        type=NON_NEGATIVE_INT,
+        default=None,
+        help="the verification's seed (the replayed maps and the fresh map set; default: drawn from the "
+        "operating system now): a recorded seed repeats a check exactly",
+    )
+    lb.add_argument("--jobs", type=UP_TO_CPUS, default=min(2, CPUS), help="parallel processes of a check")
     lb.add_argument("--no-progress", action="store_true", help="no progress bar")
     lb.set_defaults(name="leaderboard")
 

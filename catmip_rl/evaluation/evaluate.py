@@ -44,13 +44,14 @@ from catmip_rl.evaluation.methods import (
     parse_method,
     policy_files,
 )
+from catmip_rl.evaluation.records import action_choice, episode_rows, policy_calls, policy_modules
 from catmip_rl.evaluation.sandbox import close_policy
 from catmip_rl.store.files import atomic_write_csv, atomic_write_text
 
 if TYPE_CHECKING:  # the planners need no torch: an env-only install evaluates them
     from catmip_rl.amat.model import AMAT
 
-__all__ = ["EvalSetting", "EvalResult", "evaluate", "episode_rows", "TASKS", "COMM_SETTINGS"]
+__all__ = ["EvalSetting", "EvalResult", "evaluate", "TASKS", "COMM_SETTINGS"]
 
 TASKS = ("task1", "task2", "task3")
 COMM_SETTINGS = {"full": None, "4": 4.0, "2": 2.0}
@@ -319,6 +320,8 @@ def _evaluate(
         policy=method.target if method.kind in ("py", "policy") else None,
         source=method_source(method),
         policy_files=policy_files(policy),
+        policy_calls=policy_calls(policy),
+        policy_modules=policy_modules(method, policy),
         setting=asdict(setting),
         label=setting.label,
         seed=seed,
@@ -332,65 +335,6 @@ def _sampled_seed(method: Method, seed: int) -> int:
     """The seed of a policy's sampled pass: the map set's for the project's models, :data:`POLICY_SEED`
     for a user's policy (told nothing of the maps)."""
     return POLICY_SEED if method.kind in USER_KINDS else seed
-
-
-def action_choice(policy: Any) -> str:
-    """How the evaluated policy chose its actions (the summary's ``actions``): "argmax" or "sampled" for
-    a policy that says (its ``deterministic`` attribute: AMAT, ``TorchRLPolicy``), else "its own" (a
-    planner's rule, or a policy that does not say)."""
-    deterministic = getattr(policy, "deterministic", None)
-    return {True: "argmax", False: "sampled"}.get(deterministic, "its own")
-
-
-def episode_rows(
-    method: Method,
-    setting: EvalSetting,
-    seed: int,
-    maps: list[str],
-    records: EpisodeRecords,
-    sampled: EpisodeRecords | None,
-    columns: dict[str, np.ndarray],
-    indices: np.ndarray | None = None,
-) -> list[dict[str, Any]]:
-    """One row per episode (episodes.csv / episodes.json): the setting, the map hash, the outcome,
-    the decision counts, then the policy's own ``columns`` (:func:`catmip_env.play.episode_columns`:
-    its decision messages and bytes, zero for a planner)."""
-
-    def tick(t) -> int | None:
-        return int(t) if t >= 0 else None
-
-    rows = []
-    for e in range(records.num_worlds):
-        row = {
-            "method": method.name,
-            "task": setting.task,
-            "comm": setting.comm,
-            "noise": setting.noise,
-            "max_ma_ticks": setting.max_ma_ticks,
-            "seed": seed,
-            "episode": e if indices is None else int(indices[e]),
-            "map_hash": maps[e],
-            "rescued": bool(records.rescued[e]),
-            "rescue_tick": tick(records.rescue_tick[e]),
-            "target_found_tick": tick(records.found_tick[e]),
-            "rescuer_informed_tick": tick(records.informed_tick[e]),
-            "explored_fraction": float(records.explored_fraction[e]),
-            "ticks": int(records.ticks[e]),
-            "events": int(records.events[e]),
-            "decisions": int(records.decisions[e].sum()),
-            "stalls": int(records.stalls[e].sum()),
-        }
-        if sampled is not None:
-            row["sampled_rescue_tick"] = tick(sampled.rescue_tick[e])
-        rows.append(row)
-    clash = set(columns) & set(rows[0])
-    if clash:
-        raise ValueError(
-            f"policy {method.name}: episode_columns() names the protocol's own column(s) {sorted(clash)}"
-        )
-    for e, row in enumerate(rows):
-        row |= {name: values[e].item() for name, values in columns.items()}
-    return rows
 
 
 def _play_maps(policy, engine: EventEngine, bar, engine_hook) -> EpisodeRecords:

@@ -14,6 +14,7 @@ together every ``max_ma_ticks`` ticks, the system it is.
 
 from __future__ import annotations
 
+import sys
 from dataclasses import dataclass, replace
 from difflib import get_close_matches
 from pathlib import Path
@@ -38,6 +39,7 @@ __all__ = [
     "method_source",
     "policy_files",
     "changed_files",
+    "own_modules",
     "METHOD_HELP",
     "PLAY_OPTIONS",
     "POLICY_SEED",
@@ -191,6 +193,36 @@ def policy_files(policy: Any) -> list[dict[str, str]] | None:
     e.g. a ``py:`` policy's weights), each ``{"file", "sha256"}``; None if it names none."""
     files = getattr(policy, "files", None)
     return [{"file": str(f), "sha256": file_sha256(f)} for f in files] if files else None
+
+
+def own_modules(target: str) -> list[dict[str, str]]:
+    """The modules a ``py:`` policy imported from its own folder, as :func:`policy_files` records them:
+    the source files in this process's ``sys.modules`` that lie under the policy file's folder (or a
+    module policy's top package's), less the policy file itself, the catmip packages and any installed
+    package (``site-packages``). What an entry binds besides the policy file and its weights."""
+    src = parse_policy_source(target)
+    if src.is_file:
+        folder, own = Path(src.source).resolve().parent, Path(src.source).resolve()
+    else:
+        top = sys.modules.get(src.source.split(".")[0])
+        where = getattr(top, "__file__", None)
+        if where is None:
+            return []
+        folder, own = (
+            Path(where).resolve().parent,
+            Path(str(getattr(sys.modules.get(src.source), "__file__", ""))),
+        )
+    skip = [Path(m.__file__).resolve().parent for m in (sys.modules["catmip_env"], sys.modules["catmip_rl"])]
+    found = set()
+    for module in list(sys.modules.values()):
+        path = getattr(module, "__file__", None)
+        if not path or not path.endswith(".py"):
+            continue
+        path = Path(path).resolve()
+        inside = path.is_relative_to(folder) and not any(path.is_relative_to(s) for s in skip)
+        if inside and path != own and not {"site-packages", "dist-packages"} & set(path.parts):
+            found.add(path)
+    return [{"file": str(p), "sha256": file_sha256(p)} for p in sorted(found)]
 
 
 def changed_files(recorded: list[dict[str, str]] | None) -> list[str]:

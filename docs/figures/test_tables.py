@@ -15,8 +15,9 @@ import re
 import sys
 from pathlib import Path
 
+from catmip_rl.benchmark.board_page import task_table
 from catmip_rl.benchmark.entry_check import EntryError, load_entries
-from catmip_rl.benchmark.leaderboard import leaderboard_rows, task_table
+from catmip_rl.benchmark.leaderboard import leaderboard_rows
 from catmip_rl.store.files import atomic_write_text
 
 TASKS = ("task2", "task3")

@@ -20,7 +20,7 @@ HORIZON = 300
 
 def _write(folder: Path, ticks: list[int | None], method: str = "a", seed: int = 0) -> Path:
     """A result folder as ``catmip eval`` writes it (``EvalResult.write``): episodes.json / .csv with the
-    columns of ``evaluate.episode_rows``, summary.json with the keys compare reads and checks."""
+    columns of ``records.episode_rows``, summary.json with the keys compare reads and checks."""
     rng = np.random.default_rng(seed)  # the columns besides the outcome differ between policies
     rows = []
     for e, t in enumerate(ticks):

@@ -43,13 +43,13 @@ def entries(tmp_path_factory):
 
 def _board(folder, out, k=2, episodes=3):
     return ["leaderboard", "--entries", str(folder), "--episodes", str(episodes), "--replay", str(k),
-            "--no-progress", "--out", str(out)]  # fmt: skip
+            "--fresh", "0", "--jobs", "1", "--no-progress", "--out", str(out)]  # fmt: skip
 
 
 def test_replayed_entries_are_marked_verified(entries, capsys):
     assert main(_board(entries / "s" / "entries", entries / "lb")) == 0
     md = (entries / "lb" / "leaderboard.md").read_text()
-    assert md.count("✓ 2 maps") == 2 and "(test split)" in md
+    assert md.count("✓ 2 replayed") == 2 and "(test split)" in md
 
 
 def test_an_entry_with_one_edited_tick_is_refused_in_one_line(entries, tmp_path, capsys):
@@ -73,9 +73,10 @@ def test_an_entry_with_one_edited_tick_is_refused_in_one_line(entries, tmp_path,
     err = capsys.readouterr().err
     assert (
         err.count("\n") == 1
-        and f"rrt.json refused: replaying map 1 of {label} (run 0) gave rescue tick" in err
+        and f"refused: rrt.json: replaying map 1 of {label} (run 0) gave rescue tick" in err
     )
-    assert not (tmp_path / "lb" / "leaderboard.md").exists()
+    md = (tmp_path / "lb" / "leaderboard.md").read_text()  # the page lists it, ranks none of it
+    assert "**Refused** (1):" in md and "| rrt |" not in md
 
 
 def test_an_entry_whose_weights_changed_is_refused(entries, capsys):
@@ -86,6 +87,7 @@ def test_an_entry_whose_weights_changed_is_refused(entries, capsys):
         (entries / "weights.bin").write_bytes(b"trained")
     err = capsys.readouterr().err
     assert "weights.bin, whose SHA-256 differs from the entry's" in err and err.count("\n") == 1
+    assert "| 1 | rrt |" in (entries / "lb2" / "leaderboard.md").read_text()  # the honest one ranked
 
 
 WALKER = textwrap.dedent(
@@ -128,4 +130,4 @@ def test_a_policy_that_reached_the_world_in_its_suite_is_refused_by_the_isolated
               classes={"cheat": "learned"}, chosen_on={"cheat": "nothing"})  # fmt: skip
     assert main(_board(tmp_path / "s" / "entries", tmp_path / "lb", k=2, episodes=2)) == 2
     err = capsys.readouterr().err
-    assert err.count("\n") == 1 and "cheat.json refused: replaying map 0 of" in err
+    assert err.count("\n") == 1 and "refused: cheat.json: replaying map 0 of" in err

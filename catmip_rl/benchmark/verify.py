@@ -1,0 +1,327 @@
+"""Verifying a board (``catmip leaderboard --replay K --fresh M``): every training run of every entry is
+played again, on K of its own maps a setting (chosen at verification time, :mod:`.replay`) and on M fresh
+maps a setting that nobody could have played before (a map set whose seed is drawn from the operating
+system's entropy now, :func:`draw_seed`), and judged by the fresh-map rule (:mod:`.fresh_rule`).
+
+Before anything is played, entries are compared with each other from their recorded ticks: an entry
+whose ticks equal another's on at least :data:`PLAYS_AS` of the maps of every setting is refused as
+"plays as X" (the later one; a renamed copy), and so is an entry two of whose runs do (a run listed
+twice). While a ``py:`` policy plays (isolated), its worker counts what it calls of the project: one
+that builds or resets a world, reads a map set or generates maps is refused; one that runs a planner
+is shown as a hybrid, whatever class its entry states.
+
+The outcome is a record (:func:`verify_board`, ``verification.json`` beside the page): the seed, which
+maps were replayed, each run's fresh-map numbers, each entry's outcome -- verified, refused (one line),
+or "cannot verify here" (this machine computes ticks otherwise than the entry's) -- the package versions,
+the machine and the date. The page renders from it; ``--seed S`` repeats a check exactly.
+"""
+
+from __future__ import annotations
+
+import datetime
+import multiprocessing
+import os
+import secrets
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from concurrent.futures.process import BrokenProcessPool
+from typing import Any
+
+import numpy as np
+
+from catmip_env.machine import machine_info
+from catmip_env.map_sets import FROZEN_SEEDS, MapSetMismatch
+from catmip_rl.benchmark import fresh_rule
+from catmip_rl.benchmark.entry import BY_TICK, SETTINGS, package_versions
+from catmip_rl.benchmark.entry_check import EntryError
+from catmip_rl.benchmark.replay import (
+    CannotVerify,
+    check_files,
+    plays_isolated,
+    replay_indices,
+    replay_run,
+    run_method,
+    ticks_of,
+)
+from catmip_rl.evaluation.evaluate import evaluate, progress_bar
+from catmip_rl.evaluation.user_policy import PolicyError
+from catmip_rl.store.shipped import file_sha256
+
+__all__ = ["RECORD", "RECORD_FORMAT", "PLAYS_AS", "draw_seed", "verify_board", "twin_refusals", "WORLD_CALLS"]
+
+RECORD = "verification.json"
+RECORD_FORMAT = "catmip-verification-v1"
+PLAYS_AS = 0.95  # equal ticks on this share of the maps of every setting: the same policy
+WORLD_CALLS = ("worlds", "map_sets", "mapgen")  # what a policy may not call while it plays
+PLANNER_CALLS = "planner_decisions"
+
+
+def draw_seed() -> int:
+    """A verification seed from the operating system's entropy (63 bits), never a frozen map set's."""
+    while True:
+        seed = secrets.randbits(63)
+        if seed not in FROZEN_SEEDS:
+            return seed
+
+
+def _ticks(entry: dict[str, Any]) -> dict[str, np.ndarray]:
+    return {st.label: np.asarray(entry["settings"][st.label]["rescue_tick"], np.int64) for st in SETTINGS}
+
+
+def _twin(a: dict[str, np.ndarray], b: dict[str, np.ndarray], i: int, j: int) -> bool:
+    """Run ``i`` of ticks ``a`` and run ``j`` of ``b`` equal on at least :data:`PLAYS_AS` of the maps of
+    every setting (on the maps both played)."""
+    for label in a:
+        n = min(a[label].shape[1], b[label].shape[1])
+        if (a[label][i, :n] == b[label][j, :n]).mean() < PLAYS_AS:
+            return False
+    return True
+
+
+def twin_refusals(entries: list[dict[str, Any]]) -> dict[str, str]:
+    """Entries refused from their recorded ticks alone, by method: a run listed twice (two runs of the
+    entry equal, :func:`_twin`), and an entry a run of which plays as a run of an earlier entry (by
+    ``created``, then file name): "plays as X"."""
+    refused: dict[str, str] = {}
+    ticks = {e["method"]: _ticks(e) for e in entries}
+    for e in entries:
+        t, runs = ticks[e["method"]], len(e["runs"])
+        pair = next(((i, j) for i in range(runs) for j in range(i + 1, runs) if _twin(t, t, i, j)), None)
+        if pair is not None:
+            refused[e["method"]] = (
+                f"runs {pair[0]} and {pair[1]} give the same ticks on ≥ {PLAYS_AS:.0%} of the maps of every "
+                "setting: a run listed twice (each training run once)"
+            )
+    order = sorted(entries, key=lambda e: (str(e.get("created")), e.get("file", e["method"])))
+    for later_at, e in enumerate(order):
+        if e["method"] in refused:
+            continue
+        for earlier in order[:later_at]:
+            a, b = ticks[e["method"]], ticks[earlier["method"]]
+            if any(_twin(a, b, i, j) for i in range(len(e["runs"])) for j in range(len(earlier["runs"]))):
+                refused[e["method"]] = (
+                    f"plays as {earlier['method']}: its ticks equal that entry's on ≥ {PLAYS_AS:.0%} of the "
+                    "maps of every setting (a renamed copy)"
+                )
+                break
+    return refused
+
+
+def _success(episodes: list[dict[str, Any]], horizon: int) -> int:
+    return sum(0 <= t <= min(BY_TICK, horizon) for t in ticks_of(episodes))
+
+
+def _add(total: dict[str, int], calls: dict[str, int] | None) -> None:
+    for key, value in (calls or {}).items():
+        total[key] = total.get(key, 0) + int(value)
+
+
+def verify_run(entry: dict[str, Any], k: int, seed: int, replay: int | None, fresh: int) -> dict[str, Any]:
+    """Verify run ``k`` of ``entry`` (a worker's job): its files, its replayed maps, its fresh maps (and
+    their second stage, :func:`~catmip_rl.benchmark.fresh_rule.suspicious`), judged. Returns the run's
+    record; ``error`` (one line) and ``kind`` ("refused" or "cannot verify here") where it failed."""
+    from catmip_rl.evaluation.workers import torch_threads
+
+    torch_threads(1)
+    out: dict[str, Any] = {"run": k, "replayed": {}, "calls": {}}
+    try:
+        check_files(entry, k)
+        method = run_method(entry, k)
+        first, claimed, horizons = {}, {}, {}
+        for st in SETTINGS:
+            if replay != 0:  # 0: the fresh maps only
+                picks = replay_indices(seed, entry["method"], k, st.label, entry["episodes"], replay)
+                _ticks_played, calls = replay_run(entry, k, st, picks)
+                out["replayed"][st.label] = picks
+                _add(out["calls"], calls)
+            stated = entry["settings"][st.label]
+            horizons[st.label] = int(stated["horizon"])
+            claimed[st.label] = float(
+                np.mean([0 <= t <= min(BY_TICK, horizons[st.label]) for t in stated["rescue_tick"][k]])
+            )
+            if fresh:
+                res = evaluate(
+                    method,
+                    st,
+                    seed=seed,
+                    sampled_too=False,
+                    isolated=plays_isolated(method),
+                    episode_indices=range(fresh),
+                )
+                first[st.label] = _success(res.episodes, horizons[st.label])
+                _add(out["calls"], res.summary.get("policy_calls"))
+        if fresh:
+            second = {}
+            more = range(fresh, (1 + fresh_rule.SECOND_STAGE) * fresh)
+            for st in SETTINGS:
+                if st.label in fresh_rule.suspicious(claimed, entry["episodes"], first, fresh):
+                    res = evaluate(
+                        method,
+                        st,
+                        seed=seed,
+                        sampled_too=False,
+                        isolated=plays_isolated(method),
+                        episode_indices=more,
+                    )
+                    second[st.label] = (_success(res.episodes, horizons[st.label]), len(more))
+                    _add(out["calls"], res.summary.get("policy_calls"))
+            verdict = fresh_rule.judge_run(claimed, entry["episodes"], first, fresh, second)
+            out |= {"fresh": verdict.settings, "pooled": verdict.pooled}
+            if verdict.refused:
+                out |= {"error": f"run {k} on fresh maps: {verdict.reason}", "kind": "refused"}
+    except CannotVerify as err:
+        out |= {"error": _reason(err, entry), "kind": "cannot verify here"}
+    except MapSetMismatch as err:
+        out |= {"error": f"cannot verify here: {_reason(err, entry)}", "kind": "cannot verify here"}
+    except (EntryError, PolicyError, ValueError) as err:
+        out |= {"error": _reason(err, entry), "kind": "refused"}
+    return out
+
+
+def _reason(err: Exception, entry: dict[str, Any]) -> str:
+    """An error as one line of the page, under the entry's file name: without "entry PATH refused: "."""
+    text = " ".join(str(err).split())
+    for head in (f"entry {entry['path']} refused: ", f"entry {entry['path']}: "):
+        if text.startswith(head):
+            return text[len(head) :]
+    return text
+
+
+def _entry_outcome(entry: dict[str, Any], runs: list[dict[str, Any]], stated: str) -> dict[str, Any]:
+    calls: dict[str, int] = {}
+    for r in runs:
+        _add(calls, r["calls"])
+    record: dict[str, Any] = {
+        "outcome": "verified",
+        "reason": "",
+        "class": stated,
+        "class_note": "",
+        "runs": runs,
+    }
+    failed = next((r for r in runs if r.get("kind") == "refused"), None) or next(
+        (r for r in runs if "error" in r), None
+    )
+    world = {key: calls[key] for key in WORLD_CALLS if calls.get(key)}
+    if world:
+        said = ", ".join(f"{key} {n}" for key, n in world.items())
+        record |= {
+            "outcome": "refused",
+            "reason": f"its policy builds, resets or reads worlds while it plays ({said})",
+        }
+    elif failed is not None:
+        record |= {"outcome": failed["kind"], "reason": failed["error"]}
+    if calls.get(PLANNER_CALLS) and stated == "learned":
+        record |= {
+            "class": "hybrid",
+            "class_note": "shown as hybrid: its policy ran a planner while it played "
+            f"({calls[PLANNER_CALLS]:,} planner decisions); a learned entry plays from its own observations",
+        }
+    return record
+
+
+def _pool(jobs: int) -> ProcessPoolExecutor:
+    from catmip_rl.evaluation.workers import die_with_parent
+
+    spawn = multiprocessing.get_context("spawn")
+    return ProcessPoolExecutor(jobs, mp_context=spawn, initializer=die_with_parent, initargs=(os.getpid(),))
+
+
+def _play_all(todo: dict, results: dict, plan: tuple, jobs: int, bar) -> None:
+    """:func:`verify_run` of every job of ``todo`` (key -> (entry, run)) into ``results``, in worker
+    processes, so that a policy that kills its evaluator ends one run's check, not the command. After a
+    second broken pool the runs left are played one at a time, each in a pool of its own: a run that
+    breaks its own pool is refused in one line."""
+    pending, breaks = dict(todo), 0
+    while pending:
+        alone = breaks >= 2
+        batch = dict([next(iter(pending.items()))]) if alone else dict(pending)
+        broke = _play_batch(batch, results, plan, 1 if alone else max(1, min(jobs, len(batch))), bar)
+        for key in batch:
+            if key in results:
+                del pending[key]
+        if broke and alone:
+            ((key, _job),) = batch.items()
+            results[key] = {
+                "run": key[1],
+                "replayed": {},
+                "calls": {},
+                "kind": "refused",
+                "error": f"run {key[1]}: the process that played it was killed while its policy played "
+                "(a policy never ends or signals the process that evaluates it)",
+            }
+            del pending[key]
+            if bar is not None:
+                bar.update(1)
+        breaks += broke
+
+
+def _play_batch(batch: dict, results: dict, plan: tuple, size: int, bar) -> bool:
+    """Play ``batch`` on a pool of ``size`` processes into ``results``; True if the pool broke."""
+    pool = _pool(size)
+    futures = {pool.submit(verify_run, *job, *plan): key for key, job in batch.items()}
+    try:
+        for done in as_completed(futures):  # the bar counts runs as they end, in any order
+            results[futures[done]] = done.result()
+            if bar is not None:
+                bar.update(1)
+    except BrokenProcessPool:
+        return True
+    finally:
+        pool.shutdown(wait=True, cancel_futures=True)
+    return False
+
+
+def verify_board(
+    entries: list[dict[str, Any]],
+    replay: int | None,
+    fresh: int,
+    seed: int | None = None,
+    jobs: int = 1,
+    progress: bool = False,
+) -> dict[str, Any]:
+    """Verify every entry (checked, :func:`~catmip_rl.benchmark.entry_check.load_entries`): ``replay``
+    maps a setting and run (None: all), ``fresh`` fresh maps a setting (0: none), from ``seed`` (None: drawn
+    now, :func:`draw_seed`), on ``jobs`` processes. Returns the record (see the module's docstring)."""
+    seed = draw_seed() if seed is None else int(seed)
+    refused = twin_refusals(entries)
+    tasks = [(e, k) for e in entries if e["method"] not in refused for k in range(len(e["runs"]))]
+    bar = progress_bar(len(tasks), "verify", progress, unit="run", leave=True)
+    plain = [{key: v for key, v in e.items() if key != "checked"} for e, _k in tasks]
+    jobs_by_key = {(e["method"], k): (p, k) for p, (e, k) in zip(plain, tasks)}
+    results: dict[tuple[str, int], dict[str, Any]] = {}
+    try:
+        _play_all(jobs_by_key, results, (seed, replay, fresh), jobs, bar)
+    finally:
+        if bar is not None:
+            bar.close()
+    record_entries = {}
+    for e in entries:
+        head = {"file": e["file"], "sha256": file_sha256(e["path"])}
+        if e["method"] in refused:
+            record_entries[e["method"]] = head | {
+                "outcome": "refused",
+                "reason": refused[e["method"]],
+                "class": e["class"],
+                "class_note": "",
+                "runs": [],
+            }
+            continue
+        runs_done = [results[(e["method"], k)] for k in range(len(e["runs"]))]
+        record_entries[e["method"]] = head | _entry_outcome(e, runs_done, e["class"])
+    return {
+        "format": RECORD_FORMAT,
+        "created": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
+        "versions": package_versions(),
+        "machine": machine_info(),
+        "seed": seed,
+        "replay": "all" if replay is None else replay,
+        "fresh": fresh,
+        "rule": {
+            "fresh_maps": fresh,
+            "second_stage": fresh_rule.SECOND_STAGE,
+            "z_suspect": fresh_rule.Z_SUSPECT,
+            "z_setting": fresh_rule.Z_SETTING,
+            "z_pooled": fresh_rule.Z_POOLED,
+            "plays_as": PLAYS_AS,
+        },
+        "entries": record_entries,
+    }
