@@ -64,7 +64,9 @@ class GreedyFrontier:
 
 def make_policy(env_config, seed: int) -> GreedyFrontier:
     """The factory ``catmip eval --method NAME=py:FILE.py:make_policy`` calls: the evaluation's
-    ``EnvConfig`` (task, communication, goal window ...) and the map set's seed."""
+    ``EnvConfig`` (task, communication, goal window ...) and a seed for the policy's own stream (0 on
+    every map set). Every episode is played by a fresh copy of what it returns, so its tie-breaking
+    stream starts anew on each map, and any map replays alone."""
     return GreedyFrontier(env_config.window, seed)
 
 

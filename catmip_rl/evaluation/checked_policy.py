@@ -4,6 +4,7 @@ engine. The protocol itself: :mod:`catmip_rl.evaluation.user_policy`."""
 
 from __future__ import annotations
 
+import copy
 import inspect
 import sys
 from collections.abc import Callable, Mapping
@@ -101,7 +102,7 @@ def wrap_user_policy(policy: Any, name: str) -> CheckedEnginePolicy | PettingZoo
     if level == "engine":
         wrapped = CheckedEnginePolicy(act, name, goal_mode)
     else:
-        wrapped = PettingZooPolicy(act, name, goal_mode, reset if callable(reset) else None)
+        wrapped = PettingZooPolicy(act, name, goal_mode, reset if callable(reset) else None, user=policy)
     wrapped.forward_hooks(policy)
     return wrapped
 
@@ -230,7 +231,12 @@ class PettingZooPolicy(WrappedUserPolicy):
     """A PettingZoo-level policy as an engine-level one: for every live world with an active robot it
     builds that world's ``(observations, infos)`` as ``search_rescue_v0`` does (the same functions) and
     calls ``act``; busy robots keep their goals. The evaluator plays such a policy on a one-world
-    engine, episode after episode, calling :meth:`reset` before each."""
+    engine, episode after episode, calling :meth:`reset` before each.
+
+    Given the ``user``'s object, every episode is played by a copy of it as its factory made it
+    (``copy.deepcopy``, taken at :meth:`reset`): a map's episode never depends on the maps played before
+    it, so any map replays alone (what a leaderboard's check plays), whatever stream the policy draws
+    from. Its ``episode_columns()`` are each copy's, in the order played."""
 
     one_world_at_a_time = True
 
@@ -240,14 +246,61 @@ class PettingZooPolicy(WrappedUserPolicy):
         name: str,
         goal_mode: str = "window",
         reset: Callable[[], Any] | None = None,
+        user: Any = None,
     ) -> None:
         self._act, self._reset, self.name, self.goal_mode = act, reset, name, goal_mode
         self._last_tick: np.ndarray | None = None
+        self._user = self._pristine = None
+        self._columns: list[Any] = []
+        if user is not None:
+            self._pristine = self._copy(user)
+
+    def _copy(self, user: Any) -> Any:
+        try:
+            with no_exit():
+                return copy.deepcopy(user)
+        except KeyboardInterrupt:
+            raise
+        except BaseException as exc:
+            raise PolicyError(
+                f"policy {self.name}: its object cannot be copied ({describe_failure(exc)}): a "
+                "PettingZoo-level policy plays every map from the state its factory made, a copy of it "
+                "(copy.deepcopy)"
+            ) from None
 
     def reset(self) -> None:
-        """Start of an episode: the policy's own ``reset()``, if it has one."""
+        """Start of an episode: a fresh copy of the factory's policy (with a ``user``), then the policy's
+        own ``reset()``, if it has one."""
+        if self._pristine is not None:
+            self._keep_columns()
+            self._user = self._copy(self._pristine)
+            self._act = getattr(self._user, "act", self._user)
+            reset = getattr(self._user, "reset", None)
+            self._reset = reset if callable(reset) else None
         if self._reset is not None:
             self._call(self._reset, "reset()")
+
+    def _keep_columns(self) -> None:
+        """The columns of the copy that played the last episode, kept before it is replaced."""
+        if self._user is not None and callable(getattr(self._user, "episode_columns", None)):
+            self._columns.append(self._call(self._user.episode_columns, "episode_columns()"))
+
+    def forward_hooks(self, policy: Any) -> None:
+        super().forward_hooks(policy)
+        if self._pristine is not None and hasattr(self, "episode_columns"):
+            self.episode_columns = self._all_columns
+
+    def _all_columns(self) -> Any:
+        """Every copy's ``episode_columns()``, joined in the order the episodes were played."""
+        self._keep_columns()
+        self._user = None
+        parts, self._columns = self._columns, []
+        if not parts or any(not isinstance(p, Mapping) for p in parts):
+            return next((p for p in parts if not isinstance(p, Mapping)), {})
+        names = list(parts[0])
+        if any(list(p) != names for p in parts):
+            raise PolicyError(f"policy {self.name}: episode_columns() named other columns in another episode")
+        return {k: np.concatenate([np.asarray(p[k]).reshape(-1) for p in parts]) for k in names}
 
     def act(self, engine: EventEngine) -> np.ndarray:
         st = engine.state

@@ -77,7 +77,7 @@ def die_with_parent(parent: int) -> None:
 # -- the sandbox's worker ------------------------------------------------------------------------------------
 def _info(policy: WrappedUserPolicy) -> dict[str, Any]:
     hooks = [h for h in ("start_episodes", "episode_columns", "sampled") if hasattr(policy, h)]
-    if isinstance(policy, PettingZooPolicy) and policy._reset is not None:
+    if isinstance(policy, PettingZooPolicy):  # every episode from a fresh copy: reset before each
         hooks.append("reset")
     return {
         "level": "engine" if isinstance(policy, CheckedEnginePolicy) else "pettingzoo",

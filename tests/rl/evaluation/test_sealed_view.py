@@ -74,3 +74,31 @@ def test_chosen_maps_of_a_frozen_set_are_checked_against_their_own_hashes():
     assert check_maps("task2", 1000, [frozen[700], frozen[3]], indices=[700, 3]).status == "verified"
     with pytest.raises(MapSetMismatch, match="map 3 of task2/seed1000"):
         check_maps("task2", 1000, [frozen[700], frozen[4]], indices=[700, 3])
+
+
+@pytest.mark.parametrize("isolated", [False, True])
+def test_a_pettingzoo_policy_with_its_own_stream_replays_any_map_alone(isolated):
+    """The example's heuristic breaks ties from one random stream seeded by its factory: every map is
+    played by a copy of the factory's policy, so a map played alone gets the tick it got in the run."""
+    spec = "py:examples/evaluate_my_policy.py:make_policy"
+    run = evaluate(spec, SETTING, episodes=6, seed=1000, sampled_too=False, isolated=isolated)
+    alone = evaluate(spec, SETTING, seed=1000, sampled_too=False, isolated=isolated, episode_indices=[4, 1])
+    assert [e["rescue_tick"] for e in alone.episodes] == [run.episodes[k]["rescue_tick"] for k in (4, 1)]
+
+
+def test_an_uncopyable_pettingzoo_policy_is_one_line():
+    import threading
+
+    from catmip_rl.evaluation.user_policy import PolicyError
+
+    class Locked:
+        lock = None
+
+        def __init__(self):
+            self.lock = threading.Lock()
+
+        def act(self, observations, infos):
+            return {r: 0 for r in observations if infos[r]["active"]}
+
+    with pytest.raises(PolicyError, match=r"cannot be copied .*\(copy.deepcopy\)"):
+        evaluate("locked", SETTING, episodes=1, seed=1000, policy=Locked())

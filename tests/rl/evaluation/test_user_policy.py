@@ -150,19 +150,23 @@ def test_the_pettingzoo_level_sees_what_the_env_gives():
     assert next(calls, None) is None and res.summary["episodes"] == 2
 
 
-def test_reset_is_called_before_every_episode():
+def test_reset_is_called_before_every_episode_on_a_fresh_copy_of_the_policy():
     class Counts:
-        resets = 0
+        log: list[int] = []  # a class attribute: shared by the copies the episodes are played with
+
+        def __init__(self):
+            self.resets = 0
 
         def reset(self):
             self.resets += 1
+            self.log.append(self.resets)
 
         def act(self, observations, infos):
             return {r: int(np.argmax(o["action_mask"])) for r, o in observations.items()}
 
     policy = Counts()
     evaluate("c", EvalSetting("task1"), episodes=4, seed=0, policy=policy)
-    assert policy.resets == 4
+    assert Counts.log == [1, 1, 1, 1] and policy.resets == 0  # each episode: the factory's state, reset
 
 
 def test_a_torchrl_module_plays_through_the_adapter():
