@@ -165,3 +165,30 @@ def test_a_preview_is_placed_against_the_board_on_its_maps_not_ranked(suite, tmp
     table, preview = md.split("**Preview: rrt**")
     assert "| rrt" not in table and "on the first 2 maps of every setting" in preview
     assert "rrt (preview, 2 maps)" in preview and preview.count("| – |") == 3
+
+
+@pytest.mark.slow
+def test_a_committed_entrys_check_repeats_from_its_record(monkeypatch):
+    """The committed record is what a check gives: one planner entry, drawn anew each time (its name is
+    in the failure's message), verified again from the record's seed gives the record's replayed maps
+    and fresh-map numbers (planners decide alike on every CPU)."""
+    import secrets
+    from pathlib import Path
+
+    from catmip_rl.benchmark.entry_check import load_entries
+    from catmip_rl.benchmark.verify import verify_run
+
+    clone = Path(__file__).resolve().parents[3]
+    monkeypatch.chdir(clone)  # the entries name their files from the clone's root
+    record = json.loads(Path("leaderboard/verification.json").read_text())
+    entries = load_entries(Path("leaderboard") / "entries")
+    planners = [e for e in entries if all(run["kind"] == "planner" for run in e["runs"])]
+    entry = planners[secrets.randbelow(len(planners))]
+    said = record["entries"][entry["method"]]
+    plain = {k: v for k, v in entry.items() if k != "checked"}
+    again = verify_run(plain, 0, record["seed"], record["replay"], record["fresh"])
+    assert said["outcome"] == "verified" and "error" not in again, entry["method"]
+    (recorded,) = said["runs"]
+    assert again["replayed"] == recorded["replayed"], entry["method"]
+    assert again["fresh"] == recorded["fresh"], entry["method"]  # JSON keeps a float exactly
+    assert again["pooled"] == recorded["pooled"], entry["method"]
