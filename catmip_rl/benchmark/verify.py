@@ -281,6 +281,9 @@ def verify_board(
     """Verify every entry (checked, :func:`~catmip_rl.benchmark.entry_check.load_entries`): ``replay``
     maps a setting and run (None: all), ``fresh`` fresh maps a setting (0: none), from ``seed`` (None: drawn
     now, :func:`draw_seed`), on ``jobs`` processes. Returns the record (see the module's docstring)."""
+    from catmip_rl.evaluation.bounds import not_dumpable
+
+    not_dumpable()  # the seed of the fresh maps is in this process: no policy's to read
     seed = draw_seed() if seed is None else int(seed)
     refused = twin_refusals(entries)
     tasks = [(e, k) for e in entries if e["method"] not in refused for k in range(len(e["runs"]))]

@@ -30,6 +30,7 @@ signals other processes of the same user (a worker may ``kill`` any of them, as 
 
 from __future__ import annotations
 
+import ctypes
 import os
 import shutil
 import signal
@@ -219,6 +220,37 @@ class PolicyProcesses:
 
 
 # -- the worker's side ---------------------------------------------------------------------------------------
+def not_dumpable() -> None:
+    """In the process that plays a worker's policy: no other process of this user may read its memory
+    (``/proc/PID/mem``: the maps it holds, a check's seed) unless it has ``CAP_SYS_PTRACE``, which
+    :func:`drop_ptrace` takes from the worker (Linux; elsewhere nothing is done)."""
+    if sys.platform.startswith("linux"):
+        ctypes.CDLL(None, use_errno=True).prctl(4, 0, 0, 0, 0)  # 4: PR_SET_DUMPABLE
+
+
+class _CapHeader(ctypes.Structure):
+    _fields_ = [("version", ctypes.c_uint32), ("pid", ctypes.c_int)]
+
+
+class _CapData(ctypes.Structure):
+    _fields_ = [(name, ctypes.c_uint32) for name in ("effective", "permitted", "inheritable")]
+
+
+def drop_ptrace() -> None:
+    """In the worker, before the policy is imported: give up ``CAP_SYS_PTRACE`` (held by root), so that
+    the policy cannot read its evaluator's memory (:func:`not_dumpable`) nor any child regain it
+    (Linux; a process that never had it loses nothing)."""
+    if not sys.platform.startswith("linux"):
+        return
+    libc, cap = ctypes.CDLL(None, use_errno=True), 19  # 19: CAP_SYS_PTRACE
+    head, data = _CapHeader(0x20080522, 0), (_CapData * 2)()  # _LINUX_CAPABILITY_VERSION_3
+    if libc.capget(ctypes.byref(head), data) == 0:
+        data[0].effective &= ~(1 << cap)
+        data[0].permitted &= ~(1 << cap)
+        libc.capset(ctypes.byref(head), data)
+    libc.prctl(24, cap, 0, 0, 0)  # 24: PR_CAPBSET_DROP (fails without CAP_SETPCAP: then none to drop)
+
+
 def become_subreaper() -> bool:
     """Make this process a child subreaper (Linux): orphans of its descendants become its children, not
     init's, so every process it started stays in its tree. False where not available."""

@@ -54,6 +54,7 @@ from catmip_env.play import WorldNotSupported
 from catmip_rl.evaluation.bounds import (
     Limits,
     PolicyProcesses,
+    not_dumpable,
     remove_folder,
     worker_environment,
     working_folder,
@@ -114,6 +115,7 @@ class IsolatedWorker:
         # __main__ again (a script without a main guard would run twice); in its own session and folder
         self.name = name
         self.limits = Limits.current() if limits is None else limits
+        not_dumpable()  # this process holds the world: its memory is not the policy's to read
         self.folder = working_folder()
         token = secrets.token_hex(8)
         path = [os.path.abspath(p) if p else os.getcwd() for p in sys.path]  # absolute: its cwd is elsewhere

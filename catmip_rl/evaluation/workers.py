@@ -20,7 +20,7 @@ import numpy as np
 
 from catmip_env.play import WorldNotSupported
 from catmip_env.spaces import integer_action
-from catmip_rl.evaluation.bounds import become_subreaper, end_descendants
+from catmip_rl.evaluation.bounds import become_subreaper, drop_ptrace, end_descendants
 from catmip_rl.evaluation.call_counts import install_counters
 from catmip_rl.evaluation.checked_policy import (
     CheckedEnginePolicy,
@@ -116,6 +116,7 @@ class SandboxWorker:
         target, name, env_config, seed, threads, parent, path = pickle.loads(head)
         die_with_parent(parent)
         become_subreaper()
+        drop_ptrace()  # the evaluator is not dumpable: the policy cannot read its memory
         sys.path[:] = path  # the caller's, absolute: a module policy imports as it would there
         if threads is not None:
             torch_threads(int(threads))

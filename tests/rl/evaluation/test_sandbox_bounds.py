@@ -6,6 +6,7 @@ folder of its own, removed at the end."""
 from __future__ import annotations
 
 import os
+import sys
 import textwrap
 import time
 import uuid
@@ -198,3 +199,29 @@ def test_the_worker_writes_in_a_folder_of_its_own_removed_at_the_end(policy, tmp
     cwd, home, tmp = (tmp_path / "notes.txt").read_text().splitlines()
     assert Path(home).parent == Path(cwd) and Path(tmp).parent == Path(cwd)
     assert not Path(cwd).exists() and not (tmp_path / "relative.txt").exists()
+
+
+def test_a_policy_cannot_read_its_evaluators_memory(tmp_path):
+    """The evaluator is not dumpable and the worker gave up CAP_SYS_PTRACE: /proc/PARENT/mem (the world,
+    a check's seed) is not the policy's to read, even as root (Linux)."""
+    if not sys.platform.startswith("linux"):
+        pytest.skip("Linux: /proc and prctl")
+    policy = tmp_path / "reads.py"
+    policy.write_text(
+        "import os\n"
+        "def make(env_config, seed):\n"
+        "    parent = os.getppid()\n"
+        "    try:\n"
+        "        rows = open(f'/proc/{parent}/maps').read().splitlines()\n"
+        "        start = int(next(r for r in rows if r.split()[1].startswith('r')).split('-')[0], 16)\n"
+        "        with open(f'/proc/{parent}/mem', 'rb') as f:\n"
+        "            f.seek(start)\n"
+        "            f.read(16)\n"
+        "    except OSError:\n"
+        "        pass\n"
+        "    else:\n"
+        "        raise RuntimeError('read the evaluator memory')\n"
+        "    return lambda obs, infos: {\n"
+        "        r: int(obs[r]['action_mask'].argmax()) for r in obs if infos[r]['active']}\n"
+    )
+    evaluate(f"py:{policy}:make", EvalSetting("task1"), episodes=1, seed=0, sampled_too=False)
