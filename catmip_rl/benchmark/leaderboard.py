@@ -223,6 +223,19 @@ def _apply_record(entries: list[dict[str, Any]], record: dict[str, Any] | None) 
     return kept, refused, could_not
 
 
+def _known(path: Path) -> frozenset[str]:
+    """The methods a record already at ``path`` says were verified: the originals of any copy (an entry
+    copied under a new name is not among them); none where there is no readable record."""
+    try:
+        record = read_record(path)
+    except EntryError:
+        return frozenset()
+    said = (record or {}).get("entries")
+    if not isinstance(said, dict):
+        return frozenset()
+    return frozenset(m for m, s in said.items() if isinstance(s, dict) and s.get("outcome") == "verified")
+
+
 def render_leaderboard(
     folder: str | Path,
     out: str | Path,
@@ -243,16 +256,27 @@ def render_leaderboard(
     write ``out/leaderboard.md`` and ``out/leaderboard.png`` and, given ``vs``, every other entry
     against it (:func:`paired_rows`) to ``out/vs_NAME.md`` / ``.csv``; returns the files' paths
     (:class:`Board`). A refused entry is listed under the table with its reason, never ranked."""
+    from catmip_rl.benchmark.record_check import check_record
     from catmip_rl.benchmark.verify import RECORD, verify_board
 
     entries, previews, refused = load_board(folder, episodes, split)
     out = Path(out)
     if replay != 0 or fresh:
-        found = verify_board(entries + previews, replay, fresh, seed, jobs, progress)
+        found = verify_board(entries + previews, replay, fresh, seed, jobs, progress, _known(out / RECORD))
         out.mkdir(parents=True, exist_ok=True)
         atomic_write_text(out / RECORD, json.dumps(found, indent=1) + "\n")
     else:
-        found = read_record(Path(record) if record is not None else out / RECORD)
+        where = Path(record) if record is not None else out / RECORD
+        found = read_record(where)
+        if found is not None:
+            try:
+                check_record(found, entries + previews)
+            except (ValueError, TypeError, KeyError) as err:
+                why = " ".join(str(err).split())[:300]
+                raise EntryError(
+                    f"{where} is not what a check of these entries writes ({why}): verify again "
+                    "(catmip leaderboard --replay K) or remove it"
+                ) from None
     entries, gone, could_not = _apply_record(entries, found)
     previews, gone_too, could_not_too = _apply_record(previews, found)
     refused += gone + gone_too

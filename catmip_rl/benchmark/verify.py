@@ -77,10 +77,11 @@ def _twin(a: dict[str, np.ndarray], b: dict[str, np.ndarray], i: int, j: int) ->
     return True
 
 
-def twin_refusals(entries: list[dict[str, Any]]) -> dict[str, str]:
+def twin_refusals(entries: list[dict[str, Any]], known: frozenset[str] = frozenset()) -> dict[str, str]:
     """Entries refused from their recorded ticks alone, by method: a run listed twice (two runs of the
-    entry equal, :func:`_twin`), and an entry a run of which plays as a run of an earlier entry (by
-    ``created``, then file name): "plays as X"."""
+    entry equal, :func:`_twin`), and an entry a run of which plays as a run of an earlier entry: "plays
+    as X". Earlier: an entry of ``known`` (verified by the last check, as the same file) before any
+    other, then by ``created`` and file name (what an entry says of itself counts last)."""
     refused: dict[str, str] = {}
     ticks = {e["method"]: _ticks(e) for e in entries}
     for e in entries:
@@ -91,7 +92,9 @@ def twin_refusals(entries: list[dict[str, Any]]) -> dict[str, str]:
                 f"runs {pair[0]} and {pair[1]} give the same ticks on ≥ {PLAYS_AS:.0%} of the maps of every "
                 "setting: a run listed twice (each training run once)"
             )
-    order = sorted(entries, key=lambda e: (str(e.get("created")), e.get("file", e["method"])))
+    order = sorted(
+        entries, key=lambda e: (e["method"] not in known, str(e.get("created")), e.get("file", e["method"]))
+    )
     for later_at, e in enumerate(order):
         if e["method"] in refused:
             continue
@@ -277,15 +280,17 @@ def verify_board(
     seed: int | None = None,
     jobs: int = 1,
     progress: bool = False,
+    known: frozenset[str] = frozenset(),
 ) -> dict[str, Any]:
     """Verify every entry (checked, :func:`~catmip_rl.benchmark.entry_check.load_entries`): ``replay``
     maps a setting and run (None: all), ``fresh`` fresh maps a setting (0: none), from ``seed`` (None: drawn
-    now, :func:`draw_seed`), on ``jobs`` processes. Returns the record (see the module's docstring)."""
+    now, :func:`draw_seed`), on ``jobs`` processes; ``known``: the methods the last check verified (the
+    originals of any copy, :func:`twin_refusals`). Returns the record (see the module's docstring)."""
     from catmip_rl.evaluation.bounds import not_dumpable
 
     not_dumpable()  # the seed of the fresh maps is in this process: no policy's to read
     seed = draw_seed() if seed is None else int(seed)
-    refused = twin_refusals(entries)
+    refused = twin_refusals(entries, known)
     tasks = [(e, k) for e in entries if e["method"] not in refused for k in range(len(e["runs"]))]
     bar = progress_bar(len(tasks), "verify", progress, unit="run", leave=True)
     plain = [{key: v for key, v in e.items() if key != "checked"} for e, _k in tasks]

@@ -192,3 +192,36 @@ def test_a_committed_entrys_check_repeats_from_its_record(monkeypatch):
     assert again["replayed"] == recorded["replayed"], entry["method"]
     assert again["fresh"] == recorded["fresh"], entry["method"]  # JSON keeps a float exactly
     assert again["pooled"] == recorded["pooled"], entry["method"]
+
+
+def test_a_backdated_copy_does_not_displace_the_entry_the_last_check_verified():
+    a = list(range(100))
+    original, thief = _fake("rrt", "2026-12-01", [a]), _fake("my-planner", "2020-01-01", [a])
+    assert set(twin_refusals([original, thief])) == {"rrt"}  # by the dates they state alone
+    refused = twin_refusals([original, thief], known=frozenset({"rrt"}))  # the last check verified rrt
+    assert list(refused) == ["my-planner"] and refused["my-planner"].startswith("plays as rrt")
+
+
+def test_a_record_edited_by_hand_is_refused_in_one_line(suite, tmp_path, capsys):
+    entries, out = suite / "s" / "entries", tmp_path / "lb"
+    assert main(_board(entries, out, "--replay", "1", "--fresh", "4", "--seed", "9")) == 0
+    capsys.readouterr()
+    record = json.loads((out / "verification.json").read_text())
+    (run,) = record["entries"]["nearest"]["runs"]
+    label = next(lb for lb, s in run["fresh"].items() if s["maps"] == 4)
+    run["fresh"][label]["played"] = 0.0 if run["fresh"][label]["claimed"] > 0.5 else 1.0
+    run["fresh"][label]["claimed"] = 1.0  # not the entry's claim either
+    (out / "verification.json").write_text(json.dumps(record))
+    assert main(_board(entries, out, "--force")) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "is not what a check of these entries writes (nearest: run 0" in err
+    (out / "verification.json").write_text(json.dumps(record | {"entries": []}))
+    assert main(_board(entries, out, "--force")) == 2
+    assert "(it has no entries object)" in capsys.readouterr().err
+
+
+def test_bidirectional_controls_are_no_text_an_entry_may_hold():
+    from catmip_rl.benchmark.entry_check import check_stated
+
+    with pytest.raises(ValueError, match="control character"):
+        check_stated("method", "rrt\u202e1.0")
