@@ -11,7 +11,7 @@ from typing import Any
 import numpy as np
 
 from catmip_rl.benchmark import fresh_rule
-from catmip_rl.benchmark.entry import BY_TICK, SETTINGS
+from catmip_rl.benchmark.entry import SETTINGS, rescued_by_100
 from catmip_rl.benchmark.replay import replay_indices
 
 __all__ = ["check_record"]
@@ -82,9 +82,8 @@ def _check_fresh(method: str, k: int, run: dict, entry: dict, fresh: int) -> Non
         s = states[st.label]
         if not (isinstance(s, dict) and all(_number(s.get(x)) for x in ("claimed", "played", "maps"))):
             raise ValueError(f"{method}: run {k}'s fresh numbers of {st.label} are not numbers")
-        ticks = entry["settings"][st.label]["rescue_tick"][k]
-        horizon = entry["settings"][st.label]["horizon"]
-        claim = float(np.mean([0 <= t <= min(BY_TICK, horizon) for t in ticks]))
+        stated = entry["settings"][st.label]
+        claim = float(rescued_by_100(stated["rescue_tick"][k], stated["horizon"]).mean())
         if abs(s["claimed"] - claim) > 1e-9 or s["maps"] not in (
             fresh,
             (1 + fresh_rule.SECOND_STAGE) * fresh,

@@ -31,7 +31,7 @@ import numpy as np
 from catmip_env.machine import machine_info
 from catmip_env.map_sets import FROZEN_SEEDS, MapSetMismatch
 from catmip_rl.benchmark import fresh_rule
-from catmip_rl.benchmark.entry import BY_TICK, SETTINGS, package_versions
+from catmip_rl.benchmark.entry import SETTINGS, package_versions, rescued_by_100
 from catmip_rl.benchmark.entry_check import EntryError
 from catmip_rl.benchmark.replay import (
     CannotVerify,
@@ -109,8 +109,14 @@ def twin_refusals(entries: list[dict[str, Any]], known: frozenset[str] = frozens
     return refused
 
 
-def _success(episodes: list[dict[str, Any]], horizon: int) -> int:
-    return sum(0 <= t <= min(BY_TICK, horizon) for t in ticks_of(episodes))
+def _fresh_wins(method, st, seed: int, maps: range, horizon: int, out: dict[str, Any]) -> int:
+    """How many of fresh ``maps`` (episode indices of ``seed``) ``method`` rescues by tick 100 in setting
+    ``st``; what its policy called is added to ``out["calls"]``."""
+    res = evaluate(
+        method, st, seed=seed, sampled_too=False, isolated=plays_isolated(method), episode_indices=maps
+    )
+    _add(out["calls"], res.summary.get("policy_calls"))
+    return int(rescued_by_100(ticks_of(res.episodes), horizon).sum())
 
 
 def _add(total: dict[str, int], calls: dict[str, int] | None) -> None:
@@ -138,35 +144,17 @@ def verify_run(entry: dict[str, Any], k: int, seed: int, replay: int | None, fre
                 _add(out["calls"], calls)
             stated = entry["settings"][st.label]
             horizons[st.label] = int(stated["horizon"])
-            claimed[st.label] = float(
-                np.mean([0 <= t <= min(BY_TICK, horizons[st.label]) for t in stated["rescue_tick"][k]])
-            )
+            claimed[st.label] = float(rescued_by_100(stated["rescue_tick"][k], horizons[st.label]).mean())
             if fresh:
-                res = evaluate(
-                    method,
-                    st,
-                    seed=seed,
-                    sampled_too=False,
-                    isolated=plays_isolated(method),
-                    episode_indices=range(fresh),
-                )
-                first[st.label] = _success(res.episodes, horizons[st.label])
-                _add(out["calls"], res.summary.get("policy_calls"))
+                first[st.label] = _fresh_wins(method, st, seed, range(fresh), horizons[st.label], out)
         if fresh:
-            second = {}
             more = range(fresh, (1 + fresh_rule.SECOND_STAGE) * fresh)
-            for st in SETTINGS:
-                if st.label in fresh_rule.suspicious(claimed, entry["episodes"], first, fresh):
-                    res = evaluate(
-                        method,
-                        st,
-                        seed=seed,
-                        sampled_too=False,
-                        isolated=plays_isolated(method),
-                        episode_indices=more,
-                    )
-                    second[st.label] = (_success(res.episodes, horizons[st.label]), len(more))
-                    _add(out["calls"], res.summary.get("policy_calls"))
+            late = fresh_rule.suspicious(claimed, entry["episodes"], first, fresh)
+            second = {
+                st.label: (_fresh_wins(method, st, seed, more, horizons[st.label], out), len(more))
+                for st in SETTINGS
+                if st.label in late
+            }
             verdict = fresh_rule.judge_run(claimed, entry["episodes"], first, fresh, second)
             out |= {"fresh": verdict.settings, "pooled": verdict.pooled}
             if verdict.refused:
