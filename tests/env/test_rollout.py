@@ -146,10 +146,22 @@ def test_it_plays_full_episodes(preset):
     assert planner.stats["searches"] > 0
 
 
-def test_it_plays_from_the_engine_view_a_policy_is_given():
+def test_it_plays_from_the_engine_view_a_policy_is_given(monkeypatch):
     """Through the read-only view (no true map, the target only where a robot knows it): no withheld
-    read, and the same goals as on the engine itself."""
+    read, and the same goals as on the engine itself once both key their streams alike (the view keys
+    them on the world keys, the engine on seed and episode: ``stream_key``)."""
     user_policy = pytest.importorskip("catmip_rl.evaluation.user_policy")
+    import catmip_env.planners.core as core
+    import catmip_env.planners.rollout as rollout
+
+    keyed = core.stream_key
+
+    def by_world_key(engine, b):
+        world = engine.world
+        return (int(world.world_keys[b]),) if hasattr(world, "world_keys") else keyed(engine, b)
+
+    for module in (core, rollout):
+        monkeypatch.setattr(module, "stream_key", by_world_key)
     eng = _engine(worlds=2)
     eng.reset()
     on_view = RolloutPlanner(seed=2, when="always", **SMALL)
