@@ -63,9 +63,12 @@ SETTINGS = tuple(
     for noise in (0.0, 0.05)
 )
 ENTRY_FORMAT = "catmip-suite-entry-v2"
-CLASSES = ("planner", "learned", "hybrid", "floor")
+CLASSES = ("planner", "learned", "hybrid", "floor", "reference")
 """An entry's class: a planner; a learned policy (plays from its own observations); a hybrid (reads a
-planner at play time, e.g. an AMAT with ``AmatConfig.hint``); a floor (no skill: the random planners)."""
+planner at play time, e.g. an AMAT with ``AmatConfig.hint``); a floor (no skill: the random planners); a
+reference (project code that reads the true world, :mod:`catmip_env.planners.reference`: the headroom,
+shown under the ranked table and never ranked). Only the project's reference rows are references."""
+RANKED = ("planner", "learned", "hybrid", "floor")
 FLOORS = ("random-frontier", "random-rescue", "random-uniform")
 BY_TICK = 100  # the paper's headline: rescued by tick 100
 RESAMPLES = 2_000
@@ -239,6 +242,8 @@ def _derived_class(method: Method) -> str | None:
     """The class a method's kind gives (None for a ``py:`` policy, which states its own)."""
     if method.kind in ("planner", "window", "window-noheading"):
         return "floor" if method.target in FLOORS else "planner"
+    if method.kind == "reference":
+        return "reference"
     if method.kind == "amat":
         from catmip_rl.store.checkpoint import load_model
 
@@ -254,6 +259,11 @@ def method_class(name: str, runs: list[Method], stated: str | None = None) -> st
         raise ValueError(f"--class {name}={stated}: the class must be one of {', '.join(CLASSES)}")
     found = {_derived_class(m) for m in runs}
     if found == {None}:
+        if stated == "reference":
+            raise ValueError(
+                f"--class {name}=reference: only the project's reference rows are references; state one of "
+                f"{', '.join(RANKED)}"
+            )
         if stated is None:
             raise ValueError(
                 f"method {name} is your policy: state its class with --class {name}=CLASS, one of "

@@ -22,6 +22,7 @@ from typing import Any
 import numpy as np
 
 from catmip_env.map_sets import SPLITS
+from catmip_env.planners.reference import REFERENCES
 from catmip_rl.benchmark.entry import (
     CLASSES,
     ENTRY_FORMAT,
@@ -198,6 +199,12 @@ def _check_header(entry: Any, episodes: int) -> None:
     _text(entry.get("actions") or "", "actions", TEXT_LIMITS["actions"])
     check_stated("code", entry.get("code", ""))
     _check_runs(entry.get("runs"))
+    references = {run.get("spec") in REFERENCES for run in entry["runs"]}
+    if references != {entry["class"] == "reference"}:
+        raise ValueError(
+            "class reference belongs to the project's reference rows (catmip_env.planners.reference) "
+            f"alone, and they to it: class {entry['class']!r}, runs {[r.get('spec') for r in entry['runs']]}"
+        )
     settings = entry.get("settings")
     labels = [st.label for st in SETTINGS]
     if not isinstance(settings, dict):

@@ -79,17 +79,12 @@ class EvalSetting:
 
     def env_config(self, needs: dict | None = None, synchronous: bool = False) -> EnvConfig:
         """The task's evaluation config (activation (0, 0)); ``needs``: what the policy sets of it (an
-        AMAT's goal window D and teammate memory, ``make_policy``'s third answer); ``synchronous``: every
+        AMAT's goal window D and teammate memory, a reference row's full communication: ``make_policy``'s
+        third answer, which wins over the setting's); ``synchronous``: every
         robot decides together every ``max_ma_ticks`` ticks (Synch-CATMiP)."""
-        extra = needs or {}
-        return make_config(
-            self.task,
-            comm_sigma=comm_sigma(self.comm),
-            slam_noise=float(self.noise),
-            max_ma_ticks=self.max_ma_ticks,
-            synchronous=synchronous,
-            **extra,
-        )
+        own = {"comm_sigma": comm_sigma(self.comm), "slam_noise": float(self.noise)}
+        own |= {"max_ma_ticks": self.max_ma_ticks, "synchronous": synchronous}
+        return make_config(self.task, **(own | (needs or {})))
 
     @property
     def label(self) -> str:
@@ -355,6 +350,10 @@ def _play_maps(policy, engine: EventEngine, bar, engine_hook) -> EpisodeRecords:
         if bar is not None and done > bar.n:
             bar.update(done - bar.n)
 
+    if hasattr(policy, "bound_records"):  # a reference computed from the maps (walk-bound)
+        records = policy.bound_records(engine)
+        on_event(engine, engine.num_worlds - int(engine.state.done.sum()))
+        return records
     if not plays_one_world_at_a_time(policy):
         return play(engine, policy, on_event=on_event)
     # a world's episode depends only on the seed, its index and the actions (catmip_env.kernels.rng)

@@ -5,6 +5,7 @@
     parse_method("amat:task1")                        # a shipped model, labelled amat_task1
     parse_method("mine=py:/path/to/mine.py:make_policy")  # your policy (user_policy)
     parse_method("sync:nearest")                      # any method in the synchronous world
+    parse_method("news-instant")                      # a reference row (catmip_env.planners.reference)
 
 A model trained in the synchronous world (Synch-AMAT, ``amat:sync``) plays in it: every robot decides
 together every ``max_ma_ticks`` ticks, the system it is.
@@ -22,6 +23,7 @@ from typing import TYPE_CHECKING, Any
 
 from catmip_env.config import EnvConfig
 from catmip_env.planners.baselines import PLANNERS, make_planner
+from catmip_env.planners.reference import REFERENCES, make_reference
 from catmip_env.planners.window import WINDOW_KINDS, make_window_planner
 from catmip_rl.evaluation.checked_policy import make_user_policy
 from catmip_rl.evaluation.user_policy import load_factory, parse_policy_source
@@ -64,7 +66,8 @@ METHOD_HELP = " | ".join(f"{p} ({_PLANNER_NOTES[p]})" if p in _PLANNER_NOTES els
     "guard) | amat-clean:PATH (a cell-goal model reading occupancy from its action mask) | "
     "sync:METHOD (the method in the synchronous world: every robot decides together) | "
     "py:FILE.py:FACTORY or py:package.module:FACTORY (your policy: docs/benchmark-your-algorithm.md); "
-    "NAME=METHOD names it on tables and plots"
+    "NAME=METHOD names it on tables and plots | reference rows (they read the true world; the board's "
+    "headroom, never ranked): " + ", ".join(f"{k} ({v[2]})" for k, v in REFERENCES.items())
 )
 
 
@@ -72,9 +75,10 @@ METHOD_HELP = " | ".join(f"{p} ({_PLANNER_NOTES[p]})" if p in _PLANNER_NOTES els
 class Method:
     """``name`` as written on tables and plots; ``kind`` "planner", "window" (a planner projected into
     the goal window), "window-noheading" (the same along a heading-free path), "amat", "py" (a factory
-    in a file or module) or "policy" (an object given to ``evaluate(policy=...)``); ``target`` the
-    planner's name, the AMAT checkpoint path or the ``py:`` spec; ``loop_guard`` (AMAT) executes argmax
-    with the loop guard of :class:`AmatExecutor`; ``synchronous``: plays in the synchronous world (every
+    in a file or module), "policy" (an object given to ``evaluate(policy=...)``) or "reference" (a
+    reference row, :mod:`catmip_env.planners.reference`); ``target`` the planner's or reference's name,
+    the AMAT checkpoint path or the ``py:`` spec; ``loop_guard`` (AMAT) executes argmax with the loop
+    guard of :class:`AmatExecutor`; ``synchronous``: plays in the synchronous world (every
     robot decides together every ``max_ma_ticks`` ticks), a ``sync:`` spec or a model trained in it;
     ``clean_occupancy`` (cell-goal AMAT): its active robots read occupancy from their action masks
     (:func:`~catmip_rl.amat.inputs.clean_occupancy`), an ``amat-clean:`` spec or a file that asks;
@@ -151,12 +155,20 @@ def parse_method(spec: str) -> Method:
                     f"unknown planner {planner!r} in {spec!r}{hint}; choose one of {sorted(PLANNERS)}"
                 )
             return Method(name or spec, kind, planner)
+    return _named(spec, name)
+
+
+def _named(spec: str, name: str | None) -> Method:
+    """The planner or reference row ``spec`` names (a plain word), else ValueError with a hint."""
+    if spec in REFERENCES:  # project code that reads the world: the board's headroom, never ranked
+        return Method(name or spec, "reference", spec)
     if spec not in PLANNERS:
         looks_like_policy = ".py:" in spec or "." in spec.split(":")[0] and ":" in spec
         hint = f" (your policy? write py:{spec})" if looks_like_policy else _did_you_mean(spec)
         choices = (
             f"a planner {sorted(PLANNERS)}, window:PLANNER, window-noheading:PLANNER, amat:PATH, "
-            "amat-guard:PATH, amat-clean:PATH, sync:METHOD or py:FILE.py:FACTORY"
+            "amat-guard:PATH, amat-clean:PATH, sync:METHOD, py:FILE.py:FACTORY or a reference row "
+            f"{sorted(REFERENCES)}"
         )
         raise ValueError(f"unknown method {spec!r}{hint}; choose {choices}")
     return Method(name or spec, "planner", spec)
@@ -171,7 +183,7 @@ def _did_you_mean(spec: str) -> str:
         if prefix in WINDOW_KINDS:
             fixed = [f"{prefix}:{p}" for p in get_close_matches(rest, list(PLANNERS), n=1)]
     else:
-        fixed = get_close_matches(spec, list(PLANNERS), n=1)
+        fixed = get_close_matches(spec, [*PLANNERS, *REFERENCES], n=1)
     return f" (did you mean {fixed[0]}?)" if fixed else ""
 
 
@@ -260,6 +272,9 @@ def make_policy(
     nothing of which maps it plays."""
     if method.kind == "planner":
         return make_planner(method.target, seed=seed), "cell", None
+    if method.kind == "reference":
+        reference, needs = make_reference(method.target, seed=seed)
+        return reference, "cell", needs
     if method.kind in WINDOW_KINDS:
         teacher = make_window_planner(method.target, seed=seed, follow_heading=WINDOW_KINDS[method.kind])
         return teacher, "window", None
