@@ -38,7 +38,13 @@ SHORT = {"full": "full", "4": "σ4", "2": "σ2"}  # column headings: T2 σ2 +n
 LONG = {"full": "full", "4": "σ = 4", "2": "σ = 2"}  # a task's table: σ = 2 + noise
 
 
-CLASS_COLOURS = {"planner": "tab:blue", "learned": "tab:green", "hybrid": "tab:purple", "floor": "tab:gray"}
+CLASS_COLOURS = {
+    "planner": "tab:blue",
+    "learned": "tab:green",
+    "hybrid": "tab:purple",
+    "floor": "tab:gray",
+    "reference": "tab:red",
+}
 
 
 def _short(label: str) -> str:
@@ -157,10 +163,12 @@ def page_markdown(
         + _record_text(record),
         head,
     )
-    for r in rows:
+    ranked_rows = [r for r in rows if r["class"] != "reference"]
+    for r in ranked_rows:
         lines.append("| " + " | ".join(_cells(r, ranked) + ([_fresh(r)] if fresh else [])) + " |")
+    lines += _reference_markdown([r for r in rows if r["class"] == "reference"], head, fresh)
     notes = []
-    for r in rows:
+    for r in ranked_rows:
         said = [md_text(r["notes"])] if r["notes"] else []
         said += [f"chosen on: {md_text(r['chosen_on'])}"] if r["chosen_on"] else []
         said += [md_text(r["class_note"])] if r.get("class_note") else []
@@ -174,6 +182,25 @@ def page_markdown(
     if previews:
         text += ["", *_preview_markdown(previews)]
     return "\n".join(text) + "\n"
+
+
+def _reference_markdown(rows: list[dict[str, Any]], head: list[str], fresh: int) -> list[str]:
+    """The reference rows' table under the ranked one (none: nothing), each defined in one line."""
+    from catmip_env.planners.reference import REFERENCES
+
+    if not rows:
+        return []
+    lines = [
+        "",
+        "**Reference rows** (not ranked): project code that reads the true world, to show how far the "
+        "ranked rows are from the ceiling; replayed and checked like every entry.",
+        "",
+        "| " + " | ".join(head) + " |",
+        "|" + "---|" * len(head),
+    ]
+    lines += ["| " + " | ".join(_cells(r, False) + ([_fresh(r)] if fresh else [])) + " |" for r in rows]
+    said = [r["method"] for r in rows if r["method"] in REFERENCES]
+    return lines + ["", *(f"- `{m}`: {REFERENCES[m][2]}" for m in said)]
 
 
 def _cells(r: dict[str, Any], ranked: bool) -> list[str]:
@@ -257,9 +284,15 @@ def page_figure(rows: list[dict[str, Any]], path: Path, episodes: int, split: st
         )
     ranked = split == RANKED_SPLIT
     labels = [
-        (f"{r['rank']}. " if ranked else "") + r["method"][:28] + (" ✓" if r["verified"] else "")
+        (f"{r['rank']}. " if ranked and r["rank"] else "")
+        + r["method"][:28]
+        + (" ✓" if r["verified"] else "")
         for r in rows
     ]
+    references = sum(r["class"] == "reference" for r in rows)
+    if 0 < references < n:  # the reference rows (the ceiling) below a line, under the ranked ones
+        for ax in (left, right):
+            ax.axhline(references - 0.5, color="tab:red", lw=1.2, ls="--")
     left.set_yticks(y, labels)
     for tick, r in zip(left.get_yticklabels(), rows):
         tick.set_color(CLASS_COLOURS[r["class"]])

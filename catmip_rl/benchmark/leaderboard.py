@@ -73,12 +73,14 @@ def level_with(
 
 
 def leaderboard_rows(entries: list[dict[str, Any]]) -> list[dict[str, Any]]:
-    """One row per entry, best aggregate first: rank (shared with the row above when level with it,
+    """One row per entry, best aggregate first, the reference rows (class ``reference``: the headroom)
+    after the ranked ones with rank None: rank (shared with the row above when level with it,
     :func:`level_with`), method, class, runs, actions, the IQM of success by tick 100 over (runs ×
     settings) with its 95 % CI, each setting's success by tick 100, verified (maps replayed per setting,
     0: not replayed), what it was chosen on, code and notes."""
     rows = []
-    for e in sorted(entries, key=lambda e: -e["checked"]["iqm"]):
+    order = sorted(entries, key=lambda e: (e["class"] == "reference", -e["checked"]["iqm"]))
+    for e in order:
         checked = e["checked"]
         low, high = checked["iqm_ci"]
         row = {
@@ -98,7 +100,9 @@ def leaderboard_rows(entries: list[dict[str, Any]]) -> list[dict[str, Any]]:
         rows.append(row | {"code": e.get("code") or "", "notes": e.get("notes") or ""})
     for k, row in enumerate(rows):
         row["rank"] = k + 1
-        if k:
+        if row["class"] == "reference":  # the headroom, never ranked
+            row["rank"] = None
+        elif k:
             above = rows[k - 1]
             row["vs_above"] = level_with(above["success"], row["success"])
             if row["vs_above"][1] <= 0:  # the interval holds 0 (or lies below): level with the row above
