@@ -342,8 +342,20 @@ def make_entry(
         "notes": notes,
         "versions": package_versions(),
         "machine": machine_info(),
+        "played_on": _played_on(results),
         "created": datetime.date.today().isoformat(),
     }
+
+
+def _played_on(results: dict[str, list[dict[str, Any]]]) -> list[dict[str, Any]]:
+    """Every machine that played a chunk of the entry's runs (:func:`~catmip_rl.benchmark.jobs.map_jobs`),
+    once each, in the order first met: with ``machine`` and ``created``, what differs between an entry
+    played on a Ray cluster and one played here."""
+    seen: list[dict[str, Any]] = []
+    for st in SETTINGS:
+        for r in results[st.label]:
+            seen += [m for m in r.get("machines") or [] if m not in seen]
+    return seen
 
 
 def entry_json(entry: dict[str, Any]) -> str:

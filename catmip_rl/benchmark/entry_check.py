@@ -71,6 +71,7 @@ KEYS = {
     "notes",
     "versions",
     "machine",
+    "played_on",
     "created",
 }
 _CONTROL = re.compile(r"[\x00-\x1f\x7f-\x9f\u2028\u2029\u200e\u200f\u202a-\u202e\u2066-\u2069]")  # + bidi
@@ -199,6 +200,14 @@ def _check_header(entry: Any, episodes: int) -> None:
     _text(entry.get("actions") or "", "actions", TEXT_LIMITS["actions"])
     check_stated("code", entry.get("code", ""))
     _check_runs(entry.get("runs"))
+    played = entry.get("played_on", [])
+    plain = (str, bool, int, float)
+    if (
+        not isinstance(played, list)
+        or len(played) > 1024
+        or not all(isinstance(m, dict) and all(isinstance(v, plain) for v in m.values()) for m in played)
+    ):
+        raise ValueError("played_on must be a list of machines (objects of plain values), at most 1024")
     references = {run.get("spec") in REFERENCES for run in entry["runs"]}
     if references != {entry["class"] == "reference"}:
         raise ValueError(

@@ -1,5 +1,6 @@
-"""Evaluation runs as jobs: a grid of (setting, method, training run) evaluations played by a process
-pool, each writing its own folder (:mod:`~catmip_rl.evaluation.evaluate`'s files) and returning what a
+"""Evaluation runs as jobs: a grid of (setting, method, training run) evaluations, each played in map
+chunks by a job runner (:mod:`~catmip_rl.benchmark.runner`: a local pool or Ray), merged in map order
+and written to its own folder (:mod:`~catmip_rl.evaluation.evaluate`'s files); each returns what a
 figure or a suite entry is made of. ``catmip bench paper`` (:mod:`~catmip_rl.benchmark.paper`) and
 ``catmip bench suite`` (:mod:`~catmip_rl.benchmark.suite`) run their grids through :func:`map_jobs`."""
 
@@ -7,24 +8,39 @@ from __future__ import annotations
 
 import csv
 import json
-import multiprocessing
 import os
-from concurrent.futures import ProcessPoolExecutor
-from contextlib import ExitStack
-from dataclasses import dataclass
+import platform
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from catmip_env.events import EventEngine
+from catmip_env.machine import machine_info
 from catmip_env.play import WorldNotSupported, plays_one_world_at_a_time
 from catmip_rl.benchmark.resume_check import check_resumed, read_summary
-from catmip_rl.evaluation.evaluate import EvalSetting, evaluate, progress_bar
+from catmip_rl.benchmark.runner import Runner
+from catmip_rl.benchmark.shipping import Bundle, bundle_for, restored, unpacked
+from catmip_rl.evaluation.evaluate import EvalSetting, evaluate, result_of
 from catmip_rl.evaluation.methods import PLAY_OPTIONS, Method, changed_files, make_policy, method_source
-from catmip_rl.evaluation.workers import die_with_parent, torch_threads
+from catmip_rl.evaluation.played import Played, merge_played
+from catmip_rl.evaluation.workers import torch_threads
 
-__all__ = ["Job", "run_one", "map_jobs", "check_methods", "run_dir", "default_threads"]
+__all__ = [
+    "Job",
+    "Chunk",
+    "run_one",
+    "map_jobs",
+    "play_chunk",
+    "chunks_of",
+    "check_methods",
+    "run_dir",
+    "default_threads",
+]
+
+CHUNK_MAPS = 100
+"""Maps a chunk: the unit a runner sends to a worker (a Task-3 setting of the suite is 10 chunks)."""
 
 
 @dataclass(frozen=True)
@@ -96,38 +112,32 @@ def _said(value: Any) -> str:
 
 
 def run_one(job: Job) -> dict[str, Any]:
-    """Play ``job`` (or read it back, :attr:`Job.resume`) and write its folder; returns its ``summary``,
-    ``curve`` / ``sampled_curve`` (success rate vs tick) and per-episode ``ticks`` (rescue ticks, NaN
-    where not rescued, of the policy and of its sampled pass)."""
-    _no_link(Path(job.out))
-    summary = _done(job)
-    if summary is not None:
-        episodes = json.loads((Path(job.out) / "episodes.json").read_text())
-        with open(Path(job.out) / "curve.csv") as f:
-            rows = list(csv.DictReader(f))
-        curve = [float(r["success_rate"]) for r in rows]
-        sampled = (
-            [float(r["sampled_success_rate"]) for r in rows] if "sampled_success_rate" in rows[0] else None
-        )
-    else:
-        torch_threads(job.threads)
-        result = evaluate(
-            job.method,
-            job.setting,
-            job.episodes,
-            job.seed,
-            sampled_too=job.sampled,
-            allow_other_maps=job.allow_other_maps,
-        )
-        result.write(job.out)
-        summary, episodes, curve = result.summary, result.episodes, result.curve.tolist()
-        sampled = None if result.sampled_curve is None else result.sampled_curve.tolist()
+    """Play ``job`` in this process (or read it back, :attr:`Job.resume`) and write its folder; returns
+    what :func:`map_jobs` returns for it."""
+    return map_jobs([job], 1, False, "")[0]
+
+
+def _read_back(job: Job, summary: dict[str, Any]) -> dict[str, Any]:
+    """A complete run's results read back from its folder (:func:`_done` found them)."""
+    episodes = json.loads((Path(job.out) / "episodes.json").read_text())
+    with open(Path(job.out) / "curve.csv") as f:
+        rows = list(csv.DictReader(f))
+    curve = [float(r["success_rate"]) for r in rows]
+    sampled = [float(r["sampled_success_rate"]) for r in rows] if "sampled_success_rate" in rows[0] else None
+    return _run_results(job, summary, episodes, curve, sampled, summary.get("played_on") or [])
+
+
+def _run_results(job, summary, episodes, curve, sampled, machines) -> dict[str, Any]:
+    """A run's ``out``, ``summary``, ``curve`` / ``sampled_curve`` (success rate vs tick), per-episode
+    ``ticks`` (rescue ticks, NaN where not rescued, of the policy and of its sampled pass), ``maps`` (the
+    maps played, in order: an entry's digest) and ``machines`` (what played its chunks: none when read
+    back)."""
     ticks = {
         key: [np.nan if e.get(key) is None else e[key] for e in episodes]
         for key in ("rescue_tick", "sampled_rescue_tick")
         if key in episodes[0]
     }
-    maps = [e["map_hash"] for e in episodes]  # the maps played, in order (an entry's digest)
+    maps = [e["map_hash"] for e in episodes]
     return {
         "out": job.out,
         "summary": summary,
@@ -135,7 +145,99 @@ def run_one(job: Job) -> dict[str, Any]:
         "sampled_curve": sampled,
         "ticks": ticks,
         "maps": maps,
+        "machines": machines,
     }
+
+
+@dataclass(frozen=True)
+class Chunk:
+    """Maps ``first`` .. ``first + count - 1`` of a job, and the files that play its method where the
+    driver's disk is not (:mod:`~catmip_rl.benchmark.shipping`; None: played where they lie)."""
+
+    job: Job
+    first: int
+    count: int
+    bundle: Bundle | None = None
+
+
+def chunks_of(job: Job, size: int | None = None) -> list[tuple[int, int]]:
+    """A job's maps in chunks of ``size`` (default :data:`CHUNK_MAPS`; the last one shorter), as (first,
+    count): the same split on every back end."""
+    size = size or CHUNK_MAPS
+    return [(first, min(size, job.episodes - first)) for first in range(0, job.episodes, size)]
+
+
+def play_chunk(chunk: Chunk) -> tuple[Played, dict[str, Any]]:
+    """Play one chunk (wherever the runner sent it): its unsummarised play, with the driver's paths, and
+    the machine that played it."""
+    job, method = chunk.job, chunk.job.method
+    torch_threads(job.threads)
+    if chunk.bundle is not None:
+        method = unpacked(chunk.bundle, method)
+    played = evaluate(
+        method,
+        job.setting,
+        seed=job.seed,
+        sampled_too=job.sampled,
+        allow_other_maps=job.allow_other_maps,
+        episode_indices=np.arange(chunk.first, chunk.first + chunk.count),
+        chunk=True,
+    )
+    if chunk.bundle is not None:
+        played = replace(played, method=job.method, info=restored(played.info, chunk.bundle))
+    return played, machine_info(host=platform.node())
+
+
+def map_jobs(
+    tasks: list[Job],
+    jobs: int,
+    progress: bool,
+    desc: str,
+    backend: str = "local",
+    ray_address: str | None = None,
+) -> list[dict[str, Any]]:
+    """Every task's results (:func:`_run_results`), in order: a complete run read back (:attr:`Job.resume`),
+    every other run's maps played in chunks of :data:`CHUNK_MAPS` by a :class:`~catmip_rl.benchmark.
+    runner.Runner` (``backend``, ``jobs`` workers, ``ray_address``) and its folder written as soon as its
+    last chunk is in (an interrupted grid resumes from the runs written). The bar counts chunks weighted
+    by their size (:func:`run_cost`). The files do not depend on the back end or the workers."""
+    runner = Runner(backend, max(int(jobs), 1), ray_address)
+    results: list[dict[str, Any] | None] = []
+    for job in tasks:
+        _no_link(Path(job.out))
+        summary = _done(job)
+        results.append(None if summary is None else _read_back(job, summary))
+    ship = runner.backend == "ray"  # a worker may be another machine: the files go by content
+    bundles = {}
+    chunks, owner = [], []
+    for i, job in enumerate(tasks):
+        if results[i] is not None:
+            continue
+        if ship and job.method not in bundles:
+            bundles[job.method] = bundle_for(job.method)
+        for first, count in chunks_of(job):
+            chunks.append(Chunk(job, first, count, bundles.get(job.method)))
+            owner.append(i)
+    parts: dict[int, dict[int, tuple[Played, dict[str, Any]]]] = {i: {} for i in set(owner)}
+
+    def on_done(k: int, part: tuple[Played, dict[str, Any]]) -> None:
+        i = owner[k]
+        parts[i][k] = part
+        if len(parts[i]) == owner.count(i):  # the run's last chunk: merge in map order, write it
+            ordered = [parts[i][j] for j in sorted(parts[i])]
+            result = result_of(merge_played([p for p, _ in ordered]))
+            machines = [m for j, (_, m) in enumerate(ordered) if m not in [n for _, n in ordered[:j]]]
+            result.summary["played_on"] = machines  # every machine that played a chunk
+            result.write(tasks[i].out)
+            sampled = None if result.sampled_curve is None else result.sampled_curve.tolist()
+            results[i] = _run_results(
+                tasks[i], result.summary, result.episodes, result.curve.tolist(), sampled, machines
+            )
+            parts[i].clear()
+
+    weights = [run_cost(replace(c.job, episodes=c.count)) for c in chunks]
+    runner.map(play_chunk, chunks, weights, on_done, progress, desc, unit="chunks")
+    return results
 
 
 def _no_link(folder: Path) -> None:
@@ -144,47 +246,6 @@ def _no_link(folder: Path) -> None:
     for path in (folder, folder.parent, folder.parent.parent):
         if path.is_symlink():
             raise ValueError(f"{path} is a symbolic link: a grid reads and writes only its own folders")
-
-
-def map_jobs(tasks: list[Job], jobs: int, progress: bool, desc: str) -> list[dict[str, Any]]:
-    """:func:`run_one` of every task, in order, on ``jobs`` processes (spawned: no state shared), with a
-    progress bar weighted by each run's size (:func:`run_cost`: a Task-3 run counts about six Task-2
-    runs, so the estimate of the time left holds across tasks). Interrupted (Ctrl-C, SIGTERM through
-    ``catmip``), the pool's workers are stopped at once and its queues released."""
-    bar = progress_bar(len(tasks), desc, progress, unit="run", leave=True)
-    weights = [run_cost(t) for t in tasks]
-    if bar is not None:
-        bar.total = sum(weights)
-        bar.bar_format = "{desc}: {percentage:3.0f}%|{bar}| [{elapsed}<{remaining}]"
-        bar.set_description_str(f"{desc} 0/{len(tasks)} runs")
-    results: list[dict[str, Any]] = []
-    with ExitStack() as stack:
-        pool = None
-        if jobs <= 1:
-            runs = map(run_one, tasks)
-        else:
-            spawn = multiprocessing.get_context("spawn")
-            pool = stack.enter_context(
-                ProcessPoolExecutor(
-                    max_workers=jobs, mp_context=spawn, initializer=die_with_parent, initargs=(os.getpid(),)
-                )
-            )
-            futures = [pool.submit(run_one, t) for t in tasks]  # not pool.map: its iterator cancels them
-            runs = (f.result() for f in futures)  # on its way out, which a broken pool then trips over
-        try:
-            for res, weight in zip(runs, weights):
-                results.append(res)
-                if bar is not None:
-                    bar.set_description_str(f"{desc} {len(results)}/{len(tasks)} runs", refresh=False)
-                    bar.update(weight)
-        except BaseException:
-            if pool is not None:  # stop the workers now: the pool's exit would wait for their runs
-                for worker in list((getattr(pool, "_processes", None) or {}).values()):
-                    worker.terminate()  # the pool then ends its pending runs as broken, and exits
-            raise
-    if bar is not None:
-        bar.close()
-    return results
 
 
 def run_cost(job: Job) -> float:
@@ -250,8 +311,18 @@ def _first_decision(method: Method, env_config, seed: int) -> None:
 
 
 def default_threads(jobs: int, threads: int | None) -> int:
-    """Torch threads of each job: ``threads`` if given, else 2 for one job and 1 for several."""
-    return (1 if jobs > 1 else 2) if threads is None else threads
+    """Torch threads of each job: ``threads`` if given, else the machine's CPUs shared among the jobs, at
+    most 2 (2 for one job on 2 CPUs, 1 for two): jobs x threads never more than the CPUs (the engine
+    plays on one thread in an evaluation)."""
+    return max(1, min(2, available_cpus() // max(int(jobs), 1))) if threads is None else threads
+
+
+def available_cpus() -> int:
+    """The CPUs this process may run on."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # not Linux
+        return os.cpu_count() or 1
 
 
 def run_dir(folder: Path, k: int, runs: int) -> Path:

@@ -97,6 +97,8 @@ def run_figure(
     allow_other_maps: bool = False,
     threads: int | None = None,
     resume: bool = False,
+    backend: str = "local",
+    ray_address: str | None = None,
 ) -> Path:
     """Run every (panel, method) of ``figure``; returns the figure's folder. A method given as
     ``NAME=SPEC,SPEC,...`` has several training runs (:func:`parse_runs`): each plays the same maps (in
@@ -140,7 +142,7 @@ def run_figure(
         for runs in [plays.get((panel, name), [])]
         for k, m in enumerate(runs)
     ]
-    results = iter(map_jobs(tasks, jobs, progress, f"figure {figure}"))
+    results = iter(map_jobs(tasks, jobs, progress, f"figure {figure}", backend, ray_address))
     curve_rows, summary_rows, runs_written = [], [], []
     for panel, _setting in panels:
         for name in names:

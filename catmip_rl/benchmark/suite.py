@@ -55,6 +55,8 @@ def run_suite(
     split: str = "validation",
     classes: dict[str, str] | None = None,
     chosen_on: dict[str, str] | None = None,
+    backend: str = "local",
+    ray_address: str | None = None,
 ) -> list[Path]:
     """Play every method (``NAME=SPEC`` or ``NAME=SPEC,SPEC,...`` for several training runs) on every
     setting of the suite on the maps of ``split`` and write one entry per method, with its ``code``
@@ -97,7 +99,7 @@ def run_suite(
     if line is not None:
         print(line, flush=True)
     try:
-        results = iter(map_jobs(tasks, jobs, progress, f"suite {SUITE}"))
+        results = iter(map_jobs(tasks, jobs, progress, f"suite {SUITE}", backend, ray_address))
     except PolicyError as err:  # a policy that broke mid-suite: what was played is kept
         finished = sum(1 for _ in (out / "runs").rglob("run.json"))
         raise PolicyError(

@@ -56,6 +56,8 @@ def run_bench(args: argparse.Namespace) -> int:
                     allow_other_maps=args.allow_other_maps,
                     threads=args.threads,
                     resume=args.resume,
+                    backend=args.backend,
+                    ray_address=args.ray_address,
                 )
             except BaseException:  # a figure's folder holds a whole figure or none, unless --resume
                 if not args.resume:  # keeps its complete runs for the next --resume
@@ -66,11 +68,18 @@ def run_bench(args: argparse.Namespace) -> int:
 
 
 def _check_parallel(args: argparse.Namespace) -> None:
-    """--jobs x --threads within the machine's CPUs (each job starts that many torch threads)."""
-    if args.threads is not None and args.threads * args.jobs > CPUS:
+    """--jobs x --threads within the machine's CPUs where the workers are this machine's processes (each
+    starts that many torch threads; a private Ray cluster is on this machine too); --ray-address only
+    with --backend ray."""
+    here = args.backend == "local" or args.ray_address is None
+    if here and args.jobs > CPUS:
+        raise ValueError(f"--jobs {args.jobs} is more than this machine's {CPUS} CPUs")
+    if here and args.threads is not None and args.threads * args.jobs > CPUS:
         raise ValueError(
             f"--jobs {args.jobs} x --threads {args.threads} is more than this machine's {CPUS} CPUs"
         )
+    if args.ray_address is not None and args.backend != "ray":
+        raise ValueError("--ray-address is for --backend ray")
 
 
 def _suite(args: argparse.Namespace) -> int:
@@ -93,6 +102,8 @@ def _suite(args: argparse.Namespace) -> int:
             args.split,
             dict(args.classes),
             dict(args.chosen_on),
+            args.backend,
+            args.ray_address,
         )
     for path in paths:
         entry = json.loads(path.read_text())

@@ -24,13 +24,31 @@ __all__ = ["add_parallel_flags", "add_suite", "add_leaderboard", "add_bench", "a
 
 
 def add_parallel_flags(p: argparse.ArgumentParser) -> None:
-    """--jobs and --threads of a command that plays a grid of evaluations (bench suite, bench paper)."""
-    p.add_argument("--jobs", type=UP_TO_CPUS, default=min(2, CPUS), help="parallel processes")
+    """--jobs, --threads, --backend and --ray-address of a command that plays a grid of evaluations (bench
+    suite, bench paper) or checks a board (leaderboard)."""
+    p.add_argument(
+        "--jobs",
+        type=POSITIVE_INT,
+        default=min(2, CPUS),
+        help=f"parallel workers: processes here (at most this machine's {CPUS} CPUs), Ray tasks in flight",
+    )
     p.add_argument(
         "--threads",
         type=UP_TO_CPUS,
         default=None,
-        help="torch CPU threads of each process (default: 2 with one job, else 1)",
+        help="torch CPU threads of each worker (default: the CPUs each job has, at most 2)",
+    )
+    p.add_argument(
+        "--backend",
+        choices=("local", "ray"),
+        default="local",
+        help="where the map chunks are played: this machine's processes, or a Ray cluster (the same files)",
+    )
+    p.add_argument(
+        "--ray-address",
+        default=None,
+        metavar="ADDRESS",
+        help="with --backend ray: a running cluster (auto or HOST:PORT); unset, a private one on loopback",
     )
 
 

@@ -44,6 +44,7 @@ from catmip_rl.evaluation.methods import (
     parse_method,
     policy_files,
 )
+from catmip_rl.evaluation.played import Played, chunk_seed
 from catmip_rl.evaluation.records import action_choice, episode_rows, policy_calls, policy_modules
 from catmip_rl.evaluation.sandbox import close_policy
 from catmip_rl.store.files import atomic_write_csv, atomic_write_text
@@ -193,7 +194,8 @@ def evaluate(
     threads: int = 1,
     isolated: bool | None = None,
     episode_indices: Any = None,
-) -> EvalResult:
+    chunk: bool = False,
+) -> EvalResult | Played:
     """Play ``episodes`` maps of ``setting`` (episode indices 0.. of ``seed``, or the maps
     ``episode_indices`` names, any indices, in that order) with ``method``.
 
@@ -211,6 +213,9 @@ def evaluate(
     worker process that holds no engine (:mod:`~catmip_rl.evaluation.sandbox`; None: as the
     :class:`Method` says, isolated unless it says otherwise); ``isolated=False`` plays it in this
     process, for tests and debugging. The project's planners and models, and ``policy``, play here.
+    ``chunk``: return the play unsummarised (:class:`~catmip_rl.evaluation.played.Played`), one chunk of
+    an evaluation that a job runner merges (:func:`~catmip_rl.evaluation.played.merge_played`,
+    :func:`result_of`).
     """
     if policy is not None:
         if not isinstance(method, str) or not method.strip() or ":" in method or "=" in method:
@@ -244,6 +249,7 @@ def evaluate(
             sampled_too,
             allow_other_maps,
             threads,
+            chunk,
         )
     finally:
         close_policy(policy)
@@ -262,14 +268,15 @@ def _evaluate(
     sampled_too,
     allow_other_maps,
     threads,
-) -> EvalResult:
+    chunk,
+) -> EvalResult | Played:
     sync = method.synchronous
     cfg = setting.env_config(needs, sync)
     episodes = len(indices)
     engine = EventEngine(cfg, num_worlds=episodes, seed=seed, goal_mode=goal_mode, threads=threads)
     engine.reset(episode_indices=indices)
     maps = [map_hash(engine, e) for e in range(episodes)]
-    map_set = check_maps(setting.task, seed, maps, allow_other_maps, indices)
+    check_maps(setting.task, seed, maps, allow_other_maps, indices)  # other maps: raise before playing
     sampled_variant = getattr(policy, "sampled", None) if sampled_too else None  # the Policy protocol's hook
     passes = 2 if sampled_variant is not None else 1
     both = " (argmax + sampled)" if passes > 1 else ""  # the bar counts the episodes of both passes
@@ -280,14 +287,35 @@ def _evaluate(
     sampled = None
     if sampled_variant is not None:  # the same maps with sampled actions
         engine.reset(episode_indices=indices)
-        sampled = _play_maps(sampled_variant(_sampled_seed(method, seed)), engine, bar, None)
+        first = int(indices[0]) if len(indices) else 0
+        sampled = _play_maps(sampled_variant(_sampled_seed(method, seed, first)), engine, bar, None)
     if bar is not None:
         bar.close()
     try:
         columns = episode_columns(policy, episodes)
     except ValueError as err:
         raise ValueError(f"policy {method.name}: {err}") from None
-    rows = episode_rows(method, setting, seed, maps, records, sampled, columns, indices)
+    info = {
+        "actions": action_choice(policy),
+        "policy_files": policy_files(policy),
+        "policy_calls": policy_calls(policy),
+        "policy_modules": policy_modules(method, policy),
+    }
+    played = Played(
+        method, setting, seed, cfg, indices, maps, records, sampled, columns, info, seconds, allow_other_maps
+    )
+    return played if chunk else result_of(played)
+
+
+def result_of(played: Played) -> EvalResult:
+    """The result of ``played`` (one play of some maps, or the merged chunks of one evaluation,
+    :func:`~catmip_rl.evaluation.played.merge_played`): its rows, curves and summary."""
+    method, setting, seed, cfg = played.method, played.setting, played.seed, played.cfg
+    records = played.records
+    map_set = check_maps(setting.task, seed, played.maps, played.allow_other_maps, played.indices)
+    rows = episode_rows(
+        method, setting, seed, played.maps, records, played.sampled, played.columns, played.indices
+    )
     horizon = cfg.horizon_ticks
     result = EvalResult(method.name, setting, seed, rows, success_curve(records.rescue_tick, horizon))
     decisions = max(int(records.decisions.sum()), 1)
@@ -296,17 +324,18 @@ def _evaluate(
         "bytes_per_decision_raw": sum(r["bytes_raw"] for r in rows) / decisions,
     }
     result.summary |= decision_metrics(records, cfg.classes)
-    if sampled is not None:
-        result.sampled_curve = success_curve(sampled.rescue_tick, horizon)
-        m = episode_metrics(sampled, horizon)
+    if played.sampled is not None:
+        result.sampled_curve = success_curve(played.sampled.rescue_tick, horizon)
+        m = episode_metrics(played.sampled, horizon)
         keys = ("success_rate", "success_by_100", "mean_rescue_tick")
         result.summary |= {f"sampled_{k}": m[k] for k in keys}
+    info = played.info
     result.summary.update(
         method=method.name,
         method_kind=method.kind,
         target=method.target,
-        actions=action_choice(policy),
-        sampled_pass=sampled is not None,
+        actions=info["actions"],
+        sampled_pass=played.sampled is not None,
         loop_guard=method.loop_guard,
         clean_occupancy=method.clean_occupancy,
         synchronous=method.synchronous,
@@ -314,22 +343,23 @@ def _evaluate(
         checkpoint=method.target if method.kind == "amat" else None,
         policy=method.target if method.kind in ("py", "policy") else None,
         source=method_source(method),
-        policy_files=policy_files(policy),
-        policy_calls=policy_calls(policy),
-        policy_modules=policy_modules(method, policy),
+        policy_files=info["policy_files"],
+        policy_calls=info["policy_calls"],
+        policy_modules=info["policy_modules"],
         setting=asdict(setting),
         label=setting.label,
         seed=seed,
-        seconds=seconds,
+        seconds=played.seconds,
         **map_set.as_dict(),
     )
     return result
 
 
-def _sampled_seed(method: Method, seed: int) -> int:
-    """The seed of a policy's sampled pass: the map set's for the project's models, :data:`POLICY_SEED`
-    for a user's policy (told nothing of the maps)."""
-    return POLICY_SEED if method.kind in USER_KINDS else seed
+def _sampled_seed(method: Method, seed: int, first: int) -> int:
+    """The seed of a policy's sampled pass over maps from index ``first`` on: the map set's
+    (:func:`~catmip_rl.evaluation.played.chunk_seed`: keyed per chunk) for the project's models,
+    :data:`POLICY_SEED` for a user's policy (told nothing of the maps)."""
+    return POLICY_SEED if method.kind in USER_KINDS else chunk_seed(seed, first)
 
 
 def _play_maps(policy, engine: EventEngine, bar, engine_hook) -> EpisodeRecords:

@@ -1,0 +1,100 @@
+"""The job runner (catmip_rl.benchmark.runner) and the map chunks a grid is played in: an evaluation
+played in chunks writes what one play of all its maps writes; results come back in order whatever
+order they end in; a lost worker's item is played again; a policy's files travel by content and are
+checked there. On Ray: tests/rl/evaluation/test_runner_ray.py (``make test-distributed``)."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+import catmip_rl.benchmark.jobs as jobs
+from catmip_rl.benchmark.jobs import Job, chunks_of, map_jobs
+from catmip_rl.benchmark.runner import Runner
+from catmip_rl.benchmark.shipping import bundle_for, restored, unpacked
+from catmip_rl.evaluation.evaluate import EvalSetting, evaluate
+from catmip_rl.evaluation.methods import parse_method
+from tests.rl.evaluation import runner_helpers
+
+
+def test_a_run_is_split_into_the_same_chunks_everywhere():
+    job = Job(parse_method("nearest"), EvalSetting("task2"), 250, 1000, "x")
+    assert chunks_of(job) == [(0, 100), (100, 100), (200, 50)]
+    assert chunks_of(replace(job, episodes=7), 3) == [(0, 3), (3, 3), (6, 1)]
+
+
+@pytest.mark.parametrize("method", ["rrt-relay-coord", "walk-bound"])
+def test_an_evaluation_played_in_chunks_writes_what_one_play_writes(method, tmp_path, monkeypatch):
+    setting = EvalSetting("task2", "2", 0.05)
+    whole = evaluate(method, setting, 7, seed=1000)
+    whole.write(tmp_path / "whole")
+    monkeypatch.setattr(jobs, "CHUNK_MAPS", 3)
+    (res,) = map_jobs([Job(parse_method(method), setting, 7, 1000, str(tmp_path / "chunks"))], 1, False, "")
+    for name in ("episodes.json", "episodes.csv", "curve.csv"):
+        assert (tmp_path / "whole" / name).read_bytes() == (tmp_path / "chunks" / name).read_bytes(), name
+    one, merged = (json.loads((tmp_path / d / "summary.json").read_text()) for d in ("whole", "chunks"))
+    assert merged.pop("played_on")[0]["cpu_capability"] and merged.pop("seconds") > 0
+    one.pop("seconds")
+    assert merged == one
+    assert res["ticks"]["rescue_tick"] == [e["rescue_tick"] for e in whole.episodes]
+
+
+def test_a_sampled_pass_is_keyed_per_chunk_not_per_batch():
+    from catmip_rl.evaluation.played import chunk_seed
+
+    assert chunk_seed(1000, 0) == 1000  # maps from 0: the seed an evaluation of maps 0.. always drew
+    assert len({chunk_seed(1000, k) for k in (0, 100, 200)}) == 3
+    assert chunk_seed(1000, 100) == chunk_seed(1000, 100) and chunk_seed(1001, 100) != chunk_seed(1000, 100)
+
+
+def test_results_come_back_in_order_on_a_pool_and_each_is_reported_as_it_ends():
+    seen = []
+    out = Runner("local", 2).map(
+        runner_helpers.square, list(range(7)), on_done=lambda k, r: seen.append((k, r))
+    )
+    assert out == [k * k for k in range(7)] and sorted(seen) == [(k, k * k) for k in range(7)]
+    assert Runner("local", 1).map(runner_helpers.square, [3, 4]) == [9, 16]
+
+
+def test_an_item_whose_worker_died_is_played_again_on_a_new_pool(tmp_path):
+    items = [(k, str(tmp_path)) for k in range(4)]
+    assert Runner("local", 2).map(runner_helpers.dies_once, items) == [0, 1, 4, 9]
+    assert len(list(tmp_path.glob("died-*"))) == 4
+
+
+def test_a_bad_runner_is_named():
+    with pytest.raises(ValueError, match="backend must be one of local, ray"):
+        Runner("dask")
+    with pytest.raises(ValueError, match="workers must be an int >= 1"):
+        Runner("local", 0)
+    with pytest.raises(ValueError, match="--ray-address is for --backend ray"):
+        Runner("local", 1, "auto")
+
+
+def test_a_policys_folder_travels_by_content_and_is_checked_there(tmp_path):
+    (tmp_path / "p").mkdir()
+    (tmp_path / "p" / "mine.py").write_text("def make_policy(cfg, seed):\n    return None\n")
+    (tmp_path / "p" / "weights.bin").write_bytes(b"w")
+    (tmp_path / "p" / ".git").mkdir()
+    (tmp_path / "p" / ".git" / "x").write_text("hidden")
+    (tmp_path / "p" / "out" / "runs" / "a").mkdir(parents=True)
+    (tmp_path / "p" / "out" / "runs" / "a" / "run.json").write_text("{}")  # a result folder stays
+    method = parse_method(f"py:{tmp_path / 'p' / 'mine.py'}:make_policy")
+    bundle = bundle_for(method)
+    assert sorted(rel for rel, _, _ in bundle.files) == ["mine.py", "weights.bin"]
+    there = unpacked(bundle, method)
+    folder = there.target.split(":")[1].rsplit("/", 1)[0]
+    assert folder != str(tmp_path / "p") and (tmp_path / "p" / "mine.py").read_bytes() in [
+        open(f"{folder}/mine.py", "rb").read()
+    ]
+    assert restored({"files": [f"{folder}/weights.bin"]}, bundle) == {
+        "files": [str(tmp_path / "p" / "weights.bin")]
+    }
+    forged = replace(bundle, files=(("mine.py", b"other", bundle.files[0][2]), *bundle.files[1:]))
+    with pytest.raises(ValueError, match="mine.py of .*: its SHA-256 on this worker is not the driver's"):
+        unpacked(forged, method)
+    assert bundle_for(parse_method("nearest")) is None
+    np.testing.assert_equal(len(bundle.digest), 64)
