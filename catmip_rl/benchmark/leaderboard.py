@@ -252,21 +252,27 @@ def render_leaderboard(
     seed: int | None = None,
     jobs: int = 1,
     record: str | Path | None = None,
+    backend: str = "local",
+    ray_address: str | None = None,
 ) -> Board:
     """Check every entry in ``folder`` (all of ``split``), verify them (``replay`` maps of each setting
     and run, None: all; ``fresh`` fresh maps a setting; ``seed``: the verification's, drawn now if None;
-    :func:`~catmip_rl.benchmark.verify.verify_board`) and write ``out/verification.json``; or, verifying
-    nothing, read the record at ``record`` (default ``out/verification.json`` where there is one). Then
-    write ``out/leaderboard.md`` and ``out/leaderboard.png`` and, given ``vs``, every other entry
-    against it (:func:`paired_rows`) to ``out/vs_NAME.md`` / ``.csv``; returns the files' paths
-    (:class:`Board`). A refused entry is listed under the table with its reason, never ranked."""
+    :func:`~catmip_rl.benchmark.verify.verify_board`, on ``jobs`` workers of ``backend``) and write
+    ``out/verification.json``; or, verifying nothing, read the record at ``record`` (default
+    ``out/verification.json`` where there is one). Then write ``out/leaderboard.md`` and
+    ``out/leaderboard.png`` and, given ``vs``, every other entry against it (:func:`paired_rows`) to
+    ``out/vs_NAME.md`` / ``.csv``; returns the files' paths (:class:`Board`). A refused entry is listed
+    under the table with its reason, never ranked."""
     from catmip_rl.benchmark.record_check import check_record
     from catmip_rl.benchmark.verify import RECORD, verify_board
 
     entries, previews, refused = load_board(folder, episodes, split)
     out = Path(out)
     if replay != 0 or fresh:
-        found = verify_board(entries + previews, replay, fresh, seed, jobs, progress, _known(out / RECORD))
+        known = _known(out / RECORD)
+        found = verify_board(
+            entries + previews, replay, fresh, seed, jobs, progress, known, backend, ray_address
+        )
         out.mkdir(parents=True, exist_ok=True)
         atomic_write_text(out / RECORD, json.dumps(found, indent=1) + "\n")
     else:

@@ -67,8 +67,11 @@ class Runner:
         progress: bool = False,
         desc: str = "",
         unit: str = "chunks",
+        on_error: Callable[[int, BaseException], Any] | None = None,
     ) -> list[Any]:
-        """``fn(item)`` of every item (``fn`` a module-level function, ``items`` picklable), in order."""
+        """``fn(item)`` of every item (``fn`` a module-level function, ``items`` picklable), in order.
+        ``on_error(k, err)``: on Ray, the result of an item whose task failed for good (its worker died
+        past :data:`RAY_RETRIES`), instead of raising."""
         weights = list(weights) if weights is not None else [1.0] * len(items)
         bar = _Bar(weights, progress, desc, unit)
         results: dict[int, Any] = {}
@@ -81,7 +84,7 @@ class Runner:
 
         try:
             if self.backend == "ray":
-                _ray_map(fn, items, done, self.workers, self.ray_address)
+                _ray_map(fn, items, done, self.workers, self.ray_address, on_error)
             elif self.workers <= 1 or len(items) <= 1:
                 for k, item in enumerate(items):
                     done(k, fn(item))
@@ -164,7 +167,7 @@ def import_ray():
     return ray
 
 
-def _ray_map(fn, items, done, workers: int, address: str | None) -> None:
+def _ray_map(fn, items, done, workers: int, address: str | None, on_error=None) -> None:
     """Play ``items`` as Ray tasks, at most ``workers`` in flight; cancel them all on the way out."""
     from catmip_rl.adapters.ray_collect import _ray_init_config
 
@@ -185,7 +188,14 @@ def _ray_map(fn, items, done, workers: int, address: str | None) -> None:
                 flying[remote.remote(items[k])] = k
             finished, _ = ray.wait(list(flying), num_returns=1)
             for ref in finished:
-                done(flying.pop(ref), ray.get(ref))
+                k = flying.pop(ref)
+                try:
+                    result = ray.get(ref)
+                except ray.exceptions.RayError as err:
+                    if on_error is None:
+                        raise
+                    result = on_error(k, err)
+                done(k, result)
     except BaseException:
         for ref in flying:
             ray.cancel(ref, force=True)

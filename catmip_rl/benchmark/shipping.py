@@ -23,7 +23,16 @@ from catmip_rl.evaluation.methods import Method
 from catmip_rl.evaluation.user_policy import parse_policy_source
 from catmip_rl.store.shipped import model_file
 
-__all__ = ["Bundle", "bundle_for", "unpacked", "restored", "MAX_BUNDLE_BYTES"]
+__all__ = [
+    "Bundle",
+    "bundle_for",
+    "files_bundle",
+    "folder_files",
+    "unpacked",
+    "unpack",
+    "restored",
+    "MAX_BUNDLE_BYTES",
+]
 
 MAX_BUNDLE_BYTES = 256 * 2**20
 """The most a bundle may hold: a policy's folder past it is refused in one line (give it a folder of
@@ -54,23 +63,35 @@ def bundle_for(method: Method) -> Bundle | None:
     past :data:`MAX_BUNDLE_BYTES`."""
     if method.kind == "py" and parse_policy_source(method.target).is_file:
         root = Path(parse_policy_source(method.target).source).expanduser().resolve().parent
-        results = [p.parent for p in root.rglob("run.json")]  # catmip's result folders stay here
-        paths = sorted(
-            p
-            for p in root.rglob("*")
-            if p.is_file()
-            and not _hidden(p.relative_to(root))
-            and not any(p.is_relative_to(r) for r in results)
-        )
+        paths = folder_files(root)
     elif method.kind == "amat":
         file = model_file(Path(method.target)).resolve()
         root, paths = file.parent, [file]
     else:
         return None
+    return files_bundle(root, paths, method.name)
+
+
+def folder_files(folder: Path) -> list[Path]:
+    """The files a policy's folder ships: every file below it but hidden ones, ``__pycache__`` and
+    catmip's result folders (those with a ``run.json``)."""
+    results = [p.parent for p in folder.rglob("run.json")]
+    return sorted(
+        p
+        for p in folder.rglob("*")
+        if p.is_file()
+        and not _hidden(p.relative_to(folder))
+        and not any(p.is_relative_to(r) for r in results)
+    )
+
+
+def files_bundle(root: Path, paths: list[Path], name: str) -> Bundle:
+    """The bundle of ``paths`` (below ``root``), named ``name`` in its messages; ValueError past
+    :data:`MAX_BUNDLE_BYTES`."""
     size = sum(p.stat().st_size for p in paths)
     if size > MAX_BUNDLE_BYTES:
         raise ValueError(
-            f"{method.name}: its folder {root} holds {size / 2**20:.0f} MiB, past the "
+            f"{name}: its files below {root} hold {size / 2**20:.0f} MiB, past the "
             f"{MAX_BUNDLE_BYTES // 2**20} MiB a worker is sent: give the policy a folder of its own"
         )
     files = tuple(
@@ -84,6 +105,13 @@ def unpacked(bundle: Bundle, method: Method) -> Method:
     """Write ``bundle`` into this machine's folder for it (kept for the next chunk: named by its digest),
     check every file's SHA-256 there, and return ``method`` playing from it. ValueError naming a file
     whose content differs from what the driver sent."""
+    folder = unpack(bundle)
+    return replace(method, target=method.target.replace(bundle.root, str(folder), 1))
+
+
+def unpack(bundle: Bundle) -> Path:
+    """Write ``bundle`` into this machine's folder for it, checking every file (:func:`unpacked`);
+    returns the folder."""
     folder = _folder(bundle)
     for rel, data, sha in bundle.files:
         if _sha(data) != sha:  # what arrived is not what the driver hashed
@@ -96,7 +124,7 @@ def unpacked(bundle: Bundle, method: Method) -> Method:
             os.replace(part, path)
         if _sha(path.read_bytes()) != sha:
             raise ValueError(f"{rel} of {bundle.root}: its SHA-256 on this worker is not the driver's")
-    return replace(method, target=method.target.replace(bundle.root, str(folder), 1))
+    return folder
 
 
 def _folder(bundle: Bundle) -> Path:

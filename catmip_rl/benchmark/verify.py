@@ -39,9 +39,11 @@ from catmip_rl.benchmark.replay import (
     plays_isolated,
     replay_indices,
     replay_run,
+    run_files,
     run_method,
     ticks_of,
 )
+from catmip_rl.benchmark.runner import Runner
 from catmip_rl.evaluation.evaluate import evaluate, progress_bar
 from catmip_rl.evaluation.user_policy import PolicyError
 from catmip_rl.store.shipped import file_sha256
@@ -231,14 +233,7 @@ def _play_all(todo: dict, results: dict, plan: tuple, jobs: int, bar) -> None:
                 del pending[key]
         if broke and alone:
             ((key, _job),) = batch.items()
-            results[key] = {
-                "run": key[1],
-                "replayed": {},
-                "calls": {},
-                "kind": "refused",
-                "error": f"run {key[1]}: the process that played it was killed while its policy played "
-                "(a policy never ends or signals the process that evaluates it)",
-            }
+            results[key] = _lost(key[1])
             del pending[key]
             if bar is not None:
                 bar.update(1)
@@ -261,6 +256,67 @@ def _play_batch(batch: dict, results: dict, plan: tuple, size: int, bar) -> bool
     return False
 
 
+def _on_ray(todo: dict, plan: tuple, runner: Runner, progress: bool) -> dict:
+    """:func:`verify_run` of every job of ``todo`` (key -> (entry, run)) as Ray tasks, each run's files
+    (and its policy's folder) shipped by content from this folder, the clone's root; a run whose worker
+    died past Ray's retries is refused in one line, as on the local pool."""
+    keys = list(todo)
+    items = [(entry, k, plan, _run_bundle(entry, k)) for entry, k in todo.values()]
+    out = runner.map(
+        _verify_shipped,
+        items,
+        progress=progress,
+        desc="verify",
+        unit="runs",
+        on_error=lambda i, _e: _lost(keys[i][1]),
+    )
+    return dict(zip(keys, out))
+
+
+def _run_bundle(entry: dict[str, Any], k: int):
+    """The files run ``k`` of ``entry`` plays, below this folder (the clone's root, where an entry's
+    paths start), with its ``py:`` policy's whole folder; None for a run that plays none."""
+    from pathlib import Path
+
+    from catmip_rl.benchmark.shipping import files_bundle, folder_files
+
+    root = Path.cwd().resolve()
+    run = entry["runs"][k]
+    paths = {(root / f["file"]).resolve() for f in run_files(run)}
+    if run.get("kind") == "py" and run.get("source"):
+        paths |= set(folder_files((root / run["source"]["file"]).resolve().parent))
+    paths = {p for p in paths if p.is_file() and p.is_relative_to(root)}  # others: "not here" there
+    return files_bundle(root, sorted(paths), entry["method"]) if paths else None
+
+
+def _verify_shipped(item: tuple) -> dict[str, Any]:
+    """A Ray task: :func:`verify_run` in the folder its files were unpacked into (their paths start
+    there, as in the clone)."""
+    from catmip_rl.benchmark.shipping import unpack
+
+    entry, k, plan, bundle = item
+    if bundle is None:
+        return verify_run(entry, k, *plan)
+    here = os.getcwd()
+    os.chdir(unpack(bundle))
+    try:
+        return verify_run(entry, k, *plan)
+    finally:
+        os.chdir(here)
+
+
+def _lost(k: int) -> dict[str, Any]:
+    """The record of run ``k`` whose process was killed while its policy played."""
+    return {
+        "run": k,
+        "replayed": {},
+        "calls": {},
+        "kind": "refused",
+        "error": f"run {k}: the process that played it was killed while its policy played "
+        "(a policy never ends or signals the process that evaluates it)",
+    }
+
+
 def verify_board(
     entries: list[dict[str, Any]],
     replay: int | None,
@@ -269,26 +325,32 @@ def verify_board(
     jobs: int = 1,
     progress: bool = False,
     known: frozenset[str] = frozenset(),
+    backend: str = "local",
+    ray_address: str | None = None,
 ) -> dict[str, Any]:
     """Verify every entry (checked, :func:`~catmip_rl.benchmark.entry_check.load_entries`): ``replay``
     maps a setting and run (None: all), ``fresh`` fresh maps a setting (0: none), from ``seed`` (None: drawn
-    now, :func:`draw_seed`), on ``jobs`` processes; ``known``: the methods the last check verified (the
-    originals of any copy, :func:`twin_refusals`). Returns the record (see the module's docstring)."""
+    now, :func:`draw_seed`), on ``jobs`` processes (``backend`` "ray": Ray tasks, each run's files
+    shipped by content, :func:`_on_ray`); ``known``: the methods the last check verified (the originals
+    of any copy, :func:`twin_refusals`). Returns the record (see the module's docstring)."""
     from catmip_rl.evaluation.bounds import not_dumpable
 
     not_dumpable()  # the seed of the fresh maps is in this process: no policy's to read
     seed = draw_seed() if seed is None else int(seed)
     refused = twin_refusals(entries, known)
     tasks = [(e, k) for e in entries if e["method"] not in refused for k in range(len(e["runs"]))]
-    bar = progress_bar(len(tasks), "verify", progress, unit="run", leave=True)
     plain = [{key: v for key, v in e.items() if key != "checked"} for e, _k in tasks]
     jobs_by_key = {(e["method"], k): (p, k) for p, (e, k) in zip(plain, tasks)}
     results: dict[tuple[str, int], dict[str, Any]] = {}
-    try:
-        _play_all(jobs_by_key, results, (seed, replay, fresh), jobs, bar)
-    finally:
-        if bar is not None:
-            bar.close()
+    if backend == "ray":
+        results = _on_ray(jobs_by_key, (seed, replay, fresh), Runner("ray", jobs, ray_address), progress)
+    else:
+        bar = progress_bar(len(tasks), "verify", progress, unit="run", leave=True)
+        try:
+            _play_all(jobs_by_key, results, (seed, replay, fresh), jobs, bar)
+        finally:
+            if bar is not None:
+                bar.close()
     record_entries = {}
     for e in entries:
         head = {"file": e["file"], "sha256": file_sha256(e["path"])}

@@ -74,10 +74,9 @@ def _check_parallel(args: argparse.Namespace) -> None:
     here = args.backend == "local" or args.ray_address is None
     if here and args.jobs > CPUS:
         raise ValueError(f"--jobs {args.jobs} is more than this machine's {CPUS} CPUs")
-    if here and args.threads is not None and args.threads * args.jobs > CPUS:
-        raise ValueError(
-            f"--jobs {args.jobs} x --threads {args.threads} is more than this machine's {CPUS} CPUs"
-        )
+    threads = getattr(args, "threads", None)
+    if here and threads is not None and threads * args.jobs > CPUS:
+        raise ValueError(f"--jobs {args.jobs} x --threads {threads} is more than this machine's {CPUS} CPUs")
     if args.ray_address is not None and args.backend != "ray":
         raise ValueError("--ray-address is for --backend ray")
 
@@ -133,6 +132,7 @@ def run_leaderboard(args: argparse.Namespace) -> int:
     from catmip_rl.store.files import check_new_file
     from catmip_rl.store.outputs import output_folder
 
+    _check_parallel(args)
     names = ["leaderboard.md", "leaderboard.png", *(paired_names(args.vs) if args.vs else ())]
     names += [RECORD] if args.replay != 0 or args.fresh else []
     with output_folder(args.out, "--out", keep=True):  # the README and entries beside stay
@@ -154,6 +154,8 @@ def run_leaderboard(args: argparse.Namespace) -> int:
             fresh,
             seed,
             args.jobs,
+            backend=args.backend,
+            ray_address=args.ray_address,
         )
     for path in paths:
         if path.suffix == ".md":

@@ -188,7 +188,24 @@ def add_leaderboard(sub) -> None:
         help="the verification's seed (the replayed maps and the fresh map set; default: drawn from the "
         "operating system now): a recorded seed repeats a check exactly",
     )
-    lb.add_argument("--jobs", type=UP_TO_CPUS, default=min(2, CPUS), help="parallel processes of a check")
+    lb.add_argument(
+        "--jobs",
+        type=POSITIVE_INT,
+        default=min(2, CPUS),
+        help=f"parallel workers of a check: processes here (at most {CPUS}), Ray tasks in flight",
+    )
+    lb.add_argument(
+        "--backend",
+        choices=("local", "ray"),
+        default="local",
+        help="where a check plays: this machine's processes, or a Ray cluster (each run's files shipped)",
+    )
+    lb.add_argument(
+        "--ray-address",
+        default=None,
+        metavar="ADDRESS",
+        help="with --backend ray: a running cluster (auto or HOST:PORT); unset, a private one on loopback",
+    )
     lb.add_argument("--no-progress", action="store_true", help="no progress bar")
     lb.set_defaults(name="leaderboard")
 

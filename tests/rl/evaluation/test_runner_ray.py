@@ -163,3 +163,30 @@ def test_a_driver_killed_with_sigkill_leaves_no_task_running(tmp_path):
     finally:
         if driver.poll() is None:
             driver.kill()
+
+
+def test_a_board_checked_on_ray_gives_the_local_record(suites, tmp_path, monkeypatch):
+    """The same check (seed) on the local pool and as Ray tasks, each run's files shipped from the folder
+    the entries' paths start in: the same record but its date and machine."""
+    from catmip_rl.benchmark.leaderboard import render_leaderboard
+
+    out, _local, _ray, _methods = suites
+    import shutil
+
+    shutil.copytree(out / "policy", tmp_path / "policy")
+    monkeypatch.chdir(tmp_path)  # the entry names its files from here: policy/mine.py, policy/weights.bin
+    methods = ["nearest", "mine=py:policy/mine.py:make_policy"]
+    run_suite(methods, tmp_path / "s", episodes=3, jobs=1, classes={"mine": "learned"}, progress=False)
+    entry = json.loads((tmp_path / "s" / "entries" / "mine.json").read_text())
+    assert entry["runs"][0]["source"]["file"] == "policy/mine.py"
+    records = []
+    for backend, jobs_ in (("local", 1), ("ray", 2)):
+        board = render_leaderboard(
+            tmp_path / "s" / "entries", tmp_path / backend, 3, split="validation", replay=2, fresh=2, seed=77,
+            jobs=jobs_, backend=backend,
+        )  # fmt: skip
+        assert not board.refused
+        record = json.loads((tmp_path / backend / "verification.json").read_text())
+        records.append({k: v for k, v in record.items() if k not in ("created", "machine")})
+    assert records[0] == records[1]
+    assert records[1]["entries"]["mine"]["outcome"] == "verified"
