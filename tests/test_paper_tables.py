@@ -66,6 +66,19 @@ def test_the_task_pages_show_the_leaderboards_test_split():
         assert len(rows) == len(list((ROOT / "leaderboard" / "entries").glob("*.json")))
 
 
+def test_the_readme_shows_the_top_of_the_committed_board():
+    """The README's table is the board's top six ranked rows and its reference rows, generated from the
+    committed entries: it never drifts from them."""
+    tables = _tables_module("test_tables")
+    made = tables.tables()["README"]
+    text = (ROOT / "README.md").read_text()
+    assert tables.replace_board_top(text, made) == text, "README.md's top of the board is stale"
+    rows = made.splitlines()[2:]
+    assert rows[0].startswith("| 1 | ") and len([r for r in rows if "| reference |" not in r]) == 6
+    with pytest.raises(ValueError, match="no '<!-- board -->'"):
+        tables.replace_board_top("no markers", made)
+
+
 def test_replace_test_table_changes_only_the_test_splits_table():
     tables = _tables_module("test_tables")
     text = "**Test split** (maps):\n\n| a |\n|---|\n| 1 |\n\n**Validation split**\n\n| b |\n|---|\n"

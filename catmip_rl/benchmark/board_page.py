@@ -22,6 +22,7 @@ from catmip_rl.store.files import atomic_savefig
 __all__ = [
     "md_text",
     "task_table",
+    "board_top",
     "page_markdown",
     "page_figure",
     "paired_markdown",
@@ -251,6 +252,20 @@ def task_table(rows: list[dict[str, Any]], task: str) -> str:
         plain = re.fullmatch(r"[A-Za-z0-9_.:+-]+", r["method"])  # as code; any other name as plain text
         name = f"`{r['method']}`" if plain else md_text(r["method"])
         lines.append("| " + " | ".join([r["class"], name, *(f"{r[st.label]:.2f}" for st in settings)]) + " |")
+    return "\n".join(lines)
+
+
+def board_top(rows: list[dict[str, Any]], top: int = 6) -> str:
+    """The top of the board for the README: the first ``top`` ranked rows (rank, method, class, IQM by tick
+    100 with its 95 % CI) and, under them, the reference rows (the headroom), from
+    :func:`~catmip_rl.benchmark.leaderboard.leaderboard_rows` of the test split."""
+    lines = ["| rank | method | class | IQM by tick 100 [95 % CI] |", "|---|---|---|---|"]
+    ranked = [r for r in rows if r["class"] != "reference"][:top]
+    refs = [r for r in rows if r["class"] == "reference"]
+    for r in ranked + refs:
+        rank = str(r["rank"]) if r["rank"] else "–"
+        iqm = f"{r['iqm']:.3f} [{r['iqm_ci_low']:.3f}, {r['iqm_ci_high']:.3f}]"
+        lines.append(f"| {rank} | `{md_text(r['method'])}` | {r['class']} | {iqm} |")
     return "\n".join(lines)
 
 

@@ -1,11 +1,12 @@
 """The test-split tables of docs/tasks/task2.md and task3.md from the leaderboard's entries: a row per
 entry in the leaderboard's order (class, method, success by tick 100 in each of the task's six settings),
 as ``catmip leaderboard`` checks and ranks them. With ``--update FILE ...`` the first table after the
-paragraph that starts with "**Test split**" is replaced in place (the task is read from the file's name);
-otherwise both tables are printed.
+paragraph that starts with "**Test split**" is replaced in place (the task is read from the file's name;
+README.md: the top of the board between its ``<!-- board -->`` and ``<!-- /board -->`` lines);
+otherwise the tables are printed.
 
     python docs/figures/test_tables.py [--entries leaderboard/entries] \
-        [--update docs/tasks/task2.md docs/tasks/task3.md]
+        [--update docs/tasks/task2.md docs/tasks/task3.md README.md]
 """
 
 from __future__ import annotations
@@ -15,7 +16,7 @@ import re
 import sys
 from pathlib import Path
 
-from catmip_rl.benchmark.board_page import task_table
+from catmip_rl.benchmark.board_page import board_top, task_table
 from catmip_rl.benchmark.entry_check import EntryError, load_entries
 from catmip_rl.benchmark.leaderboard import leaderboard_rows
 from catmip_rl.store.files import atomic_write_text
@@ -25,9 +26,17 @@ ENTRIES = Path(__file__).resolve().parents[2] / "leaderboard" / "entries"
 
 
 def tables(entries: Path = ENTRIES) -> dict[str, str]:
-    """Each task's table from the test-split entries in ``entries``."""
+    """Each task's table, and the README's top of the board, from the test-split entries in ``entries``."""
     rows = leaderboard_rows(load_entries(entries, split="test"))
-    return {task: task_table(rows, task) for task in TASKS}
+    return {task: task_table(rows, task) for task in TASKS} | {"README": board_top(rows)}
+
+
+def replace_board_top(text: str, table: str) -> str:
+    """``text`` with what lies between its ``<!-- board -->`` and ``<!-- /board -->`` lines replaced."""
+    start, end = text.find("<!-- board -->\n"), text.find("<!-- /board -->")
+    if start < 0 or end < start:
+        raise ValueError("no '<!-- board -->' ... '<!-- /board -->' lines to put the table between")
+    return text[: start + len("<!-- board -->\n")] + table + "\n" + text[end:]
 
 
 def replace_test_table(text: str, table: str) -> str:
@@ -61,7 +70,8 @@ def main() -> None:
         if task not in made:
             sys.exit(f"error: {page}: the suite's tasks are {', '.join(TASKS)} (the file's name says which)")
         try:
-            text = replace_test_table(page.read_text(), made[task])
+            replace = replace_board_top if task == "README" else replace_test_table
+            text = replace(page.read_text(), made[task])
         except (OSError, ValueError) as err:
             sys.exit(f"error: {page}: {err}")
         atomic_write_text(page, text)
