@@ -27,11 +27,20 @@ from catmip_env.constants import CLUE, FREE, STEPS
 from catmip_env.episode_stats import EpisodeRecords
 from catmip_env.planners.baselines import RRTRelayCoord
 
-__all__ = ["REFERENCES", "NewsInstant", "TargetKnown", "WalkBound", "make_reference", "walk_bound_ticks"]
+__all__ = [
+    "REFERENCES",
+    "Told",
+    "NewsInstant",
+    "TargetKnown",
+    "WalkBound",
+    "make_reference",
+    "walk_bound_ticks",
+]
 
 
-class _Told(RRTRelayCoord):
-    """``rrt-relay-coord`` whose rescuers act as if they knew the target once :meth:`told` says so."""
+class Told(RRTRelayCoord):
+    """``rrt-relay-coord`` whose rescuers act as if they knew the target once :meth:`told` says so (a
+    subclass says when)."""
 
     def told(self, ctx) -> bool:
         raise NotImplementedError
@@ -46,14 +55,14 @@ class _Told(RRTRelayCoord):
         return super().choose(ctx)
 
 
-class NewsInstant(_Told):
+class NewsInstant(Told):
     name = "news-instant"
 
     def told(self, ctx) -> bool:
         return bool(ctx.engine.state.found_tick[ctx.b] >= 0)
 
 
-class TargetKnown(_Told):
+class TargetKnown(Told):
     name = "target-known"
 
     def told(self, ctx) -> bool:

@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import datetime
 import functools
-import os
 from collections import OrderedDict
 from collections.abc import Iterator
 from typing import Any
@@ -31,6 +30,7 @@ from tensordict import TensorDict
 from torchrl.collectors import BaseCollector
 
 from catmip_env.episode_stats import EpisodeRecords, training_stats
+from catmip_rl.adapters.ray_tasks import ray_init_config
 from catmip_rl.amat.model import AMAT
 from catmip_rl.training.collect import STEP_FIELDS, Collector, Rollout, cpu_mirror
 from catmip_rl.training.config import TrainConfig
@@ -151,19 +151,6 @@ class ShardCollector(BaseCollector):
         return ray.remote(**(remote_config or {}))(cls)
 
 
-def _ray_init_config(address: str | None, workers: int) -> dict[str, Any]:
-    """``ray.init`` arguments: join ``address``, or start a private cluster on loopback."""
-    if address is None:
-        return {
-            "address": "local",
-            "num_cpus": max(workers, os.cpu_count() or 1),
-            "include_dashboard": False,
-            "_node_ip_address": "127.0.0.1",
-            "log_to_driver": True,
-        }
-    return {"address": address, "log_to_driver": True}
-
-
 class RayRolloutCollector:
     """Driver side of ``--collector ray``: ``collect`` returns the same :class:`Rollout` as
     :meth:`Collector.collect` would, gathered from ``cfg.ray_workers`` Ray workers.
@@ -185,7 +172,7 @@ class RayRolloutCollector:
         self.workers = cfg.ray_workers
         self.num_worlds = cfg.num_worlds  # episodes a collect() call plays, as Collector.num_worlds
         self.model = model
-        ray_init = _ray_init_config(cfg.ray_address, cfg.ray_workers)
+        ray_init = ray_init_config(cfg.ray_address, cfg.ray_workers)
         self._mirror = cpu_mirror(model)
         share = cfg.num_worlds // cfg.ray_workers
         goals = model.config.goals  # a cell-goal model plays an engine in cell goal mode

@@ -9,7 +9,8 @@ checks send their work through it (``--backend local|ray``, ``--ray-address``).
   shared) that die with this one. A pool broken by a lost worker is started again for the items left,
   until :data:`POOL_BREAKS` pools in a row end none.
 * **ray**: each item is a Ray task (``@ray.remote``, one CPU; the stable task API of Ray >= 2.40), at
-  most ``workers`` of them in flight; Ray retries a task whose worker died (:data:`RAY_RETRIES`).
+  most ``workers`` of them in flight (:mod:`catmip_rl.adapters.ray_tasks`, where Ray is imported);
+  Ray retries a task whose worker died (:data:`~catmip_rl.adapters.ray_tasks.RAY_RETRIES`).
   ``ray_address`` None starts a private cluster on loopback (stopped at the end); ``auto`` or
   HOST:PORT joins a running one (as ``catmip train --collector ray`` does). Interrupted, the driver
   cancels its tasks; killed, Ray ends them (a job's tasks die with its driver).
@@ -32,11 +33,9 @@ from typing import Any
 from catmip_rl.evaluation.evaluate import progress_bar
 from catmip_rl.evaluation.workers import die_with_parent
 
-__all__ = ["Runner", "BACKENDS", "RAY_RETRIES", "POOL_BREAKS"]
+__all__ = ["Runner", "BACKENDS", "POOL_BREAKS"]
 
 BACKENDS = ("local", "ray")
-RAY_RETRIES = 3
-"""How many times Ray plays a task again whose worker died (a lost node, a killed process)."""
 POOL_BREAKS = 3
 """Local pools broken in a row, none ending an item, before the runner gives up."""
 
@@ -71,7 +70,7 @@ class Runner:
     ) -> list[Any]:
         """``fn(item)`` of every item (``fn`` a module-level function, ``items`` picklable), in order.
         ``on_error(k, err)``: on Ray, the result of an item whose task failed for good (its worker died
-        past :data:`RAY_RETRIES`), instead of raising."""
+        past :data:`~catmip_rl.adapters.ray_tasks.RAY_RETRIES`), instead of raising."""
         weights = list(weights) if weights is not None else [1.0] * len(items)
         bar = _Bar(weights, progress, desc, unit)
         results: dict[int, Any] = {}
@@ -84,7 +83,9 @@ class Runner:
 
         try:
             if self.backend == "ray":
-                _ray_map(fn, items, done, self.workers, self.ray_address, on_error)
+                from catmip_rl.adapters.ray_tasks import ray_map  # Ray lives in the adapters
+
+                ray_map(fn, items, done, self.workers, self.ray_address, on_error)
             elif self.workers <= 1 or len(items) <= 1:
                 for k, item in enumerate(items):
                     done(k, fn(item))
@@ -155,51 +156,3 @@ def _stop(pool: ProcessPoolExecutor) -> None:
     for worker in list((getattr(pool, "_processes", None) or {}).values()):
         worker.terminate()
     pool.shutdown(wait=True, cancel_futures=True)
-
-
-def import_ray():
-    try:
-        import ray
-    except ImportError:
-        raise ImportError(
-            "--backend ray needs Ray: pip install -e '.[distributed]' (or make test-distributed)"
-        ) from None
-    return ray
-
-
-def _ray_map(fn, items, done, workers: int, address: str | None, on_error=None) -> None:
-    """Play ``items`` as Ray tasks, at most ``workers`` in flight; cancel them all on the way out."""
-    from catmip_rl.adapters.ray_collect import _ray_init_config
-
-    ray = import_ray()
-    started = not ray.is_initialized()
-    if started:
-        try:
-            ray.init(**_ray_init_config(address, workers), logging_level="ERROR")
-        except ConnectionError as err:
-            raise RuntimeError(f"--backend ray: cannot join the Ray cluster at {address}: {err}") from err
-    remote = ray.remote(num_cpus=1, max_retries=RAY_RETRIES)(fn)
-    flying: dict[Any, int] = {}
-    queue = list(range(len(items)))
-    try:
-        while queue or flying:
-            while queue and len(flying) < workers:
-                k = queue.pop(0)
-                flying[remote.remote(items[k])] = k
-            finished, _ = ray.wait(list(flying), num_returns=1)
-            for ref in finished:
-                k = flying.pop(ref)
-                try:
-                    result = ray.get(ref)
-                except ray.exceptions.RayError as err:
-                    if on_error is None:
-                        raise
-                    result = on_error(k, err)
-                done(k, result)
-    except BaseException:
-        for ref in flying:
-            ray.cancel(ref, force=True)
-        raise
-    finally:
-        if started:
-            ray.shutdown()

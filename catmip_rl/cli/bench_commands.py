@@ -73,7 +73,7 @@ def _check_parallel(args: argparse.Namespace) -> None:
     with --backend ray."""
     here = args.backend == "local" or args.ray_address is None
     if here and args.jobs > CPUS:
-        raise ValueError(f"--jobs {args.jobs} is more than this machine's {CPUS} CPUs")
+        raise ValueError(f"--jobs {args.jobs}: at most {CPUS} here (this machine's CPU count)")
     threads = getattr(args, "threads", None)
     if here and threads is not None and threads * args.jobs > CPUS:
         raise ValueError(f"--jobs {args.jobs} x --threads {threads} is more than this machine's {CPUS} CPUs")

@@ -1,0 +1,84 @@
+"""Ray tasks for the benchmark's job runner (``--backend ray``, :mod:`catmip_rl.benchmark.runner`): join
+or start a cluster, and map a function over items as Ray tasks (the stable task API of Ray >= 2.40:
+``ray.remote``, ``ray.wait``, ``ray.get``, ``ray.cancel``), at most ``workers`` in flight. No torch here:
+a planner's chunks play on workers without it."""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable, Sequence
+from typing import Any
+
+__all__ = ["ray_map", "ray_init_config", "import_ray", "RAY_MISSING", "RAY_RETRIES"]
+
+RAY_MISSING = "Ray needs the distributed extra: pip install 'catmip[distributed]' (or make test-distributed)"
+RAY_RETRIES = 3
+"""How many times Ray plays a task again whose worker died (a lost node, a killed process)."""
+
+
+def import_ray() -> Any:
+    """The ``ray`` module, or an ImportError naming the extra to install."""
+    try:
+        import ray
+    except ImportError:
+        raise ImportError(RAY_MISSING) from None
+    return ray
+
+
+def ray_init_config(address: str | None, workers: int) -> dict[str, Any]:
+    """``ray.init`` arguments: join ``address``, or start a private cluster on loopback."""
+    if address is None:
+        return {
+            "address": "local",
+            "num_cpus": max(workers, os.cpu_count() or 1),
+            "include_dashboard": False,
+            "_node_ip_address": "127.0.0.1",
+            "log_to_driver": True,
+        }
+    return {"address": address, "log_to_driver": True}
+
+
+def ray_map(
+    fn: Callable[[Any], Any],
+    items: Sequence[Any],
+    done: Callable[[int, Any], None],
+    workers: int,
+    address: str | None,
+    on_error: Callable[[int, BaseException], Any] | None = None,
+) -> None:
+    """``done(k, fn(items[k]))`` for every item as its Ray task ends (one CPU each, at most ``workers`` in
+    flight, retried :data:`RAY_RETRIES` times if its worker dies); a task that failed for good gives
+    ``on_error(k, err)`` where given, else raises. On the way out every task left is cancelled; a
+    cluster started here is shut down."""
+    ray = import_ray()
+    started = not ray.is_initialized()
+    if started:
+        try:
+            ray.init(**ray_init_config(address, workers), logging_level="ERROR")
+        except ConnectionError as err:
+            raise RuntimeError(f"--backend ray: cannot join the Ray cluster at {address}: {err}") from err
+    remote = ray.remote(num_cpus=1, max_retries=RAY_RETRIES)(fn)
+    flying: dict[Any, int] = {}
+    queue = list(range(len(items)))
+    try:
+        while queue or flying:
+            while queue and len(flying) < workers:
+                k = queue.pop(0)
+                flying[remote.remote(items[k])] = k
+            finished, _ = ray.wait(list(flying), num_returns=1)
+            for ref in finished:
+                k = flying.pop(ref)
+                try:
+                    result = ray.get(ref)
+                except ray.exceptions.RayError as err:
+                    if on_error is None:
+                        raise
+                    result = on_error(k, err)
+                done(k, result)
+    except BaseException:
+        for ref in flying:
+            ray.cancel(ref, force=True)
+        raise
+    finally:
+        if started:
+            ray.shutdown()
