@@ -129,8 +129,7 @@ def run_leaderboard(args: argparse.Namespace) -> int:
     from catmip_rl.benchmark.fresh_rule import FRESH_MAPS
     from catmip_rl.benchmark.leaderboard import render_leaderboard
     from catmip_rl.benchmark.verify import RECORD, draw_seed
-    from catmip_rl.store.files import check_new_file
-    from catmip_rl.store.outputs import output_folder
+    from catmip_rl.store.outputs import check_new_file, output_folder
 
     _check_parallel(args)
     names = ["leaderboard.md", "leaderboard.png", *(paired_names(args.vs) if args.vs else ())]
@@ -169,8 +168,7 @@ def run_leaderboard(args: argparse.Namespace) -> int:
 def run_export(args: argparse.Namespace) -> int:
     """``catmip export``: a training run's model written as a model file, with its .json beside it."""
     from catmip_rl.store.checkpoint import export_model
-    from catmip_rl.store.files import check_new_file
-    from catmip_rl.store.outputs import output_file
+    from catmip_rl.store.outputs import check_new_file, output_file
 
     with output_file(args.out, "--out", force=args.force, suffixes=(".pt",)) as out:
         check_new_file(out.with_suffix(".json"), "--out's config file", force=args.force)  # written beside it

@@ -1,5 +1,6 @@
-"""Result files: atomic writes (``catmip_env.files.atomic_path``, with an fsync before the rename), CSV logs,
-and the up-front checks that an output path can be written without losing anything."""
+"""How a result file is written: atomic writes (``catmip_env.files.atomic_path``, with an fsync before the
+rename) of text, CSV and figures, and CSV logs that a running job appends to. Whether a path may be
+written at all is :mod:`~catmip_rl.store.outputs`' question."""
 
 from __future__ import annotations
 
@@ -17,9 +18,6 @@ __all__ = [
     "atomic_savefig",
     "open_csv_log",
     "write_csv_row",
-    "check_new_dir",
-    "check_new_file",
-    "check_not_dangling",
 ]
 
 
@@ -82,60 +80,3 @@ def write_csv_row(writer, file, row: dict) -> None:
     """Write ``row`` (NaN as an empty cell) and flush, so that a log is readable while a run goes on."""
     writer.writerow({k: (v if not (isinstance(v, float) and math.isnan(v)) else "") for k, v in row.items()})
     file.flush()
-
-
-def check_new_dir(
-    path: str | Path, what: str, force: bool = False, advice: str = "", ignore: tuple[str, ...] = ()
-) -> Path:
-    """Raise unless ``path`` can become an output folder without overwriting anything: it does not exist
-    (and can be created) or is an empty folder (but for entries named in ``ignore``); ``force`` accepts a
-    folder with files too. ``what`` names the path in messages (a flag: ``--out``); ``advice`` replaces
-    the default "pick a new folder or pass --force" hint."""
-    path = Path(path)
-    check_not_dangling(path, what)
-    if path.exists() and not path.is_dir():
-        raise FileExistsError(f"{what} {path} is a file, not a folder")
-    if path.is_dir() and not force:
-        entries = sorted(p.name for p in path.iterdir() if p.name not in ignore)
-        if entries:
-            shown = ", ".join(entries[:4]) + (", ..." if len(entries) > 4 else "")
-            hint = advice or "pick a new folder, or pass --force to write into it"
-            raise FileExistsError(f"{what} {path} is not empty ({shown}); {hint}")
-    _check_creatable(path, what)
-    return path
-
-
-def check_new_file(path: str | Path, what: str, force: bool = False, suffixes: tuple[str, ...] = ()) -> Path:
-    """Raise unless ``path`` can be written as a new file: not a folder, ending in one of ``suffixes``
-    (if given), not there yet (``force``: overwrite it), in a folder that exists or can be created."""
-    path = Path(path)
-    if path.is_dir():
-        raise IsADirectoryError(f"{what} {path} is a folder; give a file path")
-    if suffixes and path.suffix.lower() not in suffixes:
-        raise ValueError(f"{what} {path}: the file name must end in {' or '.join(suffixes)}")
-    if os.path.lexists(path) and not force:  # a dangling symbolic link too
-        link = f" (a symbolic link to {os.readlink(path)})" if path.is_symlink() else ""
-        raise FileExistsError(f"{what} {path} exists{link}; pick a new name, or pass --force to overwrite it")
-    _check_creatable(path.parent, what)
-    return path
-
-
-def _check_creatable(folder: Path, what: str) -> None:
-    """``folder`` exists or can be created: its nearest existing ancestor is a folder we may write in."""
-    p = folder.absolute()
-    while not p.exists():
-        check_not_dangling(p, what)
-        p = p.parent
-    if not p.is_dir():
-        raise NotADirectoryError(f"{what} {folder}: {p} is a file, so the folder cannot be created")
-    if not os.access(p, os.W_OK | os.X_OK):
-        raise PermissionError(f"{what} {folder}: no permission to write in {p}")
-
-
-def check_not_dangling(path: Path, what: str) -> None:
-    """A symbolic link to nothing cannot become a folder (mkdir meets the link): refuse it up front."""
-    if path.is_symlink() and not path.exists():
-        raise FileExistsError(
-            f"{what} {path} is a symbolic link to {os.readlink(path)}, which does not exist; remove the link "
-            "or pick another path"
-        )

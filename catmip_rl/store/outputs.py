@@ -1,5 +1,6 @@
-"""Output folders and files that hold one run's results or none: one writer at a time, results written
-aside and moved in at the end, and a record of the run that wrote them.
+"""Output folders and files that hold one run's results or none: whether a path may be written without
+losing anything (:func:`check_new_dir`, :func:`check_new_file`: asked here, once per output), one writer
+at a time, results written aside and moved in at the end, and a record of the run that wrote them.
 
 Every command that writes results holds its output while it runs (:class:`OutputLock`, an advisory OS
 lock that the kernel drops however the process ends): a second writer is refused with one line naming
@@ -25,7 +26,7 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
-from catmip_rl.store.files import atomic_write_text, check_new_dir, check_new_file
+from catmip_rl.store.files import atomic_write_text
 
 __all__ = [
     "OutputInUse",
@@ -41,6 +42,9 @@ __all__ = [
     "output_file",
     "staging_dir",
     "first_missing",
+    "check_new_dir",
+    "check_new_file",
+    "check_not_dangling",
 ]
 
 RECORD = "run.json"
@@ -299,3 +303,60 @@ def remove_debris(out: str | Path) -> None:
     for path in out.rglob(".*.tmp*"):
         if path.is_file():
             path.unlink(missing_ok=True)
+
+
+def check_new_dir(
+    path: str | Path, what: str, force: bool = False, advice: str = "", ignore: tuple[str, ...] = ()
+) -> Path:
+    """Raise unless ``path`` can become an output folder without overwriting anything: it does not exist
+    (and can be created) or is an empty folder (but for entries named in ``ignore``); ``force`` accepts a
+    folder with files too. ``what`` names the path in messages (a flag: ``--out``); ``advice`` replaces
+    the default "pick a new folder or pass --force" hint."""
+    path = Path(path)
+    check_not_dangling(path, what)
+    if path.exists() and not path.is_dir():
+        raise FileExistsError(f"{what} {path} is a file, not a folder")
+    if path.is_dir() and not force:
+        entries = sorted(p.name for p in path.iterdir() if p.name not in ignore)
+        if entries:
+            shown = ", ".join(entries[:4]) + (", ..." if len(entries) > 4 else "")
+            hint = advice or "pick a new folder, or pass --force to write into it"
+            raise FileExistsError(f"{what} {path} is not empty ({shown}); {hint}")
+    _check_creatable(path, what)
+    return path
+
+
+def check_new_file(path: str | Path, what: str, force: bool = False, suffixes: tuple[str, ...] = ()) -> Path:
+    """Raise unless ``path`` can be written as a new file: not a folder, ending in one of ``suffixes``
+    (if given), not there yet (``force``: overwrite it), in a folder that exists or can be created."""
+    path = Path(path)
+    if path.is_dir():
+        raise IsADirectoryError(f"{what} {path} is a folder; give a file path")
+    if suffixes and path.suffix.lower() not in suffixes:
+        raise ValueError(f"{what} {path}: the file name must end in {' or '.join(suffixes)}")
+    if os.path.lexists(path) and not force:  # a dangling symbolic link too
+        link = f" (a symbolic link to {os.readlink(path)})" if path.is_symlink() else ""
+        raise FileExistsError(f"{what} {path} exists{link}; pick a new name, or pass --force to overwrite it")
+    _check_creatable(path.parent, what)
+    return path
+
+
+def _check_creatable(folder: Path, what: str) -> None:
+    """``folder`` exists or can be created: its nearest existing ancestor is a folder we may write in."""
+    p = folder.absolute()
+    while not p.exists():
+        check_not_dangling(p, what)
+        p = p.parent
+    if not p.is_dir():
+        raise NotADirectoryError(f"{what} {folder}: {p} is a file, so the folder cannot be created")
+    if not os.access(p, os.W_OK | os.X_OK):
+        raise PermissionError(f"{what} {folder}: no permission to write in {p}")
+
+
+def check_not_dangling(path: Path, what: str) -> None:
+    """A symbolic link to nothing cannot become a folder (mkdir meets the link): refuse it up front."""
+    if path.is_symlink() and not path.exists():
+        raise FileExistsError(
+            f"{what} {path} is a symbolic link to {os.readlink(path)}, which does not exist; remove the link "
+            "or pick another path"
+        )

@@ -16,9 +16,15 @@ from pathlib import Path
 import torch
 
 from catmip_rl.store.checkpoint import initial_weights, resume_checkpoint
-from catmip_rl.store.files import check_new_dir, check_not_dangling
 from catmip_rl.store.model_files import CheckpointError, model_from
-from catmip_rl.store.outputs import OutputInUse, OutputLock, first_missing, remove_debris
+from catmip_rl.store.outputs import (
+    OutputInUse,
+    OutputLock,
+    check_new_dir,
+    check_not_dangling,
+    first_missing,
+    remove_debris,
+)
 from catmip_rl.training.config import TrainConfig
 
 __all__ = [
