@@ -14,7 +14,7 @@ __all__ = ["run_bench", "run_leaderboard", "run_compare", "run_export"]
 
 
 def run_bench(args: argparse.Namespace) -> int:
-    """``catmip bench``: the benchmark suite, the paper's figures or the performance benchmarks."""
+    """``catmip bench``: the benchmark suite, the paper's figures or the speed measurements (benchmarks/)."""
     if args.suite == "perf":
         import subprocess
 

@@ -216,10 +216,10 @@ def add_bench(sub) -> None:
     be = add_command(
         sub,
         "bench",
-        summary="the benchmark suite, the paper's figures or the speed benchmarks",
+        summary="the benchmark suite, the paper's figures, or speed (benchmarks/)",
         description="catmip bench suite: the benchmark's fixed grid, one leaderboard entry "
         "per method; catmip bench paper: the paper's figures; catmip bench perf: the "
-        "performance benchmarks of benchmarks/.",
+        "speed measurements of benchmarks/ (speed, not the benchmark).",
     )
     suites = be.add_subparsers(dest="suite", required=True, metavar="{suite,paper,perf}")
     add_suite(suites)
@@ -264,7 +264,7 @@ def add_bench(sub) -> None:
     pe = add_command(
         suites,
         "perf",
-        summary="the performance benchmarks (benchmarks/run_all.py)",
+        summary="speed: the measurements of benchmarks/ (benchmarks/run_all.py)",
         description="Run benchmarks/run_all.py (from the repository root): JSON/CSV results and plots of "
         "the env, collection and training speed.",
     )

@@ -4,7 +4,7 @@ each, every one taking its share of a minibatch's micro-batches.
 On CPUs with few cores a training step's small convolutions, matrix products and elementwise ops scale
 poorly over threads (two threads run a Task-2 step ~1.5x faster than one), while two single-threaded
 processes, each with its own micro-batches, do twice the work of one (~15 % more agent-samples/s than one
-process with two threads on the 2-core machine; docs/benchmarks.md). The PPO update is a sum of
+process with two threads on the 2-core machine; docs/speed.md). The PPO update is a sum of
 micro-batch gradients, so it splits without approximation::
 
     with ParallelGradients(model, processes=2, **loss_kwargs) as grads:

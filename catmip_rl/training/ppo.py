@@ -14,7 +14,7 @@
 
 Precision on CPU: float32, or bfloat16 autocast where the CPU has it natively. On CPUs with native bf16
 instructions (AVX-512 BF16, AMX) a training step under bf16 autocast measured 1.6x the float32
-throughput; on AVX2-only CPUs torch emulates bf16 and the same step ran 14x slower (docs/benchmarks.md).
+throughput; on AVX2-only CPUs torch emulates bf16 and the same step ran 14x slower (docs/speed.md).
 Native bf16 is not enough either: a Task-1 update (d = 64) stopped early by the KL target, on
 minibatches of a few hundred events, ran only ~4 % faster in bf16. ``precision="auto"`` therefore
 measures both on the run's first batch where the CPU reports native bf16 and takes bf16 only if it is
