@@ -6,15 +6,20 @@ machine needs to play a ``py:`` policy file or an AMAT model file that only the 
 its SHA-256; :func:`unpacked` writes them on the worker into a folder named by the bundle's digest,
 checks every file's SHA-256 there, and gives the method that plays from that folder; :func:`restored`
 puts the driver's paths back into what the play recorded, so that the files written are the same
-wherever the maps were played. A policy installed as a package (``py:package.module:FACTORY``) is not
-shipped: install it on every worker, as catmip is.
+wherever the maps were played. A package policy (``py:package.module:FACTORY``) sends its top package's
+folder (or module file), found as the driver imports it; the worker puts the folder it unpacked first on
+its import path while the chunk plays (:func:`importable`).
 """
 
 from __future__ import annotations
 
 import hashlib
+import importlib.util
 import os
+import sys
 import tempfile
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
@@ -30,6 +35,7 @@ __all__ = [
     "folder_files",
     "unpacked",
     "unpack",
+    "importable",
     "restored",
     "MAX_BUNDLE_BYTES",
 ]
@@ -58,12 +64,22 @@ def _sha(data: bytes) -> str:
 
 
 def bundle_for(method: Method) -> Bundle | None:
-    """The bundle that plays ``method`` elsewhere: a ``py:`` file's folder or an AMAT's model file; None
-    for what every worker has (a planner, a reference row, a package's module). ValueError for a folder
-    past :data:`MAX_BUNDLE_BYTES`."""
+    """The bundle that plays ``method`` elsewhere: a ``py:`` file's folder, a ``py:`` module's top package
+    or an AMAT's model file; None for what every worker has (a planner, a reference row). ValueError for
+    files past :data:`MAX_BUNDLE_BYTES` or a package this process cannot find."""
     if method.kind == "py" and parse_policy_source(method.target).is_file:
         root = Path(parse_policy_source(method.target).source).expanduser().resolve().parent
         paths = folder_files(root)
+    elif method.kind == "py":  # py:package.module:F: its top package, found as this process imports it
+        top = parse_policy_source(method.target).source.split(".")[0]
+        spec = importlib.util.find_spec(top)
+        if spec is None or spec.origin is None:
+            raise ValueError(f"{method.name}: cannot find the package {top!r} here to send it to the workers")
+        origin = Path(spec.origin).resolve()
+        if spec.submodule_search_locations:  # a package: its folder, below its parent
+            root, paths = origin.parent.parent, folder_files(origin.parent)
+        else:  # a module file
+            root, paths = origin.parent, [origin]
     elif method.kind == "amat":
         file = model_file(Path(method.target)).resolve()
         root, paths = file.parent, [file]
@@ -125,6 +141,22 @@ def unpack(bundle: Bundle) -> Path:
         if _sha(path.read_bytes()) != sha:
             raise ValueError(f"{rel} of {bundle.root}: its SHA-256 on this worker is not the driver's")
     return folder
+
+
+@contextmanager
+def importable(bundle: Bundle) -> Iterator[Path]:
+    """Unpack ``bundle`` (a package policy's) and put its folder first on ``sys.path`` while the block
+    runs (a policy's worker process imports from this process's path), forgetting any module of the
+    package imported from elsewhere; the path as it was afterwards."""
+    folder = unpack(bundle)
+    tops = {rel.split("/")[0].removesuffix(".py") for rel, _, _ in bundle.files}
+    for name in [m for m in sys.modules if m.split(".")[0] in tops]:
+        del sys.modules[name]
+    sys.path.insert(0, str(folder))
+    try:
+        yield folder
+    finally:
+        sys.path.remove(str(folder))
 
 
 def _folder(bundle: Bundle) -> Path:

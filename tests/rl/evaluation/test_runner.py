@@ -98,3 +98,28 @@ def test_a_policys_folder_travels_by_content_and_is_checked_there(tmp_path):
         unpacked(forged, method)
     assert bundle_for(parse_method("nearest")) is None
     np.testing.assert_equal(len(bundle.digest), 64)
+
+
+def test_a_package_policy_travels_by_content_and_plays_from_the_copy(tmp_path, monkeypatch):
+    import shutil
+    import sys
+
+    from catmip_rl.benchmark.jobs import Chunk, play_chunk
+
+    pkg = tmp_path / "src" / "shippedpol"
+    pkg.mkdir(parents=True)
+    (pkg / "__init__.py").write_text("")
+    (pkg / "policy.py").write_text(
+        "class First:\n    deterministic = True\n\n    def act(self, engine):\n"
+        "        return engine.masks.argmax(-1)\n\n\ndef make_policy(cfg, seed):\n    return First()\n"
+    )
+    monkeypatch.syspath_prepend(str(tmp_path / "src"))
+    method = parse_method("mine=py:shippedpol.policy:make_policy")
+    bundle = bundle_for(method)
+    assert sorted(rel for rel, _, _ in bundle.files) == ["shippedpol/__init__.py", "shippedpol/policy.py"]
+    shutil.rmtree(tmp_path / "src")  # the driver's copy is gone: the chunk plays from what was sent
+    path_before = list(sys.path)
+    job = Job(method, EvalSetting("task2"), 2, 1000, str(tmp_path / "out"), sampled=False)
+    played, machine = play_chunk(Chunk(job, 0, 2, bundle))
+    assert played.records.rescue_tick.shape == (2,) and machine["host"]
+    assert sys.path == path_before
