@@ -16,6 +16,7 @@
 from __future__ import annotations
 
 import argparse
+import os
 import re
 import time
 from pathlib import Path
@@ -54,7 +55,9 @@ def main(argv: list[str] | None = None) -> list[dict]:
     ap.add_argument("--iterations", type=int, default=60, help="PPO iterations after the warm start")
     ap.add_argument("--episodes", type=int, default=64, help="evaluation maps (Task 1)")
     ap.add_argument("--seed", type=int, default=0, help="evaluation map set")
-    ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument(
+        "--threads", type=int, default=min(2, os.cpu_count() or 1), help="torch threads (at most the CPUs)"
+    )
     ap.add_argument("--planners", default=",".join(PLANNERS), help="comma-separated planners to compare")
     ap.add_argument("--warm-start-rounds", type=int, default=None, help="DAgger rounds (task1-warm's: 12)")
     ap.add_argument("--worlds", type=int, default=None, help="episodes per PPO iteration and DAgger round")
