@@ -47,16 +47,17 @@ def ray_map(
     on_error: Callable[[int, BaseException], Any] | None = None,
 ) -> None:
     """``done(k, fn(items[k]))`` for every item as its Ray task ends (one CPU each, at most ``workers`` in
-    flight, retried :data:`RAY_RETRIES` times if its worker dies); a task that failed for good gives
-    ``on_error(k, err)`` where given, else raises. On the way out every task left is cancelled; a
-    cluster started here is shut down."""
+    flight, retried :data:`RAY_RETRIES` times if its worker dies). An error ``fn`` raised is raised here
+    as it was raised there; a task whose worker was lost past the retries gives ``on_error(k, err)`` where
+    given, else a one-line ChildProcessError. On the way out every task left is cancelled; a cluster
+    started here is shut down."""
     ray = import_ray()
     started = not ray.is_initialized()
     if started:
         try:
             ray.init(**ray_init_config(address, workers), logging_level="ERROR")
         except ConnectionError as err:
-            raise RuntimeError(f"--backend ray: cannot join the Ray cluster at {address}: {err}") from err
+            raise ConnectionError(f"--backend ray: cannot join the Ray cluster at {address}: {err}") from None
     remote = ray.remote(num_cpus=1, max_retries=RAY_RETRIES)(fn)
     flying: dict[Any, int] = {}
     queue = list(range(len(items)))
@@ -70,9 +71,15 @@ def ray_map(
                 k = flying.pop(ref)
                 try:
                     result = ray.get(ref)
-                except ray.exceptions.RayError as err:
+                except ray.exceptions.RayTaskError as err:  # the function raised: its own error, as here
+                    cause = getattr(err, "cause", None)
+                    raise (cause if isinstance(cause, Exception) else err) from None
+                except ray.exceptions.RayError as err:  # its worker or node was lost past the retries
                     if on_error is None:
-                        raise
+                        why = " ".join(str(err).split())[:200]
+                        raise ChildProcessError(
+                            f"item {k}: the Ray worker playing it was lost {RAY_RETRIES + 1} times ({why})"
+                        ) from None
                     result = on_error(k, err)
                 done(k, result)
     except BaseException:

@@ -315,6 +315,7 @@ def make_entry(
         success.append(rescued_by_100(ticks, horizon))
     iqm, low, high = iqm_interval(success)
     first = results[SETTINGS[0].label][0]["summary"]
+    played_on = _played_on(results)
     return {
         "format": ENTRY_FORMAT,
         "suite": SUITE,
@@ -341,10 +342,23 @@ def make_entry(
         "code": code,
         "notes": notes,
         "versions": package_versions(),
-        "machine": machine_info(),
-        "played_on": _played_on(results),
+        "machine": _machine(played_on),
+        "played_on": played_on,
         "created": datetime.date.today().isoformat(),
     }
+
+
+def _machine(played_on: list[dict[str, Any]]) -> dict[str, Any]:
+    """The machine an entry's ticks were computed on (what a replay compares its own with): the one that
+    played its chunks, this one if none is recorded. ValueError for chunks played on CPUs of different
+    capability, whose ticks a replay could not tell apart."""
+    kinds = {(m.get("cpu_capability"), m.get("native_bf16")) for m in played_on}
+    if len(kinds) > 1:
+        raise ValueError(
+            f"the entry's maps were played on CPUs of different capability ({sorted(map(str, kinds))}): play "
+            "it on machines of one kind (a Ray cluster of one CPU type, or --backend local)"
+        )
+    return {k: v for k, v in played_on[0].items() if k != "host"} if played_on else machine_info()
 
 
 def _played_on(results: dict[str, list[dict[str, Any]]]) -> list[dict[str, Any]]:

@@ -177,6 +177,23 @@ def _check_runs(runs: Any) -> None:
             _text(f.get("file"), f"run {k}'s file", TEXT_LIMITS["spec"], empty=False)
 
 
+def _reference_spec(spec: Any, method: Any) -> bool:
+    """Whether a run's ``spec`` plays a reference row: exactly one of :data:`REFERENCES`' names, under
+    its own name. ValueError for a spec that plays one in any other spelling (spaces, ``sync:``) or under
+    another method name: a reference row is never disguised as another row."""
+    plain = str(spec).strip()
+    while plain.startswith("sync:"):
+        plain = plain[len("sync:") :].strip()
+    if plain not in REFERENCES:
+        return False
+    if spec != plain or method != plain:
+        raise ValueError(
+            f"run spec {spec!r} plays the reference row {plain!r}: a reference row's entry is method {plain} "
+            f"with spec {plain}, class reference"
+        )
+    return True
+
+
 def _check_header(entry: Any, episodes: int) -> None:
     """ValueError unless ``entry`` is an entry of this suite (format, suite, split and its seed,
     episodes, known keys only), names a method, a class and what it was chosen on, its training runs,
@@ -208,7 +225,7 @@ def _check_header(entry: Any, episodes: int) -> None:
         or not all(isinstance(m, dict) and all(isinstance(v, plain) for v in m.values()) for m in played)
     ):
         raise ValueError("played_on must be a list of machines (objects of plain values), at most 1024")
-    references = {run.get("spec") in REFERENCES for run in entry["runs"]}
+    references = {_reference_spec(run.get("spec"), entry["method"]) for run in entry["runs"]}
     if references != {entry["class"] == "reference"}:
         raise ValueError(
             "class reference belongs to the project's reference rows (catmip_env.planners.reference) "

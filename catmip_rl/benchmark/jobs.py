@@ -22,11 +22,10 @@ from catmip_env.machine import machine_info
 from catmip_env.play import WorldNotSupported, plays_one_world_at_a_time
 from catmip_rl.benchmark.resume_check import check_resumed, read_summary
 from catmip_rl.benchmark.runner import Runner
-from catmip_rl.benchmark.shipping import Bundle, bundle_for, importable, restored, unpacked
+from catmip_rl.benchmark.shipping import Bundle, bundle_for, importable, played_from, restored, unpacked
 from catmip_rl.evaluation.evaluate import EvalSetting, evaluate, result_of
 from catmip_rl.evaluation.methods import PLAY_OPTIONS, Method, changed_files, make_policy, method_source
 from catmip_rl.evaluation.played import Played, merge_played
-from catmip_rl.evaluation.user_policy import parse_policy_source
 from catmip_rl.evaluation.workers import torch_threads
 
 __all__ = [
@@ -174,23 +173,16 @@ def play_chunk(chunk: Chunk) -> tuple[Played, dict[str, Any]]:
     the machine that played it."""
     job, method = chunk.job, chunk.job.method
     torch_threads(job.threads)
-    package = (
-        chunk.bundle is not None and method.kind == "py" and not parse_policy_source(method.target).is_file
-    )
-    if chunk.bundle is not None and not package:
-        method = unpacked(chunk.bundle, method)
-    with importable(chunk.bundle) if package else nullcontext():
-        played = evaluate(
-            method,
-            job.setting,
-            seed=job.seed,
-            sampled_too=job.sampled,
-            allow_other_maps=job.allow_other_maps,
-            episode_indices=np.arange(chunk.first, chunk.first + chunk.count),
-            chunk=True,
-        )
-    if chunk.bundle is not None:
-        played = replace(played, method=job.method, info=restored(played.info, chunk.bundle))
+    indices = np.arange(chunk.first, chunk.first + chunk.count)
+    play = {"seed": job.seed, "sampled_too": job.sampled, "allow_other_maps": job.allow_other_maps}
+    if chunk.bundle is None:
+        played = evaluate(method, job.setting, episode_indices=indices, chunk=True, **play)
+    else:
+        with unpacked(chunk.bundle) as folder:
+            there = played_from(chunk.bundle, method, folder)
+            with importable(folder, chunk.bundle) if not chunk.bundle.entry else nullcontext():
+                played = evaluate(there, job.setting, episode_indices=indices, chunk=True, **play)
+        played = replace(played, method=method, info=restored(played.info, chunk.bundle, folder))
     return played, machine_info(host=platform.node())
 
 

@@ -1,14 +1,16 @@
 """A policy's files shipped to the machine that plays it, by content: what a Ray worker on another
-machine needs to play a ``py:`` policy file or an AMAT model file that only the driver's disk holds.
+machine needs to play a ``py:`` policy file, a ``py:`` package or an AMAT model file that only the
+driver's disk holds.
 
-:func:`bundle_for` packs the files (a ``py:`` file's whole folder, below it too, but hidden files,
-``__pycache__`` and catmip's result folders, those with a ``run.json``; an AMAT's model file), each with
-its SHA-256; :func:`unpacked` writes them on the worker into a folder named by the bundle's digest,
-checks every file's SHA-256 there, and gives the method that plays from that folder; :func:`restored`
-puts the driver's paths back into what the play recorded, so that the files written are the same
-wherever the maps were played. A package policy (``py:package.module:FACTORY``) sends its top package's
-folder (or module file), found as the driver imports it; the worker puts the folder it unpacked first on
-its import path while the chunk plays (:func:`importable`).
+:func:`bundle_for` packs the files (a ``py:`` file's whole folder, below it too, but hidden files and
+folders, ``__pycache__`` and catmip's result folders below it, those with a ``run.json``; a package
+policy's top package, found as the driver imports it; an AMAT's model file), each with its SHA-256.
+On the worker, :func:`unpacked` writes them into a new folder for one chunk, in this user's private
+folder, checks every file's SHA-256 as it arrived and as written, and removes the folder afterwards, so
+that nothing a policy writes there lasts to the next chunk; :func:`played_from` gives the method that
+plays from it (a package: :func:`importable` puts it first on the import path) and :func:`restored` puts
+the driver's paths back into what the play recorded, so that the files written are the same wherever
+the maps were played.
 """
 
 from __future__ import annotations
@@ -16,6 +18,7 @@ from __future__ import annotations
 import hashlib
 import importlib.util
 import os
+import shutil
 import sys
 import tempfile
 from collections.abc import Iterator
@@ -34,7 +37,7 @@ __all__ = [
     "files_bundle",
     "folder_files",
     "unpacked",
-    "unpack",
+    "played_from",
     "importable",
     "restored",
     "MAX_BUNDLE_BYTES",
@@ -43,20 +46,20 @@ __all__ = [
 MAX_BUNDLE_BYTES = 256 * 2**20
 """The most a bundle may hold: a policy's folder past it is refused in one line (give it a folder of
 its own)."""
+INSTALLED = ("catmip_env", "catmip_rl")
+"""Packages every worker has installed: never sent."""
 
 
 @dataclass(frozen=True)
 class Bundle:
     """The files of one method: ``root`` the driver's folder they lie in, ``files`` (path below it, bytes,
-    SHA-256) and ``digest`` (SHA-256 over the paths and their SHA-256s)."""
+    SHA-256), ``digest`` (SHA-256 over the paths and their SHA-256s) and ``entry``: the path below
+    ``root`` of the file the method plays (a ``py:`` file, a model file; "" for a package)."""
 
     root: str
     files: tuple[tuple[str, bytes, str], ...]
     digest: str
-
-
-def _hidden(rel: Path) -> bool:
-    return any(part.startswith(".") or part == "__pycache__" for part in rel.parts)
+    entry: str = ""
 
 
 def _sha(data: bytes) -> str:
@@ -65,13 +68,15 @@ def _sha(data: bytes) -> str:
 
 def bundle_for(method: Method) -> Bundle | None:
     """The bundle that plays ``method`` elsewhere: a ``py:`` file's folder, a ``py:`` module's top package
-    or an AMAT's model file; None for what every worker has (a planner, a reference row). ValueError for
-    files past :data:`MAX_BUNDLE_BYTES` or a package this process cannot find."""
+    or an AMAT's model file; None for what every worker has (a planner, a reference row, catmip's own
+    modules). ValueError for files past :data:`MAX_BUNDLE_BYTES` or a package this process cannot find."""
     if method.kind == "py" and parse_policy_source(method.target).is_file:
-        root = Path(parse_policy_source(method.target).source).expanduser().resolve().parent
-        paths = folder_files(root)
+        file = Path(parse_policy_source(method.target).source).expanduser().resolve()
+        root, paths, entry = file.parent, folder_files(file.parent), file.name
     elif method.kind == "py":  # py:package.module:F: its top package, found as this process imports it
         top = parse_policy_source(method.target).source.split(".")[0]
+        if top in INSTALLED:
+            return None
         spec = importlib.util.find_spec(top)
         if spec is None or spec.origin is None:
             raise ValueError(f"{method.name}: cannot find the package {top!r} here to send it to the workers")
@@ -80,25 +85,27 @@ def bundle_for(method: Method) -> Bundle | None:
             root, paths = origin.parent.parent, folder_files(origin.parent)
         else:  # a module file
             root, paths = origin.parent, [origin]
+        entry = ""
     elif method.kind == "amat":
         file = model_file(Path(method.target)).resolve()
-        root, paths = file.parent, [file]
+        root, paths, entry = file.parent, [file], file.name
     else:
         return None
-    return files_bundle(root, paths, method.name)
+    return replace(files_bundle(root, paths, method.name), entry=entry)
 
 
 def folder_files(folder: Path) -> list[Path]:
-    """The files a policy's folder ships: every file below it but hidden ones, ``__pycache__`` and
-    catmip's result folders (those with a ``run.json``)."""
-    results = [p.parent for p in folder.rglob("run.json")]
-    return sorted(
-        p
-        for p in folder.rglob("*")
-        if p.is_file()
-        and not _hidden(p.relative_to(folder))
-        and not any(p.is_relative_to(r) for r in results)
-    )
+    """The files a policy's folder ships: every file below it but hidden files and folders,
+    ``__pycache__`` and catmip's result folders below it (those with a ``run.json``), which are not
+    walked."""
+    found = []
+    for here, dirs, files in os.walk(folder):
+        dirs[:] = sorted(d for d in dirs if not d.startswith(".") and d != "__pycache__")
+        if Path(here) != folder and "run.json" in files:  # a result folder, not the policy's own
+            dirs[:] = []
+            continue
+        found += [Path(here) / f for f in files if not f.startswith(".") and (Path(here) / f).is_file()]
+    return sorted(found)
 
 
 def files_bundle(root: Path, paths: list[Path], name: str) -> Bundle:
@@ -117,60 +124,70 @@ def files_bundle(root: Path, paths: list[Path], name: str) -> Bundle:
     return Bundle(str(root), files, digest)
 
 
-def unpacked(bundle: Bundle, method: Method) -> Method:
-    """Write ``bundle`` into this machine's folder for it (kept for the next chunk: named by its digest),
-    check every file's SHA-256 there, and return ``method`` playing from it. ValueError naming a file
-    whose content differs from what the driver sent."""
-    folder = unpack(bundle)
-    return replace(method, target=method.target.replace(bundle.root, str(folder), 1))
-
-
-def unpack(bundle: Bundle) -> Path:
-    """Write ``bundle`` into this machine's folder for it, checking every file (:func:`unpacked`);
-    returns the folder."""
-    folder = _folder(bundle)
-    for rel, data, sha in bundle.files:
-        if _sha(data) != sha:  # what arrived is not what the driver hashed
-            raise ValueError(f"{rel} of {bundle.root}: its SHA-256 on this worker is not the driver's")
-        path = folder / rel
-        if not path.is_file() or _sha(path.read_bytes()) != sha:
+@contextmanager
+def unpacked(bundle: Bundle) -> Iterator[Path]:
+    """Write ``bundle`` into a new folder of its own for the block (removed afterwards), in this user's
+    private folder (mode 0700), checking every file's SHA-256 as it arrived and as written; the files are
+    read-only. ValueError naming a file whose content is not the driver's or whose path leaves the
+    folder; PermissionError if the private folder is not this user's."""
+    base = Path(tempfile.gettempdir()) / f"catmip-shipped-{os.getuid()}"
+    base.mkdir(mode=0o700, exist_ok=True)
+    info = base.lstat()
+    if base.is_symlink() or info.st_uid != os.getuid() or info.st_mode & 0o077:
+        raise PermissionError(f"{base} is not this user's private folder (mode 0700): remove it")
+    where = Path(tempfile.mkdtemp(prefix=bundle.digest[:12] + "-", dir=base))
+    folder = where / (Path(bundle.root).name or "root")
+    try:
+        for rel, data, sha in bundle.files:
+            if _sha(data) != sha:  # what arrived is not what the driver hashed
+                raise ValueError(f"{rel} of {bundle.root}: its SHA-256 on this worker is not the driver's")
+            path = (folder / rel).resolve()
+            if not path.is_relative_to(folder.resolve()):
+                raise ValueError(f"{rel} of {bundle.root} leaves the folder it is sent in")
             path.parent.mkdir(parents=True, exist_ok=True)
-            part = path.with_name(f".{path.name}.{os.getpid()}.part")
-            part.write_bytes(data)
-            os.replace(part, path)
-        if _sha(path.read_bytes()) != sha:
-            raise ValueError(f"{rel} of {bundle.root}: its SHA-256 on this worker is not the driver's")
-    return folder
+            path.write_bytes(data)
+            path.chmod(0o444)
+            if _sha(path.read_bytes()) != sha:
+                raise ValueError(f"{rel} of {bundle.root}: its SHA-256 on this worker is not the driver's")
+        folder.mkdir(parents=True, exist_ok=True)
+        yield folder
+    finally:
+        shutil.rmtree(where, ignore_errors=True)
+
+
+def played_from(bundle: Bundle, method: Method, folder: Path) -> Method:
+    """``method`` playing from ``folder``, where ``bundle`` was unpacked: a ``py:`` file, or an AMAT's
+    model file, at its place below the folder; a package policy as it is (:func:`importable`)."""
+    if not bundle.entry:  # a package: imported from the folder
+        return method
+    if method.kind == "amat":
+        return replace(method, target=str(folder / bundle.entry))
+    source = parse_policy_source(method.target)
+    return replace(method, target=method.target.replace(source.source, str(folder / bundle.entry), 1))
 
 
 @contextmanager
-def importable(bundle: Bundle) -> Iterator[Path]:
-    """Unpack ``bundle`` (a package policy's) and put its folder first on ``sys.path`` while the block
-    runs (a policy's worker process imports from this process's path), forgetting any module of the
-    package imported from elsewhere; the path as it was afterwards."""
-    folder = unpack(bundle)
-    tops = {rel.split("/")[0].removesuffix(".py") for rel, _, _ in bundle.files}
+def importable(folder: Path, bundle: Bundle) -> Iterator[None]:
+    """A package policy's unpacked ``folder`` first on ``sys.path`` while the block runs (a policy's
+    worker process imports from this process's path), its package's modules imported from elsewhere
+    forgotten first; the path as it was afterwards."""
+    tops = {rel.split("/")[0].removesuffix(".py") for rel, _, _ in bundle.files} - set(INSTALLED)
     for name in [m for m in sys.modules if m.split(".")[0] in tops]:
         del sys.modules[name]
     sys.path.insert(0, str(folder))
     try:
-        yield folder
+        yield
     finally:
         sys.path.remove(str(folder))
 
 
-def _folder(bundle: Bundle) -> Path:
-    return Path(tempfile.gettempdir()) / "catmip-shipped" / bundle.digest / Path(bundle.root).name
-
-
-def restored(value: Any, bundle: Bundle) -> Any:
-    """``value`` (what a play recorded: dicts, lists, strings) with the worker's folder of ``bundle`` given
-    back as the driver's ``bundle.root``."""
-    here = str(_folder(bundle))
+def restored(value: Any, bundle: Bundle, folder: Path) -> Any:
+    """``value`` (what a play recorded: dicts, lists, strings) with the worker's ``folder`` of ``bundle``
+    given back as the driver's ``bundle.root`` wherever it appears."""
     if isinstance(value, str):
-        return bundle.root + value[len(here) :] if value.startswith(here) else value
+        return value.replace(str(folder), bundle.root)
     if isinstance(value, dict):
-        return {k: restored(v, bundle) for k, v in value.items()}
+        return {k: restored(v, bundle, folder) for k, v in value.items()}
     if isinstance(value, (list, tuple)):
-        return type(value)(restored(v, bundle) for v in value)
+        return type(value)(restored(v, bundle, folder) for v in value)
     return value

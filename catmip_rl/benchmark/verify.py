@@ -259,9 +259,15 @@ def _play_batch(batch: dict, results: dict, plan: tuple, size: int, bar) -> bool
 def _on_ray(todo: dict, plan: tuple, runner: Runner, progress: bool) -> dict:
     """:func:`verify_run` of every job of ``todo`` (key -> (entry, run)) as Ray tasks, each run's files
     (and its policy's folder) shipped by content from this folder, the clone's root; a run whose worker
-    died past Ray's retries is refused in one line, as on the local pool."""
-    keys = list(todo)
-    items = [(entry, k, plan, _run_bundle(entry, k)) for entry, k in todo.values()]
+    was lost past Ray's retries is refused in one line, as on the local pool, and so is a run whose files
+    cannot be sent."""
+    results, items, keys = {}, [], []
+    for key, (entry, k) in todo.items():
+        try:
+            items.append((entry, k, plan, _run_bundle(entry, k)))
+            keys.append(key)
+        except (ValueError, OSError) as err:
+            results[key] = _lost(k) | {"error": f"run {k}: its files cannot be sent to the workers: {err}"}
     out = runner.map(
         _verify_shipped,
         items,
@@ -270,12 +276,12 @@ def _on_ray(todo: dict, plan: tuple, runner: Runner, progress: bool) -> dict:
         unit="runs",
         on_error=lambda i, _e: _lost(keys[i][1]),
     )
-    return dict(zip(keys, out))
+    return results | dict(zip(keys, out))
 
 
 def _run_bundle(entry: dict[str, Any], k: int):
     """The files run ``k`` of ``entry`` plays, below this folder (the clone's root, where an entry's
-    paths start), with its ``py:`` policy's whole folder; None for a run that plays none."""
+    paths start), with its ``py:`` policy file's whole folder; None for a run that plays none."""
     from pathlib import Path
 
     from catmip_rl.benchmark.shipping import files_bundle, folder_files
@@ -283,26 +289,30 @@ def _run_bundle(entry: dict[str, Any], k: int):
     root = Path.cwd().resolve()
     run = entry["runs"][k]
     paths = {(root / f["file"]).resolve() for f in run_files(run)}
-    if run.get("kind") == "py" and run.get("source"):
-        paths |= set(folder_files((root / run["source"]["file"]).resolve().parent))
+    source = run.get("source") or {}
+    if str(run.get("spec", "")).startswith("py:") and source.get("file"):
+        policy_folder = (root / source["file"]).resolve().parent
+        if policy_folder != root and policy_folder.is_relative_to(root):  # never the whole clone
+            paths |= set(folder_files(policy_folder))
     paths = {p for p in paths if p.is_file() and p.is_relative_to(root)}  # others: "not here" there
     return files_bundle(root, sorted(paths), entry["method"]) if paths else None
 
 
 def _verify_shipped(item: tuple) -> dict[str, Any]:
-    """A Ray task: :func:`verify_run` in the folder its files were unpacked into (their paths start
-    there, as in the clone)."""
-    from catmip_rl.benchmark.shipping import unpack
+    """A Ray task: :func:`verify_run` in a folder of its own where its files were unpacked (their paths
+    start there, as in the clone)."""
+    from catmip_rl.benchmark.shipping import unpacked
 
     entry, k, plan, bundle = item
     if bundle is None:
         return verify_run(entry, k, *plan)
     here = os.getcwd()
-    os.chdir(unpack(bundle))
-    try:
-        return verify_run(entry, k, *plan)
-    finally:
-        os.chdir(here)
+    with unpacked(bundle) as folder:
+        os.chdir(folder)
+        try:
+            return verify_run(entry, k, *plan)
+        finally:
+            os.chdir(here)
 
 
 def _lost(k: int) -> dict[str, Any]:

@@ -290,10 +290,10 @@ def remove_folder(folder: Path) -> None:
 
 
 def worker_environment(folder: Path, token: str, path: list[str]) -> dict[str, str]:
-    """This process's environment for a worker in ``folder``: ``HOME`` and ``TMPDIR`` inside it, the
-    marker, and ``PYTHONPATH`` = this process's ``sys.path`` (absolute), so that it imports what this
-    process imports from any working directory."""
-    env = dict(os.environ)
+    """This process's environment (less Ray's ``RAY_*`` variables) for a worker in ``folder``: ``HOME``
+    and ``TMPDIR`` inside it, the marker, and ``PYTHONPATH`` = this process's ``sys.path`` (absolute), so
+    that it imports what this process imports from any working directory."""
+    env = {k: v for k, v in os.environ.items() if not k.startswith("RAY_")}  # no way to its Ray cluster
     env.update(HOME=str(folder / "home"), TMPDIR=str(folder / "tmp"), **{MARKER: token})
     env["PYTHONPATH"] = os.pathsep.join(path)
     return env

@@ -26,3 +26,7 @@ def dies_once(item: tuple[int, str]) -> int:
 def sleeps(seconds: float) -> float:
     time.sleep(seconds)
     return seconds
+
+
+def fails(x: int) -> int:
+    raise ValueError(f"bad item {x}")

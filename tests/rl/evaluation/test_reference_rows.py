@@ -98,3 +98,17 @@ def test_a_reference_class_on_another_method_is_refused(board, tmp_path):
     (tmp_path / "nearest.json").write_text(json.dumps(entry | {"class": "planner"}))
     with pytest.raises(EntryError, match="class reference belongs"):
         load_entries(tmp_path, episodes=2, split="validation")
+
+
+@pytest.mark.parametrize("spec", [" news-instant", "news-instant ", "sync:news-instant"])
+def test_a_reference_row_in_disguise_is_refused(board, tmp_path, spec):
+    """Another spelling of a reference row's spec plays the reference: it is refused under any class,
+    and so is a reference row under another method's name."""
+    entry = json.loads((board / "news-instant.json").read_text())
+    runs = [entry["runs"][0] | {"spec": spec}]
+    (tmp_path / "x.json").write_text(json.dumps(entry | {"runs": runs, "class": "planner", "method": "mine"}))
+    with pytest.raises(EntryError, match="plays the reference row 'news-instant'"):
+        load_entries(tmp_path, episodes=2, split="validation")
+    (tmp_path / "x.json").write_text(json.dumps(entry | {"method": "my-ceiling"}))
+    with pytest.raises(EntryError, match="a reference row's entry is method news-instant"):
+        load_entries(tmp_path, episodes=2, split="validation")

@@ -5,16 +5,17 @@ checked there. On Ray: tests/rl/evaluation/test_runner_ray.py (``make test-distr
 
 from __future__ import annotations
 
+import hashlib
 import json
 from dataclasses import replace
+from pathlib import Path
 
-import numpy as np
 import pytest
 
 import catmip_rl.benchmark.jobs as jobs
 from catmip_rl.benchmark.jobs import Job, chunks_of, map_jobs
 from catmip_rl.benchmark.runner import Runner
-from catmip_rl.benchmark.shipping import bundle_for, restored, unpacked
+from catmip_rl.benchmark.shipping import bundle_for, played_from, restored, unpacked
 from catmip_rl.evaluation.evaluate import EvalSetting, evaluate
 from catmip_rl.evaluation.methods import parse_method
 from tests.rl.evaluation import runner_helpers
@@ -77,6 +78,7 @@ def test_a_bad_runner_is_named():
 def test_a_policys_folder_travels_by_content_and_is_checked_there(tmp_path):
     (tmp_path / "p").mkdir()
     (tmp_path / "p" / "mine.py").write_text("def make_policy(cfg, seed):\n    return None\n")
+    (tmp_path / "p" / "run.json").write_text("{}")  # the policy's own folder holds one: still sent
     (tmp_path / "p" / "weights.bin").write_bytes(b"w")
     (tmp_path / "p" / ".git").mkdir()
     (tmp_path / "p" / ".git" / "x").write_text("hidden")
@@ -84,20 +86,35 @@ def test_a_policys_folder_travels_by_content_and_is_checked_there(tmp_path):
     (tmp_path / "p" / "out" / "runs" / "a" / "run.json").write_text("{}")  # a result folder stays
     method = parse_method(f"py:{tmp_path / 'p' / 'mine.py'}:make_policy")
     bundle = bundle_for(method)
-    assert sorted(rel for rel, _, _ in bundle.files) == ["mine.py", "weights.bin"]
-    there = unpacked(bundle, method)
-    folder = there.target.split(":")[1].rsplit("/", 1)[0]
-    assert folder != str(tmp_path / "p") and (tmp_path / "p" / "mine.py").read_bytes() in [
-        open(f"{folder}/mine.py", "rb").read()
-    ]
-    assert restored({"files": [f"{folder}/weights.bin"]}, bundle) == {
-        "files": [str(tmp_path / "p" / "weights.bin")]
-    }
+    assert sorted(rel for rel, _, _ in bundle.files) == ["mine.py", "run.json", "weights.bin"]
+    with unpacked(bundle) as folder:
+        there = played_from(bundle, method, folder)
+        assert there.target == f"py:{folder / 'mine.py'}:make_policy"
+        assert (folder / "mine.py").read_bytes() == (tmp_path / "p" / "mine.py").read_bytes()
+        assert oct(folder.parent.parent.stat().st_mode & 0o777) == "0o700"
+        recorded = {"files": [f"{folder}/weights.bin"], "error": f"in {folder}/mine.py"}
+        assert restored(recorded, bundle, folder) == {
+            "files": [str(tmp_path / "p" / "weights.bin")],
+            "error": f"in {tmp_path / 'p' / 'mine.py'}",
+        }
+    assert not folder.exists()  # nothing a policy wrote there lasts to the next chunk
     forged = replace(bundle, files=(("mine.py", b"other", bundle.files[0][2]), *bundle.files[1:]))
     with pytest.raises(ValueError, match="mine.py of .*: its SHA-256 on this worker is not the driver's"):
-        unpacked(forged, method)
-    assert bundle_for(parse_method("nearest")) is None
-    np.testing.assert_equal(len(bundle.digest), 64)
+        with unpacked(forged):
+            pass
+    escaping = replace(bundle, files=(("../x.py", b"x", hashlib.sha256(b"x").hexdigest()),))
+    with pytest.raises(ValueError, match="leaves the folder it is sent in"):
+        with unpacked(escaping):
+            pass
+    assert bundle_for(parse_method("nearest")) is None and len(bundle.digest) == 64
+
+
+def test_an_amat_model_file_plays_from_the_copy_sent(tmp_path):
+    method = parse_method("amat:task1")
+    bundle = bundle_for(method)
+    with unpacked(bundle) as folder:
+        there = played_from(bundle, method, folder)
+        assert there.target == str(folder / bundle.entry) and Path(there.target).is_file()
 
 
 def test_a_package_policy_travels_by_content_and_plays_from_the_copy(tmp_path, monkeypatch):
@@ -123,3 +140,14 @@ def test_a_package_policy_travels_by_content_and_plays_from_the_copy(tmp_path, m
     played, machine = play_chunk(Chunk(job, 0, 2, bundle))
     assert played.records.rescue_tick.shape == (2,) and machine["host"]
     assert sys.path == path_before
+
+
+def test_an_entry_names_the_machine_that_played_it_and_refuses_mixed_cpus():
+    from catmip_rl.benchmark.entry import _machine
+
+    here = {"python": "3.11", "cpu": "x86_64", "cpu_capability": "AVX2", "native_bf16": False}
+    assert _machine([here | {"host": "node-1"}, here | {"host": "node-2"}]) == here
+    with pytest.raises(ValueError, match="played on CPUs of different capability"):
+        _machine(
+            [here | {"host": "a"}, here | {"host": "b", "cpu_capability": "AVX512", "native_bf16": True}]
+        )

@@ -190,3 +190,8 @@ def test_a_board_checked_on_ray_gives_the_local_record(suites, tmp_path, monkeyp
         records.append({k: v for k, v in record.items() if k not in ("created", "machine")})
     assert records[0] == records[1]
     assert records[1]["entries"]["mine"]["outcome"] == "verified"
+
+
+def test_an_error_raised_in_a_task_is_raised_here_as_it_was_there():
+    with pytest.raises(ValueError, match=r"^bad item 3$"):
+        Runner("ray", 1).map(runner_helpers.fails, [3])
