@@ -55,6 +55,17 @@ def main(argv: list[str] | None = None) -> dict:
         print("Ray is not installed (make test-distributed): the Ray rows are left out")
         backends = [("local", 1), ("local", 2)]
     chunk = jobs_module.CHUNK_MAPS
+    startup = {}
+    if any(b == "ray" for b, _ in backends):  # what starting and stopping a private cluster costs alone
+        import ray
+
+        from catmip_rl.adapters.ray_tasks import ray_init_config
+
+        t0 = time.perf_counter()
+        ray.init(**ray_init_config(None, 2), logging_level="ERROR")
+        ray.shutdown()
+        startup["ray"] = time.perf_counter() - t0
+        print(f"a private Ray cluster starts and stops in {startup['ray']:.1f} s")
     rows = []
     for kind, method in METHODS.items():
         timed(method, chunk, "local", 1)  # compile (cached) and load once
@@ -64,15 +75,16 @@ def main(argv: list[str] | None = None) -> dict:
                    "seconds": seconds, "maps_per_s": args.maps / seconds}  # fmt: skip
             rows.append(row)
             print(f"{kind} {backend} x{workers}: {seconds:.1f} s, {args.maps / seconds:.1f} maps/s")
-    out = {"machine": machine_info(), "setting": SETTING.label, "chunk_maps": chunk, "rows": rows}
-    out["scaling"] = [_scaling(rows, kind, chunk) for kind in METHODS]
+    out = {"machine": machine_info(), "setting": SETTING.label, "chunk_maps": chunk, "startup_s": startup,
+           "rows": rows}  # fmt: skip
+    out["scaling"] = [_scaling(rows, kind, chunk, startup) for kind in METHODS]
     for s in out["scaling"]:
         print(s)
     write_json(args.out, out)
     return out
 
 
-def _scaling(rows: list[dict], kind: str, chunk: int) -> dict:
+def _scaling(rows: list[dict], kind: str, chunk: int, startup: dict) -> dict:
     """A method's speed-up, Ray's overhead at 2 workers and the projected time of a full entry (12 x
     1,000 maps of this setting's cost) on 16 and 64 workers: ceil(chunks / W) chunk times, each the
     measured time of one chunk on one worker, times (1 + overhead)."""
@@ -83,6 +95,7 @@ def _scaling(rows: list[dict], kind: str, chunk: int) -> dict:
     if ("ray", 2) in got:
         overhead = got[("ray", 2)]["seconds"] / two["seconds"] - 1
         out["ray_overhead_2"] = overhead
+        out["ray_startup_share"] = startup.get("ray", 0.0) / got[("ray", 2)]["seconds"]
         out["projected_entry_seconds"] = {
             str(w): math.ceil(SUITE_CHUNKS / w) * per_chunk * (1 + max(overhead, 0.0)) for w in (1, 16, 64)
         }
