@@ -5,7 +5,7 @@ PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 DSTAMP := $(VENV)/.installed-distributed
 
-.PHONY: demo demo-env test test-fast test-distributed test-compat-lower lint api bench bench-quick dist clean clean-cache
+.PHONY: demo demo-env test test-slow test-distributed test-compat-lower lint api bench bench-quick dist clean clean-cache
 
 # torch comes from the machine's CPU wheel first, so that nothing pulls a CUDA build
 $(STAMP): pyproject.toml
@@ -28,13 +28,15 @@ demo: $(STAMP)
 demo-env: $(STAMP)
 	$(PY) -m catmip_env.demo --out out/demo-env
 
+# the contributor's loop: every test but the long ones (marked slow) and Ray's
 test: $(STAMP)
-	$(PY) -m pytest -n 2 -m "not ray" tests
-
-test-fast: $(STAMP)
 	$(PY) -m pytest -n 2 -m "not slow and not ray" tests
 
-# the Ray collector against a local Ray cluster on loopback
+# the long ones: training runs, whole-episode sweeps, entry replays (CI runs them too)
+test-slow: $(STAMP)
+	$(PY) -m pytest -n 2 -m "slow and not ray" tests
+
+# Ray: the collector and the benchmark's runner against a local Ray cluster on loopback
 test-distributed: $(DSTAMP)
 	$(PY) -m pytest -m ray tests
 

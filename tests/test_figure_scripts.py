@@ -58,6 +58,7 @@ def test_fig5_draws_a_runs_warm_start_and_ppo_points(tmp_path, monkeypatch):
     assert (tmp_path / "f5.png").stat().st_size > 1000
 
 
+@pytest.mark.slow
 def test_learning_curve_trains_on_a_budget_and_plots(tmp_path):
     """Two iterations of the tiny preset after a warm start (the budget is not what ends it), then the
     plot of its evaluations."""

@@ -47,6 +47,7 @@ def test_argmax_play_does_not_depend_on_threads_or_the_batch(method):
     assert _ticks(method, 4, threads=2) == batch[:4]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("factory", ["mappo_s0", "ippo_s1"])
 @pytest.mark.parametrize("task", ["task2", "task3"])
 def test_the_marl_entries_policies_play_alike_on_one_thread_and_two(factory, task):

@@ -46,6 +46,7 @@ def _board(folder, out, k=2, episodes=3):
             "--fresh", "0", "--jobs", "1", "--no-progress", "--out", str(out)]  # fmt: skip
 
 
+@pytest.mark.slow
 def test_replayed_entries_are_marked_verified(entries, capsys):
     assert main(_board(entries / "s" / "entries", entries / "lb")) == 0
     md = (entries / "lb" / "leaderboard.md").read_text()
@@ -114,6 +115,7 @@ WALKER = textwrap.dedent(
 )
 
 
+@pytest.mark.slow
 @pytest.mark.filterwarnings("ignore::FutureWarning")  # the walk touches torch's deprecated names
 def test_a_policy_that_reached_the_world_in_its_suite_is_refused_by_the_isolated_replay(
     tmp_path, capsys, monkeypatch

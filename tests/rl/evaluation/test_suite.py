@@ -92,6 +92,7 @@ def test_a_users_policy_file_gives_an_entry_the_leaderboard_accepts(suite, capsy
     assert md.count("(preview, 2 maps)") == 2 and "**Preview: mine**" in md
 
 
+@pytest.mark.slow
 def test_an_interrupted_suite_resumes_without_playing_again(suite, monkeypatch):
     out, paths = suite
     before = json.loads(paths[0].read_text())
@@ -336,6 +337,7 @@ def test_an_entry_names_a_shipped_model_by_its_path_in_the_clone(monkeypatch):
     assert _shown_target(parse_method("amat-guard:general")) == "catmip_rl/models/amat_general.pt"
 
 
+@pytest.mark.slow
 def test_a_policy_that_breaks_mid_suite_says_what_is_kept_and_how_to_go_on(tmp_path):
     (tmp_path / "late.py").write_text(
         textwrap.dedent(

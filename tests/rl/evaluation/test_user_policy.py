@@ -228,6 +228,7 @@ def test_a_bad_policy_is_one_line_and_writes_nothing(policy_file, tmp_path, caps
     assert not out.exists()
 
 
+@pytest.mark.slow
 def test_a_policy_for_other_worlds_is_left_out_of_those_panels(policy_file, tmp_path, capsys):
     """bench paper plays a policy on the panels it can play and says which it left out; a single
     evaluation of a world it cannot play is a one-line error."""

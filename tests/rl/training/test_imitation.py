@@ -64,6 +64,7 @@ def test_buffer_keeps_the_newest_events():
     assert np.array_equal(buf.arrays["global_map"][-1], r2.global_map[r2.valid][-1])
 
 
+@pytest.mark.slow
 def test_dagger_fits_the_teacher():
     cfg = make_config("task1", activation=(2, 5), horizon_ticks=100)
     col = Collector(cfg, 8, seed=0)
@@ -131,6 +132,7 @@ def test_the_heading_free_teacher_labels_the_warm_start(tmp_path, monkeypatch):
         assert made.pop() == ("rrt", follow)
 
 
+@pytest.mark.slow
 def test_train_warm_starts_once_then_runs_ppo(tmp_path):
     cfg = make_train_config("tiny", warm_start="nearest", warm_start_rounds=2, warm_start_steps=3,
                             value_warmup_iterations=1, iterations=2, eval_every=1)  # fmt: skip
@@ -222,6 +224,7 @@ def test_the_rescue_losss_label_follows_the_heading_as_configured(follow_heading
         make_train_config("tiny", rescue_heading=0)
 
 
+@pytest.mark.slow
 def test_dagger_of_a_planner_in_its_own_action_space_fits_a_cell_goal_model():
     """A cell-goal model imitates the planner itself (no projection): its labels are cell actions, and
     a few rounds take its agreement with Nearest far above chance on the teacher's own fresh episodes."""
@@ -273,6 +276,7 @@ def test_labels_the_model_rules_out_are_left_unscored():
     assert stats["imitation/accuracy"] == 0.0 and stats["imitation/outside_mask"] == 1.0
 
 
+@pytest.mark.slow
 def test_a_warm_start_with_the_value_head_learns_the_returns_beside_the_labels():
     """With value_norm, DAgger regresses the value head on each finished decision's discounted return
     (async GAE with zero values, lambda 1) and sets the normaliser by them: the critic PPO starts with."""
@@ -327,6 +331,7 @@ def test_a_relay_teachers_relay_labels_are_recorded_and_buffered():
     assert _relay_batch(plain, np.random.default_rng(0), 32, 2, torch.device("cpu")) is None
 
 
+@pytest.mark.slow
 def test_dagger_with_relay_weight_fits_the_relay_labels_and_refuses_another_teacher():
     """relay_weight adds the relay labels' cross-entropy, logged per round: from the same start and the
     same teacher episodes, the student agrees with more of those labels than one trained without it. A

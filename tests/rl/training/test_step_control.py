@@ -140,6 +140,7 @@ def test_auto_precision_measures_and_takes_bf16_only_when_clearly_faster(monkeyp
     assert decision["bf16"] is False and decision["fp32_s"] == 1.0  # the patched measurement decided
 
 
+@pytest.mark.slow
 def test_a_resumed_run_keeps_the_precision_auto_chose(monkeypatch, tmp_path):
     import json
 

@@ -29,6 +29,7 @@ def test_training_worlds_show_remembered_teammates_to_a_model_that_reads_them():
         AmatConfig(teammate_memory="yes")
 
 
+@pytest.mark.slow
 def test_evaluation_turns_the_memory_on_for_such_a_model_and_an_engine_without_it_is_refused(tmp_path):
     model = make_model(AmatConfig(**AMAT, teammate_memory=True))
     save_model(model, tmp_path / "m.pt")

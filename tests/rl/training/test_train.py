@@ -38,6 +38,7 @@ def test_cli_tiny_two_iterations(tmp_path):
     assert saved["iteration"] == 2 and saved["episodes"] == 16
 
 
+@pytest.mark.slow
 def test_two_seeded_runs_are_identical_and_resume_continues_exactly(tmp_path):
     cfg = make_train_config("tiny", iterations=2, eval_every=0)
     a = train(cfg, tmp_path / "a", progress=False)
@@ -56,6 +57,7 @@ def test_two_seeded_runs_are_identical_and_resume_continues_exactly(tmp_path):
     assert [int(r["iteration"]) for r in rows] == [1, 2]  # the rewound row 2 was replaced, not duplicated
 
 
+@pytest.mark.slow
 def test_a_run_stopped_between_its_snapshot_and_latest_resumes_with_every_snapshot(tmp_path, monkeypatch):
     from catmip_rl.training import train as train_module
 
@@ -134,6 +136,7 @@ def test_cli_step_control_warm_start_and_precision_flags(tmp_path, capsys):
     assert cli(["train", "--preset", "tiny", "--run-dir", str(tmp_path / "b2"), "--target-kl", "-1"]) == 2
 
 
+@pytest.mark.slow
 def test_a_new_run_can_start_from_another_runs_weights(tmp_path):
     from catmip_rl.store.checkpoint import save_model
     from catmip_rl.training.train import build_run
