@@ -1,12 +1,15 @@
-"""The engine on several threads (``EventEngine(threads=k)``): seconds per event step of B worlds with
-random valid goals (the step and the resets; the random choice is not timed), from 1 thread to every
-core, and a check that every thread count gives the same worlds. Resets (map generation, per world in
-Python) stay on one thread.
+"""Both engines on several threads: seconds per step of B worlds on 1 thread and on every thread count
+up to the cores, the resets of finished worlds included (the random actions are chosen outside the
+timing), and a check that every thread count gives the same worlds.
 
-    python benchmarks/bench_threads.py [--worlds 64] [--events 200] [--out benchmarks/results/threads.json]
+* ``event``: ``EventEngine(threads=k)``, cell goals, random valid goals, one decision event a step;
+* ``primitive``: ``BatchedWorld(threads=k)``, random primitive actions, one tick a step.
 
-Writes ``--out`` (with the machine, ``common.machine_info``): per task and thread count, the
-seconds per event step (the best of ``--repeats``) and the speed-up over one thread.
+    python benchmarks/bench_threads.py [--worlds 16 64 256] [--steps 200] \
+        [--out benchmarks/results/threads.json]
+
+Writes ``--out`` (with the machine, ``common.machine_info``): per engine, task, world count and thread
+count, the seconds per step (the best of ``--repeats``) and the speed-up over one thread.
 """
 
 from __future__ import annotations
@@ -22,51 +25,64 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).parent))
 from common import machine_info, write_json  # noqa: E402
 
-from catmip_env import EventEngine, make_config  # noqa: E402
+from catmip_env import BatchedWorld, EventEngine, make_config  # noqa: E402
 from catmip_env.events import random_valid_actions  # noqa: E402
 
 
-def run(task: str, worlds: int, events: int, threads: int) -> tuple[float, np.ndarray]:
-    """Seconds per event step of ``worlds`` worlds on ``threads`` threads (the engine's step and the
-    resets of finished worlds; not the random policy's choice), and the final goals (to check that the
-    thread count changes nothing)."""
-    engine = EventEngine(make_config(task), num_worlds=worlds, seed=0, goal_mode="cell", threads=threads)
+def run(engine_kind: str, task: str, worlds: int, steps: int, threads: int) -> tuple[float, np.ndarray]:
+    """Seconds per step of ``worlds`` worlds on ``threads`` threads (the step and the resets of finished
+    worlds; not the random choice) and the final positions (every thread count must give the same)."""
+    cfg = make_config(task)
+    if engine_kind == "event":
+        engine = EventEngine(cfg, num_worlds=worlds, seed=0, goal_mode="cell", threads=threads)
+    else:
+        engine = BatchedWorld(cfg, num_worlds=worlds, seed=0, threads=threads)
     engine.reset()
     rng = np.random.default_rng(0)
     seconds = 0.0
-    for _ in range(events):
-        actions = random_valid_actions(engine.masks, rng)
+    for _ in range(steps):
+        if engine_kind == "event":
+            actions = random_valid_actions(engine.masks, rng)
+        else:
+            actions = rng.integers(0, 4, size=(worlds, cfg.num_robots))
         t0 = time.perf_counter()
         engine.step(actions)
         if engine.state.done.any():
             engine.reset(worlds=engine.state.done)
         seconds += time.perf_counter() - t0
-    return seconds / events, engine.state.goal.copy()
+    return seconds / steps, engine.state.pos.copy()
 
 
 def main(argv: list[str] | None = None) -> dict:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--worlds", type=int, default=64)
-    ap.add_argument("--events", type=int, default=200)
+    ap.add_argument("--worlds", type=int, nargs="+", default=[16, 64, 256])
+    ap.add_argument("--steps", type=int, default=200)
     ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--engines", nargs="+", default=["event", "primitive"], choices=["event", "primitive"])
     ap.add_argument("--out", default="benchmarks/results/threads.json")
     args = ap.parse_args(argv)
     cores = os.cpu_count() or 1
     counts = sorted({1, *range(2, cores + 1)})
     rows = []
-    for task in ("task2", "task3"):
-        run(task, args.worlds, 5, max(counts))  # compile (cached) and warm the pool
-        base, reference = None, None
-        for k in counts:
-            timed = [run(task, args.worlds, args.events, k) for _ in range(args.repeats)]
-            best, goals = min(t for t, _ in timed), timed[0][1]
-            reference = goals if reference is None else reference
-            base = best if base is None else base
-            same = bool(np.array_equal(reference, goals))
-            rows.append({"task": task, "worlds": args.worlds, "threads": k, "seconds_per_event": best,
-                         "speedup": base / best, "same_worlds_as_one_thread": same})  # fmt: skip
-            ms = 1e3 * best
-            print(f"{task} B={args.worlds} threads={k}: {ms:.2f} ms/event, x{base / best:.2f}, same {same}")
+    for kind in args.engines:
+        steps = args.steps * (1 if kind == "event" else 5)  # a tick is much less work than an event
+        for task in ("task2", "task3"):
+            run(kind, task, 8, 5, max(counts))  # compile (cached) and warm the pool
+            for worlds in args.worlds:
+                base, reference = None, None
+                for k in counts:
+                    timed = [run(kind, task, worlds, steps, k) for _ in range(args.repeats)]
+                    best, pos = min(t for t, _ in timed), timed[0][1]
+                    reference = pos if reference is None else reference
+                    base = best if base is None else base
+                    same = bool(np.array_equal(reference, pos))
+                    rows.append({"engine": kind, "task": task, "worlds": worlds, "threads": k,
+                                 "seconds_per_step": best, "speedup": base / best,
+                                 "same_worlds_as_one_thread": same})  # fmt: skip
+                    print(
+                        f"{kind} {task} B={worlds} threads={k}: {1e3 * best:.3f} ms/step, "
+                        f"x{base / best:.2f}, same {same}"
+                    )
     out = {"machine": machine_info(cores=cores), "rows": rows}
     write_json(args.out, out)
     return out

@@ -55,6 +55,12 @@ __all__ = [
     "world_key",
 ]
 
+TICK_SPLIT_WORK = 150_000
+"""A primitive step (one tick) runs on several threads only from this many worlds x robots x cells
+(Task 2: 125 worlds, Task 3: 25): below it, waking a second thread costs more than it saves (measured
+by ``benchmarks/bench_threads.py`` on a 2-core AVX2 machine: two threads at 0.48x one for 16 Task-2
+worlds, 0.99x for 64). A decision event is enough work to split from 16 worlds."""
+
 #: Episode indices are below this: they are stored as int64 (``WorldState.episode``), and the numbering
 #: goes on after the largest one used.
 EPISODE_INDEX_LIMIT = 2**62
@@ -252,7 +258,10 @@ class BatchedWorld:
             )
             self.observe_chunk(live, w)
 
-        self.chunks.run(step_chunk)
+        if self.num_worlds * self.num_robots * self.shape[0] * self.shape[1] < TICK_SPLIT_WORK:
+            step_chunk(slice(0, self.num_worlds))  # too little work a tick to be worth a second thread
+        else:
+            self.chunks.run(step_chunk)
         return StepResult(self._rewards, self._terminated, self._truncated)
 
     def _check_actions(self, actions: np.ndarray) -> np.ndarray:

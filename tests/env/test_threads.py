@@ -55,7 +55,14 @@ def test_an_event_engine_on_threads_steps_exactly_as_on_one(goal_mode, preset, o
         _same(*[_snapshot(e) for e in engines])
 
 
-def test_a_batched_world_on_threads_ticks_exactly_as_on_one():
+@pytest.mark.parametrize("split_work", [0, None], ids=["split", "too-little-work-to-split"])
+def test_a_batched_world_on_threads_ticks_exactly_as_on_one(split_work, monkeypatch):
+    """On two threads (the tick split however little work it is) or on the caller's (too little work
+    to be worth a second thread: ``TICK_SPLIT_WORK``), the same worlds as on one."""
+    import catmip_env.world
+
+    if split_work is not None:
+        monkeypatch.setattr(catmip_env.world, "TICK_SPLIT_WORK", split_work)
     cfg = make_config("task2", slam_noise=0.05)
     worlds = [BatchedWorld(cfg, num_worlds=5, seed=1, threads=t) for t in (1, 2)]
     for w in worlds:
