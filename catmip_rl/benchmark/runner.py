@@ -143,9 +143,9 @@ def _pool_map(fn, items, done, workers: int) -> None:
             _stop(pool)
             breaks += 1
             if breaks >= POOL_BREAKS:
-                raise BrokenProcessPool(
+                raise ChildProcessError(  # an OSError: one line from the CLI
                     f"worker processes died {breaks} times in a row with {len(left)} of {len(items)} items "
-                    "left and none ended: a policy may end the process it plays in"
+                    "left and none ended (out of memory? killed?)"
                 ) from None
         except BaseException:
             _stop(pool)  # stop the workers now: the pool's exit would wait for their items
