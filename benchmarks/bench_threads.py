@@ -5,7 +5,7 @@ timing), and a check that every thread count gives the same worlds.
 * ``event``: ``EventEngine(threads=k)``, cell goals, random valid goals, one decision event a step;
 * ``primitive``: ``BatchedWorld(threads=k)``, random primitive actions, one tick a step.
 
-    python benchmarks/bench_threads.py [--worlds 16 64 256] [--steps 200] \
+    python benchmarks/bench_threads.py [--worlds 16 64 256] [--events 200] \
         [--out benchmarks/results/threads.json]
 
 Writes ``--out`` (with the machine, ``common.machine_info``): per engine, task, world count and thread
@@ -56,7 +56,9 @@ def run(engine_kind: str, task: str, worlds: int, steps: int, threads: int) -> t
 def main(argv: list[str] | None = None) -> dict:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--worlds", type=int, nargs="+", default=[16, 64, 256])
-    ap.add_argument("--steps", type=int, default=200)
+    ap.add_argument(
+        "--events", type=int, default=200, help="steps a measurement: events (event engine), 5x as many ticks"
+    )
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--engines", nargs="+", default=["event", "primitive"], choices=["event", "primitive"])
     ap.add_argument("--out", default="benchmarks/results/threads.json")
@@ -65,7 +67,7 @@ def main(argv: list[str] | None = None) -> dict:
     counts = sorted({1, *range(2, cores + 1)})
     rows = []
     for kind in args.engines:
-        steps = args.steps * (1 if kind == "event" else 5)  # a tick is much less work than an event
+        steps = args.events * (1 if kind == "event" else 5)  # a tick is much less work than an event
         for task in ("task2", "task3"):
             run(kind, task, 8, 5, max(counts))  # compile (cached) and warm the pool
             for worlds in args.worlds:

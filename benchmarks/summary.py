@@ -27,7 +27,7 @@ TITLES = {
     "train": "Training iterations (`bench_train.py`, 2 threads)",
     "scaling": "Scaling (`bench_scaling.py`, 1 thread, B = 64 for the engines)",
     "executor": "Evaluation decisions (`bench_executor.py`, 1 thread)",
-    "threads": "The engine on several threads (`bench_threads.py`, B = 64)",
+    "threads": "Both engines on several threads (`bench_threads.py`)",
 }
 
 
