@@ -30,24 +30,12 @@ from tensordict import TensorDict
 from torchrl.collectors import BaseCollector
 
 from catmip_env.episode_stats import EpisodeRecords, training_stats
-from catmip_rl.adapters.ray_tasks import ray_init_config
+from catmip_rl.adapters.ray_tasks import import_ray, ray_init_config
 from catmip_rl.amat.model import AMAT
 from catmip_rl.training.collect import STEP_FIELDS, Collector, Rollout, cpu_mirror
 from catmip_rl.training.config import TrainConfig
 
-__all__ = ["ShardCollector", "RayRolloutCollector", "import_ray", "RAY_MISSING"]
-
-RAY_MISSING = "--collector ray needs the distributed extra: pip install 'catmip[distributed]'"
-
-
-def import_ray() -> Any:
-    """The ``ray`` module, or an ImportError naming the extra to install (a run checks it before it
-    starts: ``training.run_dir.check_run``)."""
-    try:
-        import ray
-    except ImportError:
-        raise ImportError(RAY_MISSING) from None
-    return ray
+__all__ = ["ShardCollector", "RayRolloutCollector"]
 
 
 def _sampling_seed(seed: int, first_episode: int) -> int:
@@ -147,7 +135,7 @@ class ShardCollector(BaseCollector):
     @classmethod
     def as_remote(cls, remote_config: dict[str, Any] | None = None):
         """The Ray actor class RayCollector instantiates on the workers."""
-        ray = import_ray()
+        ray = import_ray("--collector ray")
         return ray.remote(**(remote_config or {}))(cls)
 
 

@@ -9,19 +9,18 @@ import os
 from collections.abc import Callable, Sequence
 from typing import Any
 
-__all__ = ["ray_map", "ray_init_config", "import_ray", "RAY_MISSING", "RAY_RETRIES"]
+__all__ = ["ray_map", "ray_init_config", "import_ray", "RAY_RETRIES"]
 
-RAY_MISSING = "Ray needs the distributed extra: pip install 'catmip[distributed]' (or make test-distributed)"
 RAY_RETRIES = 3
 """How many times Ray plays a task again whose worker died (a lost node, a killed process)."""
 
 
-def import_ray() -> Any:
-    """The ``ray`` module, or an ImportError naming the extra to install."""
+def import_ray(what: str = "--backend ray") -> Any:
+    """The ``ray`` module, or an ImportError naming the extra that ``what`` (a flag) needs."""
     try:
         import ray
     except ImportError:
-        raise ImportError(RAY_MISSING) from None
+        raise ImportError(f"{what} needs the distributed extra: pip install 'catmip[distributed]'") from None
     return ray
 
 

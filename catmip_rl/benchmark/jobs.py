@@ -217,11 +217,12 @@ def map_jobs(
             chunks.append(Chunk(job, first, count, bundles.get(job.method)))
             owner.append(i)
     parts: dict[int, dict[int, tuple[Played, dict[str, Any]]]] = {i: {} for i in set(owner)}
+    counts = {i: owner.count(i) for i in parts}  # each run's chunks
 
     def on_done(k: int, part: tuple[Played, dict[str, Any]]) -> None:
         i = owner[k]
         parts[i][k] = part
-        if len(parts[i]) == owner.count(i):  # the run's last chunk: merge in map order, write it
+        if len(parts[i]) == counts[i]:  # the run's last chunk: merge in map order, write it
             ordered = [parts[i][j] for j in sorted(parts[i])]
             result = result_of(merge_played([p for p, _ in ordered]))
             machines = [m for j, (_, m) in enumerate(ordered) if m not in [n for _, n in ordered[:j]]]

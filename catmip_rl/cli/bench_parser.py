@@ -23,26 +23,28 @@ from catmip_rl.cli.args import (
 __all__ = ["add_parallel_flags", "add_suite", "add_leaderboard", "add_bench", "add_export", "add_compare"]
 
 
-def add_parallel_flags(p: argparse.ArgumentParser) -> None:
-    """--jobs, --threads, --backend and --ray-address of a command that plays a grid of evaluations (bench
-    suite, bench paper) or checks a board (leaderboard)."""
+def add_parallel_flags(p: argparse.ArgumentParser, threads: bool = True) -> None:
+    """--jobs, --threads (with ``threads``), --backend and --ray-address of a command that plays a grid of
+    evaluations (bench suite, bench paper) or checks a board (leaderboard)."""
     p.add_argument(
         "--jobs",
         type=POSITIVE_INT,
         default=min(2, CPUS),
         help=f"parallel workers: processes here (at most this machine's {CPUS} CPUs), Ray tasks in flight",
     )
-    p.add_argument(
-        "--threads",
-        type=UP_TO_CPUS,
-        default=None,
-        help="torch CPU threads of each worker (default: the CPUs each job has, at most 2)",
-    )
+    if threads:
+        p.add_argument(
+            "--threads",
+            type=UP_TO_CPUS,
+            default=None,
+            help="torch CPU threads of each worker (default: the CPUs each job has, at most 2)",
+        )
     p.add_argument(
         "--backend",
         choices=("local", "ray"),
         default="local",
-        help="where the map chunks are played: this machine's processes, or a Ray cluster (the same files)",
+        help="where the work is played: this machine's processes, or a Ray cluster (the same files; a "
+        "policy's files are shipped by content)",
     )
     p.add_argument(
         "--ray-address",
@@ -188,24 +190,7 @@ def add_leaderboard(sub) -> None:
         help="the verification's seed (the replayed maps and the fresh map set; default: drawn from the "
         "operating system now): a recorded seed repeats a check exactly",
     )
-    lb.add_argument(
-        "--jobs",
-        type=POSITIVE_INT,
-        default=min(2, CPUS),
-        help=f"parallel workers of a check: processes here (at most {CPUS}), Ray tasks in flight",
-    )
-    lb.add_argument(
-        "--backend",
-        choices=("local", "ray"),
-        default="local",
-        help="where a check plays: this machine's processes, or a Ray cluster (each run's files shipped)",
-    )
-    lb.add_argument(
-        "--ray-address",
-        default=None,
-        metavar="ADDRESS",
-        help="with --backend ray: a running cluster (auto or HOST:PORT); unset, a private one on loopback",
-    )
+    add_parallel_flags(lb, threads=False)
     lb.add_argument("--no-progress", action="store_true", help="no progress bar")
     lb.set_defaults(name="leaderboard")
 

@@ -120,9 +120,11 @@ def check_run(cfg: TrainConfig, run_dir: Path, resume: bool) -> dict | None:
     if cuda and not torch.cuda.is_available():
         raise ValueError(f"device {cfg.device!r} requested but torch sees no CUDA device")
     if cfg.collector == "ray":
-        from catmip_rl.adapters.ray_collect import import_ray
+        from catmip_rl.adapters.ray_tasks import import_ray
 
-        import_ray()  # ImportError naming the extra to install: the one check, before anything is built
+        import_ray(
+            "--collector ray"
+        )  # ImportError naming the extra to install: the one check, before anything is built
     return saved
 
 
