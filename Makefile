@@ -5,7 +5,7 @@ PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 DSTAMP := $(VENV)/.installed-distributed
 
-.PHONY: demo demo-env test test-slow test-distributed test-compat-lower lint api bench bench-quick dist clean clean-cache
+.PHONY: demo demo-env test test-slow test-distributed test-compat-lower lint api bench bench-quick bench-peer dist clean clean-cache
 
 # torch comes from the machine's CPU wheel first, so that nothing pulls a CUDA build
 $(STAMP): pyproject.toml
@@ -75,6 +75,14 @@ bench: $(STAMP)
 
 bench-quick: $(STAMP)
 	$(PY) benchmarks/run_all.py --quick
+
+# the env beside POGEMA 1.4.0, its closest grid-MARL peer: POGEMA pins gymnasium 0.28, which PettingZoo
+# cannot share, so it gets a venv of its own (never a dependency of catmip); ~3 minutes
+PEER_VENV ?= .venv-pogema
+bench-peer: $(STAMP)
+	test -x $(PEER_VENV)/bin/python || $(PYTHON) -m venv $(PEER_VENV)
+	$(PEER_VENV)/bin/python -m pip install --quiet --disable-pip-version-check 'pogema==1.4.0'
+	$(PY) benchmarks/bench_peer.py --pogema-python $(PEER_VENV)/bin/python
 
 # the release: dist/catmip-VERSION.tar.gz and the wheel built from that sdist (python -m build, in an
 # isolated environment with setuptools from the index); tests/test_wheel.py installs such a wheel in a

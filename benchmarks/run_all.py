@@ -3,7 +3,8 @@
     python benchmarks/run_all.py [--quick] [--only engine,scaling] [--out-dir benchmarks/results]
 
 Runs ``bench_engine``, ``bench_events``, ``bench_amat``, ``bench_train``, ``bench_scaling``,
-``bench_executor`` and ``bench_threads``, each in its own process (a failure is reported and the rest
+``bench_executor``, ``bench_threads`` and ``bench_peer`` (POGEMA beside the env when ``.venv-pogema`` has
+it: ``make bench-peer``), each in its own process (a failure is reported and the rest
 still run), each writing ``<out-dir>/<name>.json``; then writes ``<out-dir>/SUMMARY.md`` (headline
 numbers against their targets, met / unmet computed from the measured values),
 ``<out-dir>/summary.png`` (scaling curves + every target as measured/target) and

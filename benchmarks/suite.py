@@ -25,6 +25,7 @@ BENCHES = (
     Bench("scaling", "bench_scaling.py", ("--seconds", "0.5"), True),
     Bench("executor", "bench_executor.py", ("--events", "6"), False),
     Bench("threads", "bench_threads.py", ("--events", "40", "--repeats", "1"), False),
+    Bench("peer", "bench_peer.py", ("--steps", "3000", "--rounds", "1"), False),
 )
 NAMES = tuple(b.name for b in BENCHES)
 

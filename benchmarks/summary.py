@@ -28,6 +28,7 @@ TITLES = {
     "scaling": "Scaling (`bench_scaling.py`, 1 thread, B = 64 for the engines)",
     "executor": "Evaluation decisions (`bench_executor.py`, 1 thread)",
     "threads": "Both engines on several threads (`bench_threads.py`)",
+    "peer": "One env through its Python API beside POGEMA (`bench_peer.py`, 1 thread)",
 }
 
 
@@ -36,6 +37,8 @@ def _num(v: float | None, unit: str = "") -> str:
         return "—"
     if unit in ("ms", "s", "ms/decision"):
         return f"{v:.3g} {unit}" if v < 10 else f"{v:,.1f} {unit}"
+    if unit.startswith("x"):  # a ratio: 1.67x one thread
+        return f"{v:.2f}{unit}"
     return f"{v:,.0f} {unit}".strip()
 
 

@@ -224,6 +224,23 @@ def threads_checks(d: dict) -> list[Check]:
     return out
 
 
+def peer_checks(d: dict) -> list[Check]:
+    """The PettingZoo env at the primitive level: at least 1.5x POGEMA's env-steps/s on the same grid and
+    team (not measured without POGEMA); the macro level's steps/s for the record."""
+    out = []
+    for r in d.get("ratios", []):
+        where = f"{r['setting']} vs POGEMA {r['grid']}x{r['grid']}, {r['agents']} agents"
+        rounds = ", ".join(f"{x:.2f}" for x in r.get("per_round", []))
+        out.append(Check("peer", f"PettingZoo primitive env-steps/s, {where}", r["ratio"], "x POGEMA", 1.5,
+                         note=f"rounds {rounds}" if rounds else "POGEMA not installed"))  # fmt: skip
+    for r in d.get("rows", []):
+        if r["env"] == "search_rescue_v0" and r["level"] == "macro":
+            out.append(
+                Check("peer", f"PettingZoo macro steps/s, {r['setting']}", r["steps_per_s"], "steps/s")
+            )
+    return out
+
+
 def all_checks(results: dict[str, dict]) -> list[Check]:
     out: list[Check] = []
     if "engine" in results:
@@ -238,4 +255,6 @@ def all_checks(results: dict[str, dict]) -> list[Check]:
         out += executor_checks(results["executor"])
     if "threads" in results:
         out += threads_checks(results["threads"])
+    if "peer" in results:
+        out += peer_checks(results["peer"])
     return out

@@ -22,6 +22,7 @@ from catmip_env.kernels.activation import M_ACTIVE, M_ELAPSED, M_FIELDS, assign_
 from catmip_env.kernels.dynamics import Rules
 from catmip_env.kernels.goals import goal_cells
 from catmip_env.kernels.macro import action_masks, advance
+from catmip_env.kernels.primitive import DirectCall
 from catmip_env.world import BatchedWorld
 
 __all__ = ["EventEngine", "EventResult", "GOAL_MODES", "random_valid_actions"]
@@ -87,6 +88,8 @@ class EventEngine:
         self.num_actions = cfg.window**2 if goal_mode == "window" else h * w
         self.stay_action = (cfg.window**2) // 2 if goal_mode == "window" else -1
         self.mstate = np.zeros((b, n, M_FIELDS), np.int64)
+        # at its compiled entry: each chunk's arguments are C-contiguous views of the same types
+        self._advance = DirectCall(advance)
         self.masks = np.zeros((b, n, self.num_actions), np.int8)
         self.invalid = np.zeros((b, n), np.bool_)  # actions replaced by "stay" at the last step
         self._prim = np.zeros((b, n), np.int64)
@@ -171,7 +174,7 @@ class EventEngine:
                 st.comp[w],
                 st.heard_goal[w],
             )
-            advance(
+            self._advance(  # at its compiled entry: numba's type dispatch of the state takes ~5 us a call
                 live[w],
                 st.kernel_chunk(w),
                 self.rules,

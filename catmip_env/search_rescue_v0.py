@@ -47,12 +47,12 @@ from catmip_env.spaces import (
     integer_action,
     macro_infos,
     macro_observations,
-    observation_parts,
     observation_space,
     parse_actions,
     part_spaces,
+    plain_primitives,
+    primitive_outputs,
     replace_invalid_primitives,
-    robot_observations,
     state_space,
 )
 from catmip_env.world import BatchedWorld, episode_index_array
@@ -199,13 +199,23 @@ class SearchRescueEnv(ParallelEnv):
         self.possible_agents = [f"robot_{i}" for i in range(n)]
         self.agent_name_mapping = {a: i for i, a in enumerate(self.possible_agents)}
         self.agents: list[str] = []
-        self._n_cls = config.num_classes
-        self._eye_cls = np.eye(self._n_cls, dtype=np.float32)
-        self._eye_head = np.eye(4, dtype=np.float32)
         self._actions = np.zeros((1, n), np.int64)
+        self._actions_row = self._actions[0]
         self._invalid = np.zeros(n, np.bool_)  # actions replaced by "stay" at the last step
         self._invalid_count = np.zeros(n, np.int64)  # ... and since reset
         self._steps = 0
+        self._flagged = False  # whether _invalid may hold a True (primitive level)
+        self._all_legal = np.ones((n, self.num_actions), np.int8)
+        w = self.world  # the primitive level's outputs: from the view the world writes with each tick
+        compact = (w.obs_global[0], w.obs_local[0]) if compact_obs else None
+        self._output_args = (
+            self.possible_agents,
+            self._all_legal,
+            self._invalid,
+            self._invalid_count,
+            obs_format,
+            compact,
+        )
         self._window: LiveWindow | None = None
         self.state_space = state_space(config)
         parts = part_spaces(config, level, compact_obs)
@@ -244,95 +254,76 @@ class SearchRescueEnv(ParallelEnv):
         self._steps = 0
         self._invalid[:] = False
         self._invalid_count[:] = 0
+        self._flagged = False
         if self.render_mode == "human":
             self.render()
-        obs, masks = self._observations()
-        return obs, self._infos(event_ticks=0, masks=masks)
+        return self._outputs(event_ticks=0)
 
     def step(self, actions: dict[str, Any]):
         if not self.agents:
             raise RuntimeError("step() called after the episode ended; call reset() first")
-        a = self._parse_actions(actions)
-        if self.level == "macro":
-            ev = self.engine.step(a)  # raises on, or replaces, invalid goals of active robots
-            self._invalid[:] = self.engine.invalid[0]
-            rewards_arr, term, trunc = ev.rewards[0], ev.terminated[0], ev.truncated[0]
-            ticks = int(ev.event_ticks[0])
-        else:
+        if self.level == "primitive":
+            return self._step_primitive(actions)
+        ev = self.engine.step(self._parse_actions(actions))  # raises on, or replaces, invalid goals
+        self._invalid[:] = self.engine.invalid[0]
+        self._invalid_count += self._invalid
+        self._steps += 1
+        term = bool(ev.terminated[0])
+        trunc = bool(ev.truncated[0]) or (
+            not term and self.max_cycles is not None and self._steps >= self.max_cycles
+        )
+        return self._ended(ev.rewards[0], term, trunc, *self._outputs(event_ticks=int(ev.event_ticks[0])))
+
+    def _step_primitive(self, actions: dict[str, Any]):
+        a = self._actions
+        if not plain_primitives(actions, self.possible_agents, self._actions_row):  # else parsed in full
+            a = self._parse_actions(actions)
             self._invalid[:] = replace_invalid_primitives(
                 a[0], self.possible_agents, self.invalid_action == "raise"
             )
-            res = self.engine.step(a)
-            rewards_arr, term, trunc, ticks = res.rewards[0], res.terminated[0], res.truncated[0], 1
-        self._invalid_count += self._invalid
+            self._invalid_count += self._invalid
+            self._flagged = True
+        elif self._flagged:  # the last step replaced an action: this one none
+            self._invalid[:] = False
+            self._flagged = False
         self._steps += 1
-        term = bool(term)
-        trunc = bool(trunc) or (not term and self.max_cycles is not None and self._steps >= self.max_cycles)
-        rewards = {ag: float(rewards_arr[i]) for i, ag in enumerate(self.possible_agents)}
-        terms = dict.fromkeys(self.possible_agents, term)
-        truncs = dict.fromkeys(self.possible_agents, trunc)
-        obs, masks = self._observations()
-        infos = self._infos(event_ticks=ticks, masks=masks)
+        res, view = self.world.step_viewed(a)  # the tick and the observations in one kernel call
+        outputs = primitive_outputs(view, *self._output_args)
+        return self._ended(res.rewards[0], bool(res.terminated[0]), bool(res.truncated[0]), *outputs)
+
+    def _ended(self, rewards: np.ndarray, term: bool, trunc: bool, obs: dict, infos: dict):
+        """The step's five dicts; the episode over (``agents`` empty) on termination or truncation."""
+        agents = self.possible_agents
         if term or trunc:
             self.agents = []
         if self.render_mode == "human":
             self.render()
-        return obs, rewards, terms, truncs, infos
+        rewards_of = dict(zip(agents, rewards.tolist()))
+        return obs, rewards_of, dict.fromkeys(agents, term), dict.fromkeys(agents, trunc), infos
 
     def _parse_actions(self, actions: dict[str, Any]) -> np.ndarray:
         """The (1, N) int64 action array (see :func:`catmip_env.spaces.parse_actions`)."""
-        macro = self.level == "macro"
-        applies = self.engine.active[0] if macro else np.ones(len(self.possible_agents), np.bool_)
-        kind = self.goal_mode if macro else "primitive"
-        strict = self.invalid_action == "raise"
-        parse_actions(
-            actions,
-            self.possible_agents,
-            self._index,
-            applies,
-            kind,
-            self.num_actions,
-            strict,
-            self._actions[0],
-        )
+        macro, agents = self.level == "macro", self.possible_agents
+        applies = self.engine.active[0] if macro else np.ones(len(agents), np.bool_)
+        kind, strict = (self.goal_mode if macro else "primitive"), self.invalid_action == "raise"
+        parse_actions(actions, agents, self._index, applies, kind, self.num_actions, strict, self._actions[0])
         return self._actions
 
-    def _observations(self) -> tuple[dict[str, Any], np.ndarray]:
-        """Every robot's observation, and the (N, A) int8 action masks."""
-        if self.level == "macro":
-            return macro_observations(self.engine, 0, self.possible_agents, self.obs_format, self.compact_obs)
-        world, st = self.world, self.world.state
-        heading = self._eye_head[st.heading[0]]
-        parts = observation_parts(
-            world.obs_global[0], world.obs_local[0], self._eye_cls[st.cls[0]], heading, self.compact_obs
+    def _outputs(self, event_ticks: int) -> tuple[dict[str, Any], dict[str, dict[str, Any]]]:
+        """Every robot's observation and info."""
+        if self.level == "primitive":
+            return primitive_outputs(self.world.view(0), *self._output_args)
+        obs, masks = macro_observations(
+            self.engine, 0, self.possible_agents, self.obs_format, self.compact_obs
         )
-        masks = np.ones((len(self.possible_agents), self.num_actions), np.int8)  # every primitive is legal
-        return robot_observations(parts, masks, self.obs_format, self.possible_agents), masks
-
-    def _infos(self, event_ticks: int, masks: np.ndarray) -> dict[str, dict[str, Any]]:
-        if self.level == "macro":
-            infos = macro_infos(self.engine, 0, self.possible_agents, event_ticks)
-        else:
-            st = self.world.state
-            t = int(st.ticks[0])
-            knows = self.world.knows_target()[0]
-            infos = {
-                agent: {
-                    "agent_class": int(st.cls[0, i]),
-                    "tick": t,
-                    "neighbourhood": int(st.comp[0, i]),
-                    "can_act": int(t % st.speed[0, i] == 0),
-                    "knows_target": int(knows[i]),
-                }
-                for i, agent in enumerate(self.possible_agents)
-            }
+        infos = macro_infos(self.engine, 0, self.possible_agents, event_ticks)
         for i, agent in enumerate(self.possible_agents):
             info = infos[agent]
             info["invalid_action"] = int(self._invalid[i])
             info["invalid_actions"] = int(self._invalid_count[i])
             if self.obs_format == "flat":
                 info["action_mask"] = masks[i]
-        return infos
+        return obs, infos
 
     def state(self) -> np.ndarray:
         return self.world.ground_truth(0)

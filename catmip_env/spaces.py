@@ -170,6 +170,70 @@ def parse_actions(
         raise ValueError(f"missing actions for {'' if kind == 'primitive' else 'active '}robots {missing}")
 
 
+def plain_primitives(actions: Any, agents: list[str], out: np.ndarray) -> bool:
+    """Write the actions into ``out`` (N,) and say True when ``actions`` is a dict that holds every
+    robot's, each a Python or numpy int in [0, 4): a primitive step's common case, taken in a microsecond
+    or two. Else False, and :func:`parse_actions` takes them (and raises or flags as it says)."""
+    if type(actions) is not dict or len(actions) != len(agents):
+        return False
+    try:
+        values = [actions[agent] for agent in agents]
+    except (KeyError, TypeError):
+        return False
+    for v in values:
+        if not ((type(v) is int or type(v) is np.int64) and 0 <= v < 4):
+            return False
+    out[:] = values
+    return True
+
+
+def primitive_outputs(
+    view: tuple[np.ndarray, ...],  # robot_view's outputs: maps, one-hots (N, ...) float32, infos (N, 5) int64
+    agents: list[str],
+    masks: np.ndarray,  # (N, 4) int8 all ones (copied)
+    invalid: np.ndarray,  # (N,) bool: actions replaced at this step
+    invalid_count: np.ndarray,  # (N,) int64: ... since reset
+    obs_format: str = "dict",
+    compact: tuple[np.ndarray, np.ndarray] | None = None,  # compact_obs: the world's uint8 maps, copied
+) -> tuple[dict[str, Any], dict[str, dict[str, Any]]]:
+    """Every robot's observation and info at the primitive level, from the parts the world wrote in one
+    kernel call (:func:`~catmip_env.kernels.primitive.robot_view`): the values of
+    :func:`observation_parts` and :func:`robot_observations` (the flat format's mask in the infos)."""
+    g, l, c, h, info = view
+    if compact is not None:
+        g, l = compact[0].copy(), compact[1].copy()
+    masks = masks.copy()
+    n = len(agents)
+    if obs_format == "flat":
+        obs = dict(zip(agents, np.concatenate([g.reshape(n, -1), l.reshape(n, -1), c, h], axis=1)))
+    else:
+        obs = {
+            agent: {
+                "observation": {"global_map": gi, "local_map": li, "agent_class": ci, "heading": hi},
+                "action_mask": mi,
+            }
+            for agent, gi, li, ci, hi, mi in zip(agents, g, l, c, h, masks)
+        }
+    rows = info.tolist()
+    t = rows[0][4]
+    infos = {
+        agent: {
+            "agent_class": row[0],
+            "tick": t,
+            "neighbourhood": row[1],
+            "can_act": row[2],
+            "knows_target": row[3],
+            "invalid_action": bad,
+            "invalid_actions": count,
+        }
+        for agent, row, bad, count in zip(agents, rows, invalid.tolist(), invalid_count.tolist())
+    }
+    if obs_format == "flat":
+        for i, agent in enumerate(agents):
+            infos[agent]["action_mask"] = masks[i]
+    return obs, infos
+
+
 def replace_invalid_primitives(a: np.ndarray, agents: list[str], strict: bool) -> np.ndarray:
     """Apply the invalid-action policy to primitive actions ``a`` (N,) in place: out-of-range actions
     become "stay" (or, ``strict``, raise naming the first). Returns the (N,) bool replaced ones."""

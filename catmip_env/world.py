@@ -32,6 +32,7 @@ from catmip_env.config import EnvConfig
 from catmip_env.constants import (
     CLUE,
     EXPLORED,
+    OBS_SCALE,
     OBSTACLE,
     TARGET,
     TARGET_BIT,
@@ -43,6 +44,7 @@ from catmip_env.kernels.comms import estimated_cells
 from catmip_env.kernels.dynamics import Rules, perceive_at_reset, tick
 from catmip_env.kernels.mapgen import Episode, generate
 from catmip_env.kernels.observe import observe as build_observations
+from catmip_env.kernels.primitive import DirectCall, robot_view, tick_and_observe, tick_observe_view
 from catmip_env.kernels.rng import seed_state
 from catmip_env.kernels.state import WorldState
 
@@ -124,6 +126,18 @@ class BatchedWorld:
         self._rescue_of = np.array([k.can_rescue for k in cfg.classes], np.bool_)
         self._comm_of = np.array([0.0 if c is None else float(c) for c in cfg.comm_ranges], np.float64)
         self.rules = Rules.of(cfg)
+        self._action_shape = (b, n)
+        self._result = StepResult(self._rewards, self._terminated, self._truncated)  # the same buffers
+        # a tick on one thread without the teammates' heading estimate: tick and observations in one call
+        small = self.num_worlds * self.num_robots * self.shape[0] * self.shape[1] < TICK_SPLIT_WORK
+        self._one_call = (small or self.chunks.threads == 1) and not self.heading
+        self._tick_observe = DirectCall(tick_and_observe)
+        self._tick_observe_view = DirectCall(tick_observe_view)
+        self._robot_view = DirectCall(robot_view)
+        self._view_shapes = (self.obs_global.shape[1:], self.obs_local.shape[1:], (n, c), (n, 4), (n, 5))
+        self._info = np.zeros((n, 5), np.int64)  # step_viewed's info numbers
+        self._kernel_args = (self.state.kernel, self.rules, self._rewards, self._terminated, self._truncated,
+                             self.noisy, self.memory, self.obs_global, self.obs_local, OBS_SCALE)  # fmt: skip
         self.world_keys = np.zeros(self.num_worlds, np.int64)  # each world's key (world_key)
         self.seed(seed)
 
@@ -243,45 +257,71 @@ class BatchedWorld:
 
         Done worlds are left as they are (zero reward, flags false) until reset.
         """
-        actions = self._check_actions(actions)
+        a = self._kernel_actions(actions)
         live = ~self.state.done
+        if self._one_call:  # too little work a tick to be worth a second thread: one kernel call
+            self._raise_out_of_range(a, self._tick_observe(live, a, *self._kernel_args[:-1]))
+            return self._result
+        if a.size and (a.min() < 0 or a.max() > 3):
+            self._raise_out_of_range(a, int(np.flatnonzero((a < 0) | (a > 3))[0]))
 
         def step_chunk(w: slice) -> None:
-            tick(
-                live[w],
-                actions[w],
-                self.state.kernel_chunk(w),
-                self.rules,
-                self._rewards[w],
-                self._terminated[w],
-                self._truncated[w],
-            )
+            k = self.state.kernel_chunk(w)
+            tick(live[w], a[w], k, self.rules, self._rewards[w], self._terminated[w], self._truncated[w])
             self.observe_chunk(live, w)
 
         if self.num_worlds * self.num_robots * self.shape[0] * self.shape[1] < TICK_SPLIT_WORK:
-            step_chunk(slice(0, self.num_worlds))  # too little work a tick to be worth a second thread
+            step_chunk(slice(0, self.num_worlds))
         else:
             self.chunks.run(step_chunk)
-        return StepResult(self._rewards, self._terminated, self._truncated)
+        return self._result
 
-    def _check_actions(self, actions: np.ndarray) -> np.ndarray:
-        a = np.asarray(actions)
-        if a.shape != (self.num_worlds, self.num_robots):
-            raise ValueError(
-                f"actions must have shape (num_worlds, num_robots) = "
-                f"({self.num_worlds}, {self.num_robots}), got {a.shape}"
-            )
-        if a.dtype != np.int64:
+    def step_viewed(self, actions: np.ndarray) -> tuple[StepResult, tuple[np.ndarray, ...]]:
+        """:meth:`step`, and world 0's :meth:`view` built in the same kernel call where :meth:`step`
+        takes one (the PettingZoo env's primitive step); the view's info numbers are a buffer of the
+        world's here, rewritten at the next step."""
+        a = self._kernel_actions(actions)
+        if not self._one_call:
+            return self.step(a), self.view(0)
+        (g, l, c, h, _), f32 = self._view_shapes, np.float32
+        view = np.empty(g, f32), np.empty(l, f32), np.empty(c, f32), np.empty(h, f32), self._info
+        call = self._tick_observe_view.entry or self._tick_observe_view  # in a hot loop: the entry itself
+        self._raise_out_of_range(a, call(*self._kernel_args, 0, a, *view))
+        return self._result, view
+
+    def view(self, b: int) -> tuple[np.ndarray, ...]:
+        """What the primitive-level env shows of world ``b``, in new arrays: every robot's maps as float32
+        (``value * OBS_SCALE``), its class and heading one-hots, and its info numbers (N, 5) int64: class,
+        neighbourhood, can act now, knows the target, tick (:func:`~.kernels.primitive.robot_view`)."""
+        view = self._new_view()
+        self._robot_view(b, self.obs_global, self.obs_local, self.state.kernel, OBS_SCALE, *view)
+        return view
+
+    def _new_view(self) -> tuple[np.ndarray, ...]:
+        (g, l, c, h, i), f32 = self._view_shapes, np.float32
+        return np.empty(g, f32), np.empty(l, f32), np.empty(c, f32), np.empty(h, f32), np.empty(i, np.int64)
+
+    def _kernel_actions(self, actions: np.ndarray) -> np.ndarray:
+        """``actions`` as a C-contiguous int64 (B, N) array (the kernels' layout), else a ValueError
+        naming what is wrong; the range is checked by the step."""
+        a = actions
+        if not (type(a) is np.ndarray and a.dtype == np.int64 and a.shape == self._action_shape):
+            a = np.asarray(a)
+            if a.shape != self._action_shape:
+                raise ValueError(
+                    f"actions must have shape (num_worlds, num_robots) = {self._action_shape}, got {a.shape}"
+                )
             if not np.issubdtype(a.dtype, np.integer):
                 raise ValueError(f"actions must be integers, got dtype {a.dtype}")
-            a = a.astype(np.int64)
-        if a.size and (a.min() < 0 or a.max() > 3):
-            bad = np.argwhere((a < 0) | (a > 3))[0]
+        return np.ascontiguousarray(a, np.int64)
+
+    def _raise_out_of_range(self, a: np.ndarray, bad: int) -> None:
+        """The error for action ``bad`` (``b * N + i``) out of [0, 4); nothing for -1."""
+        if bad >= 0:
+            b, i = divmod(bad, self.num_robots)
             raise ValueError(
-                f"primitive action {int(a[tuple(bad)])} of robot_{bad[1]} in world {bad[0]} is "
-                f"out of range [0, 4)"
+                f"primitive action {int(a[b, i])} of robot_{i} in world {b} is out of range [0, 4)"
             )
-        return a
 
     def observe(self, worlds: np.ndarray) -> None:
         """Rebuild the macro-observations of the worlds in the bool mask ``worlds`` (B,)."""

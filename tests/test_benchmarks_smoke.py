@@ -110,6 +110,28 @@ def test_executor_checks_need_every_action_the_same_and_no_slowdown(run_all, tmp
     assert status["eval decisions, same actions as torch, task3-full, 64 worlds"] == "**unmet**"
 
 
+def test_the_peer_check_is_the_ratio_to_pogema_and_not_measured_without_it(run_all, tmp_path):
+    row = {
+        "env": "search_rescue_v0",
+        "setting": "task2",
+        "level": "macro",
+        "steps_per_s": 7000.0,
+        "rounds": [],
+    }
+    ratios = [{"setting": "task2", "grid": 20, "agents": 3, "ratio": 1.6, "per_round": [1.58, 1.6, 1.62]},
+              {"setting": "task3", "grid": 32, "agents": 6, "ratio": 1.4, "per_round": [1.4]}]  # fmt: skip
+    _write(tmp_path, peer={"machine": {}, "rows": [row], "ratios": ratios})
+    md, _ = run_all.write_summary(tmp_path, {})
+    status = _status(tmp_path)
+    assert status["PettingZoo primitive env-steps/s, task2 vs POGEMA 20x20, 3 agents"] == "met"
+    assert status["PettingZoo primitive env-steps/s, task3 vs POGEMA 32x32, 6 agents"] == "**unmet**"
+    assert "1.60x POGEMA" in md.read_text() and "rounds 1.58, 1.60, 1.62" in md.read_text()
+    ratios = [r | {"ratio": None, "per_round": []} for r in ratios]
+    _write(tmp_path, peer={"machine": {}, "rows": [row], "ratios": ratios})
+    run_all.write_summary(tmp_path, {})
+    assert set(v for k, v in _status(tmp_path).items() if "POGEMA" in k) == {"not measured"}
+
+
 @pytest.mark.slow
 def test_run_all_runs_every_benchmark(tmp_path):
     """Every benchmark script for real in its smallest setting, one subprocess each: all exit 0, every
@@ -118,13 +140,13 @@ def test_run_all_runs_every_benchmark(tmp_path):
             "--pass", "amat=--repeats 3 --train-steps 1 --bf16-steps 1",
             "--pass", "train=--iterations 1 --epochs 2 --worlds 8",
             "--pass", "events=--decisions 10", "--pass", "executor=--events 2",
-            "--pass", "threads=--events 5 --worlds 8"]  # fmt: skip
+            "--pass", "threads=--events 5 --worlds 8", "--pass", "peer=--steps 300"]  # fmt: skip
     cmd = [sys.executable, str(BENCH / "run_all.py"), "--quick", "--out-dir", str(tmp_path), *tiny]
     proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=900)
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
     for row in json.loads((tmp_path / "threads.json").read_text())["rows"]:
         assert row["same_worlds_as_one_thread"], row  # the engine on threads steps the same worlds
-    for name in ("engine", "events", "amat", "train", "scaling", "executor", "threads"):
+    for name in ("engine", "events", "amat", "train", "scaling", "executor", "threads", "peer"):
         data = json.loads((tmp_path / f"{name}.json").read_text())
         assert data["machine"]["cpu_capability"] and isinstance(data["machine"]["native_bf16"], bool), name
     for row in json.loads((tmp_path / "executor.json").read_text())["results"]:

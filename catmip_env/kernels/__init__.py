@@ -11,7 +11,9 @@
 * ``macro`` — macro-actions: the controller that walks a robot to its goal, the run to the next event,
   the action masks;
 * ``activation`` — the robots' macro state: macro-action ends, activation, goal assignment;
-* ``observe`` — the observations (global and local maps) built from a robot's belief.
+* ``observe`` — the observations (global and local maps) built from a robot's belief;
+* ``primitive`` — a small batch's primitive step (tick and observations) in one call, at the kernel's
+  compiled entry.
 
 Nothing here is a public API: ``catmip_env``'s world, engine and env are built on it.
 """
