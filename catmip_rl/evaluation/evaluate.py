@@ -1,4 +1,4 @@
-"""Evaluation protocol of the paper's Section 7 (docs/design-evaluation.md): one setting, one method,
+"""Evaluation protocol of the paper's Section 7 (docs/evaluation.md#the-protocol): one setting, one method,
 N episodes.
 
     setting = EvalSetting("task2", comm="4", noise=0.05, max_ma_ticks=10)
