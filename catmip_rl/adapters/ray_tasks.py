@@ -44,12 +44,17 @@ def ray_map(
     workers: int,
     address: str | None,
     on_error: Callable[[int, BaseException], Any] | None = None,
+    shared: tuple[Callable[[Any], tuple[Any, Any]], Callable[[Any, Any], Any]] | None = None,
 ) -> None:
     """``done(k, fn(items[k]))`` for every item as its Ray task ends (one CPU each, at most ``workers`` in
     flight, retried :data:`RAY_RETRIES` times if its worker dies). An error ``fn`` raised is raised here
     as it was raised there; a task whose worker was lost past the retries gives ``on_error(k, err)`` where
     given, else a one-line ChildProcessError. On the way out every task left is cancelled; a cluster
-    started here is shut down."""
+    started here is shut down.
+
+    ``shared = (split, join)``: ``split(item)`` gives (the item without its payload, the payload), and
+    each distinct payload (the same object; None is none) goes to Ray's object store once, however many
+    items carry it; the task plays ``fn(join(light, payload))``. Both module-level functions."""
     ray = import_ray()
     started = not ray.is_initialized()
     if started:
@@ -57,14 +62,14 @@ def ray_map(
             ray.init(**ray_init_config(address, workers), logging_level="ERROR")
         except ConnectionError as err:
             raise ConnectionError(f"--backend ray: cannot join the Ray cluster at {address}: {err}") from None
-    remote = ray.remote(num_cpus=1, max_retries=RAY_RETRIES)(fn)
+    submit = _submitter(ray, fn, items, shared)
     flying: dict[Any, int] = {}
     queue = list(range(len(items)))
     try:
         while queue or flying:
             while queue and len(flying) < workers:
                 k = queue.pop(0)
-                flying[remote.remote(items[k])] = k
+                flying[submit(k)] = k
             finished, _ = ray.wait(list(flying), num_returns=1)
             for ref in finished:
                 k = flying.pop(ref)
@@ -88,3 +93,25 @@ def ray_map(
     finally:
         if started:
             ray.shutdown()
+
+
+def _submitter(ray: Any, fn: Callable[[Any], Any], items: Sequence[Any], shared) -> Callable[[int], Any]:
+    """``submit(k)``: item k as a Ray task of ``fn`` (its shared payload put in the object store once)."""
+    remote = ray.remote(num_cpus=1, max_retries=RAY_RETRIES)(fn if shared is None else _joined)
+    if shared is None:
+        return lambda k: remote.remote(items[k])
+    split, join = shared
+    stored: dict[int, Any] = {}  # id(payload) -> its object ref (the items keep the payloads alive)
+
+    def submit(k: int) -> Any:
+        light, payload = split(items[k])
+        if payload is not None and id(payload) not in stored:
+            stored[id(payload)] = ray.put(payload)
+        return remote.remote(fn, join, light, None if payload is None else stored[id(payload)])
+
+    return submit
+
+
+def _joined(fn: Callable[[Any], Any], join: Callable[[Any, Any], Any], light: Any, payload: Any) -> Any:
+    """A task of :func:`ray_map` with ``shared``: Ray hands the payload over (its object ref resolved)."""
+    return fn(join(light, payload))

@@ -235,8 +235,17 @@ def map_jobs(
             parts[i].clear()
 
     weights = [run_cost(replace(c.job, episodes=c.count)) for c in chunks]
-    runner.map(play_chunk, chunks, weights, on_done, progress, desc, unit="chunks")
+    shared = (_without_bundle, _with_bundle)  # on Ray, a method's files go to the object store once
+    runner.map(play_chunk, chunks, weights, on_done, progress, desc, unit="chunks", shared=shared)
     return results
+
+
+def _without_bundle(chunk: Chunk) -> tuple[Chunk, Bundle | None]:
+    return replace(chunk, bundle=None), chunk.bundle
+
+
+def _with_bundle(chunk: Chunk, bundle: Bundle | None) -> Chunk:
+    return replace(chunk, bundle=bundle)
 
 
 def _no_link(folder: Path) -> None:

@@ -67,10 +67,12 @@ class Runner:
         desc: str = "",
         unit: str = "chunks",
         on_error: Callable[[int, BaseException], Any] | None = None,
+        shared: tuple[Callable[[Any], tuple[Any, Any]], Callable[[Any, Any], Any]] | None = None,
     ) -> list[Any]:
         """``fn(item)`` of every item (``fn`` a module-level function, ``items`` picklable), in order.
         ``on_error(k, err)``: on Ray, the result of an item whose task failed for good (its worker died
-        past :data:`~catmip_rl.adapters.ray_tasks.RAY_RETRIES`), instead of raising."""
+        past :data:`~catmip_rl.adapters.ray_tasks.RAY_RETRIES`), instead of raising. ``shared``: on Ray, a
+        payload many items carry is sent once (:func:`~catmip_rl.adapters.ray_tasks.ray_map`)."""
         weights = list(weights) if weights is not None else [1.0] * len(items)
         bar = _Bar(weights, progress, desc, unit)
         results: dict[int, Any] = {}
@@ -85,7 +87,7 @@ class Runner:
             if self.backend == "ray":
                 from catmip_rl.adapters.ray_tasks import ray_map  # Ray lives in the adapters
 
-                ray_map(fn, items, done, self.workers, self.ray_address, on_error)
+                ray_map(fn, items, done, self.workers, self.ray_address, on_error, shared)
             elif self.workers <= 1 or len(items) <= 1:
                 for k, item in enumerate(items):
                     done(k, fn(item))

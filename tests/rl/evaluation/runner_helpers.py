@@ -30,3 +30,17 @@ def sleeps(seconds: float) -> float:
 
 def fails(x: int) -> int:
     raise ValueError(f"bad item {x}")
+
+
+def split_payload(item: tuple[int, bytes]) -> tuple[int, bytes]:
+    return item
+
+
+def join_payload(x: int, payload: bytes) -> tuple[int, int]:
+    return x, len(payload)
+
+
+def sized(item: tuple[int, int]) -> int:
+    """The item's number times its payload's size (what a task with a shared payload sees)."""
+    x, size = item
+    return x * size

@@ -195,3 +195,17 @@ def test_a_board_checked_on_ray_gives_the_local_record(suites, tmp_path, monkeyp
 def test_an_error_raised_in_a_task_is_raised_here_as_it_was_there():
     with pytest.raises(ValueError, match=r"^bad item 3$"):
         Runner("ray", 1).map(runner_helpers.fails, [3])
+
+
+def test_a_payload_many_items_carry_goes_to_the_object_store_once(monkeypatch):
+    import ray
+
+    puts = []
+    real_put = ray.put
+    monkeypatch.setattr(ray, "put", lambda value, **kw: puts.append(len(value)) or real_put(value, **kw))
+    payload = bytes(300_000)  # one method's files, carried by every chunk
+    items = [(k, payload) for k in range(6)]
+    shared = (runner_helpers.split_payload, runner_helpers.join_payload)
+    out = Runner("ray", workers=2).map(runner_helpers.sized, items, shared=shared)
+    assert out == [k * 300_000 for k in range(6)]
+    assert puts == [300_000]
