@@ -200,11 +200,11 @@ def bench_training(model: AMAT, batch: SampleBatch, bf16: bool, steps: int, proc
     torch.set_num_threads(2)
     keep_freed_memory()  # as catmip_rl.training.train.train does
     cfg = make_train_config("paper")
-    opt = make_optimizer(model, cfg)
+    opt = make_optimizer(model, cfg.optim)
     m, n = batch.action.shape
     parallel = None
     if processes > 1:
-        parallel = ParallelGradients(model, processes, **loss_kwargs(cfg))
+        parallel = ParallelGradients(model, processes, **loss_kwargs(cfg.loss))
         batch = batch.map(lambda v: torch.cat([v] * processes))
         parallel.set_batch(batch)
         parts = list(torch.arange(m * processes).chunk(processes))
@@ -303,7 +303,7 @@ def plot(results: dict, path: Path) -> None:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--repeats", type=int, default=200)
-    micro = make_train_config("paper").micro_batch
+    micro = make_train_config("paper").optim.micro_batch
     ap.add_argument(
         "--train-batch", type=int, nargs="+", default=[256, micro],
         help=f"decision events per training step (x3 robots); default 256 and the recipe's {micro}",

@@ -52,14 +52,14 @@ def fixed_batch(world: int, events: int):
     collector = run.collector_for(world + 1)  # iteration k plays world k - 1 of the mixture
     rollout = collector.collect(run.model, first_episode=0, generator=run.gen, labeler=run.labeler)
     batch, _ = build_batch(
-        rollout, run.value_norm, cfg.gamma, cfg.lam, run.model.config.n_classes, run.device
+        rollout, run.value_norm, cfg.loss.gamma, cfg.loss.lam, run.model.config.n_classes, run.device
     )
     return run.model.config, batch.index(torch.arange(min(events, len(batch)))), cfg
 
 
 def time_step(model, batch, cfg, bf16: bool, repeats: int) -> tuple[float, float]:
     """(median seconds of a forward + backward step with ``cfg``'s loss, its loss)."""
-    kwargs = loss_kwargs(cfg, bf16)
+    kwargs = loss_kwargs(cfg.loss, bf16)
     del kwargs["bf16"]
 
     def step() -> float:

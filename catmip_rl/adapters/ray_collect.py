@@ -29,11 +29,12 @@ import torch
 from tensordict import TensorDict
 from torchrl.collectors import BaseCollector
 
+from catmip_env.config import EnvConfig
 from catmip_env.episode_stats import EpisodeRecords, training_stats
 from catmip_rl.adapters.ray_tasks import import_ray, ray_init_config
 from catmip_rl.amat.model import AMAT
 from catmip_rl.training.collect import STEP_FIELDS, Collector, Rollout, cpu_mirror
-from catmip_rl.training.config import TrainConfig
+from catmip_rl.training.sections import CollectionSection
 
 __all__ = ["ShardCollector", "RayRolloutCollector"]
 
@@ -141,13 +142,16 @@ class ShardCollector(BaseCollector):
 
 class RayRolloutCollector:
     """Driver side of ``--collector ray``: ``collect`` returns the same :class:`Rollout` as
-    :meth:`Collector.collect` would, gathered from ``cfg.ray_workers`` Ray workers.
+    :meth:`Collector.collect` would (``Collector(env, collection.num_worlds, seed, gamma)``), gathered
+    from ``collection.ray_workers`` Ray workers (``collection``: a TrainConfig's section).
 
-    Joins the cluster at ``cfg.ray_address`` or, when it is None and Ray is not initialised yet, starts
-    a local one (shut down again by :meth:`close`).
+    Joins the cluster at ``collection.ray_address`` or, when it is None and Ray is not initialised yet,
+    starts a local one (shut down again by :meth:`close`).
     """
 
-    def __init__(self, cfg: TrainConfig, model: AMAT) -> None:
+    def __init__(
+        self, env: EnvConfig, collection: CollectionSection, seed: int, gamma: float, model: AMAT
+    ) -> None:
         from torchrl.collectors.distributed import RayCollector
         from torchrl.weight_update import _ray as weight_sync
 
@@ -156,31 +160,31 @@ class RayRolloutCollector:
         if getattr(weight_sync, "_DIST_TIMEOUT", None) is not None:
             weight_sync._DIST_TIMEOUT = max(weight_sync._DIST_TIMEOUT, datetime.timedelta(minutes=10))
 
-        self.cfg = cfg
-        self.workers = cfg.ray_workers
-        self.num_worlds = cfg.num_worlds  # episodes a collect() call plays, as Collector.num_worlds
+        self.env = env
+        self.workers = collection.ray_workers
+        self.num_worlds = collection.num_worlds  # episodes a collect() call plays, as Collector.num_worlds
         self.model = model
-        ray_init = ray_init_config(cfg.ray_address, cfg.ray_workers)
+        ray_init = ray_init_config(collection.ray_address, self.workers)
         self._mirror = cpu_mirror(model)
-        share = cfg.num_worlds // cfg.ray_workers
+        share = self.num_worlds // self.workers
         goals = model.config.goals  # a cell-goal model plays an engine in cell goal mode
-        make = functools.partial(Collector, cfg.env_config(), share, cfg.seed, cfg.gamma, goal_mode=goals)
+        make = functools.partial(Collector, env, share, seed, gamma, goal_mode=goals)
         try:
             self._rc = RayCollector(
                 make,
                 policy=self._mirror,
                 collector_class=ShardCollector,
-                collector_kwargs={"seed": cfg.seed, "pad_steps": cfg.env_config().horizon_ticks + 1},
-                num_collectors=cfg.ray_workers,
+                collector_kwargs={"seed": seed, "pad_steps": env.horizon_ticks + 1},
+                num_collectors=self.workers,
                 remote_configs={"num_cpus": 1},
                 ray_init_config=ray_init,
-                frames_per_batch=cfg.num_worlds,  # a frame is a world's episode here
+                frames_per_batch=self.num_worlds,  # a frame is a world's episode here
                 total_frames=2**62,  # endless: the training loop decides when to stop (-1 ends at once)
                 sync=True,
             )
         except ConnectionError as err:  # nothing at that address, a missing auth token, ...
             raise RuntimeError(
-                f"--collector ray: cannot join the Ray cluster at {cfg.ray_address}: {err}"
+                f"--collector ray: cannot join the Ray cluster at {collection.ray_address}: {err}"
             ) from err
         # wait until every worker is built (imports, numba, engine): the weight sync's rendezvous
         # at the first update then only waits for the connection (TorchRL gives it 60 s)
@@ -220,7 +224,7 @@ class RayRolloutCollector:
             terminated=td["terminated"].numpy().copy(),
             records=records,
             returns=returns,
-            stats=training_stats(records, returns, self.cfg.env_config()),
+            stats=training_stats(records, returns, self.env),
         )
 
     def close(self) -> None:

@@ -94,8 +94,8 @@ def main(argv: list[str] | None = None) -> list[dict]:
     if args.worlds is not None:
         cfg = cfg.replace(num_worlds=args.worlds)
     print(
-        f"[1/3] training AMAT on Task 1: {cfg.warm_start_rounds} imitation rounds, then {args.iterations} "
-        f"PPO iterations x {cfg.num_worlds} episodes, {run_dir}"
+        f"[1/3] training AMAT on Task 1: {cfg.imitation.warm_start_rounds} imitation rounds, then "
+        f"{args.iterations} PPO iterations x {cfg.collection.num_worlds} episodes, {run_dir}"
     )
     t0 = time.perf_counter()
     train(cfg, run_dir, progress=True)

@@ -68,21 +68,22 @@ def _train(args: argparse.Namespace) -> int:
     else:
         base = TRAIN_PRESETS[args.preset or DEFAULT_PRESET]
     cfg = _config(base, overrides)
-    if not args.resume and args.preset in FINE_TUNING_PRESETS and not cfg.init_from:
+    if not args.resume and args.preset in FINE_TUNING_PRESETS and not cfg.model.init_from:
         raise ValueError(
             f"preset {args.preset} fine-tunes a trained model: give --init-from MODEL (a run dir, training "
             "checkpoint or model file of the same AMAT: the memory model for general-coord)"
         )
+    values = cfg.to_dict()
     for name in ("threads", "update_processes"):  # asked for here (a preset's or resumed run's value is kept)
-        if name in overrides and getattr(cfg, name) > CPUS:
+        if name in overrides and values[name] > CPUS:
             raise ValueError(
-                f"{name} = {getattr(cfg, name)} is more than this machine's {CPUS} CPUs; use at most {CPUS}"
+                f"{name} = {values[name]} is more than this machine's {CPUS} CPUs; use at most {CPUS}"
             )
     done = resumed["iteration"] if resumed is not None else 0
     train(cfg, args.run_dir, resume=args.resume, progress=not args.no_progress)  # checks the run first
-    if args.resume and done >= cfg.iterations:
+    if args.resume and done >= cfg.optim.iterations:
         print(
-            f"{args.run_dir} is complete (iteration {done} of {cfg.iterations}): nothing trained; "
+            f"{args.run_dir} is complete (iteration {done} of {cfg.optim.iterations}): nothing trained; "
             "give --iterations N (more than it has) to go on"
         )
         return 0

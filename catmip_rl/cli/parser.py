@@ -7,7 +7,6 @@ Every numeric flag is typed (``args``), so argparse itself names a bad flag; err
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import re
 
 from catmip_rl.cli.args import (
@@ -25,7 +24,7 @@ from catmip_rl.cli.args import (
     set_item,
 )
 from catmip_rl.cli.bench_parser import add_bench, add_compare, add_export, add_leaderboard
-from catmip_rl.training.config import TrainConfig, check_field, field_docs
+from catmip_rl.training.config import check_field, field_docs, field_types
 from catmip_rl.training.presets import TRAIN_PRESETS
 
 __all__ = ["DEFAULT_PRESET", "TRAIN_FLAGS", "build_parser", "version"]
@@ -117,10 +116,10 @@ def add_train(sub) -> None:
     g = tr.add_argument_group(
         f"overrides of the preset (default: the preset's value; {DEFAULT_PRESET}'s shown)"
     )
-    preset = TRAIN_PRESETS[DEFAULT_PRESET]
-    kinds = {f.name: f.type for f in dataclasses.fields(TrainConfig)}
+    preset = TRAIN_PRESETS[DEFAULT_PRESET].to_dict()
+    kinds = field_types()
     for name, flag in TRAIN_FLAGS.items():
-        value = getattr(preset, name)
+        value = preset[name]
         shown = "none" if value in (None, "") else value
         g.add_argument(
             flag,

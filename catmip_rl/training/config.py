@@ -1,5 +1,19 @@
-"""Training configuration: one frozen dataclass, validated when built, saved as JSON in every run dir
-(its presets: catmip_rl.training.presets)."""
+"""Training configuration: TrainConfig, one frozen dataclass in sections (``training.sections``: env, model,
+collection, loss, optim, imitation, eval) beside the run's own fields (seed, device, threads,
+checkpoint_every), validated when built, saved as JSON in every run dir (its presets:
+catmip_rl.training.presets).
+
+Code reads a field through its section (``cfg.optim.lr``), so that a part that needs the optimiser's
+settings gets ``cfg.optim``, not the whole config. A person names a field by its own name, unique across
+the sections: the flags (``--lr``), ``--set lr=...``, :meth:`TrainConfig.replace` (``replace(lr=...)``, or
+a section: ``replace(optim={"lr": ...})``) and the JSON.
+
+``config.json`` stays flat (``{"lr": 0.0001, ...}``), as every run before the sections wrote it: its keys
+are the flags' and ``--set``'s names, a saved config reads the same whatever the code's grouping, and what
+reads a field from the raw JSON keeps reading it (``store.checkpoint``: a checkpoint's ``env_overrides``,
+``seed`` and ``precision``; a model file's ``train_config``; older catmip versions).
+:meth:`TrainConfig.from_json` reads the sectioned form too (``{"optim": {"lr": 0.0001, ...}, "seed": 0}``).
+"""
 
 from __future__ import annotations
 
@@ -17,8 +31,19 @@ from catmip_env import EnvConfig, make_config
 from catmip_env.fields import BOOL, INT, NUMBER, STR, Rule, check, is_str
 from catmip_env.planners.baselines import PLANNERS, Relay
 from catmip_rl.amat.config import AmatConfig
+from catmip_rl.training import sections
+from catmip_rl.training.sections import (
+    SECTIONS,
+    CollectionSection,
+    EnvSection,
+    EvalSection,
+    ImitationSection,
+    LossSection,
+    ModelSection,
+    OptimSection,
+)
 
-__all__ = ["TrainConfig", "check_field", "field_docs"]
+__all__ = ["TrainConfig", "check_field", "field_docs", "field_types"]
 
 
 # what each annotated type admits (annotations are strings: from __future__ import annotations)
@@ -96,12 +121,29 @@ _VALUES: dict[str, Rule] = {
 
 
 @cache
+def _fields() -> dict[str, tuple[str, dataclasses.Field]]:
+    """Every field by its flat name: (the name of its section, "" for TrainConfig's own; the field)."""
+    out = {}
+    for f in dataclasses.fields(TrainConfig):
+        if f.name in SECTIONS:
+            out |= {g.name: (f.name, g) for g in dataclasses.fields(SECTIONS[f.name])}
+        else:
+            out[f.name] = ("", f)
+    return out
+
+
+def field_types() -> dict[str, str]:
+    """Each field's annotated type (a string: "int", "str | None", ...) by its flat name."""
+    return {name: f.type for name, (_, f) in _fields().items()}
+
+
+@cache
 def _rules() -> dict[str, Rule]:
     """Every field's rule (catmip_env.fields): its type, range or values."""
     out = {}
-    for f in dataclasses.fields(TrainConfig):
-        rule = _VALUES.get(f.name) or _TYPES[f.type]
-        out[f.name] = rule(*_RANGES[f.name]) if f.name in _RANGES else rule
+    for name, kind in field_types().items():
+        rule = _VALUES.get(name) or _TYPES[kind]
+        out[name] = rule(*_RANGES[name]) if name in _RANGES else rule
     return out
 
 
@@ -109,16 +151,27 @@ def check_field(name: str, value: Any) -> None:
     """A ValueError naming the field unless ``value`` is of the field's annotated type (an int field a
     real int, never a bool; a float field a finite number) and in its range or values: "TrainConfig.
     eval_seed must be an int >= 0 and < 2**64, got 1.5". The one check of a field's value, for the
-    config and for ``catmip train``'s flags (the same validator as EnvConfig's: catmip_env.fields)."""
+    config and for ``catmip train``'s flags (the same validator as EnvConfig's: catmip_env.fields).
+    Fields go by their flat names, in every section."""
     check("TrainConfig", name, value, _rules()[name])
 
 
 @cache
 def field_docs() -> dict[str, str]:
-    """Each documented TrainConfig field's docstring (the string under it in this file), whitespace
-    collapsed: the help of ``catmip train``'s flags."""
-    tree = ast.parse(Path(__file__).read_text())
-    body = next(n for n in tree.body if isinstance(n, ast.ClassDef) and n.name == "TrainConfig").body
+    """Each documented field's docstring (the string under it in its section's class, or in TrainConfig's),
+    whitespace collapsed, by its flat name: the help of ``catmip train``'s flags."""
+    docs = {}
+    for path, classes in ((sections.__file__, SECTIONS.values()), (__file__, [TrainConfig])):
+        names = {c.__name__ for c in classes}
+        tree = ast.parse(Path(path).read_text())
+        for node in tree.body:
+            if isinstance(node, ast.ClassDef) and node.name in names:
+                docs |= _docstrings(node.body)
+    return {name: doc for name, doc in docs.items() if name in _fields()}
+
+
+def _docstrings(body: list[ast.stmt]) -> dict[str, str]:
+    """The docstring under each annotated name of a class body, whitespace collapsed."""
     docs = {}
     for node, after in zip(body, body[1:]):
         documented = isinstance(after, ast.Expr) and isinstance(after.value, ast.Constant)
@@ -129,187 +182,48 @@ def field_docs() -> dict[str, str]:
 
 @dataclass(frozen=True)
 class TrainConfig:
-    """The paper's recipe (docs/design.md#ppo-recipe) by default."""
+    """The paper's recipe (docs/design.md#ppo-recipe) by default: its sections (``training.sections``),
+    then the run's own fields."""
 
-    env_preset: str = "train"
-    """catmip_env preset the training worlds come from."""
-    env_overrides: dict[str, Any] = field(default_factory=dict)
-    """EnvConfig field overrides (e.g. {"synchronous": true})."""
-    worlds: list[dict[str, Any]] = field(default_factory=list)
-    """A mixture of training worlds; empty (default): the one world ``env_preset`` + ``env_overrides``.
-    Each entry is a JSON object of EnvConfig overrides applied over that world, with two keys of its
-    own: "preset" (start from this catmip_env preset instead, without ``env_overrides``) and
-    "num_worlds" (episodes collected per iteration in this world; default ``num_worlds``). PPO iteration
-    k trains on world (k - 1) mod len(worlds); the warm start's DAgger rounds, if any, collect from every
-    world (a buffer each); the evaluation stays on ``env_preset`` + ``env_overrides``."""
-    amat: dict[str, Any] = field(default_factory=dict)
-    """AmatConfig field overrides (window must equal the env's window)."""
-    num_worlds: int = 64
-    """Worlds (= episodes) collected per iteration."""
-    iterations: int = 62_500
-    """PPO iterations (the LR decays linearly to 0 over them, or over ``budget_minutes``)."""
-    budget_minutes: float = 0.0
-    """Wall-clock budget of the run in minutes of training (0 = none): training stops once it is spent,
-    and the LR decays linearly to 0 over whichever of the iterations and the budget runs out first."""
-    target_kl: float = 0.0
-    """Step control (0 = off): an iteration's epochs stop at the first minibatch whose approx-KL from
-    the collecting policy exceeds this (measured before that minibatch's step, which is skipped)."""
-    epochs: int = 10
-    """PPO epochs per iteration."""
-    minibatches: int = 1
-    """Minibatches per epoch (1 = full batch)."""
-    micro_batch: int = 512
-    """Decision events per forward/backward pass: a minibatch's gradient is accumulated over its
-    micro-batches (the same gradient, in bounded memory and faster on CPU caches); 0 = one pass."""
-    lr: float = 1e-4
-    """Adam learning rate (decays linearly to 0 over the run)."""
-    critic_lr: float = 0.0
-    """The critic's own parameters' learning rate (the value head's, or the state critic's), decaying
-    alike; 0: ``lr``. A new critic beside a trained policy learns at the policy's fine-tuning rate only
-    slowly."""
-    adam_eps: float = 1e-5
-    """Adam epsilon."""
-    clip: float = 0.05
-    """PPO ratio clip epsilon."""
-    value_clip: float = 0.05
-    """Clip of the value prediction around the old value (normalised units)."""
-    huber_delta: float = 10.0
-    """Delta of the Huber value loss."""
-    entropy_coef: float = 0.01
-    """Weight of the entropy bonus."""
-    value_coef: float = 1.0
-    """Weight of the value loss."""
-    rescue_coef: float = 0.0
-    """Weight of an auxiliary cross-entropy toward the planners' rescue rule (projected into the window)
-    for active rescuers that know the target (catmip_rl.training.labelers.RescueLabeler); 0 = the
-    paper's loss. Collection then also labels those decisions."""
-    rescue_heading: bool = True
-    """Whether the rescue loss's label projects the way to the target into the window along the
-    controller's own path, which starts in the robot's heading (``window:nearest``), or along a
-    heading-free one (``window-noheading:nearest``): a label that depends only on what AMAT observes."""
-    anchor: str = ""
-    """A planner (e.g. "rrt") whose own cell goal labels every decision of a cell-goal model during PPO,
-    for an auxiliary cross-entropy weighted by ``anchor_coef`` (it takes the rescue loss's place, and
-    its ``loss/rescue`` column): PPO moves the policy where the advantage says while the anchor keeps
-    it near the planner it imitated, so that argmax play does not drift into loops. "" = none."""
-    anchor_coef: float = 0.0
-    """Weight of the ``anchor`` loss (> 0 exactly when ``anchor`` is set)."""
-    anchor_on: str = "every"
-    """Which decisions the ``anchor`` labels: "every" one, or only those where a relay planner's relay
-    rule chooses ("relay": an explorer carrying the news of the target to a rescuer; ``planners.Relay``),
-    so that the anchor teaches the relay and leaves the rest of the policy to PPO."""
-    max_grad_norm: float = 10.0
-    """Gradient-norm clip of each step."""
-    gamma: float = 1.0
-    """Discount per tick."""
-    lam: float = 0.95
-    """GAE lambda along each robot's activations."""
+    env: EnvSection = field(default_factory=EnvSection)
+    model: ModelSection = field(default_factory=ModelSection)
+    collection: CollectionSection = field(default_factory=CollectionSection)
+    loss: LossSection = field(default_factory=LossSection)
+    optim: OptimSection = field(default_factory=OptimSection)
+    imitation: ImitationSection = field(default_factory=ImitationSection)
+    eval: EvalSection = field(default_factory=EvalSection)
     seed: int = 0
     """Seed of the training worlds, the initial weights and the sampling."""
     device: str = "cpu"
     """Where the model trains: cpu, cuda or cuda:N."""
     threads: int = 2
     """torch CPU threads."""
-    precision: str = "fp32"
-    """PPO update precision: "fp32", "bf16" (bfloat16 autocast) or "auto" (bf16 where the CPU has it
-    natively, training.ppo.choose_bf16; else fp32)."""
-    update_processes: int = 1
-    """Processes computing the PPO update's gradients (CPU): 1 = this one, on ``threads`` threads; n > 1 =
-    this one and n - 1 helpers, one thread each, sharing every minibatch's micro-batches (data parallel,
-    the same update to float32 rounding; ~15 % faster than one process with two threads on 2 cores)."""
-    warm_start: str = ""
-    """Imitation warm start before PPO (catmip_rl.training.imitation): a planner name ("nearest", "rrt", ...)
-    whose goals, projected into the window, label DAgger rounds; "" = none (the paper's recipe)."""
-    init_from: str = ""
-    """Start a new run from these weights instead of a fresh initialisation: a model file, a training
-    checkpoint or run dir (its value normaliser comes too) or a shipped model's name; "" = none. The
-    model must be an AMAT of this run's ``amat`` config. A warm start, if any, then begins from them;
-    the optimiser and the LR schedule start afresh (fine-tuning). Not read when a run resumes."""
-    warm_start_heading: bool = True
-    """Whether the teacher projects a far goal into the window along the controller's own path, which
-    starts in the robot's heading (``window:PLANNER``), or along a heading-free one (E, S, W, N first,
-    then straight on: ``window-noheading:PLANNER``), a label that depends only on what AMAT observes (no
-    headings); measured, it taught no better (docs/notes/paper-model.md, "A teacher that turns less")."""
-    warm_start_stay: bool = True
-    """Whether the teacher's "stay" labels are imitated. The window planner says "stay" when its planner
-    has no goal (no reachable frontier it may claim): a pause for the teacher, whose next decision
-    differs as the others move, but a state a deterministic student learns to stand still in, deciding
-    the same again at once (an argmax loop). False leaves those decisions unscored."""
-    warm_start_value: bool = False
-    """Whether the warm start also regresses the value head on the rollouts' returns (and sets the value
-    normaliser by them), so that PPO starts with a critic. Measured on the cell-goal model: imitation
-    alone left its encoder's output the same for every robot (the pointer needs only the per-cell
-    features), and a value head on it cannot learn (docs/notes/general-model.md)."""
-    warm_start_relay: float = 0.0
-    """Weight of a second cross-entropy in every DAgger step, over the labels a relay teacher's relay rule
-    chose (``rrt-relay``, ``rrt-relay-heading``, ...: which teammate to carry the news to, and where),
-    on a quarter batch of the events that hold one; 0 = none. These labels are a rule's, and a few in a
-    hundred: the uniform batches left a student agreeing with under half of them
-    (docs/notes/general-model.md, "Relay-focused DAgger")."""
-    warm_start_worlds: int = 0
-    """Episodes each DAgger round collects (0 = ``num_worlds``). Collection is cheap beside the round's
-    cross-entropy steps, and with few episodes a round's steps fit the buffer rather than the teacher
-    (measured on Task 1: 64 episodes a round imitate to 0.72 by tick 100, 256 to 0.98;
-    docs/notes/training-experiments.md)."""
-    warm_start_rounds: int = 6
-    """DAgger rounds (each collects warm_start_worlds episodes of every training world with the current
-    policy, labelled)."""
-    warm_start_steps: int = 150
-    """Cross-entropy gradient steps per DAgger round, on minibatches of warm_start_batch events."""
-    warm_start_batch: int = 256
-    """Events per cross-entropy step of the warm start."""
-    warm_start_lr: float = 1e-3
-    """Adam learning rate of the warm start."""
-    value_warmup_iterations: int = 0
-    """First PPO iterations that train the value head alone (the policy stays as imitated)."""
-    eval_every: int = 50
-    """Iterations between evaluations (0 = never)."""
-    eval_episodes: int = 32
-    """Episodes (fixed maps) of each evaluation."""
-    eval_seed: int = 12_345
-    """Seed of the fixed evaluation map set."""
     checkpoint_every: int = 50
     """Iterations between checkpoints, and one at the end (0 = none: the run cannot be resumed)."""
-    collector: str = "local"
-    """Where episodes are collected: "local" (this process) or "ray" (Ray workers, the distributed extra)."""
-    ray_workers: int = 2
-    """Ray collector workers; each collects num_worlds / ray_workers worlds per iteration."""
-    ray_address: str | None = None
-    """Ray cluster to join ("auto", "host:port", "ray://host:port"); None starts a local one on loopback."""
 
     def __post_init__(self) -> None:
-        for f in dataclasses.fields(self):
-            check_field(f.name, getattr(self, f.name))
+        for name, kind in SECTIONS.items():
+            if not isinstance(getattr(self, name), kind):
+                raise ValueError(
+                    f"TrainConfig.{name} must be its section ({kind.__name__}), got {getattr(self, name)!r}"
+                )
+        for name, value in self.to_dict().items():
+            check_field(name, value)
         amat = self.amat_config()  # validates it
-        if bool(self.anchor) != (self.anchor_coef > 0):
-            raise ValueError("TrainConfig.anchor and anchor_coef > 0 go together: set both, or neither")
-        if self.anchor_on == "relay" and self.anchor not in RELAY_PLANNERS:
+        self._check_losses(amat)
+        if self.optim.update_processes > 1 and self.device != "cpu":
             raise ValueError(
-                f"TrainConfig.anchor_on 'relay' needs a relay planner as the anchor: one of {RELAY_PLANNERS}"
-            )
-        if self.warm_start_relay > 0 and not (self.warm_start in RELAY_PLANNERS and amat.goals == "cell"):
-            raise ValueError(
-                "TrainConfig.warm_start_relay > 0 weighs a relay teacher's relay labels for a cell-goal "
-                f"model (amat goals 'cell'): warm_start one of {RELAY_PLANNERS}"
-            )
-        if self.anchor and (self.rescue_coef > 0 or amat.goals != "cell"):
-            raise ValueError(
-                "TrainConfig.anchor labels a cell-goal model's decisions (amat goals 'cell') and takes the "
-                "rescue loss's place: set rescue_coef = 0"
-            )
-        if self.update_processes > 1 and self.device != "cpu":
-            raise ValueError(
-                f"update_processes = {self.update_processes} computes gradients in CPU processes; with "
+                f"update_processes = {self.optim.update_processes} computes gradients in CPU processes; with "
                 f"device {self.device!r} set update_processes = 1"
             )
         self._check_collection(amat)
-        if amat.critic == "state" and self.warm_start:
+        if amat.critic == "state" and self.imitation.warm_start:
             raise ValueError(
                 "amat critic 'state' is PPO's: set no warm_start (imitate with critic 'encoder' first, then "
                 "init_from that run)"
             )
         envs = [("the env's", self.env_config())]  # validates them
-        if self.worlds:
+        if self.env.worlds:
             envs += [(f"worlds[{k}]'s", env) for k, (env, _) in enumerate(self.world_configs())]
         for where, env in envs:
             if amat.window != env.window:
@@ -317,51 +231,74 @@ class TrainConfig:
             if amat.local_size != env.local_size or amat.n_classes != env.num_classes:
                 raise ValueError(f"AMAT local_size / n_classes must match {where} local map and classes")
 
+    def _check_losses(self, amat: AmatConfig) -> None:
+        """The auxiliary losses' fields together: the anchor and its weight, the relay labels' planners and
+        model, the anchor's place of the rescue loss."""
+        loss, imitation = self.loss, self.imitation
+        if bool(loss.anchor) != (loss.anchor_coef > 0):
+            raise ValueError("TrainConfig.anchor and anchor_coef > 0 go together: set both, or neither")
+        if loss.anchor_on == "relay" and loss.anchor not in RELAY_PLANNERS:
+            raise ValueError(
+                f"TrainConfig.anchor_on 'relay' needs a relay planner as the anchor: one of {RELAY_PLANNERS}"
+            )
+        relay_teacher = imitation.warm_start in RELAY_PLANNERS and amat.goals == "cell"
+        if imitation.warm_start_relay > 0 and not relay_teacher:
+            raise ValueError(
+                "TrainConfig.warm_start_relay > 0 weighs a relay teacher's relay labels for a cell-goal "
+                f"model (amat goals 'cell'): warm_start one of {RELAY_PLANNERS}"
+            )
+        if loss.anchor and (loss.rescue_coef > 0 or amat.goals != "cell"):
+            raise ValueError(
+                "TrainConfig.anchor labels a cell-goal model's decisions (amat goals 'cell') and takes the "
+                "rescue loss's place: set rescue_coef = 0"
+            )
+
     def _check_collection(self, amat: AmatConfig) -> None:
         """What only the local collector does (labels from a planner in this process, a mixture of worlds,
-        the state critic's state) refused with Ray, and Ray's share of the
-        worlds."""
-        if self.collector == "local":
+        the state critic's state) refused with Ray, and Ray's share of the worlds."""
+        collection = self.collection
+        if collection.collector == "local":
             return
-        if self.warm_start:
+        if self.imitation.warm_start:
             raise ValueError(
                 "TrainConfig.warm_start needs collector 'local' (DAgger labels decisions with a planner "
                 "in this process); warm-start locally, then --resume with --collector ray "
                 "--set warm_start=''"
             )
-        if self.rescue_coef > 0 or self.anchor:
+        if self.loss.rescue_coef > 0 or self.loss.anchor:
             raise ValueError(
                 "TrainConfig.rescue_coef > 0 and anchor need collector 'local' (the rule or planner labels "
                 "decisions in this process); set them off with --collector ray"
             )
-        if self.num_worlds % self.ray_workers:
+        if collection.num_worlds % collection.ray_workers:
             raise ValueError(
-                f"num_worlds ({self.num_worlds}) must be divisible by ray_workers ({self.ray_workers}): "
-                "each Ray worker collects an equal share of the worlds"
+                f"num_worlds ({collection.num_worlds}) must be divisible by ray_workers "
+                f"({collection.ray_workers}): each Ray worker collects an equal share of the worlds"
             )
-        if self.worlds:
+        if self.env.worlds:
             raise ValueError("TrainConfig.worlds (a mixture of worlds) needs collector 'local'")
         if amat.critic == "state":
             raise ValueError("amat critic 'state' needs collector 'local' (it collects the true state)")
 
     def env_config(self) -> EnvConfig:
-        return self._for_model(make_config(self.env_preset, **self.env_overrides))
+        return self._for_model(make_config(self.env.env_preset, **self.env.env_overrides))
 
     def _for_model(self, env: EnvConfig) -> EnvConfig:
         """``env`` with the teammate memory on when the model reads it (``AmatConfig.teammate_memory``, and
         ``teammate_heading``)."""
-        shown = {k: True for k in ("teammate_memory", "teammate_heading") if self.amat.get(k)}
+        shown = {k: True for k in ("teammate_memory", "teammate_heading") if self.model.amat.get(k)}
         return env.replace(**shown) if shown else env
 
     def world_configs(self) -> list[tuple[EnvConfig, int]]:
         """(EnvConfig, episodes per iteration) of each training world (see ``worlds``); ValueError
         naming a bad entry."""
-        if not self.worlds:
-            return [(self.env_config(), self.num_worlds)]
+        num_worlds = self.collection.num_worlds
+        if not self.env.worlds:
+            return [(self.env_config(), num_worlds)]
         out = []
-        for k, entry in enumerate(self.worlds):
+        for k, entry in enumerate(self.env.worlds):
             entry = dict(entry)
-            preset, n = entry.pop("preset", None), entry.pop("num_worlds", self.num_worlds)
+            preset, n = entry.pop("preset", None), entry.pop("num_worlds", num_worlds)
             check(f"TrainConfig.worlds[{k}]", "num_worlds", n, INT(">= 1", lambda v: v >= 1))
             try:
                 env = make_config(preset, **entry) if preset else self.env_config().replace(**entry)
@@ -376,18 +313,64 @@ class TrainConfig:
         return self.env_config().replace(activation=(0, 0))
 
     def amat_config(self) -> AmatConfig:
-        return AmatConfig.from_dict(self.amat)
+        return AmatConfig.from_dict(self.model.amat)
 
     def replace(self, **changes: Any) -> TrainConfig:
-        names = {f.name for f in dataclasses.fields(self)}
-        unknown = sorted(set(changes) - names)
+        """This config with ``changes``: fields by their flat names (``lr=3e-4``), a section by its name,
+        as a section or as a JSON object of some of its fields (``optim={"lr": 3e-4}``, as the sectioned
+        JSON holds it). A ValueError names an unknown field."""
+        fields = _fields()
+        pairs: list[tuple[str, Any]] = []  # (flat name, value)
+        new: dict[str, Any] = {}  # TrainConfig's own fields, and whole sections
+        for name, value in changes.items():
+            if name in SECTIONS and isinstance(value, dict):
+                pairs += _section_items(name, value).items()
+            elif name in SECTIONS:
+                new[name] = value  # checked as built
+            else:
+                pairs.append((name, value))
+        flat = dict(pairs)
+        unknown = sorted(set(flat) - set(fields))
         if unknown:
-            raise ValueError(f"unknown TrainConfig field(s) {unknown}; valid fields: {sorted(names)}")
-        return dataclasses.replace(self, **changes)
+            raise ValueError(f"unknown TrainConfig field(s) {unknown}; valid fields: {sorted(fields)}")
+        if len(flat) < len(pairs):
+            twice = sorted({k for k, _ in pairs if [n for n, _ in pairs].count(k) > 1})
+            raise ValueError(f"TrainConfig field(s) {twice} given twice (flat and in their section)")
+        grouped: dict[str, dict[str, Any]] = {}
+        for name, value in flat.items():
+            home = fields[name][0]
+            if home:
+                grouped.setdefault(home, {})[name] = value
+            else:
+                new[name] = value
+        for home, group in grouped.items():
+            new[home] = dataclasses.replace(new.get(home, getattr(self, home)), **group)
+        return dataclasses.replace(self, **new)
+
+    def to_dict(self) -> dict[str, Any]:
+        """Every field by its flat name (a copy): the object of config.json."""
+        out = {}
+        for name, value in dataclasses.asdict(self).items():
+            out |= value if name in SECTIONS else {name: value}
+        return out
 
     def to_json(self) -> str:
-        return json.dumps(dataclasses.asdict(self), indent=2, sort_keys=True)
+        """The flat form (see the module's docstring), keys sorted."""
+        return json.dumps(self.to_dict(), indent=2, sort_keys=True)
 
     @classmethod
     def from_json(cls, text: str) -> TrainConfig:
+        """The config of a JSON object: flat (``to_json``'s form, and every config.json written before the
+        sections) or sectioned (``{"optim": {"lr": 0.0001}, "seed": 0}``), each field at most once; the
+        fields it lacks at their defaults."""
         return cls().replace(**json.loads(text))
+
+
+def _section_items(name: str, values: dict[str, Any]) -> dict[str, Any]:
+    """``values``, a JSON object of section ``name``'s fields; a ValueError naming a field it lacks."""
+    own = [f.name for f in dataclasses.fields(SECTIONS[name])]
+    unknown = sorted(set(values) - set(own))
+    if unknown:
+        unknown = [f"{name}.{k}" for k in unknown]
+        raise ValueError(f"unknown TrainConfig field(s) {unknown}; the {name} section's fields: {own}")
+    return values

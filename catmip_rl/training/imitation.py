@@ -2,13 +2,13 @@
 AMAT, the planner itself for the cell-goal model (``amat.pointer``).
 
     model = make_model(cfg.amat_config())
-    collector = Collector(cfg.env_config(), cfg.num_worlds, seed=0, goal_mode=model.config.goals)
+    collector = Collector(cfg.env_config(), cfg.collection.num_worlds, seed=0, goal_mode=model.config.goals)
     episodes, log = dagger(model, collector, "nearest", rounds=6, steps_per_round=300)  # then PPO
 
-Each round rolls out the current policy on ``cfg.num_worlds`` new training episodes while the teacher
-(:class:`~catmip_env.planners.window.WindowPlanner`: the planner's goal, projected into the robot's
-window; or the planner's own cell goal; the rescue rule for a rescuer that knows the target) labels
-every active robot's decision; with
+Each round rolls out the current policy on ``cfg.collection.num_worlds`` new training episodes while the
+teacher (:class:`~catmip_env.planners.window.WindowPlanner`: the planner's goal, projected into the
+robot's window; or the planner's own cell goal; the rescue rule for a rescuer that knows the target)
+labels every active robot's decision; with
 probability ``beta`` (1 in round 0, halving every round) a robot executes the label instead, DAgger's
 mixture. The labelled events are aggregated over the rounds (up to ``buffer_events``, the oldest
 dropped first) and AMAT's decoder is trained by cross-entropy on them, teacher-forced in the decision
@@ -310,12 +310,13 @@ def _relay_batch(
 def warm_start(
     cfg, model, collector, gen, run_dir, progress: bool, evaluate=None, log_scalars=None, value_norm=None
 ) -> float:
-    """The DAgger rounds of a training run (``cfg.warm_start*`` fields) into ``run_dir/warm_start.csv``,
-    with ``evaluate()`` (a dict with success_rate, success_by_100 and their sampled_ forms) after each
-    round if given and ``log_scalars(row, step, skip)`` for TensorBoard; returns the seconds spent
-    (evaluation excluded)."""
+    """The DAgger rounds of a training run (``cfg.imitation``: the ``warm_start*`` fields; the run's seed,
+    ``optim.max_grad_norm`` and ``loss.gamma``) into ``run_dir/warm_start.csv``, with ``evaluate()`` (a
+    dict with success_rate, success_by_100 and their sampled_ forms) after each round if given and
+    ``log_scalars(row, step, skip)`` for TensorBoard; returns the seconds spent (evaluation excluded)."""
+    imitation = cfg.imitation
     teacher = make_teacher(
-        cfg.warm_start, model.config.goals, seed=cfg.seed, follow_heading=cfg.warm_start_heading
+        imitation.warm_start, model.config.goals, seed=cfg.seed, follow_heading=imitation.warm_start_heading
     )
     file, writer = open_csv_log(run_dir / "warm_start.csv", WARM_START_METRICS, None, key="round")
     elapsed = 0.0
@@ -323,7 +324,7 @@ def warm_start(
     if progress:
         from tqdm import tqdm
 
-        bar = tqdm(total=cfg.warm_start_rounds, desc=f"warm start ({teacher.name})", unit="round")
+        bar = tqdm(total=imitation.warm_start_rounds, desc=f"warm start ({teacher.name})", unit="round")
 
     def on_round(row: dict) -> None:
         nonlocal elapsed
@@ -348,18 +349,18 @@ def warm_start(
             model,
             collector,
             teacher,
-            cfg.warm_start_rounds,
-            cfg.warm_start_steps,
-            batch_events=cfg.warm_start_batch,
-            lr=cfg.warm_start_lr,
+            imitation.warm_start_rounds,
+            imitation.warm_start_steps,
+            batch_events=imitation.warm_start_batch,
+            lr=imitation.warm_start_lr,
             generator=gen,
             seed=cfg.seed,
-            max_grad_norm=cfg.max_grad_norm,
+            max_grad_norm=cfg.optim.max_grad_norm,
             on_round=on_round,
-            imitate_stay=cfg.warm_start_stay,
-            value_norm=value_norm if cfg.warm_start_value else None,
-            gamma=cfg.gamma,
-            relay_weight=cfg.warm_start_relay,
+            imitate_stay=imitation.warm_start_stay,
+            value_norm=value_norm if imitation.warm_start_value else None,
+            gamma=cfg.loss.gamma,
+            relay_weight=imitation.warm_start_relay,
         )
     finally:
         file.close()

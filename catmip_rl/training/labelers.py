@@ -12,7 +12,7 @@ from catmip_env.events import EventEngine
 from catmip_env.planners.baselines import make_planner
 from catmip_env.planners.core import Planner
 from catmip_env.planners.window import WindowPlanner, make_window_planner
-from catmip_rl.training.config import TrainConfig
+from catmip_rl.training.sections import LossSection
 
 __all__ = ["RescueLabeler", "PlannerLabeler", "auxiliary_labeler", "make_teacher"]
 
@@ -68,12 +68,13 @@ class PlannerLabeler:
         return out
 
 
-def auxiliary_labeler(cfg: TrainConfig) -> RescueLabeler | PlannerLabeler | None:
-    """The labeler of PPO's auxiliary loss of ``cfg``: the rescue rule as ``window:nearest`` projects it
-    (``rescue_coef`` > 0; ``window-noheading:nearest`` without ``rescue_heading``), or the planner
-    ``anchor`` itself (seeded by the run's seed); None without either."""
-    if cfg.rescue_coef > 0:
-        return RescueLabeler(make_window_planner("nearest", follow_heading=cfg.rescue_heading))
-    if cfg.anchor:
-        return PlannerLabeler(make_planner(cfg.anchor, seed=cfg.seed), relay_only=cfg.anchor_on == "relay")
+def auxiliary_labeler(loss: LossSection, seed: int) -> RescueLabeler | PlannerLabeler | None:
+    """The labeler of the auxiliary loss of a TrainConfig's ``loss`` section: the rescue rule as
+    ``window:nearest`` projects it (``rescue_coef`` > 0; ``window-noheading:nearest`` without
+    ``rescue_heading``), or the planner ``anchor`` itself (seeded by ``seed``, the run's); None without
+    either."""
+    if loss.rescue_coef > 0:
+        return RescueLabeler(make_window_planner("nearest", follow_heading=loss.rescue_heading))
+    if loss.anchor:
+        return PlannerLabeler(make_planner(loss.anchor, seed=seed), relay_only=loss.anchor_on == "relay")
     return None

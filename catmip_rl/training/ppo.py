@@ -7,9 +7,10 @@
 * :func:`ppo_update` — epochs over minibatches of one iteration's batch
   (:class:`~catmip_rl.training.gae.SampleBatch`), one Adam step each (the gradients computed here or by
   ``parallel_update``'s helper processes), the epochs stopped at the first minibatch whose approx-KL
-  exceeds ``cfg.target_kl``;
-* :func:`make_optimizer`, :func:`loss_kwargs`, :func:`lr_factor`, :func:`set_lr` — the optimiser, the
-  loss's settings and the learning-rate schedule from a :class:`~catmip_rl.training.config.TrainConfig`;
+  exceeds ``optim.target_kl``;
+* :func:`make_optimizer`, :func:`lr_factor`, :func:`set_lr` — the optimiser and the learning-rate
+  schedule from a TrainConfig's ``optim`` section, :func:`loss_kwargs` — the loss's settings from its
+  ``loss`` section (:mod:`~catmip_rl.training.sections`);
   :func:`choose_bf16` — the update's precision (below).
 
 Precision on CPU: float32, or bfloat16 autocast where the CPU has it natively. On CPUs with native bf16
@@ -33,8 +34,9 @@ import torch
 import torch.nn.functional as F
 
 from catmip_rl.amat.model import AMAT, INVALID_LOGIT
-from catmip_rl.training.config import PRECISIONS, TrainConfig
+from catmip_rl.training.config import PRECISIONS
 from catmip_rl.training.gae import SampleBatch
+from catmip_rl.training.sections import LossSection, OptimSection
 
 __all__ = [
     "ppo_loss",
@@ -143,37 +145,37 @@ def critic_prefix(model: AMAT) -> str:
     return "state_critic." if model.state_critic is not None else "value_head."
 
 
-def make_optimizer(model: AMAT, cfg: TrainConfig) -> torch.optim.Adam:
-    """Adam with the config's lr and eps, fused (one kernel for all parameters: ~6x faster a step on CPU
-    than the per-parameter loop, the same arithmetic); with ``cfg.critic_lr`` the critic's parameters are
+def make_optimizer(model: AMAT, optim: OptimSection) -> torch.optim.Adam:
+    """Adam with the section's lr and eps, fused (one kernel for all parameters: ~6x faster a step on CPU
+    than the per-parameter loop, the same arithmetic); with ``optim.critic_lr`` the critic's parameters are
     a second group (``"critic": True``) at that rate."""
-    if not cfg.critic_lr:
-        return torch.optim.Adam(model.parameters(), lr=cfg.lr, eps=cfg.adam_eps, fused=True)
+    if not optim.critic_lr:
+        return torch.optim.Adam(model.parameters(), lr=optim.lr, eps=optim.adam_eps, fused=True)
     critic = critic_prefix(model)
-    groups = [{"params": [], "critic": False}, {"params": [], "lr": cfg.critic_lr, "critic": True}]
+    groups = [{"params": [], "critic": False}, {"params": [], "lr": optim.critic_lr, "critic": True}]
     for name, param in model.named_parameters():
         groups[name.startswith(critic)]["params"].append(param)
-    return torch.optim.Adam(groups, lr=cfg.lr, eps=cfg.adam_eps, fused=True)
+    return torch.optim.Adam(groups, lr=optim.lr, eps=optim.adam_eps, fused=True)
 
 
-def set_lr(opt: torch.optim.Optimizer, cfg: TrainConfig, factor: float) -> None:
-    """The learning rates ``factor`` of the config's: ``cfg.critic_lr`` for the critic's group (if any)."""
+def set_lr(opt: torch.optim.Optimizer, optim: OptimSection, factor: float) -> None:
+    """The learning rates ``factor`` of the section's: ``optim.critic_lr`` for the critic's group (if any)."""
     for group in opt.param_groups:
-        base = cfg.critic_lr if group.get("critic") else cfg.lr
+        base = optim.critic_lr if group.get("critic") else optim.lr
         group["lr"] = base * factor
 
 
-def loss_kwargs(cfg: TrainConfig, bf16: bool | None = None) -> dict[str, float | bool]:
-    """The config's ``accumulate_gradients`` arguments: ``ppo_loss`` coefficients and bf16 autocast
-    (``bf16``, or ``cfg.precision`` resolved by the CPU's flags; ``train`` measures "auto")."""
+def loss_kwargs(loss: LossSection, bf16: bool = False) -> dict[str, float | bool]:
+    """The ``accumulate_gradients`` arguments of a ``loss`` section: ``ppo_loss`` coefficients, and bf16
+    autocast or not (the update's precision, resolved: :func:`choose_bf16`, :func:`use_bf16`)."""
     return {
-        "clip": cfg.clip,
-        "value_clip": cfg.value_clip,
-        "huber_delta": cfg.huber_delta,
-        "entropy_coef": cfg.entropy_coef,
-        "value_coef": cfg.value_coef,
-        "label_coef": cfg.rescue_coef or cfg.anchor_coef,  # the auxiliary label loss: rescue or anchor
-        "bf16": use_bf16(cfg.precision, cfg.device) if bf16 is None else bf16,
+        "clip": loss.clip,
+        "value_clip": loss.value_clip,
+        "huber_delta": loss.huber_delta,
+        "entropy_coef": loss.entropy_coef,
+        "value_coef": loss.value_coef,
+        "label_coef": loss.rescue_coef or loss.anchor_coef,  # the auxiliary label loss: rescue or anchor
+        "bf16": bf16,
     }
 
 
@@ -181,26 +183,28 @@ def ppo_update(
     model: AMAT,
     opt: torch.optim.Optimizer,
     batch: SampleBatch,
-    cfg: TrainConfig,
+    optim: OptimSection,
+    loss: LossSection,
     gen: torch.Generator,
     parallel: Any = None,
     epoch_log: list[dict[str, float]] | None = None,
     value_only: bool = False,
-    bf16: bool | None = None,
+    bf16: bool = False,
 ) -> dict[str, float]:
-    """Up to ``cfg.epochs`` passes over ``cfg.minibatches`` minibatches of ``batch``, one Adam step each;
-    each minibatch's gradient is accumulated over micro-batches of ``cfg.micro_batch`` events, by this
-    process or, with ``parallel`` (a ``parallel_update.ParallelGradients``), shared with its helper
-    processes. With ``cfg.target_kl`` the epochs
+    """Up to ``optim.epochs`` passes over ``optim.minibatches`` minibatches of ``batch``, one Adam step
+    each, on ``loss``'s loss (a TrainConfig's two sections), under bf16 autocast with ``bf16``; each
+    minibatch's gradient is accumulated over micro-batches of ``optim.micro_batch`` events, by this process
+    or, with ``parallel`` (a ``parallel_update.ParallelGradients`` of the same loss), shared with its
+    helper processes. With ``optim.target_kl`` the epochs
     stop at the first minibatch whose approx-KL (before its step) exceeds it, without stepping.
 
     Returns the last minibatch's loss parts and gradient norm, ``ppo/epochs`` (epochs run, fractional
     when stopped inside one) and ``ppo/early_stop``; ``epoch_log`` receives one dict per epoch (its
     minibatches' mean loss parts, approx-KL and clip fraction). ``value_only`` steps the critic (the
     value head, or the state critic) alone (the value warm-up after an imitation warm start: the policy
-    is left as it is). ``bf16`` overrides the precision the config resolves to (see :func:`loss_kwargs`)."""
+    is left as it is)."""
     model.train()
-    kwargs = loss_kwargs(cfg, bf16)  # the loss settings, once for the whole update
+    settings = loss_kwargs(loss, bf16)  # the loss's settings, once for the whole update
     params = [p for p in model.parameters() if p.requires_grad]
     critic = critic_prefix(model)
     frozen = [p for n, p in model.named_parameters() if not n.startswith(critic)] if value_only else []
@@ -208,29 +212,30 @@ def ppo_update(
     if parallel is not None:
         parallel.set_batch(batch)
     steps, stopped = 0, False
-    for epoch in range(cfg.epochs):
-        perm = torch.randperm(len(batch), generator=gen) if cfg.minibatches > 1 else torch.arange(len(batch))
+    for epoch in range(optim.epochs):
+        shuffle = optim.minibatches > 1
+        perm = torch.randperm(len(batch), generator=gen) if shuffle else torch.arange(len(batch))
         epoch_sums: dict[str, float] = {}
         seen = 0
-        for idx in perm.chunk(cfg.minibatches):
+        for idx in perm.chunk(optim.minibatches):
             idx = idx.to(batch.action.device)
             count = batch.trainable[idx].sum().clamp_min(1).float()
             opt.zero_grad(set_to_none=True)
-            parts = list(idx.split(cfg.micro_batch)) if cfg.micro_batch else [idx]
+            parts = list(idx.split(optim.micro_batch)) if optim.micro_batch else [idx]
             if parallel is None:
-                sums = accumulate_gradients(model, batch, parts, count, **kwargs)
+                sums = accumulate_gradients(model, batch, parts, count, **settings)
             else:
                 sums = parallel.backward(model, parts, count)
             seen += 1
             for k, v in sums.items():
                 epoch_sums[k] = epoch_sums.get(k, 0.0) + v
-            if cfg.target_kl and sums["ppo/approx_kl"] > cfg.target_kl:
+            if optim.target_kl and sums["ppo/approx_kl"] > optim.target_kl:
                 stopped = True
                 stats = sums | {"ppo/grad_norm": float("nan")}
                 break
             for p in frozen:
                 p.grad = None  # Adam skips parameters without a gradient
-            grad_norm = torch.nn.utils.clip_grad_norm_(params, cfg.max_grad_norm)
+            grad_norm = torch.nn.utils.clip_grad_norm_(params, optim.max_grad_norm)
             opt.step()
             steps += 1
             stats = sums | {"ppo/grad_norm": float(grad_norm)}
@@ -239,15 +244,15 @@ def ppo_update(
         if stopped:
             break
     opt.zero_grad(set_to_none=True)
-    return stats | {"ppo/epochs": steps / cfg.minibatches, "ppo/early_stop": float(stopped)}
+    return stats | {"ppo/epochs": steps / optim.minibatches, "ppo/early_stop": float(stopped)}
 
 
-def lr_factor(iteration: int, cfg: TrainConfig, elapsed_s: float) -> float:
-    """Linear decay to 0 over the run: over ``cfg.iterations``, or over ``cfg.budget_minutes`` of
+def lr_factor(iteration: int, optim: OptimSection, elapsed_s: float) -> float:
+    """Linear decay to 0 over the run: over ``optim.iterations``, or over ``optim.budget_minutes`` of
     training if that runs out first (``iteration`` counts from 1; ``elapsed_s`` before it)."""
-    progress = (iteration - 1) / cfg.iterations
-    if cfg.budget_minutes:
-        progress = max(progress, elapsed_s / (60.0 * cfg.budget_minutes))
+    progress = (iteration - 1) / optim.iterations
+    if optim.budget_minutes:
+        progress = max(progress, elapsed_s / (60.0 * optim.budget_minutes))
     return max(0.0, 1.0 - progress)
 
 

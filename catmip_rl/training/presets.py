@@ -20,6 +20,8 @@ _WARM_START = {
     "value_warmup_iterations": 5,
 }
 _EVAL_64 = {"eval_episodes": 64, "eval_seed": 2025}
+# the paper's recipe: TrainConfig's defaults; every preset is it with some fields changed (flat names)
+_PAPER = TrainConfig()
 _COMMS = [None, 4, 2]  # communication drawn per episode: full, sigma = 4, sigma = 2
 
 # the mixture of worlds the general models train on, taking turns: the paper's, Tasks 1-3's teams and map
@@ -43,7 +45,7 @@ _MIXTURE = [
 ]
 
 # PPO on the mixture, evaluated on Task 3 (64 maps of the evaluation seed)
-_ON_THE_MIXTURE = TrainConfig(
+_ON_THE_MIXTURE = _PAPER.replace(
     env_preset="task3",
     env_overrides={"activation": [2, 5]},
     worlds=_MIXTURE,
@@ -57,7 +59,7 @@ _ON_THE_MIXTURE = TrainConfig(
     **_EVAL_64,
 )
 
-_TASK1 = TrainConfig(
+_TASK1 = _PAPER.replace(
     env_preset="task1",
     env_overrides={"activation": [2, 5]},
     amat={"embed_dim": 64},
@@ -72,12 +74,12 @@ _TASK1 = TrainConfig(
 
 TRAIN_PRESETS: dict[str, TrainConfig] = {
     # the paper's recipe; on CPU the update's gradients come from two single-threaded processes
-    "paper": TrainConfig(update_processes=2),
-    "paper-sync": TrainConfig(env_overrides={"synchronous": True}, update_processes=2),
-    "paper-smallma": TrainConfig(env_overrides={"window": 5}, amat={"window": 5}, update_processes=2),
+    "paper": _PAPER.replace(update_processes=2),
+    "paper-sync": _PAPER.replace(env_overrides={"synchronous": True}, update_processes=2),
+    "paper-smallma": _PAPER.replace(env_overrides={"window": 5}, amat={"window": 5}, update_processes=2),
     # minutes on 2 cores: a 12x12 map, two robots, d = 64, more and larger PPO steps than the paper;
     # the slow learning test trains it and checks it beats the random policy clearly
-    "small": TrainConfig(
+    "small": _PAPER.replace(
         env_overrides={"map_size": 12, "team": ["rescuer", "explorer"], "horizon_ticks": 80},
         amat={"embed_dim": 64},
         num_worlds=64,
@@ -96,7 +98,7 @@ TRAIN_PRESETS: dict[str, TrainConfig] = {
     "task1-warm": _TASK1.replace(iterations=2000, **_WARM_START),
     # the paper's training world and AMAT (Table 2, d = 192) with the Task-1 findings: an imitation
     # warm start, then PPO under step control (docs/training.md); to ship as amat_paper.pt
-    "paper-warm": TrainConfig(
+    "paper-warm": _PAPER.replace(
         precision="auto",  # bf16 where it measures faster: 1.6x for d = 192 on AVX-512-BF16
         num_worlds=64,
         iterations=3000,
@@ -122,7 +124,7 @@ TRAIN_PRESETS: dict[str, TrainConfig] = {
         entropy_coef=0.001,  # a sharp imitated policy over hundreds of cells: a tenth of the paper's bonus
     ),
     # a minute-scale smoke run: a small map, two robots, a small AMAT
-    "tiny": TrainConfig(
+    "tiny": _PAPER.replace(
         env_overrides={"map_size": 12, "team": ["rescuer", "explorer"], "horizon_ticks": 60},
         amat={"embed_dim": 32},
         num_worlds=8,

@@ -26,6 +26,7 @@ from catmip_rl.store.outputs import (
     remove_debris,
 )
 from catmip_rl.training.config import TrainConfig
+from catmip_rl.training.sections import OptimSection
 
 __all__ = [
     "RunDirInUse",
@@ -99,10 +100,10 @@ def check_run(cfg: TrainConfig, run_dir: Path, resume: bool) -> dict | None:
         if saved_cfg.amat_config() != cfg.amat_config() or saved_cfg.env_config() != cfg.env_config():
             raise ValueError(
                 f"--resume: the checkpoint in {run_dir} was trained with another model or task "
-                f"({saved_cfg.amat_config()} on {saved_cfg.env_preset}); start a new run dir instead"
+                f"({saved_cfg.amat_config()} on {saved_cfg.env.env_preset}); start a new run dir instead"
             )
         _check_own_checkpoint(run_dir, saved_cfg)
-        _check_restorable(saved, run_dir / "checkpoints" / "latest.pt", cfg)
+        _check_restorable(saved, run_dir / "checkpoints" / "latest.pt", cfg.optim)
     elif (run_dir / "checkpoints" / "latest.pt").exists():
         raise FileExistsError(
             f"{run_dir} already holds a run; pass --resume to continue it or pick a new dir"
@@ -111,15 +112,15 @@ def check_run(cfg: TrainConfig, run_dir: Path, resume: bool) -> dict | None:
         check_new_dir(
             run_dir, "run dir", advice="pick a new run dir (or empty this one)", ignore=(LOCK_NAME,)
         )
-        if cfg.init_from:
-            initial_weights(cfg.init_from, cfg.amat_config())  # readable, and the same model
+        if cfg.model.init_from:
+            initial_weights(cfg.model.init_from, cfg.amat_config())  # readable, and the same model
     try:
         cuda = torch.device(cfg.device).type == "cuda"
     except RuntimeError:
         raise ValueError(f"device must be cpu, cuda or cuda:N, got {cfg.device!r}") from None
     if cuda and not torch.cuda.is_available():
         raise ValueError(f"device {cfg.device!r} requested but torch sees no CUDA device")
-    if cfg.collector == "ray":
+    if cfg.collection.collector == "ray":
         from catmip_rl.adapters.ray_tasks import import_ray
 
         import_ray(
@@ -137,15 +138,15 @@ def tensorboard_writer(run_dir: Path):
     return SummaryWriter(str(run_dir / "tensorboard"))
 
 
-def _check_restorable(saved: dict, path: Path, cfg: TrainConfig) -> None:
-    """The checkpoint's model, optimiser and value normaliser load into fresh ones of ``cfg`` (as
-    ``--resume`` will load them), or a CheckpointError naming ``path``."""
+def _check_restorable(saved: dict, path: Path, optim: OptimSection) -> None:
+    """The checkpoint's model, optimiser and value normaliser load into fresh ones (the optimiser of the
+    run's ``optim`` section, as ``--resume`` will load them), or a CheckpointError naming ``path``."""
     from catmip_rl.training.gae import ValueNorm
     from catmip_rl.training.ppo import make_optimizer
 
     model = model_from(saved, path)  # its own error names the file
     try:
-        make_optimizer(model, cfg).load_state_dict(saved["optimizer"])
+        make_optimizer(model, optim).load_state_dict(saved["optimizer"])
         ValueNorm().load_state_dict(saved["value_norm"])
         torch.Generator().set_state(saved["generator"])
     except (RuntimeError, KeyError, ValueError, TypeError, IndexError) as err:

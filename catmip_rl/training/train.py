@@ -104,8 +104,8 @@ class Run:
         return self.collectors[(iteration - 1) % len(self.collectors)]
 
     def evaluate(self) -> dict[str, float]:
-        """The evaluator's episodes (:func:`evaluate_policy`, sampled actions seeded by ``cfg.eval_seed``)."""
-        return evaluate_policy(self.model, self.evaluator, self.cfg.eval_seed)
+        """The evaluator's episodes (:func:`evaluate_policy`, sampled actions seeded by ``eval_seed``)."""
+        return evaluate_policy(self.model, self.evaluator, self.cfg.eval.eval_seed)
 
     def checkpoint(self, ckpt_dir: Path) -> None:
         """Save the run as ``ckpt_dir/latest.pt``, then as ``ckpt_dir/iter_NNNNNN.pt`` (its iteration):
@@ -141,11 +141,12 @@ class Run:
         )
 
     def out_of_time(self) -> bool:
-        """Whether the time budget (``cfg.budget_minutes`` of training, evaluation excluded) is spent."""
-        return bool(self.cfg.budget_minutes) and self.elapsed >= 60.0 * self.cfg.budget_minutes
+        """Whether the time budget (``budget_minutes`` of training, evaluation excluded) is spent."""
+        budget = self.cfg.optim.budget_minutes
+        return bool(budget) and self.elapsed >= 60.0 * budget
 
     def close(self) -> None:
-        if self.cfg.collector == "ray":
+        if self.cfg.collection.collector == "ray":
             self.collectors[0].close()  # stops the workers, and Ray if this run started it
         if self.parallel is not None:
             self.parallel.close()
@@ -153,7 +154,7 @@ class Run:
 
 def build_run(cfg: TrainConfig, saved: dict | None = None) -> Run:
     """Build a run's parts from ``cfg`` (seeded by ``cfg.seed``), continuing from the training
-    checkpoint ``saved`` if given, else starting from ``cfg.init_from``'s weights if set."""
+    checkpoint ``saved`` if given, else starting from ``init_from``'s weights if set."""
     torch.set_num_threads(cfg.threads)
     keep_freed_memory()  # reuse the step's large activations' pages (training.allocator)
     device = torch.device(cfg.device)
@@ -162,42 +163,46 @@ def build_run(cfg: TrainConfig, saved: dict | None = None) -> Run:
     amat_config = cfg.amat_config()
     model = make_model(amat_config).to(device)
     # the value normaliser stays on the CPU, where the batch is built (gae.build_batch), then moved to device
-    run = Run(cfg, device, model, make_optimizer(model, cfg), ValueNorm(), gen)
+    run = Run(cfg, device, model, make_optimizer(model, cfg.optim), ValueNorm(), gen)
     if saved is not None:
         run.iteration, run.episodes, run.elapsed, run.bf16 = restore_training(
-            saved, model, run.opt, run.value_norm, gen, cfg.precision, precision_machine(cfg.device)
+            saved, model, run.opt, run.value_norm, gen, cfg.optim.precision, precision_machine(cfg.device)
         )
-    elif cfg.init_from:
-        run.init_source = load_initial_weights(cfg.init_from, model, run.value_norm)
+    elif cfg.model.init_from:
+        run.init_source = load_initial_weights(cfg.model.init_from, model, run.value_norm)
     run.collectors, run.dagger, run.evaluator = make_collectors(cfg, model, resume=saved is not None)
-    run.labeler = auxiliary_labeler(cfg)
+    run.labeler = auxiliary_labeler(cfg.loss, cfg.seed)
     return run
 
 
 def make_collectors(
     cfg: TrainConfig, model: AMAT, resume: bool = False
 ) -> tuple[list[Any], list[Collector], Collector | None]:
-    """A run's collectors: (the training worlds, which take turns: one, or the mixture's ``cfg.worlds``;
+    """A run's collectors: (the training worlds, which take turns: one, or the mixture's ``worlds``;
     the warm start's, with ``warm_start_worlds`` episodes a round where that is set, else the training
-    worlds themselves (none on ``resume``); the evaluator, ``cfg.eval_episodes`` of the training task
+    worlds themselves (none on ``resume``); the evaluator, ``eval_episodes`` of the training task
     with evaluation activation, or None). They play on the CPU wherever ``model`` trains."""
+    gamma, evaluation = cfg.loss.gamma, cfg.eval
 
     def new(env: EnvConfig, n: int, seed: int = cfg.seed) -> Collector:
-        return Collector(env, n, seed, cfg.gamma, goal_mode=model.config.goals)
+        return Collector(env, n, seed, gamma, goal_mode=model.config.goals)
 
     specs = cfg.world_configs()
-    if cfg.collector == "ray":  # the same episodes, collected by Ray workers (adapters/ray_collect.py)
+    if cfg.collection.collector == "ray":  # the same episodes, by Ray workers (adapters/ray_collect.py)
         from catmip_rl.adapters.ray_collect import RayRolloutCollector
 
-        train_worlds = [RayRolloutCollector(cfg, model)]
+        env, _ = specs[0]  # the one world: TrainConfig refuses a mixture with Ray
+        train_worlds = [RayRolloutCollector(env, cfg.collection, cfg.seed, gamma, model)]
     else:
         train_worlds = [new(env, n) for env, n in specs]
     dagger = []
-    if cfg.warm_start and not resume:
-        n = cfg.warm_start_worlds
+    if cfg.imitation.warm_start and not resume:
+        n = cfg.imitation.warm_start_worlds
         own = zip(train_worlds, specs)
         dagger = train_worlds if not n else [c if c.num_worlds == n else new(env, n) for c, (env, _) in own]
-    evaluator = new(cfg.eval_env_config(), cfg.eval_episodes, cfg.eval_seed) if cfg.eval_every else None
+    evaluator = None
+    if evaluation.eval_every:
+        evaluator = new(cfg.eval_env_config(), evaluation.eval_episodes, evaluation.eval_seed)
     return train_worlds, dagger, evaluator
 
 
@@ -206,30 +211,32 @@ def ppo_iteration(run: Run, run_dir: Path) -> tuple[dict[str, float], list[dict[
     update. Returns its metrics row (without evaluation), the per-epoch PPO statistics and the
     rollout it trained on."""
     cfg, it = run.cfg, run.iteration + 1
+    optim = cfg.optim
     t0 = time.perf_counter()
     collector = run.collector_for(it)
     rollout = collector.collect(run.model, first_episode=run.episodes, generator=run.gen, labeler=run.labeler)
     run.episodes += collector.num_worlds
     t1 = time.perf_counter()
     n_classes = run.model.config.n_classes
-    batch, info = build_batch(rollout, run.value_norm, cfg.gamma, cfg.lam, n_classes, run.device)
+    batch, info = build_batch(rollout, run.value_norm, cfg.loss.gamma, cfg.loss.lam, n_classes, run.device)
     t2 = time.perf_counter()
     if run.bf16 is None:
-        fp32_kwargs = loss_kwargs(cfg, False)  # the loss that "auto" times in both precisions
+        fp32 = loss_kwargs(cfg.loss, False)  # the loss that "auto" times in both precisions
         run.bf16, decision = choose_bf16(
-            cfg.precision, cfg.device, run.model, batch, fp32_kwargs, cfg.micro_batch or 512
+            optim.precision, cfg.device, run.model, batch, fp32, optim.micro_batch or 512
         )
         atomic_write_text(run_dir / "precision.json", json.dumps(decision, indent=2))
-    if run.parallel is None and cfg.update_processes > 1:  # data-parallel gradients (parallel_update.py)
-        run.parallel = ParallelGradients(run.model, cfg.update_processes, **loss_kwargs(cfg, run.bf16))
-    set_lr(run.opt, cfg, lr_factor(it, cfg, run.elapsed))
+    if run.parallel is None and optim.update_processes > 1:  # data-parallel gradients (parallel_update.py)
+        run.parallel = ParallelGradients(run.model, optim.update_processes, **loss_kwargs(cfg.loss, run.bf16))
+    set_lr(run.opt, optim, lr_factor(it, optim, run.elapsed))
     epochs: list[dict[str, float]] = []
-    value_only = it <= cfg.value_warmup_iterations
+    value_only = it <= optim.value_warmup_iterations
     stats = ppo_update(
         run.model,
         run.opt,
         batch,
-        cfg,
+        optim,
+        cfg.loss,
         run.gen,
         parallel=run.parallel,
         epoch_log=epochs,
@@ -243,7 +250,7 @@ def ppo_iteration(run: Run, run_dir: Path) -> tuple[dict[str, float], list[dict[
     run.iteration = it
     row = {"iteration": it, "episodes": run.episodes, **info, **stats}
     row |= {f"rollout/{k}": v for k, v in rollout.stats.items() if f"rollout/{k}" in METRICS}
-    if cfg.worlds:
+    if cfg.env.worlds:
         row["rollout/world"] = (it - 1) % len(run.collectors)
     row |= {"time/collect_s": t1 - t0, "time/advantage_s": t2 - t1, "time/update_s": t3 - t2}
     row["time/elapsed_min"] = run.elapsed / 60.0
@@ -267,7 +274,7 @@ def _warm_start(run: Run, run_dir: Path, progress: bool, log_scalars) -> None:
         cfg, run.model, run.dagger, run.gen, run_dir, progress, evaluate_now, log_scalars, run.value_norm
     )
     per_round = sum(c.num_worlds for c in run.dagger)
-    run.episodes = cfg.warm_start_rounds * per_round  # PPO's episodes follow the warm start's maps
+    run.episodes = cfg.imitation.warm_start_rounds * per_round  # PPO's episodes follow the warm start's maps
 
 
 def train(cfg: TrainConfig, run_dir: str | Path, resume: bool = False, progress: bool = True) -> AMAT:
@@ -295,20 +302,21 @@ def train(cfg: TrainConfig, run_dir: str | Path, resume: bool = False, progress:
 
         # -- imitation warm start (DAgger against a window-projected planner), once, before PPO -------
         # (every checkpoint, iter_000000.pt included, is written after it: a resumed run never repeats it)
-        if cfg.warm_start and not resume:
+        if cfg.imitation.warm_start and not resume:
             _warm_start(run, run_dir, progress, logs.scalars)
             run.checkpoint(ckpt_dir)
-        bar = progress_bar(cfg.iterations, run.iteration, progress)
+        iterations, evaluation = cfg.optim.iterations, cfg.eval
+        bar = progress_bar(iterations, run.iteration, progress)
 
         # -- the loop ------------------------------------------------------------------------------------
-        while run.iteration < cfg.iterations:
+        while run.iteration < iterations:
             if run.out_of_time():
                 break
             t0 = time.perf_counter()
             row, epochs, _ = ppo_iteration(run, run_dir)
             it = run.iteration
-            last = it == cfg.iterations or run.out_of_time()
-            if cfg.eval_every and (it % cfg.eval_every == 0 or last):
+            last = it == iterations or run.out_of_time()
+            if evaluation.eval_every and (it % evaluation.eval_every == 0 or last):
                 row |= {f"eval/{k}": v for k, v in run.evaluate().items() if f"eval/{k}" in METRICS}
             row["time/iteration_s"] = time.perf_counter() - t0
             if bar is not None:

@@ -39,7 +39,7 @@ PLANNER_LINES = ("nearest", "rrt", "random-rescue", "random-uniform")
 def planner_success(cfg: TrainConfig, name: str) -> tuple[float, float]:
     """(rescued by the horizon, by tick 100) of a planner on the run's evaluation maps."""
     env_cfg = cfg.eval_env_config()
-    eng = EventEngine(env_cfg, cfg.eval_episodes, cfg.eval_seed, goal_mode="cell")
+    eng = EventEngine(env_cfg, cfg.eval.eval_episodes, cfg.eval.eval_seed, goal_mode="cell")
     eng.reset()
     metrics = episode_metrics(play(eng, make_planner(name, seed=0)), env_cfg.horizon_ticks)
     return metrics["success_rate"], metrics["success_by_100"]
@@ -82,7 +82,9 @@ def _point(r: dict, start: float = 0.0) -> dict:
 
 def _eval_maps(cfg: TrainConfig) -> str:
     """What a run's evaluation plays: its world (communication choices included), maps and count."""
-    return json.dumps([cfg.eval_env_config().to_dict(), cfg.eval_episodes, cfg.eval_seed], sort_keys=True)
+    return json.dumps(
+        [cfg.eval_env_config().to_dict(), cfg.eval.eval_episodes, cfg.eval.eval_seed], sort_keys=True
+    )
 
 
 def plot(runs: list[Path], out: Path) -> None:
@@ -101,7 +103,8 @@ def plot(runs: list[Path], out: Path) -> None:
     planners = [{k: {"success_rate": v[0], "success_by_100": v[1]} for k, v in lines[key].items()}
                 for key in groups]  # fmt: skip
     meta = {"cpu_capability": torch.backends.cpu.get_cpu_capability(), "native_bf16": native_bf16(),
-            "eval_episodes": first.eval_episodes, "eval_seed": first.eval_seed, "planners": planners[0],
+            "eval_episodes": first.eval.eval_episodes, "eval_seed": first.eval.eval_seed,
+            "planners": planners[0],
             "runs": {run.name: json.loads((run / "config.json").read_text()) for run in runs}}  # fmt: skip
     if len(groups) > 1:  # the planners on each run's own evaluation maps
         meta["planners_by_run"] = {
@@ -140,7 +143,9 @@ def _draw(runs, cfgs, groups, lines, rows, out: Path, capability: str) -> None:
                 ax.axhline(vals[0 if key_ == "success_rate" else 1], color="grey", ls=style, lw=1, label=name)
             ax.set_xlabel(f"training minutes ({cfg.threads} CPU thread(s), {capability})")
             ax.set_ylabel("success rate")
-            ax.set_title(f"{cfg.env_preset}, {comm}, {cfg.eval_episodes} fixed maps: {title}", fontsize=9)
+            ax.set_title(
+                f"{cfg.env.env_preset}, {comm}, {cfg.eval.eval_episodes} fixed maps: {title}", fontsize=9
+            )
             ax.set_ylim(0, 1.02)
             ax.grid(alpha=0.3)
         axes[g, 0].legend(fontsize=7, loc="lower right")

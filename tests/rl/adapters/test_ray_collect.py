@@ -40,9 +40,9 @@ def test_ray_rollout_equals_local_rollout(ray_cluster):
     torch.manual_seed(1)
     model = AMAT(cfg.amat_config())
     gen = torch.Generator().manual_seed(2)
-    remote = RayRolloutCollector(cfg, model)
+    remote = RayRolloutCollector(cfg.env_config(), cfg.collection, cfg.seed, cfg.loss.gamma, model)
     try:
-        local = Collector(cfg.env_config(), cfg.num_worlds, cfg.seed, cfg.gamma)
+        local = Collector(cfg.env_config(), cfg.collection.num_worlds, cfg.seed, cfg.loss.gamma)
         for first in (8, 16):  # the second iteration runs on weights pushed after a change
             a = remote.collect(model, first_episode=first, deterministic=True)
             b = local.collect(model, first_episode=first, deterministic=True)
@@ -83,12 +83,12 @@ def test_a_model_reading_a_planners_proposals_collects_and_trains_on_ray(ray_clu
     cfg = make_train_config("tiny", collector="ray", ray_workers=2, amat=amat, iterations=2, eval_every=0)
     torch.manual_seed(1)
     model = make_model(cfg.amat_config())
-    remote = RayRolloutCollector(cfg, model)
+    remote = RayRolloutCollector(cfg.env_config(), cfg.collection, cfg.seed, cfg.loss.gamma, model)
     try:
         a = remote.collect(model, first_episode=8, deterministic=True)
     finally:
         remote.close()
-    local = Collector(cfg.env_config(), cfg.num_worlds, cfg.seed, cfg.gamma, goal_mode="cell")
+    local = Collector(cfg.env_config(), cfg.collection.num_worlds, cfg.seed, cfg.loss.gamma, goal_mode="cell")
     b = local.collect(model, first_episode=8, deterministic=True)
     v = b.valid
     assert np.array_equal(a.valid, v) and np.array_equal(a.hint[v], b.hint[v])

@@ -209,4 +209,4 @@ def test_the_torchrl_actor_plays_the_shipped_amat_general():
 
 def test_a_model_with_a_hint_trains_with_the_ray_collector_config():
     cfg = make_train_config("tiny", amat={"goals": "cell", "hint": "nearest"}, collector="ray")
-    assert cfg.amat["hint"] == "nearest"
+    assert cfg.model.amat["hint"] == "nearest"

@@ -186,10 +186,9 @@ def test_micro_batches_give_the_minibatch_gradient():
     params = []
     for micro in (0, 5):
         model = shaken_model(cfg.amat_config()).train()
-        opt = make_optimizer(model, cfg)
-        stats = ppo_update(
-            model, opt, batch, cfg.replace(micro_batch=micro), torch.Generator().manual_seed(0)
-        )
+        opt = make_optimizer(model, cfg.optim)
+        optim = cfg.replace(micro_batch=micro).optim
+        stats = ppo_update(model, opt, batch, optim, cfg.loss, torch.Generator().manual_seed(0))
         params.append((stats, torch.cat([p.detach().flatten() for p in model.parameters()])))
     (stats, p), (stats_micro, p_micro) = params
     assert torch.allclose(p, p_micro, atol=1e-6)

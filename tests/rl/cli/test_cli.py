@@ -140,9 +140,9 @@ def test_resuming_a_complete_run_says_so_and_trains_nothing(tmp_path, monkeypatc
     assert main(["train", "--run-dir", str(tmp_path / "run"), "--resume"]) == 0
     out = capsys.readouterr().out
     assert "is complete (iteration 7 of 7): nothing trained" in out and "--iterations" in out
-    assert "run written" not in out and seen["cfg"].iterations == 7  # train checked the run, as ever
+    assert "run written" not in out and seen["cfg"].optim.iterations == 7  # train checked the run, as ever
     assert main(["train", "--run-dir", str(tmp_path / "run"), "--resume", "--iterations", "9"]) == 0
-    assert seen["cfg"].iterations == 9 and "run written" in capsys.readouterr().out
+    assert seen["cfg"].optim.iterations == 9 and "run written" in capsys.readouterr().out
 
 
 # -- flags, outputs, refusals (table) ---------------------------------------------------------------------
@@ -470,9 +470,10 @@ def test_every_flag_has_help_and_train_defaults_to_a_short_preset(capsys):
     text = " ".join(capsys.readouterr().out.split())
     assert f"default {DEFAULT_PRESET}" in text and "62,500 iterations" in text
     preset = TRAIN_PRESETS[DEFAULT_PRESET]  # each override flag shows the default preset's value
-    for flag, value in (("--iterations", preset.iterations), ("--epochs", preset.epochs),
-                        ("--lr", preset.lr), ("--warm-start", preset.warm_start),
-                        ("--minutes", preset.budget_minutes)):  # fmt: skip
+    optim = preset.optim
+    for flag, value in (("--iterations", optim.iterations), ("--epochs", optim.epochs),
+                        ("--lr", optim.lr), ("--warm-start", preset.imitation.warm_start),
+                        ("--minutes", optim.budget_minutes)):  # fmt: skip
         shown = text[text.index(f"{flag} ", text.index("overrides of the preset")) :]
         assert f"({DEFAULT_PRESET}: {value})" in shown[: shown.index(" --", 3)], flag
     assert main(["eval", "--help"]) == 0

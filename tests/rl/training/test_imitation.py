@@ -141,7 +141,7 @@ def test_train_warm_starts_once_then_runs_ppo(tmp_path):
     assert [int(r["round"]) for r in rounds] == [1, 2] and rounds[-1]["eval/success_rate"] != ""
     assert (tmp_path / "run" / "checkpoints" / "iter_000000.pt").exists()
     saved = torch.load(tmp_path / "run" / "checkpoints" / "latest.pt", weights_only=False)
-    assert saved["iteration"] == 2 and saved["episodes"] == 4 * cfg.num_worlds
+    assert saved["iteration"] == 2 and saved["episodes"] == 4 * cfg.collection.num_worlds
     rows = list(csv.DictReader((tmp_path / "run" / "metrics.csv").open()))
     assert float(rows[0]["time/elapsed_min"]) > float(rounds[-1]["time/elapsed_min"])
     # resuming does not imitate again, not even from the checkpoint written right after the warm start
@@ -173,7 +173,7 @@ def test_a_warm_start_can_collect_more_episodes_a_round_than_ppo(tmp_path, monke
     rounds = list(csv.DictReader((tmp_path / "run" / "warm_start.csv").open()))
     assert seen == [[12]] and [int(r["episodes"]) for r in rounds] == [12, 24]
     saved = torch.load(tmp_path / "run" / "checkpoints" / "latest.pt", weights_only=False)
-    assert saved["episodes"] == 24 + cfg.num_worlds  # PPO's maps follow the warm start's
+    assert saved["episodes"] == 24 + cfg.collection.num_worlds  # PPO's maps follow the warm start's
     with pytest.raises(ValueError, match="warm_start_worlds must be an int >= 0"):
         make_train_config("tiny", warm_start_worlds=-1)
 
@@ -364,6 +364,6 @@ def test_the_relay_weight_needs_a_relay_teacher_and_cell_goals():
     base = make_train_config("general-rrt")
     with pytest.raises(ValueError, match="warm_start_relay > 0 weighs a relay teacher"):
         base.replace(warm_start_relay=1.0)  # warm_start "rrt": no relay rule
-    assert base.replace(warm_start="rrt-relay", warm_start_relay=1.0).warm_start_relay == 1.0
+    assert base.replace(warm_start="rrt-relay", warm_start_relay=1.0).imitation.warm_start_relay == 1.0
     with pytest.raises(ValueError, match="warm_start_relay"):
         base.replace(warm_start="rrt-relay", warm_start_relay=-1.0)

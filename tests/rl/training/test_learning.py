@@ -13,7 +13,7 @@ from catmip_rl.training.train import evaluate_policy, train
 
 def _random_window_success(cfg) -> float:
     """Uniformly random valid window goals for every robot, on the fixed evaluation maps."""
-    eng = EventEngine(cfg.eval_env_config(), cfg.eval_episodes, cfg.eval_seed)
+    eng = EventEngine(cfg.eval_env_config(), cfg.eval.eval_episodes, cfg.eval.eval_seed)
     rng = np.random.default_rng(0)
     eng.reset()
     while not eng.state.done.all():
@@ -25,12 +25,12 @@ def _random_window_success(cfg) -> float:
 def test_small_preset_learns_to_rescue(tmp_path):
     cfg = make_train_config("small", eval_every=0, checkpoint_every=0)
     floor = _random_window_success(cfg)
-    evaluator = Collector(cfg.eval_env_config(), cfg.eval_episodes, cfg.eval_seed)
+    evaluator = Collector(cfg.eval_env_config(), cfg.eval.eval_episodes, cfg.eval.eval_seed)
     torch.manual_seed(cfg.seed)
-    untrained = evaluate_policy(AMAT(cfg.amat_config()), evaluator, cfg.eval_seed)["success_rate"]
+    untrained = evaluate_policy(AMAT(cfg.amat_config()), evaluator, cfg.eval.eval_seed)["success_rate"]
     model = train(cfg, tmp_path / "run", progress=False)
-    trained = evaluate_policy(model, evaluator, cfg.eval_seed)["success_rate"]
-    print(f"success on {cfg.eval_episodes} fixed maps: random {floor:.2f}, untrained {untrained:.2f}, "
+    trained = evaluate_policy(model, evaluator, cfg.eval.eval_seed)["success_rate"]
+    print(f"success on {cfg.eval.eval_episodes} fixed maps: random {floor:.2f}, untrained {untrained:.2f}, "
           f"trained {trained:.2f}")  # fmt: skip
     # measured on this machine: random 0.06, untrained 0.22, trained 0.66 (0.53 after 60 iterations)
     assert trained >= 0.5

@@ -16,13 +16,13 @@ from tests.rl.helpers import shaken_model
 def _updated(cfg, batch, processes):
     """Parameters and stats after ``ppo_update`` with ``processes`` gradient processes."""
     model = shaken_model(cfg.amat_config()).train()
-    opt = make_optimizer(model, cfg)
+    opt = make_optimizer(model, cfg.optim)
     gen = torch.Generator().manual_seed(0)
     if processes == 1:
-        stats = ppo_update(model, opt, batch, cfg, gen)
+        stats = ppo_update(model, opt, batch, cfg.optim, cfg.loss, gen)
     else:
-        with ParallelGradients(model, processes, **loss_kwargs(cfg)) as parallel:
-            stats = ppo_update(model, opt, batch, cfg, gen, parallel)
+        with ParallelGradients(model, processes, **loss_kwargs(cfg.loss)) as parallel:
+            stats = ppo_update(model, opt, batch, cfg.optim, cfg.loss, gen, parallel)
     return stats, torch.cat([p.detach().flatten() for p in model.parameters()])
 
 
@@ -51,7 +51,7 @@ def test_errors_are_reported():
     with pytest.raises(ValueError, match="update_processes must be an int >= 1"):
         make_train_config("tiny", update_processes=0)
     batch = _batch(worlds=2)
-    with ParallelGradients(model, 2, **loss_kwargs(cfg)) as parallel:
+    with ParallelGradients(model, 2, **loss_kwargs(cfg.loss)) as parallel:
         with pytest.raises(RuntimeError, match="before set_batch"):
             parallel.backward(model, [torch.arange(2)], 1.0)
         parallel.set_batch(batch)
@@ -67,7 +67,7 @@ def test_errors_are_reported():
         parallel.backward(model, parts, 2.0)
         got = [p.grad.clone() for p in model.parameters()]
     model.zero_grad(set_to_none=True)
-    accumulate_gradients(model, batch, parts, 2.0, **loss_kwargs(cfg))
+    accumulate_gradients(model, batch, parts, 2.0, **loss_kwargs(cfg.loss))
     for g, p in zip(got, model.parameters()):
         assert torch.allclose(g, p.grad, atol=1e-6)
 

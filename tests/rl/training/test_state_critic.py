@@ -143,7 +143,8 @@ def test_the_critic_learns_at_its_own_rate_and_the_schedule_keeps_the_ratio(tmp_
     assert policy["lr"] == pytest.approx(0.75e-4) and critic["lr"] == pytest.approx(0.75e-3)
     plain = make_model(AmatConfig(embed_dim=32))
     assert critic_prefix(plain) == "value_head."
-    assert len(make_optimizer(plain, cfg.replace(amat={"embed_dim": 32}, critic_lr=0.0)).param_groups) == 1
+    one_rate = cfg.replace(amat={"embed_dim": 32}, critic_lr=0.0).optim
+    assert len(make_optimizer(plain, one_rate).param_groups) == 1
     with pytest.raises(ValueError, match="critic_lr"):
         make_train_config("tiny", critic_lr=-1.0)
 
@@ -158,4 +159,5 @@ def test_the_sigma2_arm_trains_the_state_critic_model_on_the_sigma2_worlds_only(
     ]  # fmt: skip
     assert all(env.comm_ranges == (2.0,) and env.teammate_memory for env, _ in worlds)
     assert cfg.eval_env_config().comm_sigma == 2.0 and cfg.eval_env_config().map_size == 32
-    assert cfg.amat_config().critic == "state" and cfg.anchor == "rrt-relay" and not cfg.warm_start
+    assert cfg.amat_config().critic == "state" and cfg.loss.anchor == "rrt-relay"
+    assert not cfg.imitation.warm_start

@@ -32,10 +32,11 @@ def _on_policy(batch, model):
 def _update(cfg, **kwargs):
     model = shaken_model(cfg.amat_config()).train()
     batch = _on_policy(_batch(worlds=3), model)
-    opt = make_optimizer(model, cfg)
+    opt = make_optimizer(model, cfg.optim)
     before = (_params(model, False), _params(model, True))
     log: list[dict] = []
-    stats = ppo_update(model, opt, batch, cfg, torch.Generator().manual_seed(0), epoch_log=log, **kwargs)
+    gen = torch.Generator().manual_seed(0)
+    stats = ppo_update(model, opt, batch, cfg.optim, cfg.loss, gen, epoch_log=log, **kwargs)
     return stats, log, before, (_params(model, False), _params(model, True))
 
 
@@ -72,9 +73,10 @@ def test_value_only_updates_leave_the_policy_as_it_is():
 
 def test_lr_decays_over_the_iterations_or_the_time_budget_whichever_ends_first():
     cfg = make_train_config("tiny", iterations=100)
-    assert lr_factor(1, cfg, 1e6) == 1.0 and lr_factor(51, cfg, 0.0) == pytest.approx(0.5)
-    assert lr_factor(101, cfg, 0.0) == 0.0
-    timed = cfg.replace(budget_minutes=10.0)
+    optim = cfg.optim
+    assert lr_factor(1, optim, 1e6) == 1.0 and lr_factor(51, optim, 0.0) == pytest.approx(0.5)
+    assert lr_factor(101, optim, 0.0) == 0.0
+    timed = cfg.replace(budget_minutes=10.0).optim
     assert lr_factor(1, timed, 150.0) == pytest.approx(0.75)  # 2.5 of 10 minutes
     assert lr_factor(91, timed, 60.0) == pytest.approx(0.1)  # the iterations run out first
     assert lr_factor(2, timed, 900.0) == 0.0
@@ -105,7 +107,7 @@ def test_precision_auto_follows_the_cpu_and_bf16_reaches_every_gradient(monkeypa
         make_train_config("tiny", precision="fp16")
     cfg = make_train_config("paper", amat={"embed_dim": 32}, epochs=1, minibatches=1, lr=1e-3)
     fp32, _, before, after32 = _update(cfg)
-    bf16, _, _, after16 = _update(cfg.replace(precision="bf16"))
+    bf16, _, _, after16 = _update(cfg, bf16=True)  # the update of precision "bf16"
     # bf16 autocast moves the same parameters by about the same amount (not bitwise: bf16 rounding)
     step32, step16 = after32[0] - before[0], after16[0] - before[0]
     assert torch.isfinite(step16).all() and step16.abs().sum() > 0
@@ -121,7 +123,7 @@ def test_auto_precision_measures_and_takes_bf16_only_when_clearly_faster(monkeyp
 
     model = shaken_model(AmatConfig(embed_dim=32)).train()
     batch = _batch(worlds=2)
-    kw = ppo.loss_kwargs(make_train_config("tiny"), False)
+    kw = ppo.loss_kwargs(make_train_config("tiny").loss, False)
     timing = ppo.measure_bf16(model, batch, kw, events=8, repeats=1)
     assert timing["fp32_s"] > 0 and timing["bf16_s"] > 0
     assert all(p.grad is None for p in model.parameters())

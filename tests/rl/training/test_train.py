@@ -110,7 +110,7 @@ def test_a_time_budget_stops_the_run_and_checkpoints_its_last_iteration(tmp_path
     train(cfg, tmp_path / "run", progress=False)
     rows = list(csv.DictReader((tmp_path / "run" / "metrics.csv").open()))
     assert len(rows) == 1  # 6 ms of budget: spent by the first iteration
-    assert float(rows[0]["time/elapsed_min"]) >= 1e-4 and float(rows[0]["ppo/lr"]) == cfg.lr
+    assert float(rows[0]["time/elapsed_min"]) >= 1e-4 and float(rows[0]["ppo/lr"]) == cfg.optim.lr
     saved = torch.load(tmp_path / "run" / "checkpoints" / "latest.pt", weights_only=False)
     assert saved["iteration"] == 1 and saved["elapsed_s"] >= 6e-3
     epochs = list(csv.DictReader((tmp_path / "run" / "ppo_epochs.csv").open()))
@@ -124,7 +124,7 @@ def test_cli_step_control_warm_start_and_precision_flags(tmp_path, capsys):
             "--set", "warm_start_steps=1"]  # fmt: skip
     assert cli(args) == 0
     cfg = TrainConfig.from_json((run / "config.json").read_text())
-    assert (cfg.warm_start, cfg.target_kl, cfg.budget_minutes, cfg.precision) == (
+    assert (cfg.imitation.warm_start, cfg.optim.target_kl, cfg.optim.budget_minutes, cfg.optim.precision) == (
         "nearest",
         0.02,
         5.0,
@@ -164,7 +164,8 @@ def test_a_new_run_can_start_from_another_runs_weights(tmp_path):
     # a fine-tuning run trains from there; resuming it continues its own weights, not init_from's
     ft = cfg.replace(init_from=str(tmp_path / "m.pt"), iterations=1)
     b = train(ft, tmp_path / "b", progress=False)
-    assert TrainConfig.from_json((tmp_path / "b" / "config.json").read_text()).init_from.endswith("m.pt")
+    written = TrainConfig.from_json((tmp_path / "b" / "config.json").read_text())
+    assert written.model.init_from.endswith("m.pt")
     source = json.loads((tmp_path / "b" / "init_from.json").read_text())
     assert source["file"].endswith("m.pt") and source["iteration"] is None  # a model file: no iteration
     assert len(source["sha256"]) == 64
@@ -187,10 +188,10 @@ def test_a_new_run_can_start_from_another_runs_weights(tmp_path):
         train(other, tmp_path / "d", progress=False)
     assert not (tmp_path / "d").exists()
     # only the pooled grid differs: a finer multiple starts from the coarse weights (amat.weights.finer_pool)
-    fine = build_run(cfg.replace(init_from=str(tmp_path / "a"), amat={**cfg.amat, "pool": 8}))
+    fine = build_run(cfg.replace(init_from=str(tmp_path / "a"), amat={**cfg.model.amat, "pool": 8}))
     assert fine.init_source["pool"] == [4, 8] and torch.equal(fine.model.obs_fc1.bias, a.obs_fc1.bias)
     with pytest.raises(ValueError, match="init_from .* pool 6 is not a multiple of 4"):
-        build_run(cfg.replace(init_from=str(tmp_path / "a"), amat={**cfg.amat, "pool": 6}))
+        build_run(cfg.replace(init_from=str(tmp_path / "a"), amat={**cfg.model.amat, "pool": 6}))
 
 
 def test_a_cell_goal_model_starts_a_run_on_the_other_mask(tmp_path):
@@ -371,8 +372,8 @@ def test_the_issue_presets_build_and_train_an_iteration(preset, tmp_path):
         cfg = cfg.replace(init_from=str(RECORDS / "general-memory" / "amat_general.pt"))
     small = {"num_worlds": 2, "iterations": 1, "eval_every": 0, "threads": 1, "warm_start_rounds": 1,
              "warm_start_steps": 1}  # fmt: skip
-    if cfg.worlds:
-        small["worlds"] = [dict(w, num_worlds=2) for w in cfg.worlds]
+    if cfg.env.worlds:
+        small["worlds"] = [dict(w, num_worlds=2) for w in cfg.env.worlds]
     run = tmp_path / preset
     train(cfg.replace(**small), run, progress=False)
     rows = list(csv.DictReader((run / "metrics.csv").open()))
@@ -446,12 +447,12 @@ def test_an_anchor_on_the_relay_labels_only_the_decisions_its_relay_rule_made():
     st = eng.state
     st.heard_tick[0, 1, 0], st.heard_pos[0, 1, 0], st.heard_knows[0, 1, 0] = 0, st.pos[0, 0], False
     assert eng.active[0].all()  # both decide: the rescuer's goal is RRT's, the explorer's the relay's
-    labels = auxiliary_labeler(cfg).act(eng)
-    everywhere = auxiliary_labeler(cfg.replace(anchor_on="every")).act(eng)
+    labels = auxiliary_labeler(cfg.loss, cfg.seed).act(eng)
+    everywhere = auxiliary_labeler(cfg.replace(anchor_on="every").loss, cfg.seed).act(eng)
     assert labels[0, 0] == -1 and everywhere[0, 0] >= 0
     assert labels[0, 1] == everywhere[0, 1] >= 0
     st.heard_knows[0, 1, 0] = True  # nobody left to tell: nothing labelled
-    assert (auxiliary_labeler(cfg).act(eng) == -1).all()
+    assert (auxiliary_labeler(cfg.loss, cfg.seed).act(eng) == -1).all()
 
 
 def test_the_anchor_loss_skips_labels_the_models_mask_rules_out():
@@ -462,7 +463,7 @@ def test_the_anchor_loss_skips_labels_the_models_mask_rules_out():
 
     cfg, run, rollout = _anchored()
     n_classes = cfg.env_config().num_classes
-    batch, _ = build_batch(rollout, run.value_norm, cfg.gamma, cfg.lam, n_classes, run.device)
+    batch, _ = build_batch(rollout, run.value_norm, cfg.loss.gamma, cfg.loss.lam, n_classes, run.device)
     _, stats = ppo_loss(run.model, batch, label_coef=1.0)
     assert 0 < float(stats["loss/rescue"]) < 50
     walls = batch.label.clone()
@@ -495,12 +496,14 @@ def test_the_memory_model_chain_presets_are_the_recorded_runs(preset, record):
 
 def test_the_last_stage_adds_a_noisy_task3_world_a_round_and_the_coordinated_proposer():
     base, coord = make_train_config("general-relay-noise"), make_train_config("general-coord")
-    assert coord.worlds[:-1] == base.worlds  # the memory model's worlds and a Task-3 world under noise
+    # the memory model's worlds and a Task-3 world under noise
+    assert coord.env.worlds[:-1] == base.env.worlds
     env, n = coord.world_configs()[-1]
     assert (env.map_size, env.slam_noise, n, env.comm_ranges) == (32, 0.05, 16, (None, 4.0, 2.0))
-    assert (coord.warm_start_rounds, coord.warm_start_worlds, coord.anchor_coef) == (4, 32, 0.05)
-    assert coord.amat["hint"] == coord.warm_start == coord.anchor == "rrt-relay-coord"
-    assert coord.amat == base.amat | {"hint": "rrt-relay-coord"}
+    assert (coord.imitation.warm_start_rounds, coord.imitation.warm_start_worlds) == (4, 32)
+    assert coord.loss.anchor_coef == 0.05
+    assert coord.model.amat["hint"] == coord.imitation.warm_start == coord.loss.anchor == "rrt-relay-coord"
+    assert coord.model.amat == base.model.amat | {"hint": "rrt-relay-coord"}
     # it is its recorded run's config but for the command's flags (run-records/general-coord)
     command = {"init_from", "threads", "iterations", "eval_every", "checkpoint_every", "seed"}
     ran = json.loads((RECORDS / "general-coord" / "config.json").read_text())
@@ -524,7 +527,9 @@ def test_the_retired_presets_still_build_as_they_were_recorded():
         TrainConfig.from_json(json.dumps(retired[n]["config"]))
         for n in ("general-hint", "general-hint-noise3")
     )
-    assert noise3.worlds[:-1] == hint.worlds
+    assert noise3.env.worlds[:-1] == hint.env.worlds
     coord = make_train_config("general-coord")
-    as_noise3 = coord.replace(amat=noise3.amat, warm_start=noise3.warm_start, anchor=noise3.anchor)
+    as_noise3 = coord.replace(
+        amat=noise3.model.amat, warm_start=noise3.imitation.warm_start, anchor=noise3.loss.anchor
+    )
     assert json.loads(as_noise3.to_json()) == retired["general-hint-noise3"]["config"]
