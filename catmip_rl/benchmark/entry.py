@@ -342,21 +342,21 @@ def make_entry(
         "code": code,
         "notes": notes,
         "versions": package_versions(),
-        "machine": _machine(played_on),
+        "machine": machine_of(played_on),
         "played_on": played_on,
         "created": datetime.date.today().isoformat(),
     }
 
 
-def _machine(played_on: list[dict[str, Any]]) -> dict[str, Any]:
-    """The machine an entry's ticks were computed on (what a replay compares its own with): the one that
-    played its chunks, this one if none is recorded. ValueError for chunks played on CPUs of different
-    capability, whose ticks a replay could not tell apart."""
+def machine_of(played_on: list[dict[str, Any]], what: str = "the entry's maps were played") -> dict[str, Any]:
+    """The machine ticks were computed on (what a replay compares its own with): the first that played,
+    without its host name; this one if none is recorded. ValueError for machines of different CPU
+    capability, whose ticks a replay could not tell apart (``what`` names them in the message)."""
     kinds = {(m.get("cpu_capability"), m.get("native_bf16")) for m in played_on}
     if len(kinds) > 1:
         raise ValueError(
-            f"the entry's maps were played on CPUs of different capability ({sorted(map(str, kinds))}): play "
-            "it on machines of one kind (a Ray cluster of one CPU type, or --backend local)"
+            f"{what} on CPUs of different capability ({sorted(map(str, kinds))}): play it on machines of "
+            "one kind (a Ray cluster of one CPU type, or --backend local)"
         )
     return {k: v for k, v in played_on[0].items() if k != "host"} if played_on else machine_info()
 

@@ -27,6 +27,7 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
+from catmip_rl.benchmark.replay import run_files
 from catmip_rl.evaluation.methods import Method
 from catmip_rl.evaluation.user_policy import parse_policy_source
 from catmip_rl.store.shipped import model_file
@@ -40,6 +41,7 @@ __all__ = [
     "played_from",
     "importable",
     "restored",
+    "run_bundle",
     "MAX_BUNDLE_BYTES",
 ]
 
@@ -191,3 +193,18 @@ def restored(value: Any, bundle: Bundle, folder: Path) -> Any:
     if isinstance(value, (list, tuple)):
         return type(value)(restored(v, bundle, folder) for v in value)
     return value
+
+
+def run_bundle(entry: dict[str, Any], k: int) -> Bundle | None:
+    """The files run ``k`` of a board's ``entry`` plays, below this folder (the clone's root, where an
+    entry's paths start), with its ``py:`` policy file's whole folder; None for a run that plays none."""
+    root = Path.cwd().resolve()
+    run = entry["runs"][k]
+    paths = {(root / f["file"]).resolve() for f in run_files(run)}
+    source = run.get("source") or {}
+    if str(run.get("spec", "")).startswith("py:") and source.get("file"):
+        policy_folder = (root / source["file"]).resolve().parent
+        if policy_folder != root and policy_folder.is_relative_to(root):  # never the whole clone
+            paths |= set(folder_files(policy_folder))
+    paths = {p for p in paths if p.is_file() and p.is_relative_to(root)}  # others: "not here" there
+    return files_bundle(root, sorted(paths), entry["method"]) if paths else None

@@ -21,6 +21,7 @@ from __future__ import annotations
 import datetime
 import multiprocessing
 import os
+import platform
 import secrets
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from concurrent.futures.process import BrokenProcessPool
@@ -31,7 +32,7 @@ import numpy as np
 from catmip_env.machine import machine_info
 from catmip_env.map_sets import FROZEN_SEEDS, MapSetMismatch
 from catmip_rl.benchmark import fresh_rule
-from catmip_rl.benchmark.entry import SETTINGS, package_versions, rescued_by_100
+from catmip_rl.benchmark.entry import SETTINGS, machine_of, package_versions, rescued_by_100
 from catmip_rl.benchmark.entry_check import EntryError
 from catmip_rl.benchmark.replay import (
     CannotVerify,
@@ -39,11 +40,11 @@ from catmip_rl.benchmark.replay import (
     plays_isolated,
     replay_indices,
     replay_run,
-    run_files,
     run_method,
     ticks_of,
 )
 from catmip_rl.benchmark.runner import Runner
+from catmip_rl.benchmark.shipping import run_bundle
 from catmip_rl.evaluation.evaluate import evaluate, progress_bar
 from catmip_rl.evaluation.user_policy import PolicyError
 from catmip_rl.store.shipped import file_sha256
@@ -256,15 +257,15 @@ def _play_batch(batch: dict, results: dict, plan: tuple, size: int, bar) -> bool
     return False
 
 
-def _on_ray(todo: dict, plan: tuple, runner: Runner, progress: bool) -> dict:
+def _on_ray(todo: dict, plan: tuple, runner: Runner, progress: bool, machines: list) -> dict:
     """:func:`verify_run` of every job of ``todo`` (key -> (entry, run)) as Ray tasks, each run's files
     (and its policy's folder) shipped by content from this folder, the clone's root; a run whose worker
     was lost past Ray's retries is refused in one line, as on the local pool, and so is a run whose files
-    cannot be sent."""
+    cannot be sent. Every machine that played a run is added to ``machines``, once."""
     results, items, keys = {}, [], []
     for key, (entry, k) in todo.items():
         try:
-            items.append((entry, k, plan, _run_bundle(entry, k)))
+            items.append((entry, k, plan, run_bundle(entry, k)))
             keys.append(key)
         except (ValueError, OSError) as err:
             results[key] = _lost(k) | {"error": f"run {k}: its files cannot be sent to the workers: {err}"}
@@ -274,43 +275,29 @@ def _on_ray(todo: dict, plan: tuple, runner: Runner, progress: bool) -> dict:
         progress=progress,
         desc="verify",
         unit="runs",
-        on_error=lambda i, _e: _lost(keys[i][1]),
+        on_error=lambda i, _e: (_lost(keys[i][1]), None),
     )
-    return results | dict(zip(keys, out))
-
-
-def _run_bundle(entry: dict[str, Any], k: int):
-    """The files run ``k`` of ``entry`` plays, below this folder (the clone's root, where an entry's
-    paths start), with its ``py:`` policy file's whole folder; None for a run that plays none."""
-    from pathlib import Path
-
-    from catmip_rl.benchmark.shipping import files_bundle, folder_files
-
-    root = Path.cwd().resolve()
-    run = entry["runs"][k]
-    paths = {(root / f["file"]).resolve() for f in run_files(run)}
-    source = run.get("source") or {}
-    if str(run.get("spec", "")).startswith("py:") and source.get("file"):
-        policy_folder = (root / source["file"]).resolve().parent
-        if policy_folder != root and policy_folder.is_relative_to(root):  # never the whole clone
-            paths |= set(folder_files(policy_folder))
-    paths = {p for p in paths if p.is_file() and p.is_relative_to(root)}  # others: "not here" there
-    return files_bundle(root, sorted(paths), entry["method"]) if paths else None
+    for key, (result, machine) in zip(keys, out):
+        results[key] = result
+        if machine is not None and machine not in machines:
+            machines.append(machine)
+    return results
 
 
 def _verify_shipped(item: tuple) -> dict[str, Any]:
     """A Ray task: :func:`verify_run` in a folder of its own where its files were unpacked (their paths
-    start there, as in the clone)."""
+    start there, as in the clone), and the machine that played it."""
     from catmip_rl.benchmark.shipping import unpacked
 
     entry, k, plan, bundle = item
+    machine = machine_info(host=platform.node())
     if bundle is None:
-        return verify_run(entry, k, *plan)
+        return verify_run(entry, k, *plan), machine
     here = os.getcwd()
     with unpacked(bundle) as folder:
         os.chdir(folder)
         try:
-            return verify_run(entry, k, *plan)
+            return verify_run(entry, k, *plan), machine
         finally:
             os.chdir(here)
 
@@ -352,8 +339,11 @@ def verify_board(
     plain = [{key: v for key, v in e.items() if key != "checked"} for e, _k in tasks]
     jobs_by_key = {(e["method"], k): (p, k) for p, (e, k) in zip(plain, tasks)}
     results: dict[tuple[str, int], dict[str, Any]] = {}
+    played_on = [machine_info(host=platform.node())]  # the machines that replayed runs: here, or Ray's
     if backend == "ray":
-        results = _on_ray(jobs_by_key, (seed, replay, fresh), Runner("ray", jobs, ray_address), progress)
+        played_on = []
+        runner = Runner("ray", jobs, ray_address)
+        results = _on_ray(jobs_by_key, (seed, replay, fresh), runner, progress, played_on)
     else:
         bar = progress_bar(len(tasks), "verify", progress, unit="run", leave=True)
         try:
@@ -379,7 +369,8 @@ def verify_board(
         "format": RECORD_FORMAT,
         "created": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
         "versions": package_versions(),
-        "machine": machine_info(),
+        "machine": machine_of(played_on, "the runs were replayed"),
+        "played_on": played_on,
         "seed": seed,
         "replay": "all" if replay is None else replay,
         "fresh": fresh,

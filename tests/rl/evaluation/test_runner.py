@@ -143,11 +143,12 @@ def test_a_package_policy_travels_by_content_and_plays_from_the_copy(tmp_path, m
 
 
 def test_an_entry_names_the_machine_that_played_it_and_refuses_mixed_cpus():
-    from catmip_rl.benchmark.entry import _machine
+    from catmip_rl.benchmark.entry import machine_of
 
     here = {"python": "3.11", "cpu": "x86_64", "cpu_capability": "AVX2", "native_bf16": False}
-    assert _machine([here | {"host": "node-1"}, here | {"host": "node-2"}]) == here
+    assert machine_of([here | {"host": "node-1"}, here | {"host": "node-2"}]) == here
+    mixed = [here | {"host": "a"}, here | {"host": "b", "cpu_capability": "AVX512", "native_bf16": True}]
     with pytest.raises(ValueError, match="played on CPUs of different capability"):
-        _machine(
-            [here | {"host": "a"}, here | {"host": "b", "cpu_capability": "AVX512", "native_bf16": True}]
-        )
+        machine_of(mixed)
+    with pytest.raises(ValueError, match="^the runs were replayed on CPUs of different capability"):
+        machine_of(mixed, "the runs were replayed")  # a board's check refuses them alike

@@ -187,7 +187,8 @@ def test_a_board_checked_on_ray_gives_the_local_record(suites, tmp_path, monkeyp
         )  # fmt: skip
         assert not board.refused
         record = json.loads((tmp_path / backend / "verification.json").read_text())
-        records.append({k: v for k, v in record.items() if k not in ("created", "machine")})
+        records.append({k: v for k, v in record.items() if k not in ("created", "machine", "played_on")})
+        assert record["played_on"] and all(m["host"] for m in record["played_on"])  # who replayed the runs
     assert records[0] == records[1]
     assert records[1]["entries"]["mine"]["outcome"] == "verified"
 
