@@ -309,22 +309,22 @@ def _relay_batch(
 
 def warm_start(
     cfg, model, collector, gen, run_dir, progress: bool, evaluate=None, log_scalars=None, value_norm=None
-) -> float:
+) -> tuple[float, int]:
     """The DAgger rounds of a training run (``cfg.imitation``: the ``warm_start*`` fields; the run's seed,
     ``optim.max_grad_norm`` and ``loss.gamma``) into ``run_dir/warm_start.csv``, with ``evaluate()`` (a
     dict with success_rate, success_by_100 and their sampled_ forms) after each round if given and
-    ``log_scalars(row, step, skip)`` for TensorBoard; returns the seconds spent (evaluation excluded)."""
+    ``log_scalars(row, step, skip)`` for TensorBoard; returns (the seconds spent, evaluation excluded;
+    the episodes played)."""
     imitation = cfg.imitation
-    teacher = make_teacher(
-        imitation.warm_start, model.config.goals, seed=cfg.seed, follow_heading=imitation.warm_start_heading
-    )
     file, writer = open_csv_log(run_dir / "warm_start.csv", WARM_START_METRICS, None, key="round")
     elapsed = 0.0
     bar = None
     if progress:
         from tqdm import tqdm
 
-        bar = tqdm(total=imitation.warm_start_rounds, desc=f"warm start ({teacher.name})", unit="round")
+        bar = tqdm(
+            total=imitation.warm_start_rounds, desc=f"warm start ({imitation.warm_start})", unit="round"
+        )
 
     def on_round(row: dict) -> None:
         nonlocal elapsed
@@ -345,10 +345,10 @@ def warm_start(
             bar.set_postfix(acc=f"{acc:.2f}", success=f"{success:.2f}")
 
     try:
-        dagger(
+        episodes, _ = dagger(
             model,
             collector,
-            teacher,
+            imitation.warm_start,
             imitation.warm_start_rounds,
             imitation.warm_start_steps,
             batch_events=imitation.warm_start_batch,
@@ -357,6 +357,7 @@ def warm_start(
             seed=cfg.seed,
             max_grad_norm=cfg.optim.max_grad_norm,
             on_round=on_round,
+            follow_heading=imitation.warm_start_heading,
             imitate_stay=imitation.warm_start_stay,
             value_norm=value_norm if imitation.warm_start_value else None,
             gamma=cfg.loss.gamma,
@@ -366,4 +367,4 @@ def warm_start(
         file.close()
         if bar is not None:
             bar.close()
-    return elapsed
+    return elapsed, episodes

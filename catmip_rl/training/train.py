@@ -165,8 +165,9 @@ def build_run(cfg: TrainConfig, saved: dict | None = None) -> Run:
     # the value normaliser stays on the CPU, where the batch is built (gae.build_batch), then moved to device
     run = Run(cfg, device, model, make_optimizer(model, cfg.optim), ValueNorm(), gen)
     if saved is not None:
+        machine = precision_machine(cfg.device)  # a saved bf16 choice holds on a like machine only
         run.iteration, run.episodes, run.elapsed, run.bf16 = restore_training(
-            saved, model, run.opt, run.value_norm, gen, cfg.optim.precision, precision_machine(cfg.device)
+            saved, model, run.opt, run.value_norm, gen, cfg.optim.precision, machine
         )
     elif cfg.model.init_from:
         run.init_source = load_initial_weights(cfg.model.init_from, model, run.value_norm)
@@ -265,18 +266,6 @@ def _write_run_files(run: Run, run_dir: Path) -> None:
         atomic_write_text(run_dir / "init_from.json", json.dumps(run.init_source, indent=2))
 
 
-def _warm_start(run: Run, run_dir: Path, progress: bool, log_scalars) -> None:
-    """The DAgger rounds (``training.imitation.warm_start``) of a new run, evaluated after each where the
-    run has an evaluator; their training time and episodes count as the run's."""
-    cfg = run.cfg
-    evaluate_now = run.evaluate if run.evaluator else None
-    run.elapsed = warm_start(
-        cfg, run.model, run.dagger, run.gen, run_dir, progress, evaluate_now, log_scalars, run.value_norm
-    )
-    per_round = sum(c.num_worlds for c in run.dagger)
-    run.episodes = cfg.imitation.warm_start_rounds * per_round  # PPO's episodes follow the warm start's maps
-
-
 def train(cfg: TrainConfig, run_dir: str | Path, resume: bool = False, progress: bool = True) -> AMAT:
     """Run (or continue, with ``resume``) a training run in ``run_dir``; returns the model. The run holds
     ``run_dir`` while it lives (``run_dir.RunDirLock``: a second writer is refused); refusals
@@ -302,8 +291,12 @@ def train(cfg: TrainConfig, run_dir: str | Path, resume: bool = False, progress:
 
         # -- imitation warm start (DAgger against a window-projected planner), once, before PPO -------
         # (every checkpoint, iter_000000.pt included, is written after it: a resumed run never repeats it)
+        # its training time and episodes count as the run's (PPO's maps follow its maps)
         if cfg.imitation.warm_start and not resume:
-            _warm_start(run, run_dir, progress, logs.scalars)
+            evaluate = run.evaluate if run.evaluator else None  # after each round
+            run.elapsed, run.episodes = warm_start(
+                cfg, run.model, run.dagger, run.gen, run_dir, progress, evaluate, logs.scalars, run.value_norm
+            )
             run.checkpoint(ckpt_dir)
         iterations, evaluation = cfg.optim.iterations, cfg.eval
         bar = progress_bar(iterations, run.iteration, progress)

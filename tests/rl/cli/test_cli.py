@@ -394,7 +394,7 @@ def test_a_run_stopped_after_a_checkpoint_keeps_everything_for_resume(tmp_path, 
     run = tmp_path / "run"
     threads = torch.get_num_threads()
     with monkeypatch.context() as m:
-        m.setattr(catmip_rl.training.train, "warm_start", lambda *args, **kwargs: 0.0)  # no rounds: 0 s
+        m.setattr(catmip_rl.training.train, "warm_start", lambda *args, **kwargs: (0.0, 0))  # no rounds
         m.setattr(catmip_rl.training.collect.Collector, "collect", _raises(KeyboardInterrupt()))
         try:
             assert main([*TINY_RUN, "--warm-start", "nearest", "--run-dir", str(run)]) == 130
