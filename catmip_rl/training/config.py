@@ -180,7 +180,7 @@ def _docstrings(body: list[ast.stmt]) -> dict[str, str]:
     return docs
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, init=False)
 class TrainConfig:
     """The paper's recipe (docs/design.md#ppo-recipe) by default: its sections (``training.sections``),
     then the run's own fields."""
@@ -200,6 +200,18 @@ class TrainConfig:
     """torch CPU threads."""
     checkpoint_every: int = 50
     """Iterations between checkpoints, and one at the end (0 = none: the run cannot be resumed)."""
+
+    def __init__(self, **fields: Any) -> None:
+        """Fields by their flat names (``TrainConfig(lr=3e-4)``, as the flags and :meth:`replace` name them),
+        or sections by name (``optim=OptimSection(...)``); the rest the paper's recipe."""
+        own = [f.name for f in dataclasses.fields(TrainConfig)]
+        if not set(fields) <= set(own) or any(isinstance(fields.get(name), dict) for name in SECTIONS):
+            built = TrainConfig().replace(**fields)  # flat names: sorted into their sections
+            fields = {name: getattr(built, name) for name in own}
+        for f in dataclasses.fields(TrainConfig):
+            default = f.default_factory() if f.default_factory is not dataclasses.MISSING else f.default
+            object.__setattr__(self, f.name, fields.get(f.name, default))
+        self.__post_init__()
 
     def __post_init__(self) -> None:
         for name, kind in SECTIONS.items():

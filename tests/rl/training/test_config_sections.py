@@ -163,3 +163,18 @@ def test_a_run_whose_config_is_sectioned_or_older_resumes(tmp_path):
     assert cli(["train", "--run-dir", str(run), "--resume", "--iterations", "2", "--no-progress"]) == 0
     assert (run / "config.json").read_text() == cfg.replace(iterations=2).to_json()
     assert torch.load(latest, weights_only=False)["iteration"] == 2
+
+
+def test_the_constructor_takes_the_flat_names_as_before():
+    """Scripts written for the flat config (``TrainConfig(lr=3e-4, num_worlds=32)``) build the same config."""
+    cfg = TrainConfig(lr=3e-4, num_worlds=32, seed=3, warm_start_rounds=2)
+    assert cfg == TrainConfig().replace(lr=3e-4, num_worlds=32, seed=3, warm_start_rounds=2)
+    assert (cfg.optim.lr, cfg.collection.num_worlds, cfg.seed, cfg.imitation.warm_start_rounds) == (
+        3e-4,
+        32,
+        3,
+        2,
+    )
+    assert TrainConfig(optim=cfg.optim) == TrainConfig(lr=3e-4)
+    with pytest.raises(ValueError, match=r"unknown TrainConfig field\(s\) \['lrr'\]"):
+        TrainConfig(lrr=3e-4)
