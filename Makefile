@@ -92,7 +92,7 @@ dist: $(STAMP)
 	$(PY) -m build --outdir dist .
 	ls -l dist
 
-# drop numba's compiled kernels (the packages already do when their sources change: catmip_env/numba_cache.py)
+# drop numba's compiled kernels (the packages already do when their sources change: catmip_env/runtime/numba_cache.py)
 clean-cache:
 	find . -path ./$(VENV) -prune -o \( -name '*.nbi' -o -name '*.nbc' \) -exec rm -f {} +
 

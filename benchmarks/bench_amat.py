@@ -36,7 +36,7 @@ import torch.nn.functional as F
 from common import cpu_times, env_observation, steal_percent, write_json
 
 from catmip_env.config import PRESETS, make_config
-from catmip_env.events import EventEngine, random_valid_actions
+from catmip_env.engines.events import EventEngine, random_valid_actions
 from catmip_env.play import play
 from catmip_rl.amat.model import AMAT, decision_order
 from catmip_rl.amat.onboard.fast_amat import FastAmat

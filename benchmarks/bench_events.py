@@ -22,7 +22,7 @@ import numpy as np  # noqa: E402
 from common import machine_info, write_json  # noqa: E402
 
 from catmip_env import make_config, search_rescue_v0  # noqa: E402
-from catmip_env.events import EventEngine, random_valid_actions  # noqa: E402
+from catmip_env.engines.events import EventEngine, random_valid_actions  # noqa: E402
 from catmip_env.planners.baselines import PLANNERS, make_planner  # noqa: E402
 
 TASKS = ("task1", "task2", "task3")

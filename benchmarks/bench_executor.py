@@ -25,7 +25,7 @@ import torch
 from common import cpu_times, machine_info, steal_percent, write_json
 
 from catmip_env.config import make_config
-from catmip_env.events import EventEngine
+from catmip_env.engines.events import EventEngine
 from catmip_rl.amat.onboard.execution import AmatExecutor
 from catmip_rl.store.checkpoint import load_model
 from catmip_rl.store.files import atomic_savefig

@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 from common import cpu_times, machine_info, steal_percent, write_json
 
-from catmip_env.events import EventEngine
+from catmip_env.engines.events import EventEngine
 from catmip_env.play import play, plays_one_world_at_a_time
 from catmip_rl.evaluation.evaluate import EvalSetting
 from catmip_rl.evaluation.methods import make_policy, parse_method

@@ -44,7 +44,7 @@ def time_catmip(preset: str, level: str, steps: int) -> dict:
     import numpy as np
 
     from catmip_env import search_rescue_v0
-    from catmip_env.events import random_valid_actions
+    from catmip_env.engines.events import random_valid_actions
 
     env = search_rescue_v0.parallel_env(preset=preset, level=level)
     agents = env.possible_agents

@@ -36,8 +36,8 @@ import numpy as np  # noqa: E402
 from common import env_observation, machine_info, plot_scaling_panels, write_json  # noqa: E402
 
 from catmip_env import BatchedWorld, EnvConfig, make_config  # noqa: E402
-from catmip_env.events import EventEngine, random_valid_actions  # noqa: E402
-from catmip_env.files import atomic_path  # noqa: E402 (the env benchmark stays torch-free)
+from catmip_env.engines.events import EventEngine, random_valid_actions  # noqa: E402
+from catmip_env.runtime.files import atomic_path  # noqa: E402 (the env benchmark stays torch-free)
 
 MAPS = (15, 20, 32, 64)
 TEAMS = (2, 3, 6, 12)

@@ -26,7 +26,7 @@ sys.path.insert(0, str(Path(__file__).parent))
 from common import machine_info, write_json  # noqa: E402
 
 from catmip_env import BatchedWorld, EventEngine, make_config  # noqa: E402
-from catmip_env.events import random_valid_actions  # noqa: E402
+from catmip_env.engines.events import random_valid_actions  # noqa: E402
 
 
 def run(engine_kind: str, task: str, worlds: int, steps: int, threads: int) -> tuple[float, np.ndarray]:

@@ -9,9 +9,9 @@ from typing import Any
 import numpy as np
 
 from catmip_env import EnvConfig
-from catmip_env.events import EventEngine, random_valid_actions
-from catmip_env.files import atomic_path
-from catmip_env.machine import machine_info  # noqa: F401  (the benchmarks import it from here)
+from catmip_env.engines.events import EventEngine, random_valid_actions
+from catmip_env.runtime.files import atomic_path
+from catmip_env.runtime.machine import machine_info  # noqa: F401  (the benchmarks import it from here)
 
 
 def cpu_times() -> tuple[int, int] | None:
@@ -33,7 +33,7 @@ def steal_percent(before: tuple[int, int] | None, after: tuple[int, int] | None)
 
 
 def write_json(path: str | Path, results: Any) -> Path:
-    """Write results as JSON atomically (``catmip_env.files.atomic_path``) and say where."""
+    """Write results as JSON atomically (``catmip_env.runtime.files.atomic_path``) and say where."""
     path = Path(path)
     with atomic_path(path) as tmp:
         tmp.write_text(json.dumps(results, indent=2))

@@ -18,13 +18,13 @@ import time
 from pathlib import Path
 
 from catmip_env import make_config
-from catmip_env.episode_stats import episode_metrics
-from catmip_env.events import EventEngine
-from catmip_env.files import atomic_path
+from catmip_env.engines.episode_stats import episode_metrics
+from catmip_env.engines.events import EventEngine
+from catmip_env.envs.render import render_episode
 from catmip_env.planners.baselines import PLANNERS, make_planner
 from catmip_env.play import play
-from catmip_env.render import render_episode
-from catmip_env.warmup import compile_kernels
+from catmip_env.runtime.files import atomic_path
+from catmip_env.runtime.warmup import compile_kernels
 
 DEFAULT_PLANNERS = ("nearest", "utility", "rrt", "apf", "random-frontier", "random-rescue", "random-uniform")
 

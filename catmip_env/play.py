@@ -1,5 +1,5 @@
 """The episode loop: every evaluation, demo, benchmark and render plays this (what it returns is
-measured by :mod:`catmip_env.episode_stats`).
+measured by :mod:`catmip_env.engines.episode_stats`).
 
 >>> eng = EventEngine(cfg, num_worlds=100, seed=0, goal_mode="cell")
 >>> eng.reset(episode_indices=np.arange(100))   # the caller picks the maps
@@ -20,8 +20,8 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from catmip_env.episode_stats import DecisionTracker, EpisodeRecords, episode_records
-from catmip_env.events import EventEngine
+from catmip_env.engines.episode_stats import DecisionTracker, EpisodeRecords, episode_records
+from catmip_env.engines.events import EventEngine
 
 __all__ = [
     "Policy",

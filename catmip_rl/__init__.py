@@ -18,9 +18,9 @@ from importlib.util import find_spec
 from pathlib import Path
 
 from catmip_env import __version__  # one version for the whole distribution (pyproject reads it there)
-from catmip_env.numba_cache import refresh
+from catmip_env.runtime.numba_cache import refresh
 
-refresh(Path(__file__).parent)  # before any kernel loads its cache (catmip_env.numba_cache)
+refresh(Path(__file__).parent)  # before any kernel loads its cache (catmip_env.runtime.numba_cache)
 
 __all__ = ["AMAT", "AmatConfig", "__version__", "decision_order", "load_model", "save_model"]
 

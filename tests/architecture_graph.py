@@ -5,30 +5,17 @@ imports included, marked)."""
 from __future__ import annotations
 
 import ast
+from functools import cache
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGES = ("catmip_env", "catmip_rl")
 
-# Every folder of the two packages is a group of its own (catmip_env/kernels/, catmip_env/planners/,
-# catmip_rl/amat/, catmip_rl/store/, ...). catmip_env's flat modules are layered in these groups, lowest
-# first; catmip_rl's flat modules are its face (__init__ and a path kept for 1.0 code), imported by none.
-ENV_GROUPS = {
-    "env: config": (
-        "constants",
-        "config",
-        "ascii_maps",
-        "files",
-        "fields",
-        "numba_cache",
-        "machine",
-        "__init__",
-    ),
-    "env: world": ("world", "chunks"),
-    "env: events": ("events", "episode_stats"),
-    "env: play": ("play", "map_sets", "render", "warmup", "demo"),
-    "env: PettingZoo": ("search_rescue_v0", "spaces"),
-}
+# Every folder of the two packages is a group of its own (catmip_env/engines/, catmip_env/kernels/,
+# catmip_rl/amat/, catmip_rl/store/, ...). catmip_env's flat modules are its base (they import no folder of
+# the package), its face (no module of the package imports them: __init__, the demo) or a group of their
+# own between the folders (play, the episode loop); catmip_rl's flat modules are its face (__init__ and a
+# path kept for 1.0 code), imported by none.
 
 
 def modules(root: Path = ROOT) -> dict[str, Path]:
@@ -42,16 +29,37 @@ def modules(root: Path = ROOT) -> dict[str, Path]:
 
 
 def group(module: str) -> str:
-    """The box a module is drawn in: its folder, or for a flat module of catmip_env its ENV_GROUPS entry
-    (StopIteration for one no group names: add it there)."""
+    """The box a module is drawn in: its folder, or for a flat module of catmip_env ``env: base`` or
+    ``env: face`` (whether it imports a module of one of the package's folders)."""
     pkg, *rest = module.split(".")
     short = "rl" if pkg == "catmip_rl" else "env"
     if len(rest) > 1:  # a folder: catmip_env/kernels/, catmip_rl/store/, ...
         return f"{short}: {rest[0]}"
     if pkg == "catmip_rl":
         return "rl: package"
-    name = rest[0] if rest else "__init__"
-    return next(g for g, names in ENV_GROUPS.items() if name in names)
+    if not any(t.count(".") >= 2 for t in _env_imports(module)):  # imports no catmip_env.<folder>.<module>
+        return "env: base"
+    users = [m for m in _modules() if m.startswith("catmip_env.") and module in _env_imports(m)]
+    if all(m.endswith("__init__") for m in users):
+        return "env: face"  # imported by no module of the package: the demo, the package's __init__
+    return f"env: {rest[0]}"  # a flat module between the folders (play: the episode loop)
+
+
+@cache
+def _env_imports(module: str) -> list[str]:
+    """The project modules a module of catmip_env imports (resolved as :func:`import_graph` does)."""
+    mods = _modules()
+    out = []
+    for target, names, _ in imports(mods[module], module):
+        out += [f"{target}.{n}" for n in names if f"{target}.{n}" in mods]
+        if target in mods:
+            out.append(target)
+    return out
+
+
+@cache
+def _modules() -> dict[str, Path]:
+    return modules()
 
 
 def imports(path: Path, module: str) -> list[tuple[str, list[str], bool]]:

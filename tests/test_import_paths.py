@@ -25,7 +25,11 @@ def test_top_level_names():
 # module paths of the layout before the package was grouped; none is importable
 OLD = ("catmip_rl.fast_infer", "catmip_rl.train", "catmip_rl.config", "catmip_rl.evaluate", "catmip_rl.env",
        "catmip_rl.distributed", "catmip_env.types", "catmip_env.engine", "catmip_env.planner",
-       "catmip_env.baselines", "catmip_env.compat")  # fmt: skip
+       "catmip_env.baselines", "catmip_env.compat",
+       # 2.0: catmip_env's modules grouped in folders by job (CHANGELOG); the flat paths are gone
+       "catmip_env.world", "catmip_env.events", "catmip_env.chunks", "catmip_env.episode_stats",
+       "catmip_env.map_sets", "catmip_env.search_rescue_v0", "catmip_env.spaces", "catmip_env.render",
+       "catmip_env.machine", "catmip_env.numba_cache", "catmip_env.warmup", "catmip_env.files")  # fmt: skip
 
 
 @pytest.mark.parametrize("old", OLD)
@@ -36,6 +40,6 @@ def test_old_module_paths_are_gone(old):
 
 
 def test_env_package_stays_torch_free():
-    code = "import sys, catmip_env, catmip_env.search_rescue_v0; print('torch' in sys.modules)"
+    code = "import sys, catmip_env, catmip_env.envs.search_rescue_v0; print('torch' in sys.modules)"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "False"

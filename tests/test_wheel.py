@@ -79,7 +79,7 @@ def _check_archives(sdist: Path, wheel: Path) -> None:
     with zipfile.ZipFile(wheel) as z:
         files = set(z.namelist())
         metadata = z.read(next(n for n in files if n.endswith(".dist-info/METADATA"))).decode()
-    assert {"catmip_env/frozen_maps/task2.json", "catmip_rl/models/amat_task1.pt"} <= files
+    assert {"catmip_env/maps/frozen_maps/task2.json", "catmip_rl/models/amat_task1.pt"} <= files
     assert not any("__pycache__" in n or n.endswith((".nbi", ".nbc")) for n in files)
     assert f"Version: {version}\n" in metadata and "Classifier: Development Status :: 5" in metadata
     assert "Requires-Dist: torch" in metadata and "extra == " in metadata  # torch only with an extra

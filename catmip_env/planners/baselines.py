@@ -43,7 +43,7 @@ from __future__ import annotations
 import numpy as np
 
 from catmip_env.constants import STEPS
-from catmip_env.events import EventEngine
+from catmip_env.engines.events import EventEngine
 from catmip_env.kernels.comms import estimated_cells
 from catmip_env.planners.core import SQUARE, DecisionContext, Planner, distance_field
 from catmip_env.planners.rrt import cluster_goals, grow_rrt, label8

@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from catmip_env.constants import EXPLORED, OCCUPIED, TARGET_BIT
-from catmip_env.events import EventEngine
+from catmip_env.engines.events import EventEngine
 from catmip_env.kernels.bfs import bfs_from
 
 __all__ = ["Planner", "DecisionContext", "distance_field", "stream_key", "SQUARE"]
@@ -76,10 +76,10 @@ class Planner:
 
 
 def stream_key(engine, b: int) -> tuple[int, ...]:
-    """What keys world ``b``'s random streams: on an :class:`~catmip_env.events.EventEngine`, its seed and
-    the world's episode index (the streams every committed result was played with); on the view a
+    """What keys world ``b``'s random streams: on an :class:`~catmip_env.engines.events.EventEngine`, its
+    seed and the world's episode index (the streams every committed result was played with); on the view a
     policy is given, which names neither, the world's key (``engine.world.keys[b]``,
-    :func:`~catmip_env.world.world_key`). Either way one stream per map, whatever the batch."""
+    :func:`~catmip_env.engines.world.world_key`). Either way one stream per map, whatever the batch."""
     world = engine.world
     seed = getattr(world, "base_seed", None)
     if seed is not None:

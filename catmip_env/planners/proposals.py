@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from catmip_env.events import EventEngine
+from catmip_env.engines.events import EventEngine
 from catmip_env.planners.baselines import make_planner
 
 __all__ = ["NO_PROPOSAL", "Proposals"]

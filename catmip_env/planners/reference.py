@@ -24,7 +24,7 @@ from collections import deque
 import numpy as np
 
 from catmip_env.constants import CLUE, FREE, STEPS
-from catmip_env.episode_stats import EpisodeRecords
+from catmip_env.engines.episode_stats import EpisodeRecords
 from catmip_env.planners.baselines import RRTRelayCoord
 
 __all__ = [

@@ -32,7 +32,7 @@ import time
 import numpy as np
 
 from catmip_env.constants import CLUE, CLUE_BIT, EXPLORED, OBSTACLE, OCCUPIED, TARGET, TARGET_BIT, WALL
-from catmip_env.events import EventEngine
+from catmip_env.engines.events import EventEngine
 from catmip_env.kernels.bfs import bfs_from
 from catmip_env.kernels.comms import estimated_cells
 from catmip_env.kernels.rng import seed_state

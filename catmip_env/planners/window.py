@@ -2,7 +2,7 @@
 
 A planner (``catmip_env.planners.baselines``) picks any cell of the map; AMAT picks a goal inside the robot's
 D x D window (docs/design.md#goals-and-masks). :class:`WindowPlanner` runs the planner on a window-mode
-:class:`~catmip_env.events.EventEngine` and turns each active robot's cell goal into a window action:
+:class:`~catmip_env.engines.events.EventEngine` and turns each active robot's cell goal into a window action:
 
 * the goal itself if it lies inside the window and is allowed by the window mask;
 * otherwise the farthest allowed cell, inside the window, of the path the controller itself would
@@ -36,7 +36,7 @@ import numpy as np
 from numba import njit
 
 from catmip_env.constants import OCCUPIED, STEP_COL, STEP_ROW
-from catmip_env.events import EventEngine
+from catmip_env.engines.events import EventEngine
 from catmip_env.kernels.bfs import UNREACHED, bfs_from, downhill
 from catmip_env.kernels.macro import action_masks
 from catmip_env.planners.baselines import make_planner

@@ -30,7 +30,7 @@ from tensordict import TensorDict
 from torchrl.collectors import BaseCollector
 
 from catmip_env.config import EnvConfig
-from catmip_env.episode_stats import EpisodeRecords, training_stats
+from catmip_env.engines.episode_stats import EpisodeRecords, training_stats
 from catmip_rl.adapters.ray_tasks import import_ray, ray_init_config
 from catmip_rl.amat.model import AMAT
 from catmip_rl.training.collect import STEP_FIELDS, Collector, Rollout, cpu_mirror

@@ -16,7 +16,7 @@ from torchrl.envs import ActionMask, Compose, DTypeCastTransform, EnvBase, Obser
 
 from catmip_env import EnvConfig, make_config
 from catmip_env.constants import OBS_ONE, OBS_SCALE
-from catmip_env.events import EventEngine
+from catmip_env.engines.events import EventEngine
 from catmip_env.planners.proposals import Proposals
 from catmip_rl.adapters import keys as K
 from catmip_rl.amat.inputs import one_hot_class
@@ -33,7 +33,7 @@ class CatmipEnv(EnvBase):
     ``CatmipEnv(preset="train", num_worlds=1, seed=0, goal_mode="window", **EnvConfig_overrides)``
 
     The recommended TorchRL entry point. TorchRL's ``PettingZooWrapper`` over
-    ``catmip_env.search_rescue_v0`` works too (it passes TorchRL's spec check), but it steps one world
+    ``catmip_env.envs.search_rescue_v0`` works too (it passes TorchRL's spec check), but it steps one world
     and, because the PettingZoo observation is itself a dict ``{"observation": {...}, "action_mask":
     ...}``, its keys come out double-nested: ``("robot", "observation", "observation", "global_map")``
     (group ``"robot"``; ``"agents"`` under ``MarlGroupMapType.ALL_IN_ONE_GROUP``), float32 maps and

@@ -35,8 +35,8 @@ from torchrl.modules import MaskedCategorical, ProbabilisticActor
 from torchrl.objectives.value.functional import vec_generalized_advantage_estimate
 
 from catmip_env.config import EnvConfig
-from catmip_env.files import atomic_path
 from catmip_env.play import WorldNotSupported
+from catmip_env.runtime.files import atomic_path
 from catmip_rl.adapters import keys as K
 from catmip_rl.adapters.torchrl_policy import TorchRLPolicy
 from catmip_rl.store.files import atomic_write_text

@@ -28,7 +28,7 @@ from tensordict.nn import TensorDictModuleBase
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
 from catmip_env.constants import OBS_SCALE
-from catmip_env.events import EventEngine
+from catmip_env.engines.events import EventEngine
 from catmip_rl.adapters import keys as K
 from catmip_rl.adapters.torchrl_env import deciding_observation, engine_observation
 

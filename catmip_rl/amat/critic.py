@@ -30,7 +30,7 @@ from catmip_env.constants import global_channels
 from catmip_rl.amat.layers import as_float
 
 if TYPE_CHECKING:
-    from catmip_env.world import BatchedWorld
+    from catmip_env.engines.world import BatchedWorld
 
 __all__ = ["StateCritic", "state_channels", "critic_state"]
 

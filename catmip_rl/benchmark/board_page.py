@@ -15,7 +15,7 @@ from typing import Any
 
 import numpy as np
 
-from catmip_env.map_sets import SPLITS
+from catmip_env.maps.map_sets import SPLITS
 from catmip_rl.benchmark.entry import CLASSES, SETTINGS, SUITE
 from catmip_rl.store.files import atomic_savefig
 

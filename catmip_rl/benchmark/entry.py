@@ -24,8 +24,8 @@ from typing import Any
 
 import numpy as np
 
-from catmip_env.machine import machine_info
-from catmip_env.map_sets import MANIFEST_EPISODES, SPLITS
+from catmip_env.maps.map_sets import MANIFEST_EPISODES, SPLITS
+from catmip_env.runtime.machine import machine_info
 from catmip_rl.evaluation.evaluate import EvalSetting
 from catmip_rl.evaluation.methods import PLAY_OPTIONS, Method, method_source
 from catmip_rl.evaluation.stats import CONFIDENCE, runs_and_maps_ci
@@ -76,7 +76,7 @@ PACKAGES = ("catmip", "numpy", "numba", "torch", "torchrl", "tensordict")
 
 
 def maps_digest(hashes: list[str]) -> str:
-    """SHA-256 of a list of map hashes (:func:`~catmip_env.map_sets.map_hash`, one per map in order):
+    """SHA-256 of a list of map hashes (:func:`~catmip_env.maps.map_sets.map_hash`, one per map in order):
     an entry's digest is computed from the maps its runs played; the leaderboard computes the frozen
     split's from the manifest (:func:`split_digest`)."""
     return hashlib.sha256("\n".join(hashes).encode()).hexdigest()
@@ -84,7 +84,7 @@ def maps_digest(hashes: list[str]) -> str:
 
 def split_digest(task: str, split: str, episodes: int) -> str:
     """:func:`maps_digest` of the first ``episodes`` frozen maps of ``split`` for ``task``."""
-    from catmip_env.map_sets import manifest
+    from catmip_env.maps.map_sets import manifest
 
     return maps_digest(manifest(task)["seeds"][str(SPLITS[split])][:episodes])
 

@@ -2,7 +2,7 @@
 
 An entry (:mod:`~catmip_rl.benchmark.entry`) is accepted only if it is one of this suite: its format
 and version; a split and that split's seed and every map of it; every setting and no other, each with
-the suite's horizon; its maps' digest equal to the frozen maps' (``catmip_env/frozen_maps``); one list
+the suite's horizon; its maps' digest equal to the frozen maps' (``catmip_env/maps/frozen_maps``); one list
 of rescue ticks per training run and map, each -1 or a tick within the horizon; a class, what it was
 chosen on, and every number it states -- rates, means, intervals, the aggregate -- equal to the number
 recomputed from those ticks. Strings are bounded and hold no control characters, a code link is a web
@@ -21,7 +21,7 @@ from typing import Any
 
 import numpy as np
 
-from catmip_env.map_sets import SPLITS
+from catmip_env.maps.map_sets import SPLITS
 from catmip_env.planners.reference import REFERENCES
 from catmip_rl.benchmark.entry import (
     CLASSES,

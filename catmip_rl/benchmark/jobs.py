@@ -17,9 +17,9 @@ from typing import Any
 
 import numpy as np
 
-from catmip_env.events import EventEngine
-from catmip_env.machine import machine_info
+from catmip_env.engines.events import EventEngine
 from catmip_env.play import WorldNotSupported, plays_one_world_at_a_time
+from catmip_env.runtime.machine import machine_info
 from catmip_rl.benchmark.resume_check import check_resumed, read_summary
 from catmip_rl.benchmark.runner import Runner
 from catmip_rl.benchmark.shipping import Bundle, bundle_for, importable, played_from, restored, unpacked

@@ -25,8 +25,8 @@ from typing import Any
 
 import numpy as np
 
-from catmip_env.machine import machine_info
-from catmip_env.map_sets import SPLITS
+from catmip_env.maps.map_sets import SPLITS
+from catmip_env.runtime.machine import machine_info
 from catmip_rl.benchmark.entry import SETTINGS, package_versions
 from catmip_rl.benchmark.entry_check import EntryError
 from catmip_rl.evaluation.evaluate import EvalSetting, evaluate

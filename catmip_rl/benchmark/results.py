@@ -51,7 +51,7 @@ class PlayedOn:
     maps_sha256: str  # of the map hashes in play order, as a suite entry's maps_sha256
 
     def describe(self) -> str:
-        from catmip_env.map_sets import SPLITS
+        from catmip_env.maps.map_sets import SPLITS
 
         split = next((f" ({name} split)" for name, s in SPLITS.items() if s == self.seed), "")
         horizon = "" if self.horizon is None else f", horizon {self.horizon}"

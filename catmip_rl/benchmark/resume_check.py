@@ -26,7 +26,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from catmip_env.episode_stats import success_curve
+from catmip_env.engines.episode_stats import success_curve
 from catmip_rl.benchmark.results_check import check_counts, check_csv, episode_ticks, summary_fields
 
 if TYPE_CHECKING:
@@ -114,7 +114,7 @@ def _check_played(
 
 def _check_maps(folder: Path, maps: list[str], task: str, seed: int) -> None:
     """``maps`` are maps 0 .. E-1 that this installation generates for ``task`` and ``seed``."""
-    from catmip_env.map_sets import check_maps, map_hashes
+    from catmip_env.maps.map_sets import check_maps, map_hashes
 
     try:
         report = check_maps(task, seed, maps)
@@ -156,7 +156,7 @@ def _mean(values: np.ndarray) -> float | None:
 def _recomputed(
     folder: Path, rows: list[dict], rescue: np.ndarray, sampled: np.ndarray | None, horizon: int
 ) -> dict[str, Any]:
-    """The summary's numbers that the episodes give (as ``catmip_env.episode_stats`` and ``evaluate``
+    """The summary's numbers that the episodes give (as ``catmip_env.engines.episode_stats`` and ``evaluate``
     compute them; -1: a tick that never came), for the columns the episodes hold."""
     col = {key: _column(folder, rows, key) for key in ("explored_fraction", "decisions", "stalls")}
     col |= {key: _column(folder, rows, key) for key in ("bytes_embedding", "bytes_raw")}

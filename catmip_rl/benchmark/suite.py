@@ -3,8 +3,8 @@
     run_suite(["nearest", "mine=py:my_policy.py:make_policy"], split="validation")  # catmip bench suite
 
 **Suite v2** (:data:`SETTINGS`): Tasks 2 and 3 × communication full / σ = 4 / σ = 2 × SLAM noise 0 / 5 %,
-each on 1,000 frozen maps of a **split** (:data:`~catmip_env.map_sets.SPLITS`, in
-``catmip_env/frozen_maps``): *validation* (seed 1000) for tuning, gates and every choice; *test* (seed
+each on 1,000 frozen maps of a **split** (:data:`~catmip_env.maps.map_sets.SPLITS`, in
+``catmip_env/maps/frozen_maps``): *validation* (seed 1000) for tuning, gates and every choice; *test* (seed
 20261201), played once per entry after every choice is frozen: the leaderboard ranks test entries
 only. Evaluation activation, the paper's horizon, the longest macro-action 10 ticks. Task 1 is left
 out: every planner and AMAT rescue within 0.02 of each other there by tick 100. Weak communication and
@@ -22,7 +22,7 @@ import json
 from pathlib import Path
 from typing import Any
 
-from catmip_env.map_sets import SPLITS
+from catmip_env.maps.map_sets import SPLITS
 from catmip_rl.benchmark.entry import (
     EPISODES,
     SETTINGS,

@@ -29,8 +29,8 @@ from typing import Any
 
 import numpy as np
 
-from catmip_env.machine import machine_info
-from catmip_env.map_sets import FROZEN_SEEDS, MapSetMismatch
+from catmip_env.maps.map_sets import FROZEN_SEEDS, MapSetMismatch
+from catmip_env.runtime.machine import machine_info
 from catmip_rl.benchmark import fresh_rule
 from catmip_rl.benchmark.entry import SETTINGS, machine_of, package_versions, rescued_by_100
 from catmip_rl.benchmark.entry_check import EntryError

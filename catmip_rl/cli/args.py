@@ -213,5 +213,5 @@ def add_allow_other_maps(p: argparse.ArgumentParser) -> None:
         "--allow-other-maps",
         action="store_true",
         help="evaluate even if this installation generates maps other than the frozen map sets' "
-        "(catmip_env/frozen_maps; the summary records it); without it such a run is refused",
+        "(catmip_env/maps/frozen_maps; the summary records it); without it such a run is refused",
     )

@@ -71,7 +71,7 @@ def _add_per_method(
 
 
 def add_suite(suites) -> None:
-    from catmip_env.map_sets import SPLITS
+    from catmip_env.maps.map_sets import SPLITS
     from catmip_rl.benchmark.entry import EPISODES, SETTINGS, SUITE
 
     su = add_command(

@@ -211,7 +211,7 @@ def add_setting_flags(p: argparse.ArgumentParser) -> None:
 
 
 def add_eval_render(sub) -> None:
-    from catmip_env.render import RENDER_FPS
+    from catmip_env.envs.render import RENDER_FPS
 
     ev = add_command(
         sub,

@@ -6,8 +6,8 @@ from __future__ import annotations
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from catmip_env import render
-from catmip_env.events import EventEngine
+from catmip_env.engines.events import EventEngine
+from catmip_env.envs import render
 from catmip_env.play import plays_one_world_at_a_time
 from catmip_rl.evaluation.evaluate import EvalSetting
 from catmip_rl.evaluation.methods import Method, make_policy, parse_method
@@ -30,9 +30,9 @@ def render_episode(
     model: AMAT | None = None,
 ) -> Path:
     """GIF of one evaluation episode (the map of ``episode`` of ``seed``, as in :func:`evaluate`),
-    one frame per tick (:func:`catmip_env.render.render_episode`): robots, their goals, explored area,
+    one frame per tick (:func:`catmip_env.envs.render.render_episode`): robots, their goals, explored area,
     communication links; ``fps`` defaults to the env's ``metadata["render_fps"]``."""
-    from catmip_env.render import RENDER_FPS
+    from catmip_env.envs.render import RENDER_FPS
 
     method = parse_method(method) if isinstance(method, str) else method
     sync = method.synchronous

@@ -1,5 +1,5 @@
 """What a command does before it plays: the one-time compilation of the numba kernels it plays with
-(catmip_env.warmup), AMAT's execution included (``catmip eval | render | bench | train`` and the demo
+(catmip_env.runtime.warmup), AMAT's execution included (``catmip eval | render | bench | train`` and the demo
 call :func:`compile_kernels` first, so that a first run says what it is doing and how long it took
 instead of sitting silent); torch's threads and a worker's tie to its parent: ``evaluation.workers``."""
 
@@ -10,8 +10,8 @@ from importlib.util import find_spec
 from pathlib import Path
 from typing import Any, TextIO
 
-from catmip_env import warmup
 from catmip_env.play import play
+from catmip_env.runtime import warmup
 
 __all__ = ["compile_kernels", "plays_amat", "command_plays_amat"]
 

@@ -9,7 +9,7 @@ key                    calls counted (one per outermost call: a call made inside
 =====================  ==================================================================================
 ``worlds``             ``BatchedWorld.__init__`` / ``.reset``, ``EventEngine.__init__`` / ``.reset`` (the
                        PettingZoo and TorchRL envs, and the rollout planner's simulations, build these)
-``map_sets``           ``catmip_env.map_sets.manifest`` / ``map_hashes`` / ``check_maps``
+``map_sets``           ``catmip_env.maps.map_sets.manifest`` / ``map_hashes`` / ``check_maps``
 ``mapgen``             ``catmip_env.kernels.mapgen.generate`` (every generated map, resets included)
 ``planners_made``      ``Planner.__init__`` (every planner: subclasses call it)
 ``planner_decisions``  ``act`` of ``Planner``, of every class in its subclasses' MROs that defines its own
@@ -44,17 +44,17 @@ __all__ = ["KINDS", "install_counters"]
 
 KINDS = ("worlds", "map_sets", "mapgen", "planners_made", "planner_decisions")
 _METHODS = (  # (module, class, method, kind)
-    ("catmip_env.world", "BatchedWorld", "__init__", "worlds"),
-    ("catmip_env.world", "BatchedWorld", "reset", "worlds"),
-    ("catmip_env.events", "EventEngine", "__init__", "worlds"),
-    ("catmip_env.events", "EventEngine", "reset", "worlds"),
+    ("catmip_env.engines.world", "BatchedWorld", "__init__", "worlds"),
+    ("catmip_env.engines.world", "BatchedWorld", "reset", "worlds"),
+    ("catmip_env.engines.events", "EventEngine", "__init__", "worlds"),
+    ("catmip_env.engines.events", "EventEngine", "reset", "worlds"),
     ("catmip_env.planners.core", "Planner", "__init__", "planners_made"),
     ("catmip_env.planners.window", "WindowPlanner", "act", "planner_decisions"),
 )
 _FUNCTIONS = (  # (module, function, kind)
-    ("catmip_env.map_sets", "manifest", "map_sets"),
-    ("catmip_env.map_sets", "map_hashes", "map_sets"),
-    ("catmip_env.map_sets", "check_maps", "map_sets"),
+    ("catmip_env.maps.map_sets", "manifest", "map_sets"),
+    ("catmip_env.maps.map_sets", "map_hashes", "map_sets"),
+    ("catmip_env.maps.map_sets", "check_maps", "map_sets"),
     ("catmip_env.kernels.mapgen", "generate", "mapgen"),
 )
 _PLANNER_MODULES = ("catmip_env.planners.baselines", "catmip_env.planners.rollout")

@@ -14,9 +14,9 @@ from typing import Any
 import numpy as np
 
 from catmip_env.config import EnvConfig
-from catmip_env.events import GOAL_MODES, EventEngine
+from catmip_env.engines.events import GOAL_MODES, EventEngine
+from catmip_env.envs.spaces import macro_infos, macro_observations, parse_actions
 from catmip_env.play import WorldNotSupported
-from catmip_env.spaces import macro_infos, macro_observations, parse_actions
 from catmip_rl.evaluation.user_policy import (
     POLICY_LEVELS,
     VIEW_DOC,

@@ -30,11 +30,11 @@ import numpy as np
 
 from catmip_env import EnvConfig, make_config
 from catmip_env.config import MIN_COMM_SIGMA
-from catmip_env.episode_stats import EpisodeRecords, decision_metrics, episode_metrics, success_curve
-from catmip_env.events import EventEngine
-from catmip_env.map_sets import check_maps, map_hash
+from catmip_env.engines.episode_stats import EpisodeRecords, decision_metrics, episode_metrics, success_curve
+from catmip_env.engines.events import EventEngine
+from catmip_env.engines.world import episode_index_array
+from catmip_env.maps.map_sets import check_maps, map_hash
 from catmip_env.play import episode_columns, play, plays_one_world_at_a_time
-from catmip_env.world import episode_index_array
 from catmip_rl.evaluation.methods import (
     POLICY_SEED,
     USER_KINDS,
@@ -207,7 +207,7 @@ def evaluate(
     ``policy``: your own policy object (PettingZoo or engine level, or a TorchRL module; see
     :mod:`~catmip_rl.evaluation.user_policy`), played under the name ``method``:
     ``evaluate("mine", setting, policy=MyPolicy())``. The maps are checked against the frozen map sets
-    (:mod:`catmip_env.map_sets`) before any is played: other maps raise ``MapSetMismatch`` unless
+    (:mod:`catmip_env.maps.map_sets`) before any is played: other maps raise ``MapSetMismatch`` unless
     ``allow_other_maps`` (the summary's ``map_set_*`` keys say what was found). ``threads``: the env's
     worlds stepped on that many threads (the same results). ``isolated``: a ``py:`` policy plays in a
     worker process that holds no engine (:mod:`~catmip_rl.evaluation.sandbox`; None: as the

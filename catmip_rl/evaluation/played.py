@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 
 from catmip_env.config import EnvConfig
-from catmip_env.episode_stats import EpisodeRecords
+from catmip_env.engines.episode_stats import EpisodeRecords
 
 __all__ = ["Played", "merge_played", "chunk_seed"]
 

@@ -8,7 +8,7 @@ from typing import Any
 
 import numpy as np
 
-from catmip_env.episode_stats import EpisodeRecords
+from catmip_env.engines.episode_stats import EpisodeRecords
 from catmip_rl.evaluation.methods import Method, own_modules
 
 __all__ = ["episode_rows", "action_choice", "policy_calls", "policy_modules"]

@@ -12,7 +12,7 @@ set's seed, and returns a policy at one of two levels:
   out. Episodes are played one after another, and ``reset()``, if the policy has it, is called before
   each, so a policy with memory works as it would in a PettingZoo loop.
 * **Engine level** (fast, batched) -- ``act(engine) -> (B, N) int`` goal actions for every world of a
-  :class:`~catmip_env.events.EventEngine` (the :class:`catmip_env.play.Policy` protocol, what the
+  :class:`~catmip_env.engines.events.EventEngine` (the :class:`catmip_env.play.Policy` protocol, what the
   planners and AMAT implement); all maps of a setting are played at once.
 
 The level is read from the policy's ``level`` attribute (``"pettingzoo"`` or ``"engine"``) or else from
@@ -51,7 +51,7 @@ from typing import Any
 import numpy as np
 
 from catmip_env.constants import TARGET_BIT
-from catmip_env.events import EventEngine
+from catmip_env.engines.events import EventEngine
 
 __all__ = [
     "POLICY_LEVELS",
@@ -337,14 +337,14 @@ class _WorldView(ReadOnlyView):
 
 
 class EngineView(ReadOnlyView):
-    """What an engine-level policy's ``act(engine)`` is given: the :class:`~catmip_env.events.EventEngine`'s
-    observations at the current event, every array read-only (writing one raises), and nothing that
-    steps, resets or edits the world. It has ``cfg``, ``num_worlds``, ``num_robots``, ``shape``,
-    ``num_actions``, ``goal_mode``, ``stay_action``, ``obs_global``, ``obs_local``, ``masks``, ``active``,
-    ``mstate``, ``world.keys`` (each world's key: :func:`~catmip_env.world.world_key`, to key a random
-    stream per world; neither the map set's seed nor the episode index), ``action_to_cell`` and a
-    ``state`` (:class:`StateView`) without the ground truth (the true map; the target's cell only where
-    a robot knows it).
+    """What an engine-level policy's ``act(engine)`` is given: the
+    :class:`~catmip_env.engines.events.EventEngine`'s observations at the current event, every array
+    read-only (writing one raises), and nothing that steps, resets or edits the world. It has ``cfg``,
+    ``num_worlds``, ``num_robots``, ``shape``, ``num_actions``, ``goal_mode``, ``stay_action``,
+    ``obs_global``, ``obs_local``, ``masks``, ``active``, ``mstate``, ``world.keys`` (each world's key:
+    :func:`~catmip_env.engines.world.world_key`, to key a random stream per world; neither the map set's
+    seed nor the episode index), ``action_to_cell`` and a ``state`` (:class:`StateView`) without the
+    ground truth (the true map; the target's cell only where a robot knows it).
 
     Built from arrays and plain values, not from an engine: the same view is built in the process that
     holds the engine (:func:`view_arrays`, no copy) and in a worker that holds none

@@ -18,8 +18,8 @@ from typing import Any
 
 import numpy as np
 
+from catmip_env.envs.spaces import integer_action
 from catmip_env.play import WorldNotSupported
-from catmip_env.spaces import integer_action
 from catmip_rl.evaluation.bounds import become_subreaper, drop_ptrace, end_descendants
 from catmip_rl.evaluation.call_counts import install_counters
 from catmip_rl.evaluation.checked_policy import (

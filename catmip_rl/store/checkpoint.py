@@ -17,7 +17,7 @@ from typing import Any, NamedTuple
 
 import torch
 
-from catmip_env.files import atomic_path
+from catmip_env.runtime.files import atomic_path
 from catmip_rl.amat.config import AmatConfig
 from catmip_rl.amat.model import AMAT
 from catmip_rl.amat.weights import finer_pool, with_hint

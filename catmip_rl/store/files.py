@@ -1,5 +1,5 @@
-"""How a result file is written: atomic writes (``catmip_env.files.atomic_path``, with an fsync before the
-rename) of text, CSV and figures, and CSV logs that a running job appends to. Whether a path may be
+"""How a result file is written: atomic writes (``catmip_env.runtime.files.atomic_path``, with an fsync
+before the rename) of text, CSV and figures, and CSV logs that a running job appends to. Whether a path may be
 written at all is :mod:`~catmip_rl.store.outputs`' question."""
 
 from __future__ import annotations
@@ -10,7 +10,7 @@ import os
 from pathlib import Path
 from typing import Any
 
-from catmip_env.files import atomic_path
+from catmip_env.runtime.files import atomic_path
 
 __all__ = [
     "atomic_write_text",

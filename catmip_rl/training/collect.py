@@ -6,7 +6,7 @@ live worlds and only active robots' goals are applied. Samples (docs/design.md#s
 decision order, actions, log-probs, values, and per robot the return and duration of the macro-action
 that ended at that event. Episode statistics are recorded when each world finishes.
 
-A plain loop over :class:`~catmip_env.events.EventEngine`: TorchRL's generic collector spends more in
+A plain loop over :class:`~catmip_env.engines.events.EventEngine`: TorchRL's generic collector spends more in
 tensordict copies per step than the whole engine step costs here.
 """
 
@@ -20,8 +20,8 @@ import torch
 
 from catmip_env import EnvConfig
 from catmip_env.constants import global_channels, local_channels
-from catmip_env.episode_stats import DecisionTracker, EpisodeRecords, episode_records, training_stats
-from catmip_env.events import EventEngine
+from catmip_env.engines.episode_stats import DecisionTracker, EpisodeRecords, episode_records, training_stats
+from catmip_env.engines.events import EventEngine
 from catmip_env.planners.baselines import Relay
 from catmip_env.planners.proposals import Proposals
 from catmip_env.play import Policy
@@ -55,7 +55,7 @@ class Rollout:
     hint: np.ndarray  # (T, B, N) int64 the proposals a model with AmatConfig.hint reads (-1: none)
     final_return: np.ndarray  # (B, N) float64 each robot's last macro-action's return
     terminated: np.ndarray  # (B,) bool the episode ended in a rescue (its last macro-actions are trained)
-    records: EpisodeRecords  # the B episodes' records (catmip_env.episode_stats), stalls included
+    records: EpisodeRecords  # the B episodes' records (catmip_env.engines.episode_stats), stalls included
     returns: np.ndarray  # (B, N) float64 each robot's episode return
     stats: dict[str, float]  # training_stats of records and returns: what the training log shows
 

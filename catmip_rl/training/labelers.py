@@ -8,7 +8,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from catmip_env.constants import TARGET_BIT
-from catmip_env.events import EventEngine
+from catmip_env.engines.events import EventEngine
 from catmip_env.planners.baselines import make_planner
 from catmip_env.planners.core import Planner
 from catmip_env.planners.window import WindowPlanner, make_window_planner

@@ -21,13 +21,15 @@ from tests.architecture_graph import group, group_edges, import_graph  # noqa: E
 
 # where each group's box is drawn (x, y of its centre, in box units)
 POSITION = {
-    "env: config": (0, 0),
-    "env: kernels": (0, 1.5),
-    "env: world": (0, 3),
-    "env: events": (0, 4),
-    "env: planners": (-1, 5),
-    "env: play": (0.2, 6),
-    "env: PettingZoo": (-1, 7),
+    "env: base": (0, 0),
+    "env: kernels": (0, 1.3),
+    "env: engines": (0, 2.6),
+    "env: maps": (-0.95, 3.9),
+    "env: planners": (0.45, 3.9),
+    "env: play": (0.45, 6.5),
+    "env: face": (0, 9.1),
+    "env: runtime": (-0.95, 5.2),
+    "env: envs": (-0.95, 7.8),
     "rl: amat": (2.2, 3),
     "rl: package": (4.2, 3),
     "rl: store": (3.4, 4.2),

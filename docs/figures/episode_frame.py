@@ -1,5 +1,5 @@
 """The README's picture: one frame of a Task-2 episode (σ = 2) played by ``rrt-relay-coord``, at the
-tick the target is first seen, drawn by the env's own renderer (``catmip_env.render``) with its caption.
+tick the target is first seen, drawn by the env's own renderer (``catmip_env.envs.render``) with its caption.
 
     python docs/figures/episode_frame.py [--out docs/figures/episode.png]
 """
@@ -12,9 +12,9 @@ from pathlib import Path
 import numpy as np
 
 from catmip_env import make_config
-from catmip_env.events import EventEngine
+from catmip_env.engines.events import EventEngine
+from catmip_env.envs.render import add_caption, render_world
 from catmip_env.planners import make_planner
-from catmip_env.render import add_caption, render_world
 
 
 def frame(episode: int = 2, seed: int = 1000) -> np.ndarray:

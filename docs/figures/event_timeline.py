@@ -19,7 +19,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from catmip_env import PRESETS  # noqa: E402
-from catmip_env.events import EventEngine, random_valid_actions  # noqa: E402
+from catmip_env.engines.events import EventEngine, random_valid_actions  # noqa: E402
 from catmip_env.kernels.activation import M_WAIT  # noqa: E402
 
 

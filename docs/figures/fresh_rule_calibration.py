@@ -15,7 +15,7 @@ import re
 import time
 from pathlib import Path
 
-from catmip_env.machine import machine_info
+from catmip_env.runtime.machine import machine_info
 from catmip_rl.benchmark.entry_check import load_entries
 from catmip_rl.benchmark.fresh_rule import FRESH_MAPS, calibrate
 from catmip_rl.store.files import atomic_write_text

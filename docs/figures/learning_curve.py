@@ -23,8 +23,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from catmip_env.episode_stats import episode_metrics
-from catmip_env.events import EventEngine
+from catmip_env.engines.episode_stats import episode_metrics
+from catmip_env.engines.events import EventEngine
 from catmip_env.planners.baselines import make_planner
 from catmip_env.play import play
 from catmip_rl.cli.args import parse_set

@@ -33,7 +33,7 @@ def test_the_maps_are_those_of_a_fixed_range_and_every_choice_is_drawn():
 
 @pytest.mark.parametrize("level", ["tick", "event"])
 def test_an_episode_plays_exactly_as_with_its_drawn_range_fixed(level):
-    from catmip_env.events import EventEngine
+    from catmip_env.engines.events import EventEngine
     from catmip_env.planners.baselines import make_planner
 
     cfg = make_config("task2", comm_sigma_choices=CHOICES, horizon_ticks=120)

@@ -1,10 +1,10 @@
-"""Decision and stall counts (catmip_env.episode_stats)."""
+"""Decision and stall counts (catmip_env.engines.episode_stats)."""
 
 import numpy as np
 
 from catmip_env import make_config
-from catmip_env.episode_stats import DecisionTracker
-from catmip_env.events import EventEngine
+from catmip_env.engines.episode_stats import DecisionTracker
+from catmip_env.engines.events import EventEngine
 from catmip_env.planners.window import make_window_planner
 
 

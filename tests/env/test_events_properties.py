@@ -6,7 +6,7 @@ from hypothesis import strategies as st
 
 from catmip_env import make_config
 from catmip_env.constants import CLUE, CLUE_BIT, EXPLORED, FREE, OCCUPIED, TARGET, TARGET_BIT
-from catmip_env.events import EventEngine, random_valid_actions
+from catmip_env.engines.events import EventEngine, random_valid_actions
 from catmip_env.kernels.activation import M_KNEW
 
 from .helpers import bfs_distance

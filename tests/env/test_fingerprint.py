@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from catmip_env import BatchedWorld, make_config
-from catmip_env.events import EventEngine
+from catmip_env.engines.events import EventEngine
 from catmip_env.planners.baselines import make_planner
 
 SETTINGS = {

@@ -8,7 +8,7 @@ import pytest
 
 from catmip_env import EnvConfig
 from catmip_env.constants import WALL
-from catmip_env.events import EventEngine, random_valid_actions
+from catmip_env.engines.events import EventEngine, random_valid_actions
 from catmip_env.kernels.activation import M_DEADLINE, M_STANDBY
 
 OPEN = """

@@ -9,8 +9,8 @@ from pathlib import Path
 
 import pytest
 
-from catmip_env import map_sets
-from catmip_env.map_sets import (
+from catmip_env.maps import map_sets
+from catmip_env.maps.map_sets import (
     FROZEN_SEEDS,
     MANIFEST_EPISODES,
     MapSetMismatch,

@@ -1,4 +1,4 @@
-"""catmip_env.numba_cache: a kernel whose callee in another module changed is recompiled, not served
+"""catmip_env.runtime.numba_cache: a kernel whose callee in another module changed is recompiled, not served
 stale from numba's cache."""
 
 from __future__ import annotations
@@ -8,7 +8,7 @@ import subprocess
 import sys
 import textwrap
 
-from catmip_env.numba_cache import refresh, sources_digest
+from catmip_env.runtime.numba_cache import refresh, sources_digest
 
 CALLER = """
 from numba import njit
@@ -23,7 +23,7 @@ def f(x):
 def _package(root, refreshes: bool) -> None:
     pkg = root / "pkgx"
     pkg.mkdir()
-    init = "from pathlib import Path\nfrom catmip_env.numba_cache import refresh\n"
+    init = "from pathlib import Path\nfrom catmip_env.runtime.numba_cache import refresh\n"
     (pkg / "__init__.py").write_text(init + "refresh(Path(__file__).parent)\n" if refreshes else "")
     (pkg / "caller.py").write_text(textwrap.dedent(CALLER))
     _callee(pkg, 2)

@@ -215,7 +215,7 @@ def test_render_modes(tmp_path):
         frames.append(env.render())
     f = frames[-1]
     assert f.dtype == np.uint8 and f.shape == (15 * 16, 15 * 16, 3)
-    from catmip_env.render import save_gif
+    from catmip_env.envs.render import save_gif
 
     path = save_gif(frames, tmp_path / "ep.gif")
     assert path.stat().st_size > 1000
@@ -225,7 +225,7 @@ def test_render_modes(tmp_path):
 
 
 def test_import_does_not_pull_torch():
-    code = "import sys, catmip_env, catmip_env.search_rescue_v0; print('torch' in sys.modules)"
+    code = "import sys, catmip_env, catmip_env.envs.search_rescue_v0; print('torch' in sys.modules)"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "False"
     assert catmip_env.__version__

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from catmip_env import EnvConfig, make_config
-from catmip_env.events import EventEngine
+from catmip_env.engines.events import EventEngine
 from catmip_env.planners.baselines import PLANNERS, make_planner
 
 EPISODES = 24

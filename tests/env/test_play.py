@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from catmip_env import make_config
-from catmip_env.episode_stats import (
+from catmip_env.engines.episode_stats import (
     DecisionTracker,
     EpisodeRecords,
     decision_metrics,
@@ -15,10 +15,10 @@ from catmip_env.episode_stats import (
     episode_records,
     success_curve,
 )
-from catmip_env.events import EventEngine, random_valid_actions
+from catmip_env.engines.events import EventEngine, random_valid_actions
+from catmip_env.envs.render import episode_frames, episode_status
 from catmip_env.planners.baselines import make_planner
 from catmip_env.play import play
-from catmip_env.render import episode_frames, episode_status
 
 
 def _records(rescue, found, explored, decisions, stalls, cls=(0, 1), informed=None) -> EpisodeRecords:
@@ -198,7 +198,7 @@ def test_the_caption_says_the_tick_and_how_the_mission_stands():
 
 
 def test_play_is_torch_free():
-    code = "import sys, catmip_env.play, catmip_env.render; print('torch' in sys.modules)"
+    code = "import sys, catmip_env.play, catmip_env.envs.render; print('torch' in sys.modules)"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "False"
 

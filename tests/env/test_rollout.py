@@ -6,7 +6,7 @@ import pytest
 
 from catmip_env import make_config
 from catmip_env.constants import CLUE, EXPLORED, FREE, TARGET
-from catmip_env.events import EventEngine
+from catmip_env.engines.events import EventEngine
 from catmip_env.planners import make_planner
 from catmip_env.planners.rollout import RolloutPlanner, known_world, load
 

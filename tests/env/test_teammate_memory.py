@@ -8,7 +8,7 @@ import numpy as np
 
 from catmip_env import EnvConfig, make_config
 from catmip_env.constants import CH_CLASS0, OBS_CLUE, OBS_HALF, OBS_ONE, TARGET_BIT
-from catmip_env.events import EventEngine
+from catmip_env.engines.events import EventEngine
 from catmip_env.planners.baselines import make_planner
 from tests.env.helpers import preset_engine, random_actions
 
@@ -142,7 +142,7 @@ def test_relay_explorer_that_finds_the_cell_empty_explores_on():
 
 def test_news_carries_the_goal_a_teammate_was_heading_for():
     """``heard_goal``: first hand, the goal the teammate has this tick; passed on with the news."""
-    from catmip_env.events import random_valid_actions
+    from catmip_env.engines.events import random_valid_actions
 
     eng = EventEngine(EnvConfig(map_size=20, team=("rescuer", "explorer", "explorer"), comm_sigma=2.0), 6,
                       seed=3, goal_mode="cell")  # fmt: skip

@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from catmip_env import BatchedWorld, EventEngine, make_config
-from catmip_env.chunks import WorldChunks
-from catmip_env.events import random_valid_actions
+from catmip_env.engines.chunks import WorldChunks
+from catmip_env.engines.events import random_valid_actions
 from catmip_env.kernels.state import WorldState
 
 FIELDS = WorldState.__dataclass_fields__
@@ -59,10 +59,10 @@ def test_an_event_engine_on_threads_steps_exactly_as_on_one(goal_mode, preset, o
 def test_a_batched_world_on_threads_ticks_exactly_as_on_one(split_work, monkeypatch):
     """On two threads (the tick split however little work it is) or on the caller's (too little work
     to be worth a second thread: ``TICK_SPLIT_WORK``), the same worlds as on one."""
-    import catmip_env.world
+    import catmip_env.engines.world
 
     if split_work is not None:
-        monkeypatch.setattr(catmip_env.world, "TICK_SPLIT_WORK", split_work)
+        monkeypatch.setattr(catmip_env.engines.world, "TICK_SPLIT_WORK", split_work)
     cfg = make_config("task2", slam_noise=0.05)
     worlds = [BatchedWorld(cfg, num_worlds=5, seed=1, threads=t) for t in (1, 2)]
     for w in worlds:

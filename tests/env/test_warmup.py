@@ -3,7 +3,7 @@
 import io
 from pathlib import Path
 
-from catmip_env import warmup
+from catmip_env.runtime import warmup
 
 
 def test_compile_once_announces_records_and_skips_the_second_time(tmp_path, monkeypatch):
@@ -29,4 +29,4 @@ def test_compile_once_announces_records_and_skips_the_second_time(tmp_path, monk
 
 def test_the_env_kernels_are_compiled_after_compile_kernels():
     warmup.compile_kernels(None)  # cached after the first run on this machine: seconds or nothing
-    assert warmup.is_compiled(Path(warmup.__file__).parent)
+    assert warmup.is_compiled(Path(warmup.__file__).parents[1])

@@ -6,7 +6,7 @@ import pytest
 
 from catmip_env import make_config
 from catmip_env.constants import EXPLORED, OCCUPIED
-from catmip_env.events import EventEngine
+from catmip_env.engines.events import EventEngine
 from catmip_env.planners.baselines import make_planner
 from catmip_env.planners.window import make_window_planner, project_goal
 

@@ -1,4 +1,4 @@
-"""Atomic result files (catmip_env.files, catmip_rl.store.files): whole files or nothing, nothing left
+"""Atomic result files (catmip_env.runtime.files, catmip_rl.store.files): whole files or nothing, nothing left
 behind."""
 
 import matplotlib
@@ -9,7 +9,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 import pytest
 
-from catmip_env.files import atomic_path
+from catmip_env.runtime.files import atomic_path
 from catmip_rl.store.files import atomic_savefig, atomic_write_text
 
 

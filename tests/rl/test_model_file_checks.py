@@ -102,7 +102,7 @@ def test_play_options_must_be_booleans(tmp_path, value):
 
 
 def test_amat_kernels_compile_only_where_a_model_plays(tmp_path, monkeypatch):
-    from catmip_env import warmup as env_warmup
+    from catmip_env.runtime import warmup as env_warmup
     from catmip_rl.cli import warmup
 
     compiled = []

@@ -5,7 +5,7 @@ class tokens.
 Every FastAmat kernel (here, in ``kernels.conv`` and in ``batch1.fast_amat``) is compiled by the one decorator
 :data:`kernel`, so they all share its options; numba resolves a kernel's calls to kernels of other
 modules at compile time and compiles them into the caller (numba's on-disk cache would not see those
-callees change; ``catmip_env.numba_cache`` drops the package's caches when its sources change).
+callees change; ``catmip_env.runtime.numba_cache`` drops the package's caches when its sources change).
 """
 
 from __future__ import annotations

@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from catmip_env.events import EventEngine
+from catmip_env.engines.events import EventEngine
 from catmip_env.kernels.state import WorldState
 from catmip_env.planners.proposals import Proposals
 from catmip_env.play import MESSAGE_COLUMNS

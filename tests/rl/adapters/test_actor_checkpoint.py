@@ -7,7 +7,7 @@ from tensordict import TensorDict
 from tensordict.nn import set_interaction_type
 
 from catmip_env import make_config
-from catmip_env.events import EventEngine, random_valid_actions
+from catmip_env.engines.events import EventEngine, random_valid_actions
 from catmip_rl.adapters import keys as K
 from catmip_rl.adapters.torchrl_actor import AmatActor, AmatCritic
 from catmip_rl.amat.config import AmatConfig

@@ -133,7 +133,7 @@ def test_the_deciding_observation_is_the_active_rows_of_the_event_observation():
     import numpy as np
 
     from catmip_env import make_config
-    from catmip_env.events import EventEngine
+    from catmip_env.engines.events import EventEngine
     from catmip_rl.adapters.torchrl_env import deciding_observation, engine_observation
 
     engine = EventEngine(make_config("task3"), num_worlds=3, seed=5)  # six robots: some busy at an event

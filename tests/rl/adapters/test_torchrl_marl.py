@@ -134,7 +134,7 @@ def test_a_pooled_policy_plays_every_map_size(tmp_path):
 
 @pytest.mark.parametrize("deterministic", [True, False])
 def test_a_loaded_policy_feeds_only_the_deciding_robots_to_its_network(tmp_path, deterministic):
-    from catmip_env.events import EventEngine
+    from catmip_env.engines.events import EventEngine
     from catmip_rl.adapters.torchrl_policy import TorchRLPolicy
 
     cfg = make_config("task3")  # six robots: some of them busy at an event

@@ -7,7 +7,7 @@ import torch
 
 from catmip_env.config import make_config
 from catmip_env.constants import CH_OCCUPIED, EXPLORED, OBS_ONE, OCCUPIED
-from catmip_env.events import EventEngine, random_valid_actions
+from catmip_env.engines.events import EventEngine, random_valid_actions
 from catmip_rl.amat.inputs import clean_occupancy
 from catmip_rl.amat.onboard.execution import CellGoalExecutor
 from catmip_rl.benchmark.entry import entry_actions

@@ -6,7 +6,7 @@ import torch
 import torch.nn.functional as F
 
 from catmip_env.config import make_config
-from catmip_env.events import EventEngine
+from catmip_env.engines.events import EventEngine
 from catmip_rl.amat.config import AmatConfig
 from catmip_rl.amat.kernels.conv import RUN_MAX, conv_weights, ones_conv
 from catmip_rl.amat.model import decision_order

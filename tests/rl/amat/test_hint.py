@@ -10,7 +10,7 @@ import pytest
 import torch
 
 from catmip_env.config import make_config
-from catmip_env.events import EventEngine
+from catmip_env.engines.events import EventEngine
 from catmip_env.planners.baselines import make_planner
 from catmip_env.planners.proposals import NO_PROPOSAL, Proposals
 from catmip_rl.amat.config import AmatConfig

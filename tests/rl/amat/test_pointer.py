@@ -8,7 +8,7 @@ import torch
 
 from catmip_env.config import make_config
 from catmip_env.constants import EXPLORED, OCCUPIED
-from catmip_env.events import EventEngine, random_valid_actions
+from catmip_env.engines.events import EventEngine, random_valid_actions
 from catmip_env.planners.core import distance_field
 from catmip_rl.amat.config import AmatConfig
 from catmip_rl.amat.inputs import macro_observation

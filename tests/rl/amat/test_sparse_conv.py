@@ -6,7 +6,7 @@ import torch
 import torch.nn.functional as F
 
 from catmip_env.config import make_config
-from catmip_env.events import EventEngine, random_valid_actions
+from catmip_env.engines.events import EventEngine, random_valid_actions
 from catmip_rl.amat.config import AmatConfig
 from catmip_rl.amat.kernels.sparse_conv import global_conv_pool, global_conv_pool_winners
 from catmip_rl.amat.model import decision_order

@@ -22,7 +22,7 @@ import catmip_rl.benchmark.suite
 import catmip_rl.evaluation.evaluate
 import catmip_rl.training.collect
 import catmip_rl.training.train
-from catmip_env.search_rescue_v0 import SearchRescueEnv
+from catmip_env.envs.search_rescue_v0 import SearchRescueEnv
 from catmip_rl.cli.args import CPUS
 from catmip_rl.cli.main import main
 from catmip_rl.cli.parser import DEFAULT_PRESET, build_parser

@@ -9,7 +9,7 @@ import textwrap
 import numpy as np
 import pytest
 
-from catmip_env.events import EventEngine
+from catmip_env.engines.events import EventEngine
 from catmip_rl.evaluation.evaluate import EvalSetting
 from catmip_rl.evaluation.sandbox import isolated_policy
 from catmip_rl.evaluation.user_policy import PolicyError
@@ -25,7 +25,7 @@ POLICIES = textwrap.dedent(
 
     class BuildsWorld(Plain):
         def __init__(self, env_config):
-            from catmip_env.world import BatchedWorld
+            from catmip_env.engines.world import BatchedWorld
             BatchedWorld(env_config, num_worlds=1, seed=0).reset()
 
     class RunsRRT:
@@ -35,19 +35,19 @@ POLICIES = textwrap.dedent(
 
     class UnpatchesThenBuilds(Plain):
         def __init__(self, env_config):
-            from catmip_env.world import BatchedWorld
+            from catmip_env.engines.world import BatchedWorld
             wrapper = BatchedWorld.__init__
             original = next(c.cell_contents for c in wrapper.__closure__ if callable(c.cell_contents))
             BatchedWorld.__init__ = original  # put back: the worker wraps it again before the next request
             self.cfg = env_config
         def act(self, engine):
-            from catmip_env.world import BatchedWorld
+            from catmip_env.engines.world import BatchedWorld
             BatchedWorld(self.cfg, num_worlds=1, seed=0)
             return super().act(engine)
 
     class Reads:
         def act(self, observations, infos):
-            from catmip_env.map_sets import manifest
+            from catmip_env.maps.map_sets import manifest
             manifest("task1")
             active = [r for r in observations if infos[r]["active"]]
             return {r: int(np.argmax(observations[r]["action_mask"])) for r in active}

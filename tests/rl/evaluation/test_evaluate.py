@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 import torch
 
-from catmip_env.episode_stats import success_curve
-from catmip_env.events import EventEngine
-from catmip_env.map_sets import map_hash
+from catmip_env.engines.episode_stats import success_curve
+from catmip_env.engines.events import EventEngine
+from catmip_env.maps.map_sets import map_hash
 from catmip_rl import AMAT, AmatConfig, save_model
 from catmip_rl.amat.model import decision_order
 from catmip_rl.amat.onboard.execution import AmatExecutor

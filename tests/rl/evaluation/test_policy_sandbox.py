@@ -10,7 +10,7 @@ import textwrap
 import numpy as np
 import pytest
 
-from catmip_env.world import world_key
+from catmip_env.engines.world import world_key
 from catmip_rl.cli.main import main
 from catmip_rl.evaluation.evaluate import EvalSetting, evaluate
 from catmip_rl.evaluation.user_policy import PolicyError
@@ -39,7 +39,7 @@ POLICIES = textwrap.dedent(
             return engine.masks.argmax(-1)
 
     def _engines():
-        from catmip_env.events import EventEngine
+        from catmip_env.engines.events import EventEngine
         return [o for o in gc.get_objects() if isinstance(o, EventEngine)]
 
     class Walker:

@@ -103,7 +103,7 @@ WALKER = textwrap.dedent(
         '''PettingZoo level: finds the engine through the garbage collector and puts the rescuer next to
         the target (in-process it can; in the replay's worker there is no engine to find).'''
         def act(self, observations, infos):
-            from catmip_env.events import EventEngine
+            from catmip_env.engines.events import EventEngine
             for eng in (o for o in gc.get_objects() if isinstance(o, EventEngine)):
                 eng.state.pos[:, 0] = eng.state.target + (0, 1)
             active = (r for r in observations if infos[r]["active"])

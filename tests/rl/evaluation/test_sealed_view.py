@@ -10,7 +10,7 @@ import textwrap
 import pytest
 
 from catmip_env.config import make_config
-from catmip_env.world import BatchedWorld, world_key
+from catmip_env.engines.world import BatchedWorld, world_key
 from catmip_rl.evaluation.evaluate import EvalSetting, evaluate
 from catmip_rl.evaluation.methods import POLICY_SEED
 
@@ -68,7 +68,7 @@ def test_a_wrapped_planner_replays_chosen_maps_alone_as_in_the_batch(wrapper, is
 
 
 def test_chosen_maps_of_a_frozen_set_are_checked_against_their_own_hashes():
-    from catmip_env.map_sets import MapSetMismatch, check_maps, manifest
+    from catmip_env.maps.map_sets import MapSetMismatch, check_maps, manifest
 
     frozen = manifest("task2")["seeds"]["1000"]
     assert check_maps("task2", 1000, [frozen[700], frozen[3]], indices=[700, 3]).status == "verified"

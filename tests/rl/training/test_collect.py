@@ -83,7 +83,7 @@ def test_a_rescued_worlds_last_decisions_are_trained_with_advantage_r_minus_v():
 def test_shards_merged_as_records_give_the_whole_batchs_statistics():
     """What the Ray collector does with its workers' shards: concatenate their episode records and
     compute the statistics once; they equal those of one collector over all the worlds."""
-    from catmip_env.episode_stats import EpisodeRecords, training_stats
+    from catmip_env.engines.episode_stats import EpisodeRecords, training_stats
 
     cfg = make_config("task1", map_size=10, horizon_ticks=60)
     model = AMAT(AmatConfig(embed_dim=32))

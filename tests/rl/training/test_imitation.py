@@ -8,7 +8,7 @@ import pytest
 import torch
 
 from catmip_env import make_config
-from catmip_env.events import EventEngine
+from catmip_env.engines.events import EventEngine
 from catmip_env.planners.window import make_window_planner
 from catmip_rl.amat.config import AmatConfig
 from catmip_rl.amat.model import AMAT

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 import torch
 
-from catmip_env.events import EventEngine, random_valid_actions
+from catmip_env.engines.events import EventEngine, random_valid_actions
 from catmip_rl.amat.model import AMAT
 from catmip_rl.training.collect import Collector
 from catmip_rl.training.presets import make_train_config

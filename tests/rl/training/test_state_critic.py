@@ -11,7 +11,7 @@ import torch
 import torch.nn.functional as F
 
 from catmip_env import make_config
-from catmip_env.events import EventEngine
+from catmip_env.engines.events import EventEngine
 from catmip_env.planners.baselines import Nearest
 from catmip_rl.amat.config import AmatConfig
 from catmip_rl.amat.critic import StateCritic, critic_state

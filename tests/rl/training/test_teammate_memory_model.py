@@ -7,7 +7,7 @@ import pytest
 import torch
 
 from catmip_env import make_config
-from catmip_env.events import EventEngine
+from catmip_env.engines.events import EventEngine
 from catmip_rl.amat.config import AmatConfig
 from catmip_rl.amat.onboard.execution import CellGoalExecutor
 from catmip_rl.amat.pointer import make_model

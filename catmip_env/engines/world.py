@@ -27,7 +27,6 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from catmip_env.ascii_maps import parse_layout
-from catmip_env.chunks import WorldChunks
 from catmip_env.config import EnvConfig
 from catmip_env.constants import (
     CLUE,
@@ -40,6 +39,7 @@ from catmip_env.constants import (
     global_channels,
     local_channels,
 )
+from catmip_env.engines.chunks import WorldChunks
 from catmip_env.kernels.comms import estimated_cells
 from catmip_env.kernels.dynamics import Rules, perceive_at_reset, tick
 from catmip_env.kernels.mapgen import Episode, generate

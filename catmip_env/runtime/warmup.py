@@ -20,12 +20,12 @@ from typing import TextIO
 import numpy as np
 
 from catmip_env.config import make_config
-from catmip_env.events import EventEngine
-from catmip_env.files import atomic_path
-from catmip_env.numba_cache import sources_digest
+from catmip_env.engines.events import EventEngine
 from catmip_env.planners.baselines import PLANNERS, make_planner
 from catmip_env.planners.window import make_window_planner
 from catmip_env.play import play
+from catmip_env.runtime.files import atomic_path
+from catmip_env.runtime.numba_cache import sources_digest
 
 __all__ = ["compile_kernels", "compile_once", "is_compiled", "small_engine"]
 
@@ -84,4 +84,4 @@ def _play_every_planner() -> None:
 def compile_kernels(stream: TextIO | None = sys.stderr) -> float | None:
     """Compile (and cache) the env's kernels if they are not yet: a short episode with every planner in
     both goal modes. Returns the seconds it took, or None when there was nothing to do."""
-    return compile_once(Path(__file__).parent, "the env's numba kernels", _play_every_planner, stream)
+    return compile_once(Path(__file__).parents[1], "the env's numba kernels", _play_every_planner, stream)

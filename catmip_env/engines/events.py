@@ -18,12 +18,12 @@ from typing import NamedTuple
 import numpy as np
 
 from catmip_env.config import EnvConfig
+from catmip_env.engines.world import BatchedWorld
 from catmip_env.kernels.activation import M_ACTIVE, M_ELAPSED, M_FIELDS, assign_goals, start_activation
 from catmip_env.kernels.dynamics import Rules
 from catmip_env.kernels.goals import goal_cells
 from catmip_env.kernels.macro import action_masks, advance
 from catmip_env.kernels.primitive import DirectCall
-from catmip_env.world import BatchedWorld
 
 __all__ = ["EventEngine", "EventResult", "GOAL_MODES", "random_valid_actions"]
 

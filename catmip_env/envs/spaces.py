@@ -4,7 +4,7 @@ An observation has named parts (``global_map``, ``local_map``, ``agent_class`` a
 level, ``heading``), in table order. ``obs_format="dict"`` gives them as a ``Dict`` next to the action
 mask; ``obs_format="flat"`` ravels them in C order and concatenates them in that order into one float32
 ``Box`` vector, whose layout is :func:`flat_layout`. The table itself is the class docstring of
-:class:`catmip_env.search_rescue_v0.SearchRescueEnv`.
+:class:`catmip_env.envs.search_rescue_v0.SearchRescueEnv`.
 """
 
 from __future__ import annotations

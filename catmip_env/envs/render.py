@@ -19,9 +19,9 @@ from pathlib import Path
 import numpy as np
 
 from catmip_env.constants import CLUE, EXPLORED, OBSTACLE, TARGET, WALL
-from catmip_env.events import EventEngine
-from catmip_env.files import atomic_path
+from catmip_env.engines.events import EventEngine
 from catmip_env.play import Policy, play
+from catmip_env.runtime.files import atomic_path
 
 __all__ = [
     "render_world",
@@ -79,7 +79,7 @@ def _line(img: np.ndarray, p0: tuple[float, float], p1: tuple[float, float], col
 
 
 def render_world(engine, b: int = 0, cell: int = 16, links: bool = True) -> np.ndarray:
-    """Picture of world ``b`` of a :class:`~catmip_env.world.BatchedWorld` (uint8, H x W x 3)."""
+    """Picture of world ``b`` of a :class:`~catmip_env.engines.world.BatchedWorld` (uint8, H x W x 3)."""
     st = engine.state
     grid = st.grid[b]
     h, w = grid.shape

@@ -18,7 +18,7 @@ gates and every choice (the project chose models and planners on it); and **test
 (:data:`TEST_SEED`), which nothing was tuned or chosen on: an entry plays it once, after every choice
 is frozen.
 
-``python -m catmip_env.map_sets --write`` regenerates the manifests (maintainers, after a deliberate
+``python -m catmip_env.maps.map_sets --write`` regenerates the manifests (maintainers, after a deliberate
 change of map generation).
 """
 
@@ -36,8 +36,8 @@ from typing import Any
 import numpy as np
 
 from catmip_env.config import make_config
-from catmip_env.files import atomic_path
-from catmip_env.world import BatchedWorld
+from catmip_env.engines.world import BatchedWorld
+from catmip_env.runtime.files import atomic_path
 
 __all__ = [
     "FROZEN_SEEDS",

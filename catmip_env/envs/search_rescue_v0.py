@@ -2,7 +2,7 @@
 
 Use :func:`parallel_env` (or :func:`env` for the AEC API through ``parallel_to_aec``)::
 
-    from catmip_env import search_rescue_v0
+    from catmip_env.envs import search_rescue_v0
     env = search_rescue_v0.parallel_env(preset="task2", level="macro", comm_sigma=4.0)
     obs, infos = env.reset(seed=0)
 
@@ -16,7 +16,7 @@ that results reported on ``v0`` are never compared with another world unawares. 
 default keeps the old behaviour (an ``EnvConfig`` field such as ``teammate_memory``), a fix that only
 changes an error message, and speed-ups that keep every episode identical keep the suffix.
 ``tests/env/test_fingerprint.py`` (golden hashes of whole episodes) and the frozen map sets
-(``catmip_env/frozen_maps/``, checked by every evaluation) fail on a change that moves results.
+(``catmip_env/maps/frozen_maps/``, checked by every evaluation) fail on a change that moves results.
 
 **Version history.**
 
@@ -38,9 +38,10 @@ from pettingzoo.utils import parallel_to_aec, wrappers
 
 from catmip_env.config import EnvConfig, make_config
 from catmip_env.constants import PRIMITIVE_ACTIONS
-from catmip_env.events import GOAL_MODES, INVALID_ACTION_MODES, EventEngine
-from catmip_env.render import RENDER_FPS, LiveWindow, render_ansi, render_world
-from catmip_env.spaces import (
+from catmip_env.engines.events import GOAL_MODES, INVALID_ACTION_MODES, EventEngine
+from catmip_env.engines.world import BatchedWorld, episode_index_array
+from catmip_env.envs.render import RENDER_FPS, LiveWindow, render_ansi, render_world
+from catmip_env.envs.spaces import (
     LEVELS,
     OBS_FORMATS,
     flat_layout,
@@ -55,7 +56,6 @@ from catmip_env.spaces import (
     replace_invalid_primitives,
     state_space,
 )
-from catmip_env.world import BatchedWorld, episode_index_array
 
 __all__ = ["SearchRescueEnv", "parallel_env", "env", "raw_env", "LEVELS", "OBS_FORMATS", "integer_action"]
 
@@ -302,7 +302,7 @@ class SearchRescueEnv(ParallelEnv):
         return obs, rewards_of, dict.fromkeys(agents, term), dict.fromkeys(agents, trunc), infos
 
     def _parse_actions(self, actions: dict[str, Any]) -> np.ndarray:
-        """The (1, N) int64 action array (see :func:`catmip_env.spaces.parse_actions`)."""
+        """The (1, N) int64 action array (see :func:`catmip_env.envs.spaces.parse_actions`)."""
         macro, agents = self.level == "macro", self.possible_agents
         applies = self.engine.active[0] if macro else np.ones(len(agents), np.bool_)
         kind, strict = (self.goal_mode if macro else "primitive"), self.invalid_action == "raise"

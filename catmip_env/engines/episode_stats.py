@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 
 from catmip_env.config import EnvConfig
-from catmip_env.events import EventEngine
+from catmip_env.engines.events import EventEngine
 
 __all__ = [
     "EpisodeRecords",

@@ -15,7 +15,7 @@ from __future__ import annotations
 import hashlib
 from pathlib import Path
 
-from catmip_env.files import atomic_path
+from catmip_env.runtime.files import atomic_path
 
 __all__ = ["refresh"]
 
