@@ -200,22 +200,15 @@ class SearchRescueEnv(ParallelEnv):
         self.agent_name_mapping = {a: i for i, a in enumerate(self.possible_agents)}
         self.agents: list[str] = []
         self._actions = np.zeros((1, n), np.int64)
-        self._actions_row = self._actions[0]
         self._invalid = np.zeros(n, np.bool_)  # actions replaced by "stay" at the last step
         self._invalid_count = np.zeros(n, np.int64)  # ... and since reset
         self._steps = 0
         self._flagged = False  # whether _invalid may hold a True (primitive level)
         self._all_legal = np.ones((n, self.num_actions), np.int8)
-        w = self.world  # the primitive level's outputs: from the view the world writes with each tick
-        compact = (w.obs_global[0], w.obs_local[0]) if compact_obs else None
-        self._output_args = (
-            self.possible_agents,
-            self._all_legal,
-            self._invalid,
-            self._invalid_count,
-            obs_format,
-            compact,
-        )
+        # the primitive level's outputs, from the view the world writes with each tick (arrays, no views:
+        # a pickled env keeps them the same objects)
+        self._output_args = (self.possible_agents, self._all_legal, self._invalid, self._invalid_count)
+        self._output_args += (obs_format,)
         self._window: LiveWindow | None = None
         self.state_space = state_space(config)
         parts = part_spaces(config, level, compact_obs)
@@ -276,7 +269,7 @@ class SearchRescueEnv(ParallelEnv):
 
     def _step_primitive(self, actions: dict[str, Any]):
         a = self._actions
-        if not plain_primitives(actions, self.possible_agents, self._actions_row):  # else parsed in full
+        if not plain_primitives(actions, self.possible_agents, a[0]):  # else parsed in full
             a = self._parse_actions(actions)
             self._invalid[:] = replace_invalid_primitives(
                 a[0], self.possible_agents, self.invalid_action == "raise"
@@ -288,7 +281,7 @@ class SearchRescueEnv(ParallelEnv):
             self._flagged = False
         self._steps += 1
         res, view = self.world.step_viewed(a)  # the tick and the observations in one kernel call
-        outputs = primitive_outputs(view, *self._output_args)
+        outputs = primitive_outputs(view, *self._output_args, self._compact_maps())
         return self._ended(res.rewards[0], bool(res.terminated[0]), bool(res.truncated[0]), *outputs)
 
     def _ended(self, rewards: np.ndarray, term: bool, trunc: bool, obs: dict, infos: dict):
@@ -312,7 +305,7 @@ class SearchRescueEnv(ParallelEnv):
     def _outputs(self, event_ticks: int) -> tuple[dict[str, Any], dict[str, dict[str, Any]]]:
         """Every robot's observation and info."""
         if self.level == "primitive":
-            return primitive_outputs(self.world.view(0), *self._output_args)
+            return primitive_outputs(self.world.view(0), *self._output_args, self._compact_maps())
         obs, masks = macro_observations(
             self.engine, 0, self.possible_agents, self.obs_format, self.compact_obs
         )
@@ -324,6 +317,10 @@ class SearchRescueEnv(ParallelEnv):
             if self.obs_format == "flat":
                 info["action_mask"] = masks[i]
         return obs, infos
+
+    def _compact_maps(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """``compact_obs``: world 0's uint8 maps (copied by the outputs); else None."""
+        return (self.world.obs_global[0], self.world.obs_local[0]) if self.compact_obs else None
 
     def state(self) -> np.ndarray:
         return self.world.ground_truth(0)

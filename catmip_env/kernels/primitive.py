@@ -80,6 +80,9 @@ class DirectCall:
         self.kernel = kernel
         self.entry: Any = None  # the compiled entry, once called: a caller in a hot loop may call it itself
 
+    def __getstate__(self) -> dict[str, Any]:
+        return {"kernel": self.kernel, "entry": None}  # the entry is this process's: found again when called
+
     def __call__(self, *args: Any) -> Any:
         if self.entry is None:
             self.entry = self.kernel.compile(tuple(numba.typeof(a) for a in args))

@@ -145,3 +145,22 @@ def test_a_direct_call_is_the_kernel_called_through_numba():
         assert [call(*args(w, a)) for call, w in zip(calls, worlds)] == [-1, -1]
         np.testing.assert_array_equal(worlds[0].obs_global, worlds[1].obs_global)
     assert direct(*args(worlds[0], np.full((1, 3), 9, np.int64))) == 0  # robot 0's action is out of range
+
+
+@pytest.mark.parametrize("fmt", list(FORMATS))
+def test_a_pickled_env_steps_as_the_original(fmt):
+    """Pickled mid-episode (the kernels' compiled entries are left out and found again), the copy steps
+    exactly as the env it was made from."""
+    import pickle
+
+    env = search_rescue_v0.parallel_env(preset="task2", level="primitive", comm_sigma=2.0, **FORMATS[fmt])
+    env.reset(seed=4)
+    env.step({a: 2 for a in env.agents})
+    copy = pickle.loads(pickle.dumps(env))
+    for k in range(40):
+        acts = {a: (k + i) % 4 for i, a in enumerate(env.agents)}
+        (o1, r1, *_, i1), (o2, r2, *_, i2) = env.step(acts), copy.step(acts)
+        assert r1 == r2
+        for a in env.agents:
+            np.testing.assert_equal(o1[a], o2[a])
+            np.testing.assert_equal(i1[a], i2[a])
