@@ -129,8 +129,8 @@ class BatchedWorld:
         self._action_shape = (b, n)
         self._result = StepResult(self._rewards, self._terminated, self._truncated)  # the same buffers
         # a tick on one thread without the teammates' heading estimate: tick and observations in one call
-        small = self.num_worlds * self.num_robots * self.shape[0] * self.shape[1] < TICK_SPLIT_WORK
-        self._one_call = (small or self.chunks.threads == 1) and not self.heading
+        self._small = self.num_worlds * self.num_robots * self.shape[0] * self.shape[1] < TICK_SPLIT_WORK
+        self._one_call = (self._small or self.chunks.threads == 1) and not self.heading
         self._tick_observe = DirectCall(tick_and_observe)
         self._tick_observe_view = DirectCall(tick_observe_view)
         self._robot_view = DirectCall(robot_view)
@@ -270,7 +270,7 @@ class BatchedWorld:
             tick(live[w], a[w], k, self.rules, self._rewards[w], self._terminated[w], self._truncated[w])
             self.observe_chunk(live, w)
 
-        if self.num_worlds * self.num_robots * self.shape[0] * self.shape[1] < TICK_SPLIT_WORK:
+        if self._small:
             step_chunk(slice(0, self.num_worlds))
         else:
             self.chunks.run(step_chunk)
@@ -283,8 +283,7 @@ class BatchedWorld:
         a = self._kernel_actions(actions)
         if not self._one_call:
             return self.step(a), self.view(0)
-        (g, l, c, h, _), f32 = self._view_shapes, np.float32
-        view = np.empty(g, f32), np.empty(l, f32), np.empty(c, f32), np.empty(h, f32), self._info
+        view = self._new_view(self._info)
         call = self._tick_observe_view.entry or self._tick_observe_view  # in a hot loop: the entry itself
         self._raise_out_of_range(a, call(*self._kernel_args, 0, a, *view))
         return self._result, view
@@ -297,9 +296,11 @@ class BatchedWorld:
         self._robot_view(b, self.obs_global, self.obs_local, self.state.kernel, OBS_SCALE, *view)
         return view
 
-    def _new_view(self) -> tuple[np.ndarray, ...]:
+    def _new_view(self, info: np.ndarray | None = None) -> tuple[np.ndarray, ...]:
+        """New float arrays for a view, and ``info`` for its numbers (None: a new array too)."""
         (g, l, c, h, i), f32 = self._view_shapes, np.float32
-        return np.empty(g, f32), np.empty(l, f32), np.empty(c, f32), np.empty(h, f32), np.empty(i, np.int64)
+        info = np.empty(i, np.int64) if info is None else info
+        return np.empty(g, f32), np.empty(l, f32), np.empty(c, f32), np.empty(h, f32), info
 
     def _kernel_actions(self, actions: np.ndarray) -> np.ndarray:
         """``actions`` as a C-contiguous int64 (B, N) array (the kernels' layout), else a ValueError

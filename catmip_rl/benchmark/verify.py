@@ -257,11 +257,11 @@ def _play_batch(batch: dict, results: dict, plan: tuple, size: int, bar) -> bool
     return False
 
 
-def _on_ray(todo: dict, plan: tuple, runner: Runner, progress: bool, machines: list) -> dict:
+def _on_ray(todo: dict, plan: tuple, runner: Runner, progress: bool) -> tuple[dict, list[dict[str, Any]]]:
     """:func:`verify_run` of every job of ``todo`` (key -> (entry, run)) as Ray tasks, each run's files
     (and its policy's folder) shipped by content from this folder, the clone's root; a run whose worker
     was lost past Ray's retries is refused in one line, as on the local pool, and so is a run whose files
-    cannot be sent. Every machine that played a run is added to ``machines``, once."""
+    cannot be sent. Also every machine that played a run, once each."""
     results, items, keys = {}, [], []
     for key, (entry, k) in todo.items():
         try:
@@ -277,11 +277,12 @@ def _on_ray(todo: dict, plan: tuple, runner: Runner, progress: bool, machines: l
         unit="runs",
         on_error=lambda i, _e: (_lost(keys[i][1]), None),
     )
+    machines: list[dict[str, Any]] = []
     for key, (result, machine) in zip(keys, out):
         results[key] = result
         if machine is not None and machine not in machines:
             machines.append(machine)
-    return results
+    return results, machines
 
 
 def _verify_shipped(item: tuple) -> dict[str, Any]:
@@ -341,9 +342,8 @@ def verify_board(
     results: dict[tuple[str, int], dict[str, Any]] = {}
     played_on = [machine_info(host=platform.node())]  # the machines that replayed runs: here, or Ray's
     if backend == "ray":
-        played_on = []
         runner = Runner("ray", jobs, ray_address)
-        results = _on_ray(jobs_by_key, (seed, replay, fresh), runner, progress, played_on)
+        results, played_on = _on_ray(jobs_by_key, (seed, replay, fresh), runner, progress)
     else:
         bar = progress_bar(len(tasks), "verify", progress, unit="run", leave=True)
         try:
