@@ -42,7 +42,8 @@ from catmip_env.constants import (
 from catmip_env.engines.chunks import WorldChunks
 from catmip_env.kernels.comms import estimated_cells
 from catmip_env.kernels.dynamics import Rules, perceive_at_reset, tick
-from catmip_env.kernels.mapgen import Episode, generate
+from catmip_env.kernels.episodes import load_episodes
+from catmip_env.kernels.mapgen import first_block, raise_map_error, target_exclusion_side
 from catmip_env.kernels.observe import observe as build_observations
 from catmip_env.kernels.primitive import DirectCall, robot_view, tick_and_observe, tick_observe_view
 from catmip_env.kernels.rng import seed_state
@@ -114,7 +115,6 @@ class BatchedWorld:
         self.shape = cfg.map_shape
         self.noisy = cfg.slam_noise > 0.0
         self.memory, self.heading = cfg.teammate_memory, cfg.teammate_heading
-        self._layout = parse_layout(cfg.layout) if cfg.layout is not None else None
         self.state = WorldState.allocate(self.num_worlds, self.num_robots, self.shape, self.noisy)
         b, n, (h, w), c = self.num_worlds, self.num_robots, self.shape, cfg.num_classes
         self.obs_global = np.zeros((b, n, global_channels(c), h, w), np.uint8)
@@ -139,6 +139,7 @@ class BatchedWorld:
         self._kernel_args = (self.state.kernel, self.rules, self._rewards, self._terminated, self._truncated,
                              self.noisy, self.memory, self.obs_global, self.obs_local, OBS_SCALE)  # fmt: skip
         self.world_keys = np.zeros(self.num_worlds, np.int64)  # each world's key (world_key)
+        self._episode_args = episode_rules(cfg, self._speed_of, self._rescue_of, self._comm_of)
         self.seed(seed)
 
     # -- seeding and reset ---------------------------------------------------------------------
@@ -173,13 +174,21 @@ class BatchedWorld:
         if len(episode_indices):
             self.next_episode = max(self.next_episode, int(episode_indices.max()) + 1)
         st = self.state
-        for b, k in zip(idx, episode_indices):
-            self._load_episode(int(b), int(k))
         mask = np.zeros(self.num_worlds, np.bool_)
         mask[idx] = True
         st.pending_reward[idx] = 0.0
-        perceive_at_reset(mask, st.kernel, self.rules)
-        self.observe(mask)
+        codes = np.zeros(len(idx), np.int64)
+
+        def reset_chunk(w: slice) -> None:  # each thread's worlds: maps, streams, perception, observations
+            load_episodes(idx, episode_indices, w.start, w.stop, self.base_seed, st.kernel, self.world_keys,
+                          codes, *self._episode_args)  # fmt: skip
+            if not codes.any():
+                perceive_at_reset(mask[w], st.kernel_chunk(w), self.rules)
+                self.observe_chunk(mask, w)
+
+        self.chunks.run(reset_chunk, mask)
+        if codes.any():
+            raise_map_error(self.cfg, int(codes[np.flatnonzero(codes)[0]]))
         return idx
 
     def episode_streams(self, episode: int) -> tuple[np.random.Generator, np.uint64]:
@@ -187,55 +196,6 @@ class BatchedWorld:
         seq = np.random.SeedSequence(self.base_seed, spawn_key=(episode,))
         map_seq, dyn_seq = seq.spawn(2)
         return np.random.default_rng(map_seq), seed_state(dyn_seq)
-
-    def _load_episode(self, b: int, episode: int) -> None:
-        cfg, st = self.cfg, self.state
-        map_rng, dyn_state = self.episode_streams(episode)
-        if self._layout is None:
-            ep = generate(cfg, map_rng)
-        else:
-            ep = self._layout_episode(map_rng)
-        st.grid[b] = ep.grid
-        st.target[b] = ep.target
-        st.pos[b] = ep.robots
-        st.heading[b] = ep.headings
-        st.cls[b] = ep.classes
-        st.speed[b] = self._speed_of[ep.classes]
-        st.can_rescue[b] = self._rescue_of[ep.classes]
-        st.belief[b] = 0
-        st.comp[b] = 0
-        st.goal[b] = -1
-        st.rng[b] = dyn_state
-        st.ticks[b] = 0
-        st.moves[b] = 0
-        st.collisions[b] = 0
-        st.found_tick[b] = -1
-        st.informed_tick[b] = -1
-        st.rescue_tick[b] = -1
-        st.heard_tick[b] = -1
-        st.done[b] = False
-        st.episode[b] = episode
-        self.world_keys[b] = world_key(self.base_seed, episode)
-        # drawn after the map, and only if there is a choice: the maps never depend on it
-        pick = int(map_rng.integers(len(self._comm_of))) if len(self._comm_of) > 1 else 0
-        st.comm_sigma[b] = self._comm_of[pick]
-
-    def _layout_episode(self, rng: np.random.Generator) -> Episode:
-        lay, cfg = self._layout, self.cfg
-        classes = np.empty(cfg.num_robots, np.int64)
-        for i, slot in enumerate(cfg.team):
-            if slot == "random":
-                slot = cfg.random_classes[int(rng.integers(len(cfg.random_classes)))]
-            classes[i] = cfg.class_index(slot)
-        return Episode(
-            grid=lay.grid,
-            robots=lay.robots,
-            headings=np.array(lay.headings, np.int64),
-            classes=classes,
-            target=lay.target,
-            corner=-1,
-            doors=np.zeros((0, 2), np.int64),
-        )
 
     def world_indices(self, worlds: np.ndarray | None) -> np.ndarray:
         """Indices of the worlds named by a bool mask (B,) or an index list (None: all); checked."""
@@ -262,8 +222,14 @@ class BatchedWorld:
         if self._one_call:  # too little work a tick to be worth a second thread: one kernel call
             self._raise_out_of_range(a, self._tick_observe(live, a, *self._kernel_args[:-1]))
             return self._result
-        if a.size and (a.min() < 0 or a.max() > 3):
+        if a.size and (a.min() < 0 or a.max() > 3):  # checked before any chunk moves
             self._raise_out_of_range(a, int(np.flatnonzero((a < 0) | (a > 3))[0]))
+        if not self.heading:  # each thread's chunk in one kernel call
+            _, rules, r, te, tr, noisy, memory, g, l = self._kernel_args[:-1]
+            chunk_state, call = self.state.kernel_chunk, self._tick_observe
+            self.chunks.run(lambda w: call(live[w], a[w], chunk_state(w), rules, r[w], te[w], tr[w], noisy,
+                                           memory, g[w], l[w]))  # fmt: skip
+            return self._result
 
         def step_chunk(w: slice) -> None:
             k = self.state.kernel_chunk(w)
@@ -378,6 +344,23 @@ class BatchedWorld:
         out[:, 3] = (st.belief[worlds] & EXPLORED).any(axis=1)
         out[np.arange(len(g))[:, None], 4 + cls, pos[..., 0], pos[..., 1]] = 1.0
         return out if b is None else out[0]
+
+
+def episode_rules(cfg: EnvConfig, speed_of: np.ndarray, rescue_of: np.ndarray, comm_of: np.ndarray) -> tuple:
+    """What :func:`~.kernels.episodes.load_episodes` draws an episode of ``cfg`` from (its arguments
+    after the codes): the team's slots, the classes' speeds and roles, the communication ranges, the
+    map generator's numbers, and the fixed layout if there is one."""
+    team = [-1 if slot == "random" else cfg.class_index(slot) for slot in cfg.team]
+    lay = parse_layout(cfg.layout) if cfg.layout is not None else None
+    layout = (
+        (np.zeros((0, 0), np.uint8), np.zeros((0, 2), np.int64), np.zeros(0, np.int64), np.zeros(2, np.int64))
+        if lay is None
+        else (lay.grid, lay.robots, np.array(lay.headings, np.int64), np.array(lay.target, np.int64))
+    )
+    size = cfg.map_size
+    return (np.array(team, np.int64), np.array([cfg.class_index(k) for k in cfg.random_classes], np.int64),
+            speed_of, rescue_of, comm_of, size, cfg.obstacles, cfg.wall_prob, target_exclusion_side(size),
+            first_block(cfg), *layout)  # fmt: skip
 
 
 def world_key(seed: int, episode: int) -> int:

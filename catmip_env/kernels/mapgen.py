@@ -36,7 +36,15 @@ from catmip_env.kernels.placement import (
 )
 from catmip_env.kernels.rng import block_randint, block_uniform
 
-__all__ = ["Episode", "generate", "room_bounds", "target_exclusion_side"]
+__all__ = [
+    "Episode",
+    "draw_map",
+    "first_block",
+    "generate",
+    "raise_map_error",
+    "room_bounds",
+    "target_exclusion_side",
+]
 
 
 @dataclass
@@ -137,7 +145,7 @@ def _doorway_zone(s: int, doors: np.ndarray, nd: int) -> np.ndarray:
 
 
 @njit(cache=True)
-def _generate(
+def draw_map(
     s: int,
     n: int,
     n_obs: int,
@@ -167,6 +175,20 @@ def _generate(
     return place_obstacles_and_target(n_obs, excl_side, corner, zone, u, p, grid, robots, info)
 
 
+def first_block(cfg: EnvConfig) -> int:
+    """How many uniforms a map's first attempt draws (4x as many at each retry)."""
+    return 4 * (cfg.map_size // 5 + 1) ** 2 + 4 * cfg.num_robots + 2 * cfg.obstacles + 64
+
+
+def raise_map_error(cfg: EnvConfig, code: int) -> None:
+    """The error of a map that :func:`draw_map` could not draw (code != 0); nothing for 0."""
+    if code == NO_SPAWN_ROOM:
+        s, n = cfg.map_size, cfg.num_robots
+        raise ValueError(f"the spawn box of a {s}x{s} map has fewer free cells than {n} robots")
+    if code == NO_TARGET:  # pragma: no cover - needs an adversarial config
+        raise RuntimeError("map generation found no reachable target; lower num_obstacles")
+
+
 def generate(cfg: EnvConfig, rng: np.random.Generator) -> Episode:
     """Draw one episode's map, team and spawn poses from ``rng`` (see module docstring)."""
     s, n = cfg.map_size, cfg.num_robots
@@ -180,9 +202,9 @@ def generate(cfg: EnvConfig, rng: np.random.Generator) -> Episode:
     headings = np.empty(n, np.int64)
     doors = np.empty((2 * (s // 5 + 1) ** 2, 2), np.int64)
     info = np.zeros(4, np.int64)
-    block = 4 * (s // 5 + 1) ** 2 + 4 * n + 2 * cfg.obstacles + 64
+    block = first_block(cfg)
     while True:
-        code = _generate(
+        code = draw_map(
             s,
             n,
             cfg.obstacles,
@@ -198,10 +220,7 @@ def generate(cfg: EnvConfig, rng: np.random.Generator) -> Episode:
         if code != OUT_OF_UNIFORMS:
             break
         block *= 4  # rare: many redraws; continue the same stream with a bigger block
-    if code == NO_SPAWN_ROOM:
-        raise ValueError(f"the spawn box of a {s}x{s} map has fewer free cells than {n} robots")
-    if code == NO_TARGET:  # pragma: no cover - needs an adversarial config
-        raise RuntimeError("map generation found no reachable target; lower num_obstacles")
+    raise_map_error(cfg, code)
     return Episode(
         grid=grid,
         robots=robots,

@@ -85,6 +85,10 @@ class WorldState:
             heard_goal=np.full((b, n, n, 2), -1, np.int64),
         )
 
+    def __getstate__(self) -> dict:
+        # the kernel values and chunks are views: a pickled view comes back a copy of its own
+        return {k: v for k, v in self.__dict__.items() if k not in ("kernel", "_chunks")}
+
     def copy(self) -> WorldState:
         """A deep copy (new arrays)."""
         return WorldState(**{f.name: getattr(self, f.name).copy() for f in fields(self)})

@@ -55,15 +55,17 @@ def test_an_event_engine_on_threads_steps_exactly_as_on_one(goal_mode, preset, o
         _same(*[_snapshot(e) for e in engines])
 
 
+@pytest.mark.parametrize("heading", [False, True], ids=["one-call-chunks", "heading-estimate"])
 @pytest.mark.parametrize("split_work", [0, None], ids=["split", "too-little-work-to-split"])
-def test_a_batched_world_on_threads_ticks_exactly_as_on_one(split_work, monkeypatch):
+def test_a_batched_world_on_threads_ticks_exactly_as_on_one(split_work, heading, monkeypatch):
     """On two threads (the tick split however little work it is) or on the caller's (too little work
-    to be worth a second thread: ``TICK_SPLIT_WORK``), the same worlds as on one."""
+    to be worth a second thread: ``TICK_SPLIT_WORK``), the same worlds as on one; a chunk's tick and
+    observations in one kernel call, or (teammates drawn at their estimated cells) in two."""
     import catmip_env.engines.world
 
     if split_work is not None:
         monkeypatch.setattr(catmip_env.engines.world, "TICK_SPLIT_WORK", split_work)
-    cfg = make_config("task2", slam_noise=0.05)
+    cfg = make_config("task2", slam_noise=0.05, teammate_memory=heading, teammate_heading=heading)
     worlds = [BatchedWorld(cfg, num_worlds=5, seed=1, threads=t) for t in (1, 2)]
     for w in worlds:
         w.reset()
@@ -95,3 +97,57 @@ def test_chunks_run_only_those_that_hold_a_named_world():
     assert ran == [(slice(3, 6), caller)]
     with pytest.raises(RuntimeError, match="boom"):  # a chunk's error reaches the caller
         chunks.run(lambda w: (_ for _ in ()).throw(RuntimeError("boom")) if w.start == 6 else None)
+
+
+def test_a_bad_action_on_split_threads_is_refused_before_any_world_moves(monkeypatch):
+    import catmip_env.engines.world
+
+    monkeypatch.setattr(catmip_env.engines.world, "TICK_SPLIT_WORK", 0)
+    cfg = make_config("task2")
+    w = BatchedWorld(cfg, num_worlds=6, seed=2, threads=2)
+    w.reset()
+    before = _snapshot(w)
+    actions = np.zeros((6, cfg.num_robots), np.int64)
+    actions[4, 1] = 7  # in the second thread's chunk
+    with pytest.raises(ValueError, match="primitive action 7 of robot_1 in world 4 is out of range"):
+        w.step(actions)
+    _same(before, _snapshot(w))
+
+
+def test_a_pickled_world_on_threads_steps_as_the_one_it_was_made_from(monkeypatch):
+    """The workers stay behind (started again in the copy), and so do the state's chunk views (a
+    pickled view would come back a detached copy: the copy's threads would write into it)."""
+    import pickle
+
+    import catmip_env.engines.world
+
+    monkeypatch.setattr(catmip_env.engines.world, "TICK_SPLIT_WORK", 0)
+    cfg = make_config("task3")
+    a = BatchedWorld(cfg, num_worlds=6, seed=5, threads=2)
+    a.reset()
+    a.step(np.ones((6, cfg.num_robots), np.int64))  # workers started, chunk views built
+    b = pickle.loads(pickle.dumps(a))
+    rng = np.random.default_rng(3)
+    for _ in range(40):
+        actions = rng.integers(0, 4, size=(6, cfg.num_robots))
+        for w in (a, b):
+            w.step(actions)
+            if w.state.done.any():
+                w.reset(worlds=w.state.done)
+    _same(_snapshot(a), _snapshot(b))
+
+
+def test_a_chunk_runs_on_a_worker_thread_that_ends_with_its_chunks():
+    import gc
+
+    chunks = WorldChunks(4, threads=2)
+    ran = {}
+    chunks.run(lambda w: ran.setdefault(w.start, threading.current_thread()))
+    worker = ran[2]
+    assert worker is not threading.current_thread() and worker.daemon and worker.is_alive()
+    chunks.run(lambda w: ran.setdefault(-w.start, threading.current_thread()))
+    assert ran[-2] is worker  # the same worker again, not a new thread each step
+    del chunks
+    gc.collect()
+    worker.join(timeout=5)
+    assert not worker.is_alive()
