@@ -110,6 +110,23 @@ def test_executor_checks_need_every_action_the_same_and_no_slowdown(run_all, tmp
     assert status["eval decisions, same actions as torch, task3-full, 64 worlds"] == "**unmet**"
 
 
+def test_thread_checks_judge_split_steps_and_say_when_a_step_stays_on_one_thread(run_all, tmp_path):
+    def row(engine, worlds, speedup, split=True):
+        return {"engine": engine, "task": "task2", "worlds": worlds, "threads": 2, "split": split,
+                "seconds_per_step": 1e-3, "speedup": speedup, "same_worlds_as_one_thread": True}  # fmt: skip
+
+    rows = [row("primitive", 256, 1.65), row("primitive", 64, 0.97, split=False), row("event", 64, 1.55),
+            row("event", 16, 0.99)]  # fmt: skip
+    _write(tmp_path, threads={"machine": {}, "rows": rows})
+    md, _ = run_all.write_summary(tmp_path, {})
+    status = _status(tmp_path)
+    assert status["primitive engine task2, B = 256, 2 threads"] == "met"
+    assert status["event engine task2, B = 64, 2 threads"] == "**unmet**"  # the 1.6x bar
+    assert status["event engine task2, B = 16, 2 threads"] == "**unmet**"  # never slower from 16 worlds
+    assert status["primitive engine task2, B = 64, 2 threads"] == ""  # one thread either way: not judged
+    assert "below the split, one thread either way" in md.read_text()
+
+
 def test_the_peer_check_is_the_ratio_to_pogema_and_not_measured_without_it(run_all, tmp_path):
     row = {
         "env": "search_rescue_v0",
