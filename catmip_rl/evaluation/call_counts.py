@@ -10,7 +10,8 @@ key                    calls counted (one per outermost call: a call made inside
 ``worlds``             ``BatchedWorld.__init__`` / ``.reset``, ``EventEngine.__init__`` / ``.reset`` (the
                        PettingZoo and TorchRL envs, and the rollout planner's simulations, build these)
 ``map_sets``           ``catmip_env.maps.map_sets.manifest`` / ``map_hashes`` / ``check_maps``
-``mapgen``             ``catmip_env.kernels.mapgen.generate`` (every generated map, resets included)
+``mapgen``             ``catmip_env.kernels.mapgen.generate`` (a map) and ``catmip_env.kernels.episodes.
+                       load_episodes`` (a reset's worlds: one call per reset and thread)
 ``planners_made``      ``Planner.__init__`` (every planner: subclasses call it)
 ``planner_decisions``  ``act`` of ``Planner``, of every class in its subclasses' MROs that defines its own
                        (the relay rule, the rollout planner) and of ``WindowPlanner``
@@ -56,6 +57,7 @@ _FUNCTIONS = (  # (module, function, kind)
     ("catmip_env.maps.map_sets", "map_hashes", "map_sets"),
     ("catmip_env.maps.map_sets", "check_maps", "map_sets"),
     ("catmip_env.kernels.mapgen", "generate", "mapgen"),
+    ("catmip_env.kernels.episodes", "load_episodes", "mapgen"),
 )
 _PLANNER_MODULES = ("catmip_env.planners.baselines", "catmip_env.planners.rollout")
 
