@@ -11,6 +11,7 @@ thread) pays at every step.
 
 from __future__ import annotations
 
+import os
 import threading
 import weakref
 from collections.abc import Callable
@@ -76,6 +77,7 @@ class WorldChunks:
         self.slices = [slice(int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:])]
         self.threads = len(self.slices)
         self._workers: list[_Worker] = []
+        self._pid = 0  # the process the workers run in: a forked child starts its own
 
     def __getstate__(self) -> dict[str, Any]:
         return {**self.__dict__, "_workers": []}  # threads are this process's: started again when needed
@@ -90,8 +92,9 @@ class WorldChunks:
             for w in busy:
                 fn(w)
             return
-        if not self._workers:
+        if not self._workers or self._pid != os.getpid():  # none yet, or a fork's copy of the parent's
             self._workers = [_Worker(f"catmip-worlds-{k}") for k in range(1, self.threads)]
+            self._pid = os.getpid()
         started = list(zip(self._workers, busy[1:]))
         for worker, chunk in started:
             worker.start(fn, chunk)

@@ -151,3 +151,33 @@ def test_a_chunk_runs_on_a_worker_thread_that_ends_with_its_chunks():
     gc.collect()
     worker.join(timeout=5)
     assert not worker.is_alive()
+
+
+def _step_in_child(world, actions, out):
+    world.step(actions)
+    out.put(world.state.pos.copy())
+
+
+def test_a_forked_copy_of_a_world_on_threads_starts_its_own_workers(monkeypatch):
+    """A fork copies the parent's workers as objects, not as threads: the child must not wait on them."""
+    import multiprocessing
+
+    import catmip_env.engines.world
+
+    monkeypatch.setattr(catmip_env.engines.world, "TICK_SPLIT_WORK", 0)
+    cfg = make_config("task2")
+    w = BatchedWorld(cfg, num_worlds=6, seed=4, threads=2)
+    w.reset()
+    actions = np.ones((6, cfg.num_robots), np.int64)
+    w.step(actions)  # the parent's worker is running
+    ctx = multiprocessing.get_context("fork")
+    out = ctx.Queue()
+    child = ctx.Process(target=_step_in_child, args=(w, actions, out), daemon=True)
+    child.start()
+    try:
+        pos = out.get(timeout=60)  # a child waiting on the parent's worker would never answer
+    finally:
+        child.terminate()
+        child.join(timeout=10)
+    w.step(actions)
+    np.testing.assert_array_equal(pos, w.state.pos)
