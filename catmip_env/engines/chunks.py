@@ -3,15 +3,17 @@
 The kernels release the GIL (``nogil``) and a world's episode depends only on its own arrays, so a step
 on several threads gives exactly the results of one thread.
 
-Each extra thread is a worker of its own that waits on a lock for the next chunk: handing a chunk over
+Each extra thread is a worker of its own that waits on a queue for the next chunk: handing a chunk over
 and back this way takes about 18 us on a 2-core test machine, against 30 us through a
-``ThreadPoolExecutor``'s queue and future, which a primitive tick of 256 Task-2 worlds (0.85 ms on one
-thread) pays at every step.
+``ThreadPoolExecutor``'s work items and futures, which a primitive tick of 256 Task-2 worlds (0.85 ms on
+one thread) pays at every step.
 """
 
 from __future__ import annotations
 
+import itertools
 import os
+import queue
 import threading
 import weakref
 from collections.abc import Callable
@@ -22,47 +24,59 @@ import numpy as np
 __all__ = ["WorldChunks"]
 
 
-def _serve(box: list, go: threading.Lock, done: threading.Lock) -> None:
-    """A worker's loop: wait for ``go``, run ``box[0](box[1])``, keep its error in ``box[2]``, release
-    ``done``; a job of None ends the loop."""
+_JOB_IDS = itertools.count(1)
+
+
+def _serve(jobs: queue.SimpleQueue, done: queue.SimpleQueue) -> None:
+    """A worker's loop: run each ``(job, fn, chunk)`` it is given, report ``(job, error or None)``; a job
+    of None ends the loop. Nothing of a job is kept while it waits for the next (a chunk's function
+    holds its world: the world could never be freed)."""
     while True:
-        go.acquire()
-        fn = box[0]
-        if fn is None:
+        item = jobs.get()
+        if item is None:
             return
+        job, fn, chunk = item
+        error = None
         try:
-            fn(box[1])
-        except BaseException as error:  # noqa: BLE001 - handed to the caller, which raises it
-            box[2] = error
-        box[0] = box[1] = None
-        done.release()
-
-
-def _stop(box: list, go: threading.Lock) -> None:
-    box[0] = None
-    go.release()
+            fn(chunk)
+        except BaseException as raised:  # noqa: BLE001 - handed to the caller, which raises it
+            error = raised
+        del item, fn, chunk
+        done.put((job, error))
+        del error
 
 
 class _Worker:
-    """A daemon thread that runs one chunk at a time; it ends when its owner is collected."""
+    """A daemon thread that runs the chunks it is given in order; it ends when its owner is collected."""
 
     def __init__(self, name: str) -> None:
-        self._box: list[Any] = [None, None, None]
-        self._go, self._done = threading.Lock(), threading.Lock()
-        self._go.acquire()
-        self._done.acquire()
-        args = (self._box, self._go, self._done)
-        threading.Thread(target=_serve, args=args, name=name, daemon=True).start()
-        weakref.finalize(self, _stop, self._box, self._go)
+        self._jobs: queue.SimpleQueue = queue.SimpleQueue()
+        self._done: queue.SimpleQueue = queue.SimpleQueue()
+        self._finished: dict[int, BaseException | None] = {}  # reports read while waiting for another job
+        self.thread = threading.Thread(target=_serve, args=(self._jobs, self._done), name=name, daemon=True)
+        self.thread.start()
+        weakref.finalize(self, self._jobs.put, None)
 
-    def start(self, fn: Callable[[slice], None], chunk: slice) -> None:
-        self._box[:] = [fn, chunk, None]
-        self._go.release()
+    def start(self, fn: Callable[[slice], None], chunk: slice) -> int:
+        """Give the worker ``fn(chunk)``; the job's id, for :meth:`wait`."""
+        job = next(_JOB_IDS)
+        self._jobs.put((job, fn, chunk))
+        return job
 
-    def wait(self) -> BaseException | None:
-        """Wait for the chunk started last; its error, if it raised one."""
-        self._done.acquire()
-        error, self._box[2] = self._box[2], None
+    def wait(self, job: int) -> BaseException | None:
+        """Wait for ``job`` to end; its error, if it raised one. An interrupt (Ctrl-C) meanwhile is raised
+        once the job has ended: the job is still writing its worlds."""
+        interrupted = None
+        while job not in self._finished:
+            try:
+                ended, error = self._done.get()
+            except BaseException as raised:  # noqa: BLE001 - raised below, after the job
+                interrupted = raised
+                continue
+            self._finished[ended] = error
+        error = self._finished.pop(job)
+        if interrupted is not None:
+            raise interrupted
         return error
 
 
@@ -95,14 +109,18 @@ class WorldChunks:
         if not self._workers or self._pid != os.getpid():  # none yet, or a fork's copy of the parent's
             self._workers = [_Worker(f"catmip-worlds-{k}") for k in range(1, self.threads)]
             self._pid = os.getpid()
-        started = list(zip(self._workers, busy[1:]))
-        for worker, chunk in started:
-            worker.start(fn, chunk)
+        if any(threading.current_thread() is worker.thread for worker in self._workers):
+            for w in busy:  # called from inside one of this run's chunks: one after another, here
+                fn(w)
+            return
+        started: list[tuple[_Worker, int]] = []
         errors: list[BaseException | None] = []
         try:
+            for worker, chunk in zip(self._workers, busy[1:]):
+                started.append((worker, worker.start(fn, chunk)))
             fn(busy[0])
         finally:
-            errors = [worker.wait() for worker, _ in started]
+            errors = [worker.wait(job) for worker, job in started]
         for error in errors:
             if error is not None:
                 raise error

@@ -47,6 +47,7 @@ from catmip_env.kernels.mapgen import first_block, raise_map_error, target_exclu
 from catmip_env.kernels.observe import observe as build_observations
 from catmip_env.kernels.primitive import DirectCall, robot_view, tick_and_observe, tick_observe_view
 from catmip_env.kernels.rng import seed_state
+from catmip_env.kernels.seeding import int_words
 from catmip_env.kernels.state import WorldState
 
 __all__ = [
@@ -150,6 +151,7 @@ class BatchedWorld:
         if not isinstance(seed, (int, np.integer)) or seed < 0:
             raise ValueError(f"seed must be a non-negative int or None, got {seed!r}")
         self.base_seed = int(seed)
+        self._seed_words = int_words(self.base_seed)  # as the reset's kernel takes it
         self.next_episode = 0
 
     def reset(
@@ -180,7 +182,7 @@ class BatchedWorld:
         codes = np.zeros(len(idx), np.int64)
 
         def reset_chunk(w: slice) -> None:  # each thread's worlds: maps, streams, perception, observations
-            load_episodes(idx, episode_indices, w.start, w.stop, self.base_seed, st.kernel, self.world_keys,
+            load_episodes(idx, episode_indices, w.start, w.stop, self._seed_words, st.kernel, self.world_keys,
                           codes, *self._episode_args)  # fmt: skip
             if not codes.any():
                 perceive_at_reset(mask[w], st.kernel_chunk(w), self.rules)

@@ -27,7 +27,7 @@ def load_episodes(
     episodes: np.ndarray,  # (K,) int64 their episode indices
     lo: int,  # only the worlds in [lo, hi) are loaded (one thread's chunk)
     hi: int,
-    seed: int,  # the base seed
+    seed: np.ndarray,  # the base seed's 32-bit words (seeding.int_words)
     s: KernelState,
     world_keys: np.ndarray,  # (B,) int64 out
     codes: np.ndarray,  # (K,) int64 out: 0, or the map generator's error code
@@ -47,11 +47,14 @@ def load_episodes(
     layout_target: np.ndarray,  # (2,) int64
 ) -> None:
     """Load episode ``episodes[j]`` of ``seed`` into world ``worlds[j]`` for the worlds of the chunk; a
-    world whose map cannot be drawn sets ``codes[j]`` and ends the call (the caller raises)."""
+    world whose map cannot be drawn is left as it was, sets ``codes[j]`` and ends the call (the caller
+    raises)."""
     n = team.shape[0]
     classes = np.empty(n, np.int64)
     doors = np.empty((2 * (size // 5 + 1) ** 2, 2), np.int64)
     info = np.zeros(4, np.int64)
+    grid = np.empty((size, size), np.uint8)  # a map is drawn here, then copied into its world
+    robots, headings = np.empty((n, 2), np.int64), np.empty(n, np.int64)
     for j in range(worlds.shape[0]):
         b, ep = worlds[j], episodes[j]
         if b < lo or b >= hi:
@@ -68,11 +71,14 @@ def load_episodes(
             s.heading[b] = layout_headings
             s.target[b] = layout_target
         else:
-            code = _draw(g, block, size, n, obstacles, wall_prob, excl_side, s.grid[b], s.pos[b],
-                         s.heading[b], doors, info)  # fmt: skip
+            code = _draw(g, block, size, n, obstacles, wall_prob, excl_side, grid, robots, headings, doors,
+                         info)  # fmt: skip
             codes[j] = code
-            if code != 0:
+            if code != 0:  # the world is left as it was
                 return
+            s.grid[b] = grid
+            s.pos[b] = robots
+            s.heading[b] = headings
             s.target[b, 0], s.target[b, 1] = info[1], info[2]
         for i in range(n):
             s.cls[b, i] = classes[i]

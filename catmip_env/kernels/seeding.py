@@ -20,6 +20,7 @@ import numpy as np
 from numba import njit, uint64
 
 __all__ = [
+    "int_words",
     "pcg64_integer",
     "pcg64_stream",
     "pcg64_uniforms",
@@ -51,10 +52,20 @@ def _mix(x: np.uint64, y: np.uint64) -> np.uint64:
     return r ^ (r >> _S16)
 
 
-@njit(cache=True, nogil=True)
-def _int_words(x: int, out: np.ndarray, k: int) -> int:
-    """The 32-bit words of a non-negative int, low first (0 is one word), written from ``out[k]``;
-    returns the next free index."""
+def int_words(x: int) -> np.ndarray:
+    """The 32-bit words of a non-negative int, low first (0 is one word), as numpy's seed sequence takes
+    an int's entropy: (K,) uint64."""
+    words = [x & 0xFFFFFFFF]
+    x >>= 32
+    while x > 0:
+        words.append(x & 0xFFFFFFFF)
+        x >>= 32
+    return np.array(words, np.uint64)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _episode_words(x: int, out: np.ndarray, k: int) -> int:
+    """:func:`int_words` of an int64 >= 0 written from ``out[k]``; the next free index."""
     v = uint64(x)
     out[k] = v & _M32
     k += 1
@@ -67,13 +78,14 @@ def _int_words(x: int, out: np.ndarray, k: int) -> int:
 
 
 @njit(cache=True, nogil=True)
-def seed_words(seed: int, episode: int, child: int, n64: int) -> np.ndarray:
-    """``SeedSequence(seed, spawn_key=(episode, child)).generate_state(n64, np.uint64)``."""
-    entropy = np.zeros(POOL + 4, np.uint64)  # the run entropy padded to the pool, then the spawn key
-    k = _int_words(seed, entropy, 0)
-    k = max(k, POOL)
-    k = _int_words(episode, entropy, k)
-    k = _int_words(child, entropy, k)
+def seed_words(seed: np.ndarray, episode: int, child: int, n64: int) -> np.ndarray:
+    """``SeedSequence(s, spawn_key=(episode, child)).generate_state(n64, np.uint64)``, ``seed`` being
+    :func:`int_words` of ``s`` (any int >= 0)."""
+    k = seed.shape[0]
+    entropy = np.zeros(max(k, POOL) + 3, np.uint64)  # the run entropy padded to the pool, the spawn key
+    entropy[:k] = seed
+    k = _episode_words(episode, entropy, max(k, POOL))
+    k = _episode_words(child, entropy, k)
     pool = np.zeros(POOL, np.uint64)
     hc = np.full(1, _INIT_A, np.uint64)
     for i in range(POOL):
@@ -116,8 +128,9 @@ def _step(g: np.ndarray) -> None:
 
 
 @njit(cache=True, nogil=True)
-def pcg64_stream(seed: int, episode: int, child: int) -> np.ndarray:
-    """``numpy.random.PCG64(SeedSequence(seed, spawn_key=(episode, child)))`` as a (6,) stream."""
+def pcg64_stream(seed: np.ndarray, episode: int, child: int) -> np.ndarray:
+    """``numpy.random.PCG64(SeedSequence(s, spawn_key=(episode, child)))`` as a (6,) stream (``seed``:
+    :func:`int_words` of ``s``)."""
     w = seed_words(seed, episode, child, 4)
     g = np.zeros(6, np.uint64)
     g[2] = (w[2] << _ONE) | (w[3] >> _S64M)  # increment = (initseq << 1) | 1

@@ -8,12 +8,12 @@ import catmip_env.engines.world as world_module
 from catmip_env import BatchedWorld, make_config
 from catmip_env.engines.world import world_key
 from catmip_env.kernels import mapgen
-from catmip_env.kernels.placement import NO_SPAWN_ROOM
 from catmip_env.kernels.rng import seed_state
-from catmip_env.kernels.seeding import pcg64_integer, pcg64_stream, pcg64_uniforms, seed_words
+from catmip_env.kernels.seeding import int_words, pcg64_integer, pcg64_stream, pcg64_uniforms, seed_words
 
-# one-word and two-word seeds and episodes, the edges of a word, and the largest an engine takes
+# one-word to five-word seeds, one- and two-word episodes, the edges of a word, the largest episode
 CASES = [(0, 0), (1, 2), (2**32 - 1, 7), (2**32, 3), (2**63 - 1, 2**32 + 5), (20261201, 2**62 - 1)]
+CASES += [(2**63, 1), (2**64 - 1, 9), (2**64, 0), (3**80, 2**40)]
 CASES += [(int(s), int(e)) for s, e in np.random.default_rng(5).integers(0, 2**62, size=(40, 2))]
 
 
@@ -21,13 +21,13 @@ CASES += [(int(s), int(e)) for s, e in np.random.default_rng(5).integers(0, 2**6
 def test_seed_words_are_numpys_seed_sequence(seed, episode):
     for child in (0, 1, 2):
         expected = np.random.SeedSequence(seed, spawn_key=(episode, child)).generate_state(3, np.uint64)
-        assert np.array_equal(seed_words(seed, episode, child, 3), expected)
+        assert np.array_equal(seed_words(int_words(seed), episode, child, 3), expected)
 
 
 @pytest.mark.parametrize("seed, episode", CASES)
 def test_a_pcg64_stream_draws_what_numpys_generator_draws(seed, episode):
     map_seq, _ = np.random.SeedSequence(seed, spawn_key=(episode,)).spawn(2)
-    numpy_rng, g = np.random.default_rng(map_seq), pcg64_stream(seed, episode, 0)
+    numpy_rng, g = np.random.default_rng(map_seq), pcg64_stream(int_words(seed), episode, 0)
     state = numpy_rng.bit_generator.state["state"]
     assert (int(g[0]) << 64 | int(g[1]), int(g[2]) << 64 | int(g[3])) == (state["state"], state["inc"])
     draws = np.random.default_rng(episode % 1000)
@@ -64,11 +64,12 @@ def test_a_reset_loads_the_worlds_the_python_streams_draw(name, threads, monkeyp
     kw = dict(CONFIGS[name])
     cfg = make_config(kw.pop("preset"), **kw)
     episodes = np.array([0, 1, 2, 9, 2**40, 77, 3, 5], np.int64)
-    w = BatchedWorld(cfg, num_worlds=len(episodes), seed=2**33 + 17, threads=threads)
+    seed = 2**33 + 17 if threads == 1 else 2**64 + 17  # any int >= 0, as numpy takes it
+    w = BatchedWorld(cfg, num_worlds=len(episodes), seed=seed, threads=threads)
     w.reset(episode_indices=episodes)
     st = w.state
     for b, k in enumerate(episodes):
-        ep, dyn, key, sigma = _python_world(cfg, 2**33 + 17, int(k))
+        ep, dyn, key, sigma = _python_world(cfg, seed, int(k))
         assert np.array_equal(st.grid[b], ep.grid) and np.array_equal(st.pos[b], ep.robots)
         assert np.array_equal(st.heading[b], ep.headings) and np.array_equal(st.cls[b], ep.classes)
         assert tuple(st.target[b]) == ep.target and st.rng[b] == dyn and w.world_keys[b] == key
@@ -89,18 +90,24 @@ def test_a_map_that_needs_a_bigger_block_goes_on_with_the_same_stream(monkeypatc
         assert w.state.rng[b] == dyn
 
 
-def test_a_map_the_generator_cannot_draw_is_a_clear_error(monkeypatch):
-    def no_room(worlds, episodes, lo, hi, seed, s, keys, codes, *rules):
-        codes[0] = NO_SPAWN_ROOM
-
-    monkeypatch.setattr(world_module, "load_episodes", no_room)
-    with pytest.raises(ValueError, match="spawn box of a 20x20 map has fewer free cells than 3 robots"):
-        BatchedWorld(make_config("task2"), num_worlds=2, seed=0).reset()
+def test_a_map_the_generator_cannot_draw_is_a_clear_error_and_leaves_its_world_as_it_was():
+    cfg = make_config("task1", map_size=10, wall_prob=1.0, team=["explorer"] * 12)  # some episodes fail
+    w = BatchedWorld(cfg, num_worlds=1, seed=0)
+    for k in range(40):
+        before = {f: getattr(w.state, f).copy() for f in ("grid", "pos", "heading", "target", "episode")}
+        try:
+            w.reset(episode_indices=[k])
+        except ValueError as error:
+            assert "spawn box of a 10x10 map has fewer free cells than 12 robots" in str(error)
+            for f, v in before.items():
+                np.testing.assert_array_equal(getattr(w.state, f), v, err_msg=f)
+            return
+    pytest.fail("no episode of 12 robots on a 10x10 map failed to spawn")
 
 
 def test_the_dynamics_state_is_seed_state_of_the_dynamics_child():
     seq = np.random.SeedSequence(11, spawn_key=(4,)).spawn(2)[1]
-    assert seed_words(11, 4, 1, 1)[0] == seed_state(seq)
+    assert seed_words(int_words(11), 4, 1, 1)[0] == seed_state(seq)
 
 
 def test_a_layouts_episodes_draw_their_random_slots_and_ranges_from_the_map_stream(monkeypatch):

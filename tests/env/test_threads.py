@@ -181,3 +181,74 @@ def test_a_forked_copy_of_a_world_on_threads_starts_its_own_workers(monkeypatch)
         child.join(timeout=10)
     w.step(actions)
     np.testing.assert_array_equal(pos, w.state.pos)
+
+
+def test_a_dropped_world_on_threads_is_freed_with_its_workers():
+    """A worker keeps nothing of its last chunk: the chunk's function holds its world."""
+    import gc
+    import weakref
+
+    before = threading.active_count()
+    cfg = make_config("task2", teammate_memory=True, teammate_heading=True)
+    refs = []
+    for _ in range(4):
+        w = BatchedWorld(cfg, num_worlds=4, seed=0, threads=2)
+        w.reset()  # the workers' last job: a reset's chunk
+        refs.append(weakref.ref(w))
+        e = EventEngine(cfg, num_worlds=4, seed=0, threads=2)
+        e.reset()
+        e.step(random_valid_actions(e.masks, np.random.default_rng(0)))  # the last job: a step's chunk
+        refs.append(weakref.ref(e))
+    del w, e
+    gc.collect()
+    assert [r() for r in refs] == [None] * len(refs)
+    for thread in threading.enumerate():
+        if thread.name.startswith("catmip-worlds"):
+            thread.join(timeout=5)
+    assert threading.active_count() == before
+
+
+def test_an_interrupt_while_a_worker_runs_is_raised_once_its_chunk_has_ended():
+    """Ctrl-C while the caller waits: the worker is still writing its worlds; the interrupt is raised
+    after that, and the next run waits for its own chunks again."""
+    import os
+    import signal
+    import time
+
+    chunks = WorldChunks(2, threads=2)
+    out = np.zeros(2)
+
+    def slow(w, value):
+        if w.start == 1:
+            time.sleep(0.5)
+        out[w] = value
+
+    chunks.run(lambda w: None)  # the worker started
+    timer = threading.Timer(0.1, os.kill, (os.getpid(), signal.SIGINT))
+    timer.start()
+    with pytest.raises(KeyboardInterrupt):
+        chunks.run(lambda w: slow(w, 1.0))
+    assert out.tolist() == [1.0, 1.0]  # raised only after the worker's chunk
+    timer.join()
+    chunks.run(lambda w: slow(w, 2.0))
+    assert out.tolist() == [2.0, 2.0]  # not returned before the worker's chunk ended
+
+
+def test_a_run_inside_a_chunk_runs_every_chunk():
+    chunks = WorldChunks(6, threads=3)
+    seen, lock = [], threading.Lock()
+
+    def outer(w):
+        if w.start in (0, 2):  # from the caller's thread and from a worker's
+            chunks.run(lambda inner: _record(seen, lock, (w.start, inner.start)))
+
+    chunks.run(outer)
+    assert sorted(seen) == [(0, 0), (0, 2), (0, 4), (2, 0), (2, 2), (2, 4)]
+    seen.clear()
+    chunks.run(lambda w: _record(seen, lock, w.start))  # later runs as before
+    assert sorted(seen) == [0, 2, 4]
+
+
+def _record(seen, lock, item):
+    with lock:
+        seen.append(item)
