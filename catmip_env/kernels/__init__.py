@@ -3,7 +3,9 @@
 * ``state`` — :class:`WorldState`, the worlds' arrays (one row per world), and their kernel views;
 * ``rng`` — each world's random stream (a counter-based generator the kernels draw from), and the block
   of uniforms a map is drawn from;
+* ``seeding`` — numpy's seed sequences, PCG64 and ``Generator`` draws, bit for bit, inside a kernel;
 * ``mapgen`` — the maps: ``generate``, rooms with their walls and doorways;
+* ``episodes`` — a reset's new episodes loaded into their worlds in one call a thread;
 * ``placement`` — what a map holds besides its rooms: obstacles, target, clues, the robots' start;
 * ``sensing`` — what a robot sees, and the maps it shares with the robots it is linked to;
 * ``dynamics`` — one primitive tick: moves, collisions, perception, communication, rewards;
