@@ -223,13 +223,20 @@ def test_an_interrupt_while_a_worker_runs_is_raised_once_its_chunk_has_ended():
             time.sleep(0.5)
         out[w] = value
 
+    def interrupt(signum, frame):  # Ctrl-C's, on a signal of our own (a test runner may own SIGINT's)
+        raise KeyboardInterrupt
+
     chunks.run(lambda w: None)  # the worker started
-    timer = threading.Timer(0.1, os.kill, (os.getpid(), signal.SIGINT))
-    timer.start()
-    with pytest.raises(KeyboardInterrupt):
-        chunks.run(lambda w: slow(w, 1.0))
-    assert out.tolist() == [1.0, 1.0]  # raised only after the worker's chunk
-    timer.join()
+    previous = signal.signal(signal.SIGUSR1, interrupt)
+    timer = threading.Timer(0.1, os.kill, (os.getpid(), signal.SIGUSR1))
+    try:
+        timer.start()
+        with pytest.raises(KeyboardInterrupt):
+            chunks.run(lambda w: slow(w, 1.0))
+        assert out.tolist() == [1.0, 1.0]  # raised only after the worker's chunk
+    finally:
+        timer.join()
+        signal.signal(signal.SIGUSR1, previous)
     chunks.run(lambda w: slow(w, 2.0))
     assert out.tolist() == [2.0, 2.0]  # not returned before the worker's chunk ended
 
