@@ -114,7 +114,6 @@ class WorldChunks:
                 fn(w)
             return
         started: list[tuple[_Worker, int]] = []
-        errors: list[BaseException | None] = []
         try:
             for worker, chunk in zip(self._workers, busy[1:]):
                 started.append((worker, worker.start(fn, chunk)))
