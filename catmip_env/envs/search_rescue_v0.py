@@ -207,8 +207,8 @@ class SearchRescueEnv(ParallelEnv):
         self._all_legal = np.ones((n, self.num_actions), np.int8)
         # the primitive level's outputs, from the view the world writes with each tick (arrays, no views:
         # a pickled env keeps them the same objects)
-        self._output_args = (
-            self.possible_agents, self._all_legal, self._invalid, self._invalid_count, obs_format)  # fmt: skip
+        agents, legal = self.possible_agents, self._all_legal
+        self._output_args = (agents, legal, self._invalid, self._invalid_count, obs_format)
         self._window: LiveWindow | None = None
         self.state_space = state_space(config)
         parts = part_spaces(config, level, compact_obs)
