@@ -1,7 +1,7 @@
 """The one-time compilation of the numba kernels, announced and timed.
 
 The first episode on a machine compiles every kernel it meets (the env's world, macro-actions and
-planners: about 45 s on two cores; AMAT's execution in ``catmip_rl``: about 45 s more) and numba
+planners: about 50 s on two cores; AMAT's execution in ``catmip_rl``: about 45 s more) and numba
 caches them under the package's ``__pycache__``; later runs load them in a second. :func:`compile_once`
 does such a compilation up front when it has not been done for these sources on this CPU, saying so and
 how long it took, so that a first command does not sit silent (``catmip`` and the demos call
